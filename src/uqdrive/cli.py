@@ -1,0 +1,39 @@
+"""The `uqdrive` command: small utilities beside the DVC stages.
+
+Each subcommand lives in the module that owns its logic and exposes ``main(argv)``;
+this file only routes, so importing it stays cheap (no torch or pybullet until needed).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "bench": ("uqdrive.bench", "speed benchmarks; `uqdrive bench --help` lists them"),
+    "bound": ("uqdrive.uq.cli", "sample counts of each estimation scheme for (theta, gamma)"),
+    "frames": ("uqdrive.sim.frames", "write one example camera frame per weather to docs/"),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: uqdrive COMMAND [ARGS...]", "", "commands:"]
+    lines += [f"  {name:<8} {help_}" for name, (_, help_) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in {"-h", "--help"}:
+        print(_usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"uqdrive: unknown command {name!r}; choose one of {sorted(COMMANDS)}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(COMMANDS[name][0])
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
