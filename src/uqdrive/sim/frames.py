@@ -1,0 +1,69 @@
+"""``uqdrive frames``: one example camera frame per weather, to eyeball the simulator.
+
+Writes ``<weather>.png`` (camera resolution, RGB) and ``weathers.png``: the weathers side
+by side, top row as rendered, bottom row as the network sees it (grey 64x48, enlarged).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .autopilot import Autopilot
+from .config import ScenarioConfig, WeatherConfig
+from .env import DrivingEnv
+
+WEATHERS = ("clear_noon", "afternoon", "rain", "fog")
+
+
+def find_conf(start: Path | None = None) -> Path:
+    """The repo's ``conf/`` directory: searched upwards from the working directory, then from this file."""
+    for base in (start or Path.cwd(), Path(__file__).resolve()):
+        for d in (base, *base.parents):
+            if (d / "conf" / "weather").is_dir():
+                return d / "conf"
+    raise FileNotFoundError("no conf/weather directory found; pass --conf")
+
+
+def network_view(rgb: np.ndarray, size=(64, 48)) -> np.ndarray:
+    """Grey, area-downsampled image as the data stage feeds it to the network."""
+    return cv2.resize(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), size, interpolation=cv2.INTER_AREA)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="uqdrive frames", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="docs/frames", help="output folder (default: docs/frames)")
+    parser.add_argument("--scenario", default="obstacle", help="scenario yaml name in conf/scenario/")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--time", type=float, default=2.0, help="seconds of autopilot driving before the snapshot")
+    parser.add_argument("--noise", type=float, default=0.0, help="pixel noise sigma (fraction of full intensity)")
+    parser.add_argument("--conf", type=Path, default=None, help="Hydra conf/ folder (default: found from the repo)")
+    args = parser.parse_args(argv)
+
+    conf = args.conf or find_conf()
+    scenario = ScenarioConfig.from_yaml(conf / "scenario" / f"{args.scenario}.yaml")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    tiles = []
+    with DrivingEnv() as env:
+        for name in WEATHERS:
+            weather = WeatherConfig.from_yaml(conf / "weather" / f"{name}.yaml")
+            obs = env.reset(args.seed, scenario, weather, noise=args.noise)
+            pilot = Autopilot(env.route, env.vehicle_config, control_hz=env.control_hz, seed=args.seed)
+            info = env.last_info
+            while info["t"] < args.time - 1e-9 and not info["done"]:
+                action = pilot.act(info)
+                obs, info = env.step(action.steer, action.speed)
+            bgr = np.ascontiguousarray(obs[..., ::-1])
+            cv2.imwrite(str(out / f"{name}.png"), bgr)
+            h, w = bgr.shape[:2]
+            grey = cv2.resize(network_view(obs), (w, h), interpolation=cv2.INTER_NEAREST)
+            tile = np.vstack([bgr, cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)])
+            cv2.putText(tile, name, (3, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+            tiles.append(tile)
+    cv2.imwrite(str(out / "weathers.png"), np.hstack(tiles))
+    print(f"wrote {len(WEATHERS) + 1} images to {out}")
+    return 0

@@ -1,0 +1,162 @@
+"""pybullet bodies of a scenario: ground, road, markings, props and the ego car.
+
+Road and markings are visual-only so they never take part in collision checks; the obstacle
+car, scenery and the roundabout island have collision shapes. Nothing here is ever stepped
+by the physics engine: the ego pose is set kinematically and collisions are queried.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pybullet as p
+
+from .config import VehicleConfig
+from .geometry import ScenarioGeometry
+
+_MAX_TRIANGLES = 2500  # pybullet caps vertices per mesh (8192 on some builds); 3 per triangle
+_CHASSIS_CLEARANCE = 0.25  # collision box starts above the ground so it never touches it
+_ASPHALT_Z, _MARKING_Z = 0.01, 0.025
+
+
+def _rgba(color) -> list[float]:
+    return [float(color[0]), float(color[1]), float(color[2]), 1.0]
+
+
+def _yaw_quat(yaw: float) -> list[float]:
+    return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
+
+
+class World:
+    """Static bodies of one scenario plus the ego car, in one pybullet client."""
+
+    def __init__(self, client, geometry: ScenarioGeometry, vehicle: VehicleConfig):
+        self.client = client
+        self.geometry = geometry
+        cfg = geometry.config
+        client.resetSimulation()
+        self.road_ids: list[int] = []
+        self._collidable: list[tuple[int, float, float, float]] = []  # id, x, y, bounding radius
+
+        xmin, ymin, xmax, ymax = geometry.bounds
+        cx, cy = (xmin + xmax) / 2, (ymin + ymax) / 2
+        half = max(xmax - xmin, ymax - ymin) / 2 + cfg.scenery_extent + 300.0
+        ground = client.createVisualShape(p.GEOM_BOX, halfExtents=[half, half, 0.05], rgbaColor=_rgba(cfg.ground_color))
+        self.ground_id = client.createMultiBody(0, -1, ground, basePosition=[cx, cy, -0.05])
+
+        for tris in geometry.asphalt:
+            self.road_ids += self._mesh(tris, _ASPHALT_Z, cfg.asphalt_color)
+        self.marking_ids = self._mesh(geometry.markings, _MARKING_Z, cfg.marking_color)
+        self.road_ids += self.marking_ids
+
+        for ob in geometry.obstacles:
+            body = self.car_body(client, ob.size, ob.color, wheelbase=0.6 * ob.size[0])
+            client.resetBasePositionAndOrientation(body, [ob.x, ob.y, 0.0], _yaw_quat(ob.yaw))
+            self._collidable.append((body, ob.x, ob.y, 0.5 * math.hypot(ob.size[0], ob.size[1])))
+        if geometry.island is not None:
+            ix, iy, r = geometry.island
+            kerb = client.createVisualShape(p.GEOM_CYLINDER, radius=r + 0.3, length=0.2, rgbaColor=[0.75, 0.75, 0.72, 1])
+            client.createMultiBody(0, -1, kerb, basePosition=[ix, iy, 0.1])
+            col = client.createCollisionShape(p.GEOM_CYLINDER, radius=r, height=cfg.island_height)
+            vis = client.createVisualShape(p.GEOM_CYLINDER, radius=r, length=cfg.island_height,
+                                           rgbaColor=_rgba(np.clip(np.asarray(cfg.ground_color) * 1.15, 0, 1)))
+            body = client.createMultiBody(0, col, vis, basePosition=[ix, iy, cfg.island_height / 2])
+            self._collidable.append((body, ix, iy, r))
+        for item in geometry.scenery:
+            self._collidable.append((self._prop(item), item.x, item.y,
+                                     item.size[1] if item.kind == "tree" else 0.5 * math.hypot(*item.size[:2])))
+        self._col_xy = np.array([[c[1], c[2]] for c in self._collidable]).reshape(-1, 2)
+        self._col_r = np.array([c[3] for c in self._collidable])
+
+        self.vehicle = vehicle
+        self.ego_id = self.car_body(client, (vehicle.length, vehicle.width, vehicle.height), vehicle.color,
+                                    vehicle.wheelbase)
+        self._ego_radius = 0.5 * math.hypot(vehicle.length, vehicle.width)
+
+    def _mesh(self, triangles: np.ndarray, z: float, color) -> list[int]:
+        """Flat triangle mesh bodies (visual only); triangles made counter-clockwise so they face up."""
+        tris = np.asarray(triangles, float)
+        u, v = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+        area = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+        tris = np.where((area < 0)[:, None, None], tris[:, ::-1], tris)
+        ids = []
+        for start in range(0, len(tris), _MAX_TRIANGLES):
+            chunk = tris[start:start + _MAX_TRIANGLES].reshape(-1, 2)
+            verts = np.column_stack([chunk, np.full(len(chunk), z)])
+            vis = self.client.createVisualShape(p.GEOM_MESH, vertices=verts.tolist(), indices=list(range(len(verts))),
+                                                normals=[[0.0, 0.0, 1.0]] * len(verts), rgbaColor=_rgba(color))
+            ids.append(self.client.createMultiBody(0, -1, vis))
+        return ids
+
+    def _prop(self, item) -> int:
+        c = self.client
+        if item.kind == "tree":
+            trunk_r, crown_r, height = item.size
+            trunk_h = height - crown_r
+            col = c.createCollisionShape(p.GEOM_CYLINDER, radius=trunk_r, height=trunk_h,
+                                         collisionFramePosition=[0, 0, trunk_h / 2])
+            vis = c.createVisualShapeArray(
+                shapeTypes=[p.GEOM_CYLINDER, p.GEOM_SPHERE], radii=[trunk_r, crown_r], lengths=[trunk_h, 0],
+                rgbaColors=[_rgba(self.geometry.config.trunk_color), _rgba(item.color)],
+                visualFramePositions=[[0, 0, trunk_h / 2], [0, 0, trunk_h]])
+        else:
+            he = [item.size[0] / 2, item.size[1] / 2, item.size[2] / 2]
+            col = c.createCollisionShape(p.GEOM_BOX, halfExtents=he, collisionFramePosition=[0, 0, he[2]])
+            vis = c.createVisualShape(p.GEOM_BOX, halfExtents=he, rgbaColor=_rgba(item.color),
+                                      visualFramePosition=[0, 0, he[2]])
+        return c.createMultiBody(0, col, vis, basePosition=[item.x, item.y, 0.0], baseOrientation=_yaw_quat(item.yaw))
+
+    @staticmethod
+    def car_body(client, size, color, wheelbase: float) -> int:
+        """Car-shaped static body, origin on the ground under the body centre, x forward.
+
+        Body box, cabin and four dark wheels are visuals; the collision box spans the body
+        above a ground clearance so it only ever touches raised things.
+        """
+        length, width, height = size
+        body_h = 0.55 * height
+        base_z = 0.3
+        cabin_h = height - base_z - body_h
+        wheel_r = 0.33
+        wx, wy = wheelbase / 2, width / 2 - 0.12
+        shapes = [p.GEOM_BOX, p.GEOM_BOX] + [p.GEOM_CYLINDER] * 4
+        half = [[length / 2, width / 2, body_h / 2], [0.27 * length, 0.45 * width, cabin_h / 2]] + [[0, 0, 0]] * 4
+        positions = [[0, 0, base_z + body_h / 2], [-0.08 * length, 0, base_z + body_h + cabin_h / 2]]
+        positions += [[sx * wx, sy * wy, wheel_r] for sx in (1, -1) for sy in (1, -1)]
+        cabin_color = np.clip(np.asarray(color) * 0.55 + 0.12, 0, 1)
+        colors = [_rgba(color), _rgba(cabin_color)] + [[0.08, 0.08, 0.08, 1.0]] * 4
+        wheel_q = p.getQuaternionFromEuler([math.pi / 2, 0, 0])
+        vis = client.createVisualShapeArray(
+            shapeTypes=shapes, halfExtents=half, radii=[0, 0] + [wheel_r] * 4, lengths=[0, 0] + [0.25] * 4,
+            rgbaColors=colors, visualFramePositions=positions,
+            visualFrameOrientations=[[0, 0, 0, 1]] * 2 + [wheel_q] * 4)
+        col_h = height - _CHASSIS_CLEARANCE
+        col = client.createCollisionShape(p.GEOM_BOX, halfExtents=[length / 2, width / 2, col_h / 2],
+                                          collisionFramePosition=[0, 0, _CHASSIS_CLEARANCE + col_h / 2])
+        return client.createMultiBody(0, col, vis)
+
+    def set_ego_pose(self, x: float, y: float, yaw: float) -> None:
+        self.client.resetBasePositionAndOrientation(self.ego_id, [x, y, 0.0], _yaw_quat(yaw))
+
+    def hide_ego(self) -> None:
+        """Park the ego below the ground so its own camera does not see the bonnet."""
+        self.client.resetBasePositionAndOrientation(self.ego_id, [0.0, 0.0, -50.0], [0, 0, 0, 1])
+
+    def in_collision(self, x: float, y: float) -> bool:
+        """Exact pybullet overlap test of the ego (at its current pose) against nearby props."""
+        if not len(self._col_r):
+            return False
+        near = np.hypot(self._col_xy[:, 0] - x, self._col_xy[:, 1] - y) <= self._col_r + self._ego_radius + 0.1
+        for k in np.flatnonzero(near):
+            if self.client.getClosestPoints(self.ego_id, self._collidable[k][0], distance=0.0):
+                return True
+        return False
+
+    def clearance(self, max_distance: float = 5.0) -> float:
+        """Smallest distance (m) from the ego to any collidable body within max_distance."""
+        best = max_distance
+        for body, *_ in self._collidable:
+            for pt in self.client.getClosestPoints(self.ego_id, body, distance=max_distance):
+                best = min(best, pt[8])
+        return best

@@ -1,0 +1,154 @@
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+WEATHERS = {n: WeatherConfig.from_yaml(CONF / "weather" / f"{n}.yaml") for n in ("clear_noon", "afternoon", "rain", "fog")}
+OBSTACLE = ScenarioConfig(kind="obstacle", name="obstacle")
+
+
+@pytest.fixture(scope="module")
+def env():
+    with DrivingEnv() as e:
+        yield e
+
+
+def run(env, seed, weather, noise=0.0, steps=4, scenario=OBSTACLE, render=True):
+    frames = [env.reset(seed, scenario, weather, noise=noise, render=render)]
+    for k in range(steps):
+        obs, _ = env.step(0.1 * np.sin(k), 8.0)
+        frames.append(obs)
+    return frames, env.trajectory
+
+
+def test_observation_shape_and_render_off(env):
+    frames, traj = run(env, 0, WEATHERS["clear_noon"], steps=1)
+    assert frames[0].shape == (120, 160, 3) and frames[0].dtype == np.uint8
+    frames, _ = run(env, 0, WEATHERS["clear_noon"], steps=1, render=False)
+    assert frames == [None, None]
+    assert set(traj) == {"t", "x", "y", "yaw", "speed", "steering"} and len(traj["t"]) == 2
+    assert np.isclose(traj["t"][1], 1 / 15)
+
+
+def test_same_seed_same_path_and_images_different_seed_differs(env):
+    rain = WEATHERS["rain"]
+    a, ta = run(env, 7, rain, noise=0.05)
+    b, tb = run(env, 7, rain, noise=0.05)
+    c, tc = run(env, 8, rain, noise=0.05)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert all(np.array_equal(ta[k], tb[k]) for k in ta)
+    assert not np.array_equal(ta["y"], tc["y"])
+    assert not any(np.array_equal(x, y) for x, y in zip(a, c))
+
+
+def test_same_path_in_a_fresh_process_and_with_render_off(env):
+    _, here = run(env, 5, WEATHERS["clear_noon"], render=False)
+    _, rendered = run(env, 5, WEATHERS["rain"], noise=0.05, render=True)
+    code = ("import json, numpy as np\nfrom uqdrive.sim import DrivingEnv, ScenarioConfig\n"
+            "with DrivingEnv() as env:\n    env.reset(5, ScenarioConfig(kind='obstacle', name='obstacle'), render=False)\n"
+            "    for k in range(4): env.step(0.1 * np.sin(k), 8.0)\n"
+            "    print(json.dumps({k: v.tolist() for k, v in env.trajectory.items()}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    other = json.loads(out.strip().splitlines()[-1])
+    for key in here:
+        assert here[key].tolist() == other[key]
+        assert np.array_equal(here[key], rendered[key])
+
+
+def test_collision_driving_straight_into_the_obstacle(env):
+    scenario = dataclasses.replace(OBSTACLE, start_jitter_lateral=0.0, start_jitter_yaw_deg=0.0)
+    env.reset(0, scenario, render=False)
+    info = env.last_info
+    while not info["done"]:
+        _, info = env.step(0.0, env.vehicle_config.max_speed)
+    obstacle = env.geometry.obstacles[0]
+    assert info["termination"] == "collision" and info["collision"] and not info["off_road"]
+    gap = obstacle.x - info["x"] - (obstacle.size[0] + env.vehicle_config.length) / 2
+    assert -1.5 < gap <= 0.0
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(0.0, 0.0)
+
+
+def test_off_road_with_full_left_steering(env):
+    env.reset(0, ScenarioConfig(kind="straight"), render=False)
+    info = env.last_info
+    while not info["done"]:
+        _, info = env.step(1.0, 8.0)
+    assert info["termination"] == "off_road" and not info["collision"]
+    assert info["lateral_deviation"] > 0  # positive steering turns left, i.e. to +lateral
+    assert info["t"] < 3.0
+
+
+def test_timeout(env):
+    with DrivingEnv(horizon_s=1.0) as short:
+        short.reset(0, ScenarioConfig(kind="straight"), render=False)
+        info = short.last_info
+        while not info["done"]:
+            _, info = short.step(0.0, 8.0)
+    assert info["termination"] == "timeout" and np.isclose(info["t"], 1.0)
+
+
+def test_every_weather_changes_the_image(env):
+    clear = run(env, 0, WEATHERS["clear_noon"], steps=0)[0][0].astype(float)
+    for name in ("afternoon", "rain", "fog"):
+        img = run(env, 0, WEATHERS[name], steps=0)[0][0].astype(float)
+        assert np.abs(img - clear).mean() > 8, name
+
+
+def test_fog_lowers_contrast_with_depth(env):
+    fog = WEATHERS["fog"]
+    clear = run(env, 0, WEATHERS["clear_noon"], steps=0)[0][0].astype(float)
+    foggy = run(env, 0, fog, steps=0)[0][0].astype(float)
+    depth = env.camera.last_depth
+    fog_rgb = np.asarray(fog.fog_color) * 255 * fog.brightness
+    dist = np.abs(foggy - fog_rgb).mean(axis=2)
+    near, far = depth < 8, np.isfinite(depth) & (depth > 50)
+    assert near.sum() > 100 and far.sum() > 100
+    assert dist[far].mean() < 0.35 * dist[near].mean()
+    ratio_far = foggy[far].std() / clear[far].std()
+    ratio_near = foggy[near].std() / clear[near].std()
+    assert ratio_far < 0.5 * ratio_near
+
+
+def test_noise_only_adds_noise(env):
+    rain = WEATHERS["rain"]
+    clean, t_clean = run(env, 3, rain, noise=0.0)
+    noisy, t_noisy = run(env, 3, rain, noise=0.05)
+    for c, n in zip(clean, noisy):
+        diff = n.astype(float) - c.astype(float)
+        assert abs(diff.mean()) < 1.5 and 10 < diff.std() < 14
+        assert (np.abs(diff) > 5.5 * 12.75).mean() < 1e-3  # same rain streaks underneath
+    assert all(np.array_equal(t_clean[k], t_noisy[k]) for k in t_clean)
+
+
+def test_world_is_cached_per_scenario(env):
+    env.reset(0, OBSTACLE, render=False)
+    world = env.world
+    env.reset(1, ScenarioConfig(kind="obstacle", name="obstacle"), render=False)
+    assert env.world is world
+    env.reset(1, ScenarioConfig(kind="straight"), render=False)
+    assert env.world is not world
+
+
+def test_paved_area_and_route_geometry(env):
+    env.reset(0, ScenarioConfig(kind="roundabout"), render=False)
+    geo = env.geometry
+    cfg = geo.config
+    r_in, r_out = cfg.ring_radius - cfg.ring_width / 2, cfg.ring_radius + cfg.ring_width / 2
+    pts = np.array([[0, 0], [cfg.ring_radius, 0], [0, -r_out - 5], [r_out + 10, r_out + 10], [3.8, -17.2],
+                    [0, -r_in + 0.5]])
+    assert geo.is_paved(pts).tolist() == [False, True, True, False, True, False]  # island, ring, arm, grass, fillet
+    s, lat = geo.route.project(geo.route.points[::50] + [0.0, 0.0])
+    assert np.allclose(s, geo.route.s[::50], atol=1e-6) and np.allclose(lat, 0, atol=1e-6)
+    assert geo.is_paved(geo.route.points).all()
+    start = geo.route.sample(0.0)
+    assert np.isclose(start[2], np.pi / 2)
+    end = geo.route.sample(geo.route.length)
+    assert np.isclose(end[2], 0.0, atol=1e-6)
