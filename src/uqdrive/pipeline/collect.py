@@ -1,0 +1,111 @@
+"""The `collect` stage: autopilot episodes in one scenario → one parquet row per camera frame."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import mlflow
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+from tqdm import tqdm
+
+from uqdrive.data.frames import encode_png
+from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
+from uqdrive.files import write_json
+from uqdrive.parallel import map_ordered
+from uqdrive.plots import mosaic
+from uqdrive.sim import (Autopilot, AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig,
+                         WeatherConfig, check_noise)
+from uqdrive.tracking import stage_run
+
+
+def make_env(cfg: DictConfig) -> DrivingEnv:
+    return DrivingEnv(camera=CameraConfig.from_config(cfg.camera), vehicle=VehicleConfig.from_config(cfg.vehicle),
+                      control_hz=cfg.control_hz, horizon_s=cfg.horizon_s)
+
+
+def record_episode(env: DrivingEnv, autopilot_cfg: AutopilotConfig, seed: int, scenario: ScenarioConfig,
+                   weather: WeatherConfig, noise: float) -> tuple[dict[str, list], str, list[np.ndarray]]:
+    """Drive one episode; each row pairs the frame seen at step k with the autopilot's label for it."""
+    rows: dict[str, list] = {name: [] for name in RAW_SCHEMA.names if name not in {"scenario", "weather", "noise",
+                                                                                    "episode", "seed"}}
+    frames: list[np.ndarray] = []
+    obs = env.reset(seed, scenario, weather, noise)
+    autopilot = Autopilot(env.route, env.vehicle_config, autopilot_cfg, env.control_hz, seed=seed)
+    info = env.last_info
+    step = 0
+    while not env.done:
+        action = autopilot.act(info)
+        for key in ("t", "x", "y", "yaw", "speed", "lateral_deviation"):
+            rows[key].append(info[key])
+        rows["step"].append(step)
+        rows["steering"].append(action.label)
+        rows["applied_steering"].append(action.steer)
+        rows["image"].append(encode_png(obs))
+        frames.append(obs)
+        obs, info = env.step(action.steer, action.speed)
+        step += 1
+    return rows, info["termination"], frames
+
+
+_worker: dict = {}
+
+
+def _init_worker(cfg: dict) -> None:
+    """Per-process state: one env (own pybullet client) reused for every episode of this worker."""
+    plain = DictConfig(cfg)
+    _worker.update(cfg=plain, env=make_env(plain), autopilot=AutopilotConfig.from_config(plain.autopilot),
+                   scenario=ScenarioConfig.from_config(plain.scenario), weather=WeatherConfig.from_config(plain.weather))
+
+
+def _collect_one(episode: int) -> tuple[int, dict[str, list], str, list[np.ndarray]]:
+    cfg = _worker["cfg"]
+    seed = cfg.collect.base_seed + episode
+    rows, termination, frames = record_episode(_worker["env"], _worker["autopilot"], seed, _worker["scenario"],
+                                               _worker["weather"], cfg.noise)
+    picks = np.linspace(0, len(frames) - 1, cfg.collect.mosaic_per_episode + 2)[1:-1].astype(int)
+    return seed, rows, termination, [frames[i] for i in picks]
+
+
+def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.ndarray]) -> Iterator[dict[str, list]]:
+    """Yield one column batch per episode, in episode order whatever the worker count."""
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    results = map_ordered(_collect_one, range(cfg.collect.episodes), cfg.collect.workers, _init_worker, (plain,))
+    progress = tqdm(results, total=cfg.collect.episodes, desc=f"collect {cfg.scenario.name}", unit="episode",
+                    disable=not cfg.progress)
+    try:
+        for episode, (seed, rows, termination, picks) in enumerate(progress):
+            outcomes[termination] += 1
+            mosaic_frames.extend(picks)
+            n = len(rows["step"])
+            yield {"scenario": [cfg.scenario.name] * n, "weather": [cfg.weather.name] * n, "noise": [cfg.noise] * n,
+                   "episode": [episode] * n, "seed": [seed] * n, **rows}
+    finally:
+        if "env" in _worker:  # in-process run (workers=1): release the pybullet client
+            _worker.pop("env").close()
+
+
+def run_collect(cfg: DictConfig) -> dict:
+    scenario = ScenarioConfig.from_config(cfg.scenario)
+    WeatherConfig.from_config(cfg.weather)
+    check_noise(cfg.noise)
+    if cfg.collect.episodes < 1:
+        raise ValueError(f"collect.episodes={cfg.collect.episodes} must be >= 1")
+    out = Path(cfg.paths.raw) / f"{scenario.name}.parquet"
+    outcomes: Counter = Counter()
+    mosaic_frames: list[np.ndarray] = []
+    frames = write_table_batches(out, RAW_SCHEMA, iter_episodes(cfg, outcomes, mosaic_frames))
+    metrics = {"episodes": cfg.collect.episodes, "frames": frames,
+               "route_complete_fraction": outcomes["route_complete"] / cfg.collect.episodes,
+               **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")}}
+    write_json(Path(cfg.paths.metrics) / "collect" / f"{scenario.name}.json", metrics)
+    mosaic_path = Path(cfg.paths.plots) / "collect" / f"{scenario.name}_mosaic.png"
+    mosaic_path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(mosaic_path), cv2.cvtColor(mosaic(mosaic_frames), cv2.COLOR_RGB2BGR))
+    with stage_run(cfg.paths.root, "collect", cfg, run_name=scenario.name):
+        mlflow.log_metrics(metrics)
+        mlflow.log_artifact(str(mosaic_path))
+    return {**metrics, "path": str(out)}

@@ -1,0 +1,17 @@
+"""DVC stage `preprocess`: grayscale 64x48 frames, steering classes, train/val split by episode."""
+
+import hydra
+from omegaconf import DictConfig
+
+from uqdrive.pipeline.preprocess import run_preprocess
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="preprocess")
+def main(cfg: DictConfig) -> None:
+    metrics = run_preprocess(cfg)
+    print(f"preprocess: {metrics['train_frames']} train / {metrics['val_frames']} val frames, "
+          f"{metrics['num_classes']} classes -> {cfg.paths.processed}")
+
+
+if __name__ == "__main__":
+    main()
