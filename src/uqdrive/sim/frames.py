@@ -12,6 +12,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from uqdrive.data.frames import preprocess_frame
+
 from .autopilot import Autopilot
 from .config import ScenarioConfig, WeatherConfig
 from .env import DrivingEnv
@@ -26,11 +28,6 @@ def find_conf(start: Path | None = None) -> Path:
             if (d / "conf" / "weather").is_dir():
                 return d / "conf"
     raise FileNotFoundError("no conf/weather directory found; pass --conf")
-
-
-def network_view(rgb: np.ndarray, size=(64, 48)) -> np.ndarray:
-    """Grey, area-downsampled image as the data stage feeds it to the network."""
-    return cv2.resize(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), size, interpolation=cv2.INTER_AREA)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             bgr = np.ascontiguousarray(obs[..., ::-1])
             cv2.imwrite(str(out / f"{name}.png"), bgr)
             h, w = bgr.shape[:2]
-            grey = cv2.resize(network_view(obs), (w, h), interpolation=cv2.INTER_NEAREST)
+            grey = cv2.resize(preprocess_frame(obs), (w, h), interpolation=cv2.INTER_NEAREST)
             tile = np.vstack([bgr, cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)])
             cv2.putText(tile, name, (3, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
             tiles.append(tile)
