@@ -6,7 +6,6 @@ from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
 import mlflow
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -14,7 +13,7 @@ from tqdm import tqdm
 
 from uqdrive.data.frames import encode_png
 from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
-from uqdrive.files import write_json
+from uqdrive.files import atomic_path, write_json
 from uqdrive.parallel import map_ordered
 from uqdrive.plots import mosaic
 from uqdrive.sim import (Autopilot, AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig,
@@ -66,7 +65,7 @@ def _collect_one(episode: int) -> tuple[int, dict[str, list], str, list[np.ndarr
     seed = cfg.collect.base_seed + episode
     rows, termination, frames = record_episode(_worker["env"], _worker["autopilot"], seed, _worker["scenario"],
                                                _worker["weather"], cfg.noise)
-    picks = np.linspace(0, len(frames) - 1, cfg.collect.mosaic_per_episode + 2)[1:-1].astype(int)
+    picks = np.linspace(0, len(frames) - 1, cfg.collect.mosaic_columns + 2)[1:-1].astype(int)
     return seed, rows, termination, [frames[i] for i in picks]
 
 
@@ -79,7 +78,8 @@ def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.nda
     try:
         for episode, (seed, rows, termination, picks) in enumerate(progress):
             outcomes[termination] += 1
-            mosaic_frames.extend(picks)
+            if episode < cfg.collect.mosaic_rows:
+                mosaic_frames.extend(picks)
             n = len(rows["step"])
             yield {"scenario": [cfg.scenario.name] * n, "weather": [cfg.weather.name] * n, "noise": [cfg.noise] * n,
                    "episode": [episode] * n, "seed": [seed] * n, **rows}
@@ -103,8 +103,8 @@ def run_collect(cfg: DictConfig) -> dict:
                **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")}}
     write_json(Path(cfg.paths.metrics) / "collect" / f"{scenario.name}.json", metrics)
     mosaic_path = Path(cfg.paths.plots) / "collect" / f"{scenario.name}_mosaic.png"
-    mosaic_path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(mosaic_path), cv2.cvtColor(mosaic(mosaic_frames), cv2.COLOR_RGB2BGR))
+    with atomic_path(mosaic_path) as tmp:
+        tmp.write_bytes(encode_png(mosaic(mosaic_frames, cfg.collect.mosaic_columns)))
     with stage_run(cfg.paths.root, "collect", cfg, run_name=scenario.name):
         mlflow.log_metrics(metrics)
         mlflow.log_artifact(str(mosaic_path))
