@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import mlflow
+from hydra.experimental.callback import Callback
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
@@ -61,3 +62,11 @@ def stage_run(root: str | Path, stage: str, config: DictConfig | Mapping[str, An
     with mlflow.start_run(experiment_id=experiment_id, run_name=run_name, tags=dict(tags or {})) as run:
         mlflow.log_params(flatten(config))
         yield run
+
+
+class CreateStoreCallback(Callback):
+    """Hydra callback: create the store and the stage's experiment in the parent process, once,
+    before a multirun's (possibly parallel) jobs start — see `ensure_experiment`."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        ensure_experiment(config.paths.root, config.hydra.job.name)

@@ -94,7 +94,7 @@ def run_collect(cfg: DictConfig) -> dict:
     check_noise(cfg.noise)
     if cfg.collect.episodes < 1:
         raise ValueError(f"collect.episodes={cfg.collect.episodes} must be >= 1")
-    out = Path(cfg.paths.raw) / f"{scenario.name}.parquet"
+    out = Path(cfg.collect.out)
     outcomes: Counter = Counter()
     mosaic_frames: list[np.ndarray] = []
     frames = write_table_batches(out, RAW_SCHEMA, iter_episodes(cfg, outcomes, mosaic_frames))
