@@ -1,10 +1,13 @@
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
 def drive(env, scenario, seed, config=None):
@@ -27,7 +30,7 @@ def env():
 
 @pytest.mark.parametrize("kind", ["straight", "obstacle", "roundabout"])
 def test_autopilot_is_safe_and_completes_the_route(env, kind):
-    scenario = ScenarioConfig(kind=kind, name=kind)
+    scenario = ScenarioConfig.from_yaml(CONF / "scenario" / f"{kind}.yaml")
     for seed in range(20):
         infos, _ = drive(env, scenario, seed)
         last = infos[-1]
