@@ -1,6 +1,7 @@
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 
 import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
@@ -17,3 +18,13 @@ def stage_config(tmp_path):
             return compose(stage, overrides=[f"paths.root={tmp_path}", "profile=tiny", "progress=false", *overrides])
 
     return make
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Test tensors are tiny: a second intra-op thread only adds synchronisation (up to 40x slower
+    when the other core is busy, as it is in CI)."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)

@@ -40,6 +40,10 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         assert json.loads((project / f"metrics/collect/{scenario}.json").read_text())["frames"] > 0
     metrics = json.loads((project / "metrics/preprocess.json").read_text())
     assert metrics["train_frames"] > 0 and metrics["num_classes"] == 21
+    for method in ("mcd", "vi", "hmc"):
+        assert (project / f"models/{method}.pt").exists()
+        trained = json.loads((project / f"metrics/train/{method}.json").read_text())
+        assert trained["method"] == method and trained["val_frames"] == metrics["val_frames"]
     assert (project / "mlflow.db").exists()
 
     assert "Data and pipelines are up to date" in _dvc(project, "status")

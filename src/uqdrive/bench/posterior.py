@@ -1,0 +1,81 @@
+"""`uqdrive bench posterior`: ms per frame of `Posterior.sample_probs` with n = 738 draws, on one thread.
+
+n = 738 is Chernoff's sample count for θ = γ = 0.05, i.e. what a guaranteed η2 needs per frame.
+Each method (MCD, VI, HMC on the real architecture, randomly initialised or loaded from
+--models) is timed vectorised and against a per-draw Python loop doing the same math (trunk
+once, then `head_probs(features, 1)` n times). Target: ≤ 10 ms per frame and ≥ 5x the loop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.models.checkpoint import load_posterior
+from uqdrive.models.hmc import HMCPosterior, flatten_mcd_head
+from uqdrive.models.mcd import MCDPosterior
+from uqdrive.models.pilotnet import Architecture, init_weights
+from uqdrive.models.posterior import Posterior
+from uqdrive.models.vi import VIPosterior
+
+HMC_STORED = 300  # kept samples of the paper profile (2 chains x 150)
+
+
+def random_posteriors(generator: torch.Generator) -> dict[str, Posterior]:
+    """The three posteriors with the real architecture and random (but plausible) weights."""
+    mcd = init_weights(MCDPosterior(Architecture(), SteeringBins()), generator).eval()
+    vi = VIPosterior.from_mcd(mcd, prior_sigma=1.0, init_sigma=0.05).eval()
+    start = flatten_mcd_head(mcd)
+    samples = start + 0.05 * torch.randn((HMC_STORED, len(start)), generator=generator)
+    return {"mcd": mcd, "vi": vi, "hmc": HMCPosterior.from_samples(mcd, samples).eval()}
+
+
+def _median_ms(fn: Callable[[], torch.Tensor], repeats: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times) * 1e3
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="uqdrive bench posterior", description=__doc__)
+    ap.add_argument("--samples", type=int, default=738, help="posterior draws per frame")
+    ap.add_argument("--batch", type=int, default=1, help="frames per call (1 = a closed-loop controller step)")
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--models", type=Path, help="time trained models/<method>.pt from this folder instead")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    generator = torch.Generator().manual_seed(args.seed)
+    if args.models is None:
+        posteriors = random_posteriors(generator)
+    else:
+        posteriors = {m: load_posterior(args.models / f"{m}.pt", expected_method=m) for m in ("mcd", "vi", "hmc")}
+    x = torch.rand((args.batch, 1, 48, 64), generator=generator)
+    n = args.samples
+    print(f"n={n} draws, batch={args.batch} frame(s), 1 thread, median of {args.repeats}, "
+          f"{'trained models from ' + str(args.models) if args.models else 'random weights'}")
+    print(f"{'method':>6} {'vector_ms/frame':>15} {'loop_ms/frame':>13} {'speedup':>7}")
+    worst, min_speedup = 0.0, float("inf")
+    with torch.no_grad():
+        for method, post in posteriors.items():
+            fast = _median_ms(lambda: post.sample_probs(x, n, generator), args.repeats) / args.batch
+
+            def loop(post: Posterior = post) -> torch.Tensor:
+                features = post.features(x)
+                return torch.cat([post.head_probs(features, 1, generator) for _ in range(n)])
+
+            slow = _median_ms(loop, max(3, args.repeats // 4)) / args.batch
+            worst, min_speedup = max(worst, fast), min(min_speedup, slow / fast)
+            print(f"{method:>6} {fast:>15.3f} {slow:>13.3f} {slow / fast:>7.1f}")
+    print(f"RESULT posterior worst_ms={worst:.3f} min_speedup={min_speedup:.1f}")
+    return 0

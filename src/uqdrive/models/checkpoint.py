@@ -1,0 +1,87 @@
+"""Model files `models/<method>.pt`: a posterior plus what is needed to trust it on load.
+
+Each file carries a format tag and version, the method, the class mapping (steering bins),
+the input shape and the architecture, so that a consumer asking for a VI model with 21
+classes gets exactly that or a clear error, never a silently wrong network.
+"""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import torch
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.files import atomic_path
+from uqdrive.models.hmc import HMCPosterior
+from uqdrive.models.mcd import MCDPosterior
+from uqdrive.models.pilotnet import INPUT_SHAPE, Architecture
+from uqdrive.models.posterior import Posterior
+from uqdrive.models.vi import VIPosterior
+
+FORMAT = "uqdrive-posterior"
+VERSION = 1
+POSTERIORS: dict[str, type[Posterior]] = {cls.method: cls for cls in (MCDPosterior, VIPosterior, HMCPosterior)}
+
+
+def check_method(method: str) -> str:
+    if method not in POSTERIORS:
+        raise ValueError(f"model.name={method!r} is not a known method; choose one of {sorted(POSTERIORS)}")
+    return method
+
+
+def save_posterior(posterior: Posterior, path: str | Path, metadata: dict | None = None) -> Path:
+    """Write atomically: an interrupted save leaves the previous file (or none)."""
+    path = Path(path)
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "method": posterior.method,
+        "classes": posterior.bins.to_dict(),
+        "input_shape": list(INPUT_SHAPE),
+        "arch": posterior.arch.to_dict(),
+        "init_kwargs": posterior.init_kwargs(),
+        "state": posterior.state_dict(),
+        "metadata": metadata or {},
+    }
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def read_checkpoint(path: str | Path) -> dict:
+    """The raw payload after checking it is a uqdrive model file of this version."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist; train it first (dvc repro train)")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as err:
+        raise ValueError(f"{path} is not a uqdrive model file (torch.load failed: {err})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a uqdrive model file (no '{FORMAT}' format tag)")
+    if payload.get("version") != VERSION:
+        raise ValueError(f"{path} has model format version {payload.get('version')}, this code reads {VERSION}; retrain it")
+    return payload
+
+
+def load_posterior(path: str | Path, expected_method: str | None = None,
+                   expected_classes: int | SteeringBins | None = None) -> Posterior:
+    """Rebuild a saved posterior (eval mode), failing clearly on another method or class mapping."""
+    payload = read_checkpoint(path)
+    method = payload["method"]
+    if expected_method is not None and method != check_method(expected_method):
+        raise ValueError(f"{path} holds a {method!r} model, expected {expected_method!r}")
+    bins = SteeringBins(per_unit=payload["classes"]["per_unit"], max_abs=payload["classes"]["max_abs"])
+    if isinstance(expected_classes, SteeringBins) and expected_classes != bins:
+        raise ValueError(f"{path} was trained on classes {bins.to_dict()}, expected {expected_classes.to_dict()}; "
+                         f"retrain it with the current bins")
+    if isinstance(expected_classes, int) and expected_classes != bins.num_classes:
+        raise ValueError(f"{path} predicts {bins.num_classes} classes, expected {expected_classes}")
+    if tuple(payload["input_shape"]) != INPUT_SHAPE:
+        raise ValueError(f"{path} takes input {payload['input_shape']}, this code feeds {list(INPUT_SHAPE)}")
+    posterior = POSTERIORS[check_method(method)](Architecture(**payload["arch"]), bins, **payload["init_kwargs"])
+    posterior.load_state_dict(payload["state"])
+    posterior.requires_grad_(False)
+    return posterior.eval()

@@ -1,0 +1,92 @@
+"""Mean-field Gaussian VI over the four head layers, on the MCD network's fixed trunk.
+
+Plain torch rather than Pyro: the whole model is four Gaussian layers, a closed-form KL and
+the local reparameterisation trick, a few lines here; Pyro would add a dependency and per-step
+overhead (trace + guide bookkeeping) without making sampling faster.
+
+Local reparameterisation (Kingma et al. 2015): given a layer input a, the pre-activation under
+W ~ N(μ, σ²) is N(aμ, a²σ²) per unit, so we draw n·B·units normals instead of n·weights
+(exact per frame, lower-variance ELBO gradients, and ~100x fewer random numbers at test time).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+from torch.nn.functional import softplus
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.models.mcd import MCDPosterior
+from uqdrive.models.pilotnet import Architecture
+from uqdrive.models.posterior import Posterior, check_draws
+
+
+def _inverse_softplus(y: float) -> float:
+    return y + math.log(-math.expm1(-y))
+
+
+class VIPosterior(Posterior):
+    method = "vi"
+
+    def __init__(self, arch: Architecture, bins: SteeringBins, prior_sigma: float = 1.0, init_sigma: float = 1e-3) -> None:
+        super().__init__(arch, bins)
+        if not prior_sigma > 0:
+            raise ValueError(f"model.prior_sigma={prior_sigma} must be > 0")
+        if not init_sigma > 0:
+            raise ValueError(f"model.init_sigma={init_sigma} must be > 0")
+        self.prior_sigma = float(prior_sigma)
+        shapes = arch.head_shapes(bins.num_classes)
+        rho = _inverse_softplus(init_sigma)
+        self.w_mu = nn.ParameterList(nn.Parameter(torch.zeros(i, o)) for i, o in shapes)  # set by from_mcd or a checkpoint
+        self.b_mu = nn.ParameterList(nn.Parameter(torch.zeros(o)) for _, o in shapes)
+        self.w_rho = nn.ParameterList(nn.Parameter(torch.full((i, o), rho)) for i, o in shapes)
+        self.b_rho = nn.ParameterList(nn.Parameter(torch.full((o,), rho)) for _, o in shapes)
+
+    @classmethod
+    def from_mcd(cls, mcd: MCDPosterior, prior_sigma: float, init_sigma: float) -> VIPosterior:
+        """Frozen copy of the MCD trunk; posterior means start at the MCD head weights."""
+        vi = cls(mcd.arch, mcd.bins, prior_sigma, init_sigma)
+        vi.trunk.load_state_dict(mcd.trunk.state_dict())
+        vi.trunk.requires_grad_(False)
+        with torch.no_grad():
+            for mu, b, layer in zip(vi.w_mu, vi.b_mu, mcd.head):
+                mu.copy_(layer.weight.T)
+                b.copy_(layer.bias)
+        return vi
+
+    def init_kwargs(self) -> dict:
+        return {"prior_sigma": self.prior_sigma}
+
+    def head_parameters(self) -> list[nn.Parameter]:
+        return [*self.w_mu, *self.b_mu, *self.w_rho, *self.b_rho]
+
+    def head_logits(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Logits [n, B, C] of n draws (differentiable in the variational parameters)."""
+        h = features
+        for k, (w_mu, b_mu, w_rho, b_rho) in enumerate(zip(self.w_mu, self.b_mu, self.w_rho, self.b_rho)):
+            a = h if k == 0 else torch.relu(h)
+            mean = torch.matmul(a, w_mu) + b_mu
+            var = torch.matmul(a * a, softplus(w_rho).square()) + softplus(b_rho).square()
+            shape = (n, *mean.shape) if k == 0 else mean.shape  # the first layer's input is shared by all draws
+            h = mean + var.sqrt() * torch.randn(shape, generator=generator)
+        return h
+
+    @torch.no_grad()
+    def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        return torch.softmax(self.head_logits(features, check_draws(n), generator), dim=-1)
+
+    def kl(self) -> torch.Tensor:
+        """KL(q || p) in closed form, summed over every head weight and bias; prior N(0, prior_sigma²)."""
+        total = torch.zeros(())
+        for mu, rho in zip([*self.w_mu, *self.b_mu], [*self.w_rho, *self.b_rho]):
+            sigma = softplus(rho)
+            total = total + (math.log(self.prior_sigma) - torch.log(sigma)
+                             + (sigma.square() + mu.square()) / (2 * self.prior_sigma**2) - 0.5).sum()
+        return total
+
+    def posterior_sigma_mean(self) -> float:
+        """Mean posterior standard deviation of the head weights: how far VI moved off a point estimate."""
+        sigmas = torch.cat([softplus(r.detach()).flatten() for r in self.w_rho])
+        return sigmas.mean().item()

@@ -1,0 +1,18 @@
+"""DVC stage `train@<method>`: fit the MCD, VI or HMC posterior (`model=mcd|vi|hmc`); VI and HMC need models/mcd.pt."""
+
+import hydra
+from omegaconf import DictConfig
+
+from uqdrive.pipeline.train import run_train
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
+def main(cfg: DictConfig) -> None:
+    m = run_train(cfg)
+    print(f"train {m['method']}: val accuracy {m['val_accuracy']:.3f} (majority baseline "
+          f"{m['majority_baseline_accuracy']:.3f}), NLL {m['val_nll']:.3f}, ECE {m['val_ece']:.3f} "
+          f"in {m['train_seconds']:.0f} s -> {cfg.paths.models}/{m['method']}.pt")
+
+
+if __name__ == "__main__":
+    main()

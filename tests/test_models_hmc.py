@@ -1,0 +1,78 @@
+"""The HMC kernel against a posterior known in closed form (Bayesian linear regression), and split-R̂."""
+
+import pytest
+import torch
+
+from uqdrive.models.mcmc import hmc, split_rhat
+
+
+
+def linear_regression(n: int = 40, noise: float = 0.5, prior: float = 2.0):
+    """Data, log-density/gradient and exact Gaussian posterior (mean, covariance) of y = Xβ + ε."""
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn((n, 3), generator=g, dtype=torch.float64)
+    x[:, 2] = x[:, 1] + 0.3 * x[:, 2]  # correlated columns → correlated posterior
+    beta = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
+    y = x @ beta + noise * torch.randn(n, generator=g, dtype=torch.float64)
+    precision = x.T @ x / noise**2 + torch.eye(3, dtype=torch.float64) / prior**2
+    cov = torch.linalg.inv(precision)
+    mean = cov @ x.T @ y / noise**2
+
+    def log_prob_grad(theta):
+        resid = y - theta.double() @ x.T  # [chains, n]
+        lp = -0.5 * resid.square().sum(1) / noise**2 - 0.5 * theta.double().square().sum(1) / prior**2
+        grad = resid @ x / noise**2 - theta.double() / prior**2
+        return lp.float(), grad.float()
+
+    return log_prob_grad, mean.float(), cov.float()
+
+
+def test_hmc_matches_the_analytic_posterior_of_bayesian_linear_regression():
+    log_prob_grad, mean, cov = linear_regression()
+    init = torch.zeros(4, 3)
+    result = hmc(log_prob_grad, init, num_samples=1000, warmup=300, leapfrog_steps=10, step_size=0.5,
+                 target_accept=0.75, generator=torch.Generator().manual_seed(1))
+    samples = result.samples  # [4, 1000, 3]
+    assert samples.shape == (4, 1000, 3)
+    assert 0.6 < float(result.accept_rate.mean()) < 0.95  # adapted to the 0.75 target
+    # Monte-Carlo standard error of the mean from 20 batch means per chain (accounts for autocorrelation)
+    batch_means = samples.reshape(4, 20, 50, 3).mean(2).reshape(80, 3)
+    mcse = batch_means.std(0) / 80**0.5
+    assert torch.all((samples.reshape(-1, 3).mean(0) - mean).abs() < 4 * mcse + 1e-3)
+    flat = samples.reshape(-1, 3)
+    sample_cov = torch.cov(flat.T)
+    torch.testing.assert_close(sample_cov.diagonal(), cov.diagonal(), rtol=0.15, atol=0)
+    corr = cov[1, 2] / (cov[1, 1] * cov[2, 2]).sqrt()
+    sample_corr = sample_cov[1, 2] / (sample_cov[1, 1] * sample_cov[2, 2]).sqrt()
+    assert abs(float(sample_corr - corr)) < 0.05
+    assert float(split_rhat(samples).max()) < 1.05
+
+
+def test_hmc_is_reproducible_and_thins():
+    log_prob_grad, _, _ = linear_regression()
+    run = lambda: hmc(log_prob_grad, torch.zeros(2, 3), num_samples=5, warmup=10, thin=3,  # noqa: E731
+                      generator=torch.Generator().manual_seed(5))
+    a, b = run(), run()
+    assert a.samples.shape == (2, 5, 3) and torch.equal(a.samples, b.samples)
+    assert a.log_prob.shape == (2, 5)
+
+
+def test_hmc_rejects_bad_settings_and_a_bad_start():
+    log_prob_grad, _, _ = linear_regression()
+    with pytest.raises(ValueError, match="thin=0"):
+        hmc(log_prob_grad, torch.zeros(2, 3), num_samples=5, warmup=0, thin=0)
+    with pytest.raises(ValueError, match="target_accept=1.2"):
+        hmc(log_prob_grad, torch.zeros(2, 3), num_samples=5, warmup=0, target_accept=1.2)
+    with pytest.raises(ValueError, match="not finite at the initial point"):
+        hmc(log_prob_grad, torch.full((2, 3), float("nan")), num_samples=5, warmup=0)
+
+
+def test_split_rhat_is_one_for_mixed_chains_and_large_for_stuck_ones():
+    g = torch.Generator().manual_seed(0)
+    mixed = torch.randn((4, 500, 2), generator=g)
+    assert float(split_rhat(mixed).max()) < 1.02
+    stuck = mixed + torch.tensor([0.0, 3.0, 0.0, 3.0]).view(4, 1, 1)
+    assert float(split_rhat(stuck).min()) > 1.5
+    drifting = mixed + torch.linspace(0, 5, 500).view(1, 500, 1)  # each chain's halves disagree
+    assert float(split_rhat(drifting).min()) > 1.3
+    assert split_rhat(mixed[..., 0]).shape == ()

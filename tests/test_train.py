@@ -1,0 +1,136 @@
+"""The train stage (mcd → vi → hmc) on a small synthetic road data set, called as DVC would call it.
+
+Synthetic but shaped like the real data: 48x64 gray frames with sky, grass and a road whose
+vanishing point moves with the steering label, 45% of frames "straight ahead" (the majority
+class, as in the collected data), noise and per-frame brightness and horizon jitter. The same
+checks on frames collected in pybullet run in test_train_collected.py (slow).
+"""
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from mlflow.tracking import MlflowClient
+
+import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
+from uqdrive.data.binning import SteeringBins
+from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
+from uqdrive.data.datasets import load_frames
+from uqdrive.models.checkpoint import load_posterior
+from uqdrive.models.training import compute_features, evaluate
+from uqdrive.pipeline.train import run_train
+from uqdrive.tracking import store_uris
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+METHODS = ("mcd", "vi", "hmc")
+
+
+
+def synthetic_frames(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """uint8 frames [n, 48, 64] and steering [n] (positive = left: the road bends, and its vanishing point moves, left)."""
+    steer = np.where(rng.random(n) < 0.45, 0.0, rng.choice(np.arange(-6, 7) / 10, n))
+    yy, xx = np.mgrid[0:48, 0:64].astype(np.float32)
+    horizon = 16 + rng.integers(-2, 3, n)[:, None, None]
+    vanish = 32 - 40 * steer[:, None, None]
+    t = np.clip((yy - horizon) / (47 - horizon), 0, 1)
+    road = (np.abs(xx - (vanish + (32 - vanish) * t)) < 2 + 28 * t) & (yy > horizon)
+    image = np.where(yy <= horizon, 180.0, np.where(road, 100.0, 60.0))
+    image = image + rng.normal(0, 8, image.shape) + rng.integers(-20, 21, n)[:, None, None]
+    return np.clip(image, 0, 255).astype(np.uint8), steer.astype(np.float32)
+
+
+def write_processed(path: Path, n: int, seed: int) -> None:
+    images, steer = synthetic_frames(n, np.random.default_rng(seed))
+    columns = {"scenario": ["synthetic"] * n, "weather": ["clear_noon"] * n, "noise": [0.0] * n,
+               "episode": [seed] * n, "step": list(range(n)), "steering": steer.tolist(),
+               "label": SteeringBins().to_class(steer).tolist(), "image": [im.tobytes() for im in images]}
+    write_table_batches(path, PROCESSED_SCHEMA, [columns])
+
+
+def compose_train(root: Path, *overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose("train", overrides=[f"paths.root={root}", "profile=tiny", "progress=false", *overrides])
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """One tiny-profile training of each method, in pipeline order, on 640 train / 240 val frames."""
+    root = tmp_path_factory.mktemp("train")
+    write_processed(root / "data/processed/train.parquet", 640, seed=1)
+    write_processed(root / "data/processed/val.parquet", 240, seed=2)
+    metrics = {m: run_train(compose_train(root, f"model={m}")) for m in METHODS}
+    return root, metrics
+
+
+def test_each_method_beats_the_majority_class_on_validation(trained):
+    _, metrics = trained
+    for method, m in metrics.items():
+        assert m["val_accuracy"] > m["majority_baseline_accuracy"] + 0.05, (method, m)
+        assert 0 <= m["val_ece"] <= 1 and 0 <= m["val_brier"] <= 2 and m["val_nll"] > 0
+
+
+def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
+    root, metrics = trained
+    for method in METHODS:
+        assert json.loads((root / f"metrics/train/{method}.json").read_text()) == metrics[method]
+        rows = list(csv.DictReader((root / f"plots/train/{method}_curve.csv").open()))
+        assert rows and {"step", "train_loss", "val_accuracy", "val_nll"} <= set(rows[0])
+        assert (root / f"plots/train/{method}_curve.png").stat().st_size > 1000
+    client = MlflowClient(store_uris(root)[0])
+    runs = client.search_runs([client.get_experiment_by_name("train").experiment_id])
+    assert sorted(r.info.run_name for r in runs) == sorted(METHODS)
+    for run in runs:
+        assert run.data.params["model.name"] == run.info.run_name
+        assert run.data.metrics["val_accuracy"] == metrics[run.info.run_name]["val_accuracy"]
+        artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
+        assert {f"{run.info.run_name}_curve.csv", f"{run.info.run_name}_curve.png", f"{run.info.run_name}.pt"} <= artefacts
+
+
+def test_method_specific_diagnostics(trained):
+    _, metrics = trained
+    rates = [metrics["mcd"][f"dropout_p{k}"] for k in (1, 2, 3)]
+    assert all(0 < p < 1 for p in rates) and any(abs(p - 0.1) > 1e-4 for p in rates)  # learned, from 0.1
+    hmc = metrics["hmc"]
+    assert 0.3 < hmc["accept_rate"] <= 1 and hmc["kept_samples"] == 2 * 10
+    assert hmc["rhat_max"] >= 1 and hmc["rhat_log_prob"] > 0
+    assert metrics["vi"]["posterior_sigma_mean"] > 0
+
+
+def test_saved_models_reload_with_the_reported_accuracy(trained):
+    root, metrics = trained
+    bins = SteeringBins()
+    val = load_frames(root / "data/processed/val.parquet", bins.num_classes)
+    for method in METHODS:
+        posterior = load_posterior(root / f"models/{method}.pt", expected_method=method, expected_classes=bins)
+        scores = evaluate(posterior, compute_features(posterior, val), val.labels, 20, torch.Generator().manual_seed(0))
+        assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
+
+
+def test_vi_and_hmc_share_the_mcd_trunk(trained):
+    root, _ = trained
+    trunks = [load_posterior(root / f"models/{m}.pt").trunk.state_dict() for m in METHODS]
+    for other in trunks[1:]:
+        assert all(torch.equal(trunks[0][k], other[k]) for k in trunks[0])
+
+
+def test_bad_input_fails_clearly(tmp_path):
+    with pytest.raises(ValueError, match="model.name='lasso' is not a known method"):
+        run_train(compose_train(tmp_path, "model.name=lasso"))
+    with pytest.raises(FileNotFoundError, match="dvc repro"):
+        run_train(compose_train(tmp_path))  # nothing preprocessed yet
+    write_processed(tmp_path / "data/processed/train.parquet", 0, seed=1)
+    write_processed(tmp_path / "data/processed/val.parquet", 20, seed=2)
+    with pytest.raises(ValueError, match="0 frames"):
+        run_train(compose_train(tmp_path))
+    write_processed(tmp_path / "data/processed/train.parquet", 20, seed=1)
+    with pytest.raises(FileNotFoundError, match="mcd.pt does not exist"):
+        run_train(compose_train(tmp_path, "model=vi"))
+    with pytest.raises(ValueError, match="model.epochs=0"):
+        run_train(compose_train(tmp_path, "model.epochs=0"))
+    with pytest.raises(ValueError, match=r"unknown model keys \['leapfrog'\]"):
+        run_train(compose_train(tmp_path, "model=hmc", "+model.leapfrog=5"))
+    assert not (tmp_path / "models").exists()
