@@ -1,0 +1,73 @@
+"""Uncertainty quantification: per-frame measures and Bernoulli-rate estimators with (θ, γ) guarantees.
+
+Knows nothing of the simulator, data or models: it takes posterior class probabilities
+``[n, B, C]`` and the class centres, or 0/1 outcomes.
+"""
+
+from uqdrive.uq.bounds import (
+    chernoff_n,
+    clopper_pearson_interval,
+    clopper_pearson_n,
+    massart_n,
+)
+from uqdrive.uq.estimators import (
+    Estimate,
+    SequentialPlan,
+    SPRTResult,
+    chernoff,
+    clopper_pearson,
+    massart,
+    sequential,
+    sequential_operating_characteristics,
+    sequential_plan,
+    simulate_sequential,
+    simulate_sprt,
+    sprt,
+    sprt_cap,
+    wilson,
+)
+from uqdrive.uq.measures import (
+    FrameMeasures,
+    check_samples,
+    decision,
+    decision_confidence,
+    expected_entropy,
+    frame_measures,
+    mutual_information,
+    predictive_entropy,
+    predictive_probs,
+    sample_decisions,
+    steering_moments,
+)
+
+__all__ = [
+    "Estimate",
+    "FrameMeasures",
+    "SPRTResult",
+    "SequentialPlan",
+    "check_samples",
+    "chernoff",
+    "chernoff_n",
+    "clopper_pearson",
+    "clopper_pearson_interval",
+    "clopper_pearson_n",
+    "decision",
+    "decision_confidence",
+    "expected_entropy",
+    "frame_measures",
+    "massart",
+    "massart_n",
+    "mutual_information",
+    "predictive_entropy",
+    "predictive_probs",
+    "sample_decisions",
+    "sequential",
+    "sequential_operating_characteristics",
+    "sequential_plan",
+    "simulate_sequential",
+    "simulate_sprt",
+    "sprt",
+    "sprt_cap",
+    "steering_moments",
+    "wilson",
+]

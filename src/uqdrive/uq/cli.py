@@ -1,0 +1,54 @@
+"""`uqdrive bound`: how many samples each scheme plans (or needs at worst) for a given (θ, γ)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from uqdrive.uq.bounds import chernoff_n, clopper_pearson_n, massart_n
+from uqdrive.uq.estimators import sequential_plan, sprt_cap
+
+
+def table(theta: float, gamma: float, rate_bounds: list[float], delta: float) -> list[str]:
+    """Rows of the sample-count table; raises ``ValueError`` on bad arguments."""
+    plan = sequential_plan(theta, gamma)
+    looks = "/".join(map(str, plan.looks))
+    rows = [
+        ("chernoff (paper, n > ln(2/g)/(2 t^2))", chernoff_n(theta, gamma), "planned", "yes"),
+        ("clopper_pearson (exact, fixed n)", clopper_pearson_n(theta, gamma), "planned", "yes"),
+    ]
+    rows += [
+        (f"massart, a priori min(eta,1-eta) <= {b:g}", massart_n(theta, gamma, b), "planned", "yes, if the bound holds")
+        for b in rate_bounds
+    ]
+    rows.append((f"sequential, looks {looks}", plan.looks[-1], "worst case", "yes"))
+    cap = sprt_cap(delta, theta, gamma, gamma)
+    rows.append((f"sprt eta >= {delta:g} +- {theta:g} (cap)", cap, "worst case", "no (decision only)"))
+    width = max(len(r[0]) for r in rows)
+    out = [
+        f"samples so that P(|estimate - eta| > theta) <= gamma, theta={theta:g}, gamma={gamma:g}",
+        f"{'scheme':<{width}}  {'samples':>7}  {'kind':<10}  guaranteed",
+    ]
+    out += [f"{name:<{width}}  {n:>7d}  {kind:<10}  {g}" for name, n, kind, g in rows]
+    gs = ", ".join(f"{g:g}" for g in plan.gammas)
+    out.append(f"sequential gamma split over looks: {gs} (union bound; stops when the exact interval fits in +-theta)")
+    return out
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="uqdrive bound", description=__doc__)
+    ap.add_argument("--theta", type=float, default=0.05, help="absolute error bound, in (0, 1)")
+    ap.add_argument("--gamma", type=float, default=0.05, help="allowed failure probability, in (0, 1)")
+    ap.add_argument(
+        "--rate-bounds", type=float, nargs="+", default=[0.5, 0.2, 0.1, 0.05, 0.01],
+        help="a-priori bounds on min(eta, 1 - eta) for the Massart rows, in [0, 0.5]",
+    )
+    ap.add_argument("--delta", type=float, default=0.7, help="SPRT decision threshold (paper: delta_1 = 0.7)")
+    args = ap.parse_args(argv)
+    try:
+        lines = table(args.theta, args.gamma, args.rate_bounds, args.delta)
+    except ValueError as e:
+        print(f"uqdrive bound: {e}", file=sys.stderr)
+        return 2
+    print("\n".join(lines))
+    return 0

@@ -1,0 +1,32 @@
+"""`uqdrive bound` and `uqdrive bench estimators` end to end."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from uqdrive.cli import main
+
+
+def test_bound_table(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bound", "--theta", "0.05", "--gamma", "0.05"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"chernoff .*\s738\s+planned\s+yes", out)
+    assert re.search(r"clopper_pearson .*\s404\s+planned\s+yes", out)
+    assert re.search(r"massart, a priori min\(eta,1-eta\) <= 0.1\s+305", out)
+    assert re.search(r"sequential, looks 119/206/561\s+561\s+worst case\s+yes", out)
+    assert re.search(r"sprt .*no \(decision only\)", out)
+
+
+def test_bound_rejects_bad_theta(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bound", "--theta", "1.5"]) == 2
+    assert "theta must be in (0, 1), got 1.5" in capsys.readouterr().err
+
+
+def test_bench_estimators_meets_its_targets(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "estimators"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    m = re.fullmatch(r"RESULT estimators saving_at_0\.99=([\d.]+) worst_ratio=([\d.]+)", last)
+    assert m, last
+    assert float(m[1]) >= 5 and float(m[2]) <= 1.05

@@ -1,0 +1,118 @@
+"""Per-frame measures on hand-made posterior samples, and rejection of bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from uqdrive.uq import (
+    decision,
+    decision_confidence,
+    expected_entropy,
+    frame_measures,
+    mutual_information,
+    predictive_entropy,
+    sample_decisions,
+    steering_moments,
+)
+
+CENTRES = torch.tensor([-0.2, -0.1, 0.0, 0.1, 0.2], dtype=torch.float64)
+
+
+def peaked(classes: list[list[int]]) -> torch.Tensor:
+    """[n, B, 5] samples: 0.6 on the given class, 0.1 on each other class."""
+    idx = torch.tensor(classes)
+    return torch.full((*idx.shape, 5), 0.1, dtype=torch.float64).scatter(-1, idx[..., None], 0.6)
+
+
+# Frame 0: samples pick classes 2, 2, 3, 0 -> predictive mass 0.35 on class 2, so pi = 0.0;
+#   sample decisions 0.0, 0.0, 0.1, -0.2.
+# Frame 1: samples pick classes 4, 4, 4, 1 -> pi = 0.2; sample decisions 0.2, 0.2, 0.2, -0.1.
+PROBS = peaked([[2, 4], [2, 4], [3, 4], [0, 1]])
+UNNORMALISED = PROBS.clone()
+UNNORMALISED[2, 1] *= 0.9
+
+
+def test_decisions_by_hand() -> None:
+    assert decision(PROBS, CENTRES).tolist() == pytest.approx([0.0, 0.2])
+    assert sample_decisions(PROBS, CENTRES)[:, 0].tolist() == pytest.approx([0.0, 0.0, 0.1, -0.2])
+
+
+@pytest.mark.parametrize(
+    ("eps", "expected"),
+    [
+        (0.05, [0.50, 0.75]),  # only exact matches: 2/4 and 3/4
+        (0.10, [0.75, 0.75]),  # frame 0 gains the 0.1 sample (edge of the closed ball)
+        (0.25, [1.00, 0.75]),  # frame 1's -0.1 is 0.3 away
+        (0.30, [1.00, 1.00]),  # ... and is inside at exactly eps = 0.3
+    ],
+)
+def test_eta2_by_hand(eps: float, expected: list[float]) -> None:
+    assert decision_confidence(PROBS, CENTRES, eps).tolist() == pytest.approx(expected)
+
+
+def test_eta2_with_given_pi_and_numpy_input() -> None:
+    eta2 = decision_confidence(PROBS.numpy(), CENTRES.numpy(), 0.05, pi=np.array([0.1, -0.1]))
+    assert eta2.tolist() == pytest.approx([0.25, 0.25])
+
+
+def test_mutual_information_of_identical_samples_is_zero() -> None:
+    p = torch.distributions.Dirichlet(torch.ones(21, dtype=torch.float64)).sample((3,))
+    probs = p[None].expand(8, 3, 21)
+    assert mutual_information(probs).tolist() == pytest.approx([0.0] * 3, abs=1e-12)
+    assert predictive_entropy(probs).tolist() == pytest.approx(expected_entropy(probs).tolist())
+
+
+def test_mutual_information_of_disagreeing_confident_halves_is_ln2() -> None:
+    probs = torch.zeros(6, 1, 5, dtype=torch.float64)
+    probs[:3, 0, 0] = 1.0
+    probs[3:, 0, 3] = 1.0
+    assert mutual_information(probs).item() == pytest.approx(math.log(2))
+    assert predictive_entropy(probs).item() == pytest.approx(math.log(2))
+    assert expected_entropy(probs).item() == pytest.approx(0.0)
+
+
+def test_steering_moments_under_the_predictive() -> None:
+    probs = torch.zeros(2, 1, 5, dtype=torch.float64)
+    probs[0, 0, 1] = 1.0  # -0.1
+    probs[1, 0, 3] = 1.0  # +0.1
+    mean, var = steering_moments(probs, CENTRES)
+    assert mean.item() == pytest.approx(0.0)
+    assert var.item() == pytest.approx(0.01)
+
+
+def test_frame_measures_agree_with_the_single_functions() -> None:
+    m = frame_measures(PROBS, CENTRES, 0.1)
+    assert torch.equal(m.decision, decision(PROBS, CENTRES))
+    assert torch.equal(m.eta2, decision_confidence(PROBS, CENTRES, 0.1))
+    assert torch.allclose(m.mutual_information, mutual_information(PROBS))
+    assert torch.allclose(m.entropy, predictive_entropy(PROBS))
+    mean, var = steering_moments(PROBS, CENTRES)
+    assert torch.allclose(m.steering_mean, mean) and torch.allclose(m.steering_var, var)
+
+
+@pytest.mark.parametrize(
+    ("probs", "centres", "eps", "match"),
+    [
+        (PROBS[0], CENTRES, 0.1, r"probs must have shape \[n, B, C\] \(3-D\), got shape \(2, 5\)"),
+        (PROBS[None], CENTRES, 0.1, r"3-D\), got shape \(1, 4, 2, 5\)"),
+        (UNNORMALISED, CENTRES, 0.1, r"probs must sum to 1 along C .*got sum 0\.9 at sample 2, frame 1"),
+        (PROBS, CENTRES[:4], 0.1, r"centres must be 1-D with length C=5 .*got shape \(4,\)"),
+        (PROBS, CENTRES, 0.0, r"eps must be a finite number > 0 .*got 0\.0"),
+        (PROBS, CENTRES, -0.1, r"eps must be .*got -0\.1"),
+        (PROBS, CENTRES, float("nan"), r"eps must be .*got nan"),
+    ],
+)
+def test_bad_input_is_rejected_with_a_clear_message(probs, centres, eps, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        frame_measures(probs, centres, eps)
+    if "eps" not in match:
+        with pytest.raises(ValueError, match=match):
+            decision(probs, centres)
+
+
+def test_small_rounding_in_probabilities_is_accepted() -> None:
+    assert decision_confidence(PROBS * (1 + 5e-5), CENTRES, 0.1).shape == (2,)
