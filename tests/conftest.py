@@ -28,3 +28,14 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="session")
+def random_models(tmp_path_factory):
+    """models/{mcd,vi,hmc}.pt with seeded random weights: closed-loop plumbing needs a posterior, not a good one."""
+    from uqdrive.bench.posterior import random_posteriors
+    from uqdrive.models import save_posterior
+
+    folder = tmp_path_factory.mktemp("random-models")
+    posteriors = random_posteriors(torch.Generator().manual_seed(0))
+    return {method: save_posterior(post, folder / f"{method}.pt") for method, post in posteriors.items()}

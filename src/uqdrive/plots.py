@@ -44,3 +44,45 @@ def class_histogram_figure(centres: np.ndarray, counts: dict[str, np.ndarray], t
     ax.set_title(title)
     ax.legend()
     return fig
+
+
+def safety_hexbin(ax: plt.Axes, x: np.ndarray, y: np.ndarray, route: np.ndarray,
+                  boundaries: tuple[np.ndarray, np.ndarray] | None, extent: tuple[float, float, float, float],
+                  title: str) -> None:
+    """The paper's offline-safety panel: where the rollouts drove (log counts), the reference
+    trajectory and the safe set's edges, so unsafe paths show as mass outside the edges."""
+    inside = (x >= extent[0]) & (x <= extent[1]) & (y >= extent[2]) & (y <= extent[3])
+    if inside.any():
+        ax.hexbin(x[inside], y[inside], gridsize=60, extent=extent, bins="log", cmap="viridis", mincnt=1)
+    ax.plot(route[:, 0], route[:, 1], "w--", lw=1.0, label="reference")
+    if boundaries is not None:
+        for edge in boundaries:
+            ax.plot(edge[:, 0], edge[:, 1], "r-", lw=0.8)
+        ax.plot([], [], "r-", lw=0.8, label="safe-set boundary")
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect("equal")
+    ax.set_facecolor("0.15")
+    ax.set_title(title, fontsize=9)
+
+
+def safety_hexbin_grid(panels: dict[tuple[str, str], dict[str, np.ndarray]], rows: list[str], columns: list[str],
+                       title: str) -> plt.Figure:
+    """Method × weather grid of `safety_hexbin` panels; ``panels[(row, column)]`` holds x, y, route,
+    left, right (empty left/right: road-only safe set) and eta1; missing cells stay blank."""
+    fig, axes = plt.subplots(len(rows), len(columns), figsize=(3.2 * len(columns), 3.2 * len(rows)), squeeze=False)
+    for i, row in enumerate(rows):
+        for j, column in enumerate(columns):
+            ax = axes[i, j]
+            panel = panels.get((row, column))
+            if panel is None:
+                ax.axis("off")
+                continue
+            boundaries = (panel["left"], panel["right"]) if len(panel["left"]) else None
+            extent = tuple(float(v) for v in panel["extent"])
+            safety_hexbin(ax, panel["x"], panel["y"], panel["route"], boundaries, extent,
+                          f"{row} · {column}: η̂1 = {float(panel['eta1']):.2f}")
+    axes[0, 0].legend(loc="lower left", fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

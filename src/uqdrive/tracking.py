@@ -6,17 +6,20 @@ Every stage opens its run through `stage_run`, which logs the composed Hydra con
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import mlflow
+from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
 MAX_PARAM_CHARS = 6000  # MLflow's limit on one param value
+PARENT_RUN_ENV = "UQDRIVE_MLFLOW_PARENT_RUN"  # "<experiment id>:<run id>" of the sweep's parent run
 
 
 def store_uris(root: str | Path) -> tuple[str, str]:
@@ -59,14 +62,44 @@ def stage_run(root: str | Path, stage: str, config: DictConfig | Mapping[str, An
               run_name: str | None = None, tags: Mapping[str, str] | None = None) -> Iterator[mlflow.ActiveRun]:
     """An MLflow run in experiment `stage` with the flattened config logged as params."""
     experiment_id = ensure_experiment(root, stage)
-    with mlflow.start_run(experiment_id=experiment_id, run_name=run_name, tags=dict(tags or {})) as run:
+    tags = dict(tags or {})
+    parent = os.environ.get(PARENT_RUN_ENV, "")
+    if parent.startswith(f"{experiment_id}:"):  # a job of a sweep of this stage: nest it under the sweep's run
+        tags.setdefault("mlflow.parentRunId", parent.split(":", 1)[1])
+    with mlflow.start_run(experiment_id=experiment_id, run_name=run_name, tags=tags) as run:
         mlflow.log_params(flatten(config))
         yield run
 
 
 class CreateStoreCallback(Callback):
     """Hydra callback: create the store and the stage's experiment in the parent process, once,
-    before a multirun's (possibly parallel) jobs start — see `ensure_experiment`."""
+    before a multirun's (possibly parallel) jobs start — see `ensure_experiment`.
+
+    With ``tracking.parent_run: true`` in the stage's config it also opens the sweep's parent
+    run and hands its id to the jobs through the environment (`PARENT_RUN_ENV`, inherited by
+    joblib's worker processes), so each job's run is its child.
+    """
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        ensure_experiment(config.paths.root, config.hydra.job.name)
+        root = _project_root(config)
+        experiment_id = ensure_experiment(root, config.hydra.job.name)
+        if not OmegaConf.select(config, "tracking.parent_run", default=False):
+            return
+        client = MlflowClient(store_uris(root)[0])
+        overrides = " ".join(config.hydra.overrides.task)
+        run = client.create_run(experiment_id, run_name=f"sweep {config.hydra.job.name}",
+                                tags={"uqdrive.sweep_dir": str(config.hydra.sweep.dir), "uqdrive.overrides": overrides})
+        os.environ[PARENT_RUN_ENV] = f"{experiment_id}:{run.info.run_id}"
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        parent = os.environ.pop(PARENT_RUN_ENV, "")
+        if parent:
+            MlflowClient(store_uris(_project_root(config))[0]).set_terminated(parent.split(":", 1)[1])
+
+
+def _project_root(config: DictConfig) -> str:
+    """`paths.root`, which defaults to ${hydra:runtime.cwd}: outside a job (at multirun start and
+    end) that resolver needs the Hydra config registered first."""
+    if not HydraConfig.initialized():
+        HydraConfig.instance().set_config(config)
+    return str(config.paths.root)

@@ -1,0 +1,188 @@
+"""The `safety` stage: η1 of one controller in one sweep cell (method × scenario × weather × noise),
+and `safety_summary`, the table and offline-safety figures over all cells.
+
+Every input is checked (method, model file, estimator, speed, world, executor) before the
+first rollout. A cell whose result file already holds its config hash is not run again.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import mlflow
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+from tqdm import tqdm
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.files import atomic_path, write_json
+from uqdrive.models.checkpoint import check_method, load_posterior
+from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
+from uqdrive.safety.cells import EstimatorSettings, cell_hash, estimate_safety, file_digest, rates, reusable_result
+from uqdrive.safety.controller import Controller
+from uqdrive.safety.executors import PolicySpec, RolloutJob, make_executor
+from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.safe_sets import SafeSet, check_half_width, safe_set_for
+from uqdrive.sim import (CameraConfig, ScenarioConfig, VehicleConfig, WeatherConfig, build_geometry,
+                         check_noise)
+from uqdrive.tracking import stage_run
+
+EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
+
+
+def _check_speed(speed: object, vehicle: VehicleConfig) -> float:
+    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0 < speed <= vehicle.max_speed:
+        raise ValueError(f"safety.speed={speed!r} must be in (0, vehicle.max_speed={vehicle.max_speed}] m/s")
+    return float(speed)
+
+
+def _check_horizon(horizon_s: object) -> float:
+    if isinstance(horizon_s, bool) or not isinstance(horizon_s, (int, float)) or not horizon_s > 0:
+        raise ValueError(f"safety.horizon_s={horizon_s!r} must be a number of seconds > 0")
+    return float(horizon_s)
+
+
+def _check_int(key: str, value: object, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{key}={value!r} must be an integer >= {minimum}")
+    return value
+
+
+def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
+    """Validate the cell's config and load its model once; returns the job, the estimator and the cell hash.
+
+    Raises before any rollout on an unknown method, a missing or mismatched model file, or a
+    bad value (the message names the key, the value and what is allowed).
+    """
+    method = check_method(cfg.model.name)
+    settings = EstimatorSettings(scheme=cfg.safety.scheme, theta=cfg.safety.theta, gamma=cfg.safety.gamma,
+                                 base_seed=cfg.safety.base_seed)
+    vehicle = VehicleConfig.from_config(cfg.vehicle)
+    bins = SteeringBins(**cfg.bins)
+    model_path = Path(cfg.safety.model_path)
+    if not model_path.exists():
+        raise FileNotFoundError(f"safety.model_path={model_path} does not exist; train it first "
+                                f"(dvc repro train_mcd / train@{method})")
+    posterior = load_posterior(model_path, expected_method=method, expected_classes=bins)
+    speed = _check_speed(cfg.safety.speed, vehicle)
+    Controller(posterior, bins, cfg.safety.samples, cfg.safety.eps, speed)  # checks samples and eps as workers will
+    spec = PolicySpec("bnn", speed, str(model_path), method, bins, cfg.safety.samples, cfg.safety.eps)
+    job = RolloutJob(policy=spec, scenario=ScenarioConfig.from_config(cfg.scenario),
+                     weather=WeatherConfig.from_config(cfg.weather), noise=check_noise(cfg.noise),
+                     base_seed=settings.base_seed, camera=CameraConfig.from_config(cfg.camera), vehicle=vehicle,
+                     control_hz=cfg.control_hz, horizon_s=_check_horizon(cfg.safety.horizon_s), half_width=check_half_width(
+                         cfg.safety.half_width))
+    identity = {"model_sha256": file_digest(model_path), "job": {**job.__dict__, "policy": {
+        k: v for k, v in spec.__dict__.items() if k != "model_path"}}, "estimator": settings.__dict__}
+    return job, settings, cell_hash(identity)
+
+
+def _executor_options(cfg: DictConfig) -> dict:
+    options = {k: v for k, v in OmegaConf.to_container(cfg.executor, resolve=True).items() if k not in ("name", "workers")}
+    return {k: v for k, v in options.items() if v is not None}
+
+
+def _positions(results: list[RolloutResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rollout = np.concatenate([np.full(len(r.x), i) for i, r in enumerate(results)]) if results else np.zeros(0, int)
+    x = np.concatenate([r.x for r in results]) if results else np.zeros(0)
+    y = np.concatenate([r.y for r in results]) if results else np.zeros(0)
+    return rollout, x, y
+
+
+def _extent(route: np.ndarray) -> np.ndarray:
+    lo, hi = route.min(0) - EXTENT_MARGIN, route.max(0) + EXTENT_MARGIN
+    return np.array([lo[0], hi[0], lo[1], hi[1]])
+
+
+def write_outputs(cfg: DictConfig, results: list[RolloutResult], safe_set: SafeSet, eta1: float,
+                  title: str) -> tuple[Path, Path, Path]:
+    """Per-rollout table (CSV), visited positions with the route and safe-set edges (npz, for the
+    summary figures) and the cell's hexbin figure."""
+    plots = Path(cfg.safety.plots_dir)
+    table = plots / f"{cfg.safety.cell}.csv"
+    with atomic_path(table) as tmp, tmp.open("w", newline="") as f:
+        rows = [r.summary() for r in results]
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    route = np.stack([safe_set.route_x, safe_set.route_y], axis=1)
+    edges = safe_set.boundaries()
+    left, right = edges if edges is not None else (np.zeros((0, 2)), np.zeros((0, 2)))
+    rollout, x, y = _positions(results)
+    positions = Path(cfg.safety.positions)
+    with atomic_path(positions) as tmp:
+        with tmp.open("wb") as f:
+            np.savez_compressed(f, rollout=rollout, x=x, y=y, route=route, left=left, right=right,
+                                extent=_extent(route), eta1=eta1)
+    fig, ax = plt.subplots(figsize=(5, 5))
+    safety_hexbin(ax, x, y, route, edges, tuple(_extent(route)), title)
+    ax.legend(loc="lower left", fontsize=7)
+    figure = save_figure(fig, plots / f"{cfg.safety.cell}.png")
+    return table, positions, figure
+
+
+def run_safety(cfg: DictConfig) -> dict:
+    """Estimate η1 for one cell; reuses the cell's result file when its config hash matches."""
+    job, settings, key = build_job(cfg)
+    workers = _check_int("executor.workers", cfg.executor.workers, 1)
+    out = Path(cfg.safety.out)
+    previous = reusable_result(out, key)
+    if previous is not None:
+        return {**previous, "reused": True}
+    executor = make_executor(cfg.executor.name, job, workers, **_executor_options(cfg))
+    start = time.perf_counter()
+    try:
+        estimate, results = estimate_safety(executor, settings, lambda it: tqdm(
+            it, total=settings.planned_rollouts(), desc=f"safety {cfg.safety.cell}", unit="rollout",
+            disable=not cfg.progress, leave=False))
+    finally:
+        executor.close()
+    seconds = time.perf_counter() - start
+    safe_set = safe_set_for(build_geometry(job.scenario), job.half_width)
+    title = f"{cfg.model.name} · {job.weather.name} · noise {job.noise:g}: η̂1 = {estimate.value:.2f} ± {estimate.theta:g}"
+    table, positions, figure = write_outputs(cfg, results, safe_set, estimate.value, title)
+    metrics = {"eta1": estimate.value, "eta1_low": estimate.low, "eta1_high": estimate.high,
+               "rollouts": estimate.n, "steps": int(sum(r.steps for r in results)), "seconds": seconds,
+               **rates(results)}
+    cell = {"method": cfg.model.name, "scenario": job.scenario.name, "weather": job.weather.name, "noise": job.noise,
+            "theta": estimate.theta, "gamma": estimate.gamma, "scheme": estimate.method, "n": estimate.n}
+    with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell) as run:
+        mlflow.log_params({k: v for k, v in cell.items() if k != "noise"})
+        mlflow.log_metrics({k: v for k, v in metrics.items() if not np.isnan(v)})
+        for path in (figure, table):
+            mlflow.log_artifact(str(path))
+        run_id = run.info.run_id
+    result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key, "mlflow_run_id": run_id}
+    write_json(out, result)  # last: its presence marks the cell as done
+    return {**result, "reused": False}
+
+
+def run_safety_summary(cfg: DictConfig) -> dict:
+    """Table of η̂1 over methods × weathers × noises, and one method × weather hexbin grid per noise."""
+    cells = Path(cfg.summary.cells_dir)
+    table: dict = {}
+    figures = []
+    for noise in cfg.noises:
+        panels = {}
+        for method in cfg.methods:
+            for weather in cfg.weathers:
+                name = f"{method}-{cfg.scenario.name}-{weather}-noise{noise}"
+                path = cells / f"{name}.json"
+                if not path.exists():
+                    raise FileNotFoundError(f"{path} is missing; run `python stages/safety.py model={method} "
+                                            f"weather={weather} noise={noise}` (or dvc repro) first")
+                result = json.loads(path.read_text())
+                table.setdefault(method, {}).setdefault(weather, {})[f"noise{noise}"] = {
+                    k: result[k] for k in ("eta1", "eta1_low", "eta1_high", "theta", "gamma", "n", "scheme",
+                                           "collision_rate", "off_road_rate", "mean_lateral_deviation")}
+                with np.load(Path(cfg.summary.positions_dir) / f"{name}.npz") as data:
+                    panels[(method, weather)] = {k: data[k] for k in data.files}
+        fig = safety_hexbin_grid(panels, list(cfg.methods), list(cfg.weathers),
+                                 f"Closed-loop paths at the {cfg.scenario.name}, sensor noise {noise}")
+        figures.append(save_figure(fig, Path(cfg.summary.figures_dir) / f"hexbin_noise{noise}.png"))
+    write_json(cfg.summary.out, table)
+    return {"table": table, "figures": [str(f) for f in figures]}

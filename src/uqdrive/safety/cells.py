@@ -1,0 +1,120 @@
+"""One sweep cell (method × scenario × weather × noise): its validated settings, its identity, its estimate.
+
+A cell's result is keyed by a hash of everything that decides it (the model file's bytes,
+the world, the estimator, the seeds) and nothing that does not (worker count, backend,
+output paths), so an interrupted sweep run again reuses every finished cell.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from uqdrive.safety.executors import Executor
+from uqdrive.safety.rollout import RolloutResult
+from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential, sequential_plan
+
+SCHEMES = ("chernoff", "clopper_pearson", "sequential")
+_PLANNED: dict[str, tuple[Callable[[float, float], int], Callable[[int, int, float, float], Estimate]]] = {
+    "chernoff": (chernoff_n, chernoff),
+    "clopper_pearson": (clopper_pearson_n, clopper_pearson),
+}
+
+
+def _number(key: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{key}={value!r} must be a finite number")
+    return float(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class EstimatorSettings:
+    """How η1 is estimated: scheme and (θ, γ) with P(|η̂1 − η1| > θ) ≤ γ; rollout i uses seed base_seed + i."""
+
+    scheme: str = "chernoff"
+    theta: float = 0.05
+    gamma: float = 0.05
+    base_seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.scheme not in SCHEMES:
+            raise ValueError(f"safety.scheme={self.scheme!r} is not known; choose one of {list(SCHEMES)}")
+        for key in ("theta", "gamma"):
+            value = _number(f"safety.{key}", getattr(self, key))
+            if not 0 < value < 1:
+                raise ValueError(f"safety.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
+        if isinstance(self.base_seed, bool) or not isinstance(self.base_seed, int) or self.base_seed < 0:
+            raise ValueError(f"safety.base_seed={self.base_seed!r} must be an integer >= 0")
+
+    def planned_rollouts(self) -> int:
+        """Rollouts the scheme runs (the most it may run, for `sequential`)."""
+        if self.scheme == "sequential":
+            return sequential_plan(self.theta, self.gamma).looks[-1]
+        return _PLANNED[self.scheme][0](self.theta, self.gamma)
+
+
+def estimate_safety(executor: Executor, settings: EstimatorSettings,
+                    progress: Callable[[Iterator[RolloutResult]], Iterator[RolloutResult]] = iter,
+                    ) -> tuple[Estimate, list[RolloutResult]]:
+    """Run rollouts 0, 1, … as the scheme asks for them and estimate η1 = P(path in the safe set)."""
+    results: list[RolloutResult] = []
+
+    def draw(count: int) -> np.ndarray:
+        start = len(results)
+        results.extend(progress(executor.run(range(start, start + count))))
+        return np.array([r.safe for r in results[start:]], dtype=np.int64)
+
+    if settings.scheme == "sequential":
+        return sequential(draw, settings.theta, settings.gamma), results
+    n = settings.planned_rollouts()
+    k = int(draw(n).sum())
+    return _PLANNED[settings.scheme][1](k, n, settings.theta, settings.gamma), results
+
+
+def file_digest(path: str | Path) -> str:
+    """sha256 of a file's bytes: a retrained model is a new cell even at the same path."""
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def cell_hash(identity: dict) -> str:
+    """Stable hash of a JSON-able description of everything that decides a cell's result."""
+    return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def reusable_result(path: str | Path, key: str) -> dict | None:
+    """The finished result at ``path`` if it was computed for the cell with hash ``key``."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    try:
+        result = json.loads(path.read_text())
+    except json.JSONDecodeError:
+        return None
+    return result if isinstance(result, dict) and result.get("config_hash") == key else None
+
+
+def rates(results: Sequence[RolloutResult]) -> dict[str, float]:
+    """Per-cell summaries beside η̂1: how paths failed and how well they tracked the route."""
+    def mean(values: list[float]) -> float:
+        finite = [v for v in values if not math.isnan(v)]
+        return float(np.mean(finite)) if finite else float("nan")
+
+    return {
+        "collision_rate": mean([r.collision for r in results]),
+        "off_road_rate": mean([r.off_road for r in results]),
+        "left_corridor_rate": mean([r.left_corridor for r in results]),
+        "reached_exit_rate": mean([r.reached_exit for r in results]),
+        "mean_lateral_deviation": mean([r.mean_abs_lateral_deviation for r in results]),
+        "mean_eta2": mean([r.mean_eta2 for r in results]),
+        "mean_mutual_information": mean([r.mean_mutual_information for r in results]),
+    }

@@ -1,0 +1,108 @@
+"""Closed-loop controllers: camera frame (or state) → steering and speed, one control period at a time.
+
+`Controller` is the paper's Bayesian end-to-end controller: the frame goes through the same
+preprocessing the training data went through, then n posterior draws give π(o), η2 and the
+mutual information. `AutopilotPolicy` and `ConstantPolicy` use the same interface so the safe
+sets can be checked against controllers whose safety is known (η1 ≈ 1 and ≈ 0).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.data.frames import preprocess_frame
+from uqdrive.models.posterior import Posterior
+from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
+from uqdrive.uq import frame_measures
+
+
+@dataclass(frozen=True)
+class Command:
+    """One control decision; the uncertainty fields are NaN for controllers without a posterior."""
+
+    steer: float
+    speed: float
+    eta2: float = math.nan
+    mutual_information: float = math.nan
+    entropy: float = math.nan
+
+
+class Policy(Protocol):
+    """What a rollout drives with. ``needs_camera``: False lets the rollout skip rendering."""
+
+    needs_camera: bool
+
+    def reset(self, env: DrivingEnv, seed: int) -> None:
+        """Start an episode (env already reset); every random draw of the episode comes from ``seed``."""
+
+    def act(self, obs: np.ndarray | None, info: dict) -> Command:
+        """Command for the current frame ``obs`` and state ``info``."""
+
+
+class Controller:
+    """Bayesian end-to-end controller: steer = π(o), the class centre of the predictive's mode."""
+
+    needs_camera = True
+
+    def __init__(self, posterior: Posterior, bins: SteeringBins, n_samples: int, eps: float, speed: float,
+                 generator: torch.Generator | None = None):
+        if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
+            raise ValueError(f"safety.samples={n_samples!r} must be an integer >= 1 (posterior draws per frame)")
+        if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not (math.isfinite(eps) and eps > 0):
+            raise ValueError(f"safety.eps={eps!r} must be a number > 0 (steering units)")
+        if not isinstance(speed, (int, float)) or isinstance(speed, bool) or not speed > 0:
+            raise ValueError(f"safety.speed={speed!r} must be a number > 0 (m/s)")
+        self.posterior = posterior.eval()
+        self.centres = torch.as_tensor(bins.centres, dtype=torch.float32)
+        self.n_samples, self.eps, self.speed = n_samples, float(eps), float(speed)
+        self.generator = generator if generator is not None else torch.Generator()
+
+    def reset(self, env: DrivingEnv, seed: int) -> None:
+        self.generator.manual_seed(seed)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
+        if obs is None:
+            raise ValueError("Controller needs a camera frame; reset the env with render=True")
+        x = torch.from_numpy(preprocess_frame(obs)).to(torch.float32).div_(255.0)[None, None]
+        m = frame_measures(self.posterior.sample_probs(x, self.n_samples, self.generator), self.centres, self.eps)
+        return Command(float(m.decision[0]), self.speed, float(m.eta2[0]), float(m.mutual_information[0]),
+                       float(m.entropy[0]))
+
+
+class AutopilotPolicy:
+    """The pure-pursuit autopilot that produced the training data (unperturbed: a reference of η1 ≈ 1)."""
+
+    needs_camera = False
+
+    def __init__(self, config: AutopilotConfig | None = None):
+        self.config = config or AutopilotConfig()
+        self._autopilot: Autopilot | None = None
+
+    def reset(self, env: DrivingEnv, seed: int) -> None:
+        self._autopilot = Autopilot(env.route, env.vehicle_config, self.config, env.control_hz, seed=seed)
+
+    def act(self, obs: np.ndarray | None, info: dict) -> Command:
+        action = self._autopilot.act(info)
+        return Command(action.steer, action.speed)
+
+
+class ConstantPolicy:
+    """Fixed steering and speed (full left = +1: a reference of η1 ≈ 0)."""
+
+    needs_camera = False
+
+    def __init__(self, steer: float, speed: float):
+        self.steer, self.speed = float(steer), float(speed)
+
+    def reset(self, env: DrivingEnv, seed: int) -> None:
+        """Nothing random to seed."""
+
+    def act(self, obs: np.ndarray | None, info: dict) -> Command:
+        return Command(self.steer, self.speed)

@@ -1,0 +1,16 @@
+"""DVC stage `safety_summary`: metrics/safety.json (η̂1 per method × weather × noise) and the hexbin figures."""
+
+import hydra
+from omegaconf import DictConfig
+
+from uqdrive.pipeline.safety import run_safety_summary
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="safety_summary")
+def main(cfg: DictConfig) -> None:
+    result = run_safety_summary(cfg)
+    print(f"safety summary -> {cfg.summary.out}, figures {', '.join(result['figures'])}")
+
+
+if __name__ == "__main__":
+    main()

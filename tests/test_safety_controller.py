@@ -1,0 +1,52 @@
+"""The Bayesian controller: live frame → π(o), η2, mutual information, with its draws from the episode's seed."""
+
+import numpy as np
+import pytest
+import torch
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.data.frames import preprocess_frame
+from uqdrive.models import load_posterior
+from uqdrive.safety import Controller
+from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.uq import frame_measures
+
+from conftest import CONF
+
+
+@pytest.fixture(scope="module")
+def frame():
+    with DrivingEnv() as env:
+        return env.reset(3, ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
+                         WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"), 0.05)
+
+
+def test_command_is_the_predictive_mode_with_its_uncertainty(random_models, frame):
+    bins = SteeringBins()
+    posterior = load_posterior(random_models["vi"], expected_method="vi", expected_classes=bins)
+    controller = Controller(posterior, bins, 50, 0.1, 5.5)
+    controller.reset(None, 7)
+    command = controller.act(frame, {})
+    assert command.speed == 5.5
+    assert np.isclose(bins.centres, command.steer).any()
+    assert 0 < command.eta2 <= 1 and command.mutual_information >= 0 and command.entropy > 0
+    # the same seed gives the same draws; the result is what uq computes from them
+    x = torch.from_numpy(preprocess_frame(frame)).float().div(255)[None, None]
+    probs = posterior.sample_probs(x, 50, torch.Generator().manual_seed(7))
+    expected = frame_measures(probs, bins.centres, 0.1)
+    assert command.steer == pytest.approx(float(expected.decision[0]))
+    assert command.eta2 == pytest.approx(float(expected.eta2[0]))
+    assert command.mutual_information == pytest.approx(float(expected.mutual_information[0]), abs=1e-6)
+    controller.reset(None, 7)
+    assert controller.act(frame, {}) == command
+
+
+def test_bad_settings_name_the_key(random_models):
+    posterior = load_posterior(random_models["mcd"])
+    for kwargs, match in (({"n_samples": 0}, "safety.samples=0"), ({"eps": 0.0}, "safety.eps=0.0"),
+                          ({"speed": -1.0}, "safety.speed=-1.0")):
+        args = {"n_samples": 10, "eps": 0.1, "speed": 5.0, **kwargs}
+        with pytest.raises(ValueError, match=match):
+            Controller(posterior, SteeringBins(), **args)
+    with pytest.raises(ValueError, match="camera frame"):
+        Controller(posterior, SteeringBins(), 10, 0.1, 5.0).act(None, {})

@@ -1,0 +1,126 @@
+"""The `safety` stage on the tiny profile: outputs, MLflow run, reuse of finished cells, clear errors, summary."""
+
+import json
+
+import pytest
+from mlflow.tracking import MlflowClient
+
+import uqdrive.pipeline.safety as safety_stage
+from uqdrive.pipeline.safety import run_safety, run_safety_summary
+from uqdrive.tracking import store_uris
+
+
+@pytest.fixture
+def safety_config(stage_config, random_models):
+    def make(*overrides: str):
+        return stage_config("safety", f"paths.models={random_models['mcd'].parent}", *overrides)
+    return make
+
+
+def runs(root):
+    client = MlflowClient(store_uris(root)[0])
+    experiment = client.get_experiment_by_name("safety")
+    return client, (client.search_runs([experiment.experiment_id]) if experiment else [])
+
+
+def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_path):
+    cfg = safety_config("model=hmc", "weather=afternoon", "noise=0.05")
+    result = run_safety(cfg)
+    assert not result["reused"] and result["n"] == 4 == result["rollouts"]  # chernoff_n(0.7, 0.05)
+    assert result["scheme"] == "chernoff" and result["guaranteed"]
+    assert result["eta1_low"] <= result["eta1"] <= result["eta1_high"]
+    out = tmp_path / "metrics/safety/hmc-roundabout-afternoon-noise0.05.json"
+    saved = json.loads(out.read_text())
+    assert saved == {k: v for k, v in result.items() if k != "reused"}
+    assert (tmp_path / "data/safety/hmc-roundabout-afternoon-noise0.05.npz").exists()
+    assert (tmp_path / "plots/safety/cells/hmc-roundabout-afternoon-noise0.05.png").stat().st_size > 5000
+
+    client, logged = runs(tmp_path)
+    (run,) = logged
+    params = run.data.params
+    assert {k: params[k] for k in ("method", "scenario", "weather", "noise", "theta", "gamma", "scheme", "n")} == {
+        "method": "hmc", "scenario": "roundabout", "weather": "afternoon", "noise": "0.05", "theta": "0.7",
+        "gamma": "0.05", "scheme": "chernoff", "n": "4"}
+    for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
+        assert run.data.metrics[key] == pytest.approx(result[key])
+    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
+        "hmc-roundabout-afternoon-noise0.05.png", "hmc-roundabout-afternoon-noise0.05.csv"}
+
+    # same config, other worker count: reused, nothing rerun or logged
+    stamp = out.stat().st_mtime_ns
+    again = run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "executor.workers=2"))
+    assert again["reused"] and again["eta1"] == result["eta1"] and out.stat().st_mtime_ns == stamp
+    assert len(runs(tmp_path)[1]) == 1
+    # another seed is another cell config: recomputed
+    assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7"))["reused"]
+
+
+def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path, monkeypatch):
+    cells = [("mcd", "clear_noon"), ("vi", "clear_noon"), ("vi", "rain")]
+    configs = [safety_config(f"model={m}", f"weather={w}") for m, w in cells]
+    real = safety_stage.estimate_safety
+
+    def interrupted(executor, settings, progress=iter):
+        if interrupted.calls == 1:
+            raise KeyboardInterrupt  # Ctrl-C during the second cell's rollouts
+        interrupted.calls += 1
+        return real(executor, settings, progress)
+
+    interrupted.calls = 0
+    monkeypatch.setattr(safety_stage, "estimate_safety", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        for cfg in configs:
+            run_safety(cfg)
+    monkeypatch.setattr(safety_stage, "estimate_safety", real)
+    assert not (tmp_path / "metrics/safety/vi-roundabout-clear_noon-noise0.0.json").exists()
+    assert [run_safety(cfg)["reused"] for cfg in configs] == [True, False, False]
+    assert len(runs(tmp_path)[1]) == 3
+
+
+def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
+    result = run_safety(safety_config("model=vi", "safety.scheme=sequential", "safety.theta=0.45"))
+    assert result["scheme"] == "sequential" and result["guaranteed"]
+    rows = (tmp_path / "plots/safety/cells/vi-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
+    assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(100000, 100000 + result["n"]))
+
+
+@pytest.mark.parametrize(("overrides", "error", "match"), [
+    (("model.name=lasso",), ValueError, r"model.name='lasso' is not a known method; choose one of \['hmc', 'mcd', 'vi'\]"),
+    (("safety.model_path=/nonexistent/vi.pt",), FileNotFoundError, r"safety.model_path=/nonexistent/vi.pt does not exist"),
+    (("safety.theta=1.5",), ValueError, r"safety.theta=1.5 must be in the open interval \(0, 1\)"),
+    (("safety.gamma=0",), ValueError, r"safety.gamma=0 must be in the open interval \(0, 1\)"),
+    (("safety.scheme=bootstrap",), ValueError, r"safety.scheme='bootstrap' is not known"),
+    (("safety.speed=50",), ValueError, r"safety.speed=50 must be in \(0, vehicle.max_speed=20.0\]"),
+    (("safety.samples=0",), ValueError, r"safety.samples=0 must be an integer >= 1"),
+    (("safety.half_width=0",), ValueError, r"safety.half_width=0 must be null"),
+    (("executor.workers=0",), ValueError, r"executor.workers=0 must be an integer >= 1"),
+    (("noise=-0.1",), ValueError, r"noise=-0.1 must be >= 0"),
+    (("safety.horizon_s=0",), ValueError, r"safety.horizon_s=0 must be a number of seconds > 0"),
+])
+def test_bad_input_fails_before_any_rollout(safety_config, tmp_path, monkeypatch, overrides, error, match):
+    def no_rollouts(*args, **kwargs):
+        raise AssertionError("rollouts started")
+
+    monkeypatch.setattr(safety_stage, "make_executor", no_rollouts)
+    with pytest.raises(error, match=match):
+        run_safety(safety_config("model=vi", *overrides))
+    assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()
+
+
+def test_model_of_another_method_is_refused(safety_config, random_models):
+    with pytest.raises(ValueError, match="holds a 'mcd' model, expected 'vi'"):
+        run_safety(safety_config("model=vi", f"safety.model_path={random_models['mcd']}"))
+
+
+def test_summary_tabulates_cells_and_draws_one_grid_per_noise(safety_config, stage_config, tmp_path):
+    for method in ("mcd", "vi"):
+        run_safety(safety_config(f"model={method}", "noise=0"))
+    summary = run_safety_summary(stage_config("safety_summary", "methods=[mcd,vi]", "weathers=[clear_noon]",
+                                              "noises=[0]"))
+    table = json.loads((tmp_path / "metrics/safety.json").read_text())
+    assert table == summary["table"] and set(table) == {"mcd", "vi"}
+    cell = table["vi"]["clear_noon"]["noise0"]
+    assert cell["n"] == 4 and 0 <= cell["eta1"] <= 1
+    assert (tmp_path / "plots/safety/hexbin_noise0.png").stat().st_size > 5000
+    with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.json is missing"):
+        run_safety_summary(stage_config("safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]"))
