@@ -30,7 +30,8 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     for name in ("conf", "stages", "src"):
         shutil.copytree(ROOT / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
     params = yaml.safe_load((project / "params.yaml").read_text())
-    params.update(profile="tiny", scenarios=["straight", "roundabout"])
+    params.update(profile="tiny", scenarios=["straight", "roundabout"], methods=["mcd", "vi", "hmc"],
+                  weathers=["rain"], noises=[0.0])
     (project / "params.yaml").write_text(yaml.safe_dump(params))
     _dvc(project, "init", "--no-scm", "-q")
 
@@ -44,6 +45,12 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         assert (project / f"models/{method}.pt").exists()
         trained = json.loads((project / f"metrics/train/{method}.json").read_text())
         assert trained["method"] == method and trained["val_frames"] == metrics["val_frames"]
+    safety = json.loads((project / "metrics/safety.json").read_text())
+    assert set(safety) == {"mcd", "vi", "hmc"} and set(safety["vi"]) == {"rain"}
+    assert safety["vi"]["rain"]["noise0.0"] == {
+        k: v for k, v in json.loads((project / "metrics/safety/vi-roundabout-rain-noise0.0.json").read_text()).items()
+        if k in safety["vi"]["rain"]["noise0.0"]}
+    assert (project / "plots/safety/summary/hexbin_noise0.0.png").exists()
     assert (project / "mlflow.db").exists()
 
     assert "Data and pipelines are up to date" in _dvc(project, "status")
@@ -51,3 +58,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     again = _dvc(project, "repro")
     assert "Running stage" not in again, again
     assert (project / "data/raw/straight.parquet").stat().st_mtime_ns == stamp
+
+    # a new weather in params.yaml runs its cells and what aggregates them, nothing upstream
+    params["weathers"] = ["rain", "afternoon"]
+    (project / "params.yaml").write_text(yaml.safe_dump(params))
+    ran = sorted(line.split("'")[1] for line in _dvc(project, "repro").splitlines() if line.startswith("Running stage"))
+    assert ran == ["safety@hmc-afternoon-0.0", "safety@mcd-afternoon-0.0", "safety@vi-afternoon-0.0", "safety_summary"]
