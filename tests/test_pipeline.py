@@ -84,6 +84,15 @@ def test_bad_values_fail_before_any_work(stage_config, tmp_path):
     assert not (tmp_path / "data").exists()
 
 
+def test_corrupt_raw_file_fails_naming_it_and_writes_nothing(stage_config, tmp_path):
+    raw = tmp_path / "data/raw/straight.parquet"
+    raw.parent.mkdir(parents=True)
+    raw.write_bytes(b"PAR1 half of a file")
+    with pytest.raises(ValueError, match=f"{raw} is not a readable parquet file"):
+        run_preprocess(stage_config("preprocess", "scenarios=[straight]"))
+    assert not (tmp_path / "data/processed").exists() and not (tmp_path / "metrics").exists()
+
+
 @pytest.mark.slow
 def test_worker_count_does_not_change_the_data(stage_config, tmp_path):
     tables = []

@@ -64,7 +64,10 @@ def read_table(path: str | Path, schema: pa.Schema, columns: list[str] | None = 
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist; run the stage that writes it first (dvc repro)")
-    table = pq.read_table(path, columns=columns)
+    try:
+        table = pq.read_table(path, columns=columns)
+    except (pa.ArrowException, OSError) as err:
+        raise ValueError(f"{path} is not a readable parquet file ({err}); rerun the stage that writes it") from None
     missing = sorted(set(columns or schema.names) - set(table.column_names))
     if missing:
         raise ValueError(f"{path} lacks columns {missing}; was it written by another version? rerun its stage")

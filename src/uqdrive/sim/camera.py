@@ -107,6 +107,6 @@ def _rain(img: np.ndarray, weather: WeatherConfig, rng: np.random.Generator) -> 
 
 def add_noise(img: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
     """Gaussian pixel noise, sigma in units of full intensity; float [0, 1] -> uint8."""
-    if sigma > 0:
-        img = img + rng.normal(0.0, sigma, size=img.shape).astype(np.float32)
+    if sigma > 0:  # float32 draws: half the cost of float64 ones, and the image is float32 anyway
+        img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
     return np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8)

@@ -1,0 +1,98 @@
+"""`uqdrive bench sim`: frames per second of `DrivingEnv.step` with the camera, against a bare
+`getCameraImage` of the same scene, resolution and lighting in the same run.
+
+The bare render is the floor: TinyRenderer rasterising the scene. An env step adds the car
+model, the pybullet collision query, the paved-area and route checks, the image-space weather
+and sensor noise. Both are timed from the same poses (those the autopilot drives), on one
+pybullet client. Target: an env step costs at most 1.5x the bare render.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+
+from uqdrive.sim import Autopilot, DrivingEnv, ScenarioConfig, WeatherConfig
+
+CONF = Path(__file__).resolve().parents[3] / "conf"
+
+
+def autopilot_commands(env: DrivingEnv, scenario: ScenarioConfig, weather: WeatherConfig, noise: float,
+                       steps: int, seed: int) -> list[tuple[float, float, float, float, float]]:
+    """(steer, speed, x, y, yaw) of ``steps`` autopilot steps; episodes restart with seed + 1, … when they end."""
+    out: list[tuple[float, float, float, float, float]] = []
+    episode = 0
+    while len(out) < steps:
+        env.reset(seed + episode, scenario, weather, noise, render=False)
+        pilot = Autopilot(env.route, env.vehicle_config, control_hz=env.control_hz, seed=seed + episode)
+        info = env.last_info
+        while not env.done and len(out) < steps:
+            action = pilot.act(info)
+            _, info = env.step(action.steer, action.speed)
+            out.append((action.steer, action.speed, info["x"], info["y"], info["yaw"]))
+        episode += 1
+    return out
+
+
+def time_env_steps(env: DrivingEnv, commands, scenario, weather, noise: float, seed: int) -> float:
+    """Seconds for the env to replay ``commands`` with the camera on (episodes restart as recorded)."""
+    start = time.perf_counter()
+    episode = 0
+    env.reset(seed, scenario, weather, noise)
+    for steer, speed, *_ in commands:
+        if env.done:
+            episode += 1
+            env.reset(seed + episode, scenario, weather, noise)
+        env.step(steer, speed)
+    return time.perf_counter() - start
+
+
+def time_bare_renders(env: DrivingEnv, poses, weather: WeatherConfig) -> float:
+    """Seconds for `getCameraImage` alone at the same poses, resolution, projection and lights."""
+    cam, client = env.camera, env.client
+    cfg = cam.config
+    light = np.asarray(weather.light_direction, float)
+    light = (light / np.linalg.norm(light)).tolist()
+    env.world.hide_ego()
+    start = time.perf_counter()
+    for x, y, yaw in poses:
+        client.getCameraImage(cfg.width, cfg.height, cam.view_matrix(x, y, yaw), cam.projection,
+                              renderer=p.ER_TINY_RENDERER, lightDirection=light, lightColor=list(weather.light_color),
+                              lightAmbientCoeff=weather.ambient, lightDiffuseCoeff=weather.diffuse,
+                              lightSpecularCoeff=weather.specular, shadow=int(weather.shadow))
+    return time.perf_counter() - start
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="uqdrive bench sim", description=__doc__)
+    ap.add_argument("--scenario", default="roundabout", help="conf/scenario/<name>.yaml")
+    ap.add_argument("--weather", default="rain", help="conf/weather/<name>.yaml (rain: every image effect on)")
+    ap.add_argument("--noise", type=float, default=0.05)
+    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--repeats", type=int, default=3, help="alternating timings; the median ratio is reported")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    scenario = ScenarioConfig.from_yaml(CONF / "scenario" / f"{args.scenario}.yaml")
+    weather = WeatherConfig.from_yaml(CONF / "weather" / f"{args.weather}.yaml")
+    with DrivingEnv() as env:
+        commands = autopilot_commands(env, scenario, weather, args.noise, args.steps, args.seed)
+        poses = [c[2:] for c in commands]
+        time_env_steps(env, commands[:20], scenario, weather, args.noise, args.seed)  # warm-up
+        step_s, render_s = [], []
+        for _ in range(args.repeats):
+            step_s.append(time_env_steps(env, commands, scenario, weather, args.noise, args.seed))
+            render_s.append(time_bare_renders(env, poses, weather))
+    ratios = sorted(s / r for s, r in zip(step_s, render_s))
+    ratio = ratios[len(ratios) // 2]
+    cfg = env.camera_config
+    print(f"{args.scenario}, {weather.name}, noise {args.noise:g}, {cfg.width}x{cfg.height} TinyRenderer, "
+          f"{args.steps} steps x {args.repeats}")
+    print(f"bare getCameraImage: {args.steps / float(np.median(render_s)):7.1f} frames/s")
+    print(f"DrivingEnv.step:     {args.steps / float(np.median(step_s)):7.1f} frames/s   "
+          f"step/render {ratio:.2f}x (target <= 1.5)")
+    print(f"RESULT sim step_over_render={ratio:.2f}")
+    return 0
