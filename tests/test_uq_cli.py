@@ -19,6 +19,13 @@ def test_bound_table(capsys: pytest.CaptureFixture[str]) -> None:
     assert re.search(r"sprt .*no \(decision only\)", out)
 
 
+def test_bound_with_a_wide_theta_still_plans_every_guaranteed_scheme(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bound", "--theta", "0.3", "--gamma", "0.05"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"chernoff .*\s21\s+planned\s+yes", out)
+    assert re.search(r"sprt eta >= 0.7 \+- 0.3 \(cap\)\s+n/a", out)
+
+
 def test_bound_rejects_bad_theta(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bound", "--theta", "1.5"]) == 2
     assert "theta must be in (0, 1), got 1.5" in capsys.readouterr().err

@@ -22,14 +22,17 @@ def table(theta: float, gamma: float, rate_bounds: list[float], delta: float) ->
         for b in rate_bounds
     ]
     rows.append((f"sequential, looks {looks}", plan.looks[-1], "worst case", "yes"))
-    cap = sprt_cap(delta, theta, gamma, gamma)
-    rows.append((f"sprt eta >= {delta:g} +- {theta:g} (cap)", cap, "worst case", "no (decision only)"))
+    sprt_name = f"sprt eta >= {delta:g} +- {theta:g} (cap)"
+    if 0 < delta - theta and delta + theta < 1:
+        rows.append((sprt_name, sprt_cap(delta, theta, gamma, gamma), "worst case", "no (decision only)"))
+    else:  # the indifference region leaves (0, 1): the SPRT is undefined, the other schemes are not
+        rows.append((sprt_name, "n/a", "", "no (needs 0 < delta +- theta < 1; set --delta)"))
     width = max(len(r[0]) for r in rows)
     out = [
         f"samples so that P(|estimate - eta| > theta) <= gamma, theta={theta:g}, gamma={gamma:g}",
         f"{'scheme':<{width}}  {'samples':>7}  {'kind':<10}  guaranteed",
     ]
-    out += [f"{name:<{width}}  {n:>7d}  {kind:<10}  {g}" for name, n, kind, g in rows]
+    out += [f"{name:<{width}}  {n:>7}  {kind:<10}  {g}" for name, n, kind, g in rows]
     gs = ", ".join(f"{g:g}" for g in plan.gammas)
     out.append(f"sequential gamma split over looks: {gs} (union bound; stops when the exact interval fits in +-theta)")
     return out
