@@ -149,7 +149,8 @@ def run_safety(cfg: DictConfig) -> dict:
                "rollouts": estimate.n, "steps": int(sum(r.steps for r in results)), "seconds": seconds,
                **rates(results)}
     cell = {"method": cfg.model.name, "scenario": job.scenario.name, "weather": job.weather.name, "noise": job.noise,
-            "theta": estimate.theta, "gamma": estimate.gamma, "scheme": estimate.method, "n": estimate.n}
+            "theta": estimate.theta, "gamma": estimate.gamma, "scheme": estimate.method, "n": estimate.n,
+            "base_seed": settings.base_seed}
     with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell) as run:
         mlflow.log_params({k: v for k, v in cell.items() if k != "noise"})
         mlflow.log_metrics({k: v for k, v in metrics.items() if not np.isnan(v)})
@@ -177,8 +178,9 @@ def run_safety_summary(cfg: DictConfig) -> dict:
                                             f"weather={weather} noise={noise}` (or dvc repro) first")
                 result = json.loads(path.read_text())
                 table.setdefault(method, {}).setdefault(weather, {})[f"noise{noise}"] = {
-                    k: result[k] for k in ("eta1", "eta1_low", "eta1_high", "theta", "gamma", "n", "scheme",
-                                           "collision_rate", "off_road_rate", "mean_lateral_deviation")}
+                    k: result[k] for k in ("eta1", "eta1_low", "eta1_high", "theta", "gamma", "n", "scheme", "base_seed",
+                                           "collision_rate", "off_road_rate", "left_corridor_rate", "reached_exit_rate",
+                                           "mean_lateral_deviation", "mean_eta2", "mean_mutual_information")}
                 with np.load(Path(cfg.summary.positions_dir) / f"{name}.npz") as data:
                     panels[(method, weather)] = {k: data[k] for k in data.files}
         fig = safety_hexbin_grid(panels, list(cfg.methods), list(cfg.weathers),

@@ -70,6 +70,7 @@ def run_train(cfg: DictConfig) -> dict:
         "train_frames": len(train),
         "val_frames": len(val),
         "eval_samples": eval_samples,
+        "seed": int(cfg.seed),
         "train_seconds": seconds,
         **extra,
     }

@@ -1,0 +1,260 @@
+"""The `report` stage: every table and figure of this run beside the paper's numbers.
+
+Reads only the stages' metrics JSON and figures (the DVC outputs), so the report is a pure
+function of what this run produced and `dvc repro` rebuilds it whenever any of them changes.
+Writes `reports/report.md` (figures linked) and a self-contained `reports/report.html`
+(figures embedded as data URIs), and logs both to MLflow.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import os
+import platform
+import re
+import subprocess
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib import metadata
+from pathlib import Path
+
+import markdown
+import mlflow
+from omegaconf import DictConfig
+
+from uqdrive.files import atomic_path
+from uqdrive.tracking import stage_run
+from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_operating_characteristics, sequential_plan
+
+PACKAGES = ("uqdrive", "torch", "pybullet", "opencv-python-headless", "hydra-core", "dvc", "mlflow", "pyarrow",
+            "numpy", "scipy")
+
+# The paper's numbers (CARLA, section "Experiments"); ± is its Chernoff θ at γ = 0.05.
+PAPER_DROPOUT_RATES = (0.1, 0.08, 0.08)
+PAPER_SAFETY_POOLED = {"hmc": "0.766 ± 0.05 (all weathers)", "vi": "0.91 ± 0.05 (all weathers)",
+                       "mcd": "0.87 without rain, 0.58 ± 0.05 with rain"}
+PAPER_SAFETY_CELL = {("mcd", "clear_noon"): "1.00 (the only perfect score)"}
+
+
+def fmt(value: object, digits: int = 3) -> str:
+    """The one number format of the report (tests parse it back): fixed decimals, '–' for missing/NaN."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if isinstance(value, bool) or isinstance(value, int):
+        return str(value)
+    return f"{float(value):.{digits}f}"
+
+
+def table(headers: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def read_json(path: Path) -> dict:
+    if not path.exists():
+        raise FileNotFoundError(f"{path} is missing; run the stage that writes it first (dvc repro)")
+    return json.loads(path.read_text())
+
+
+@dataclass(frozen=True)
+class Pooled:
+    """η̂1 pooled over independent cells: k/n with Hoeffding's θ for n independent bounded outcomes.
+
+    Cells have different rates, so the exact binomial interval does not apply, but Hoeffding's
+    inequality holds for independent (not identically distributed) outcomes: P(|k/n − mean| > θ)
+    ≤ 2 exp(−2nθ²), i.e. θ = sqrt(ln(2/γ) / (2n)) around the mean of the cells' rates.
+    """
+
+    value: float
+    theta: float
+    n: int
+
+    @classmethod
+    def of(cls, cells: list[dict], gamma: float) -> Pooled:
+        n = sum(int(c["n"]) for c in cells)
+        k = sum(round(c["eta1"] * c["n"]) for c in cells)
+        return cls(k / n, math.sqrt(math.log(2 / gamma) / (2 * n)), n)
+
+
+class Report:
+    """Markdown text plus the figures it links, built section by section."""
+
+    def __init__(self, root: Path, out_dir: Path):
+        self.root, self.out_dir = root, out_dir
+        self.parts: list[str] = []
+        self.figures: list[Path] = []
+
+    def add(self, text: str) -> None:
+        self.parts.append(text.strip())
+
+    def figure(self, path: Path, caption: str) -> None:
+        """Link a figure if the run produced it; a missing figure is named, not silently dropped."""
+        if not path.exists():
+            self.add(f"*Figure missing: `{path.relative_to(self.root)}` ({caption}).*")
+            return
+        self.figures.append(path)
+        self.add(f"![{caption}]({Path(os.path.relpath(path, self.out_dir)).as_posix()})\n\n*{caption}*")
+
+    @property
+    def markdown(self) -> str:
+        return "\n\n".join(self.parts) + "\n"
+
+    def html(self) -> str:
+        body = markdown.markdown(self.markdown, extensions=["tables"])
+
+        def embed(match: re.Match) -> str:
+            path = (self.out_dir / match.group(1)).resolve()
+            data = base64.b64encode(path.read_bytes()).decode()
+            return f'src="data:image/png;base64,{data}"'
+
+        body = re.sub(r'src="([^"]+\.png)"', embed, body)
+        style = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;line-height:1.45}"
+                 "table{border-collapse:collapse;margin:1em 0;font-size:0.9em}td,th{border:1px solid #bbb;padding:3px 8px}"
+                 "th{background:#eee}img{max-width:100%}code{background:#f4f4f4}")
+        return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>uqdrive report</title>"
+                f"<style>{style}</style></head><body>\n{body}\n</body></html>\n")
+
+
+def _git_commit(root: Path) -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return "unknown"
+    return out.stdout.strip() if out.returncode == 0 else "unknown (not a git checkout)"
+
+
+def _versions() -> str:
+    found = []
+    for name in PACKAGES:
+        try:
+            found.append(f"{name} {metadata.version(name)}")
+        except metadata.PackageNotFoundError:
+            continue
+    return ", ".join(found)
+
+
+def run_section(report: Report, cfg: DictConfig, safety_cells: list[dict], seeds: dict[str, list[int]]) -> None:
+    thetas = sorted({(c["scheme"], c["theta"], c["gamma"], c["n"]) for c in safety_cells})
+    estimation = "; ".join(f"{s} θ = {t:g}, γ = {g:g} → n = {n} rollouts per cell" for s, t, g, n in thetas)
+    report.add(f"""
+# uqdrive report
+
+Bayesian end-to-end driving controllers in pybullet and how safe they are, beside *Uncertainty
+Quantification with Statistical Guarantees in End-to-End Autonomous Driving Control* (CARLA).
+Built by `dvc repro` from this run's metrics files; every number below is read from them.
+
+| what was run | |
+|---|---|
+| profile | `{cfg.profile_name}` |
+| built | {datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}, commit {_git_commit(report.root)}, Python {platform.python_version()} |
+| versions | {_versions()} |
+| training data | scenarios {", ".join(cfg.scenarios)} in `{cfg.train_weather}` |
+| safety sweep | methods {", ".join(cfg.methods)} × weathers {", ".join(cfg.weathers)} × noise {", ".join(f"{x:g}" for x in cfg.noises)} at the roundabout |
+| η1 estimation | {estimation or "–"} |
+| seeds | training {", ".join(sorted({str(s) for s in seeds["train"]}))}; safety rollouts {", ".join(sorted({str(s) for s in seeds["safety"]}))} + i for rollout i of a cell |
+""")
+
+
+def training_section(report: Report, cfg: DictConfig, metrics_dir: Path) -> None:
+    rows = []
+    for method in cfg.methods:
+        m = read_json(metrics_dir / "train" / f"{method}.json")
+        if method == "mcd":
+            extra = "learned dropout rates " + ", ".join(fmt(m[f"dropout_p{k}"], 3) for k in (1, 2, 3))
+            paper = "dropout rates " + ", ".join(f"{p:g}" for p in PAPER_DROPOUT_RATES)
+        elif method == "vi":
+            extra, paper = f"mean posterior σ {fmt(m['posterior_sigma_mean'])}", "–"
+        else:
+            extra = (f"acceptance {fmt(m['accept_rate'], 2)}, split-R̂ max {fmt(m['rhat_max'], 2)} "
+                     f"(median {fmt(m['rhat_median'], 2)}), {m['kept_samples']} samples")
+            paper = "10 leapfrog steps (as here)"
+        rows.append([method, fmt(m["val_accuracy"]), fmt(m["majority_baseline_accuracy"]), fmt(m["val_nll"]),
+                     fmt(m["val_ece"]), fmt(m["val_brier"]), str(m["train_frames"]), extra, paper])
+    report.add("## Controllers\n\nValidation frames are whole held-out episodes of the training collection "
+               "(training weather, no noise).")
+    report.add(table(["method", "val accuracy", "majority class", "NLL", "ECE", "Brier", "train frames",
+                      "diagnostics", "paper"], rows))
+    for method in cfg.methods:
+        report.figure(report.root / "plots" / "train" / f"{method}_curve.png", f"{method} learning curve")
+
+
+def safety_section(report: Report, cfg: DictConfig, summary: dict, gamma: float) -> None:
+    report.add("""
+## Offline safety: η1 at the roundabout
+
+η1 is the probability that a closed-loop run stays in the safe set (the lane corridor around the
+reference route, until the first exit). Each cell: η̂1 with its interval; the interval holds η1
+with probability ≥ 1 − γ (the scheme's a-priori guarantee). The paper's numbers are from CARLA.""")
+    rows = []
+    for method in cfg.methods:
+        for weather in cfg.weathers:
+            for noise in cfg.noises:
+                c = summary[method][weather][f"noise{noise}"]
+                paper = PAPER_SAFETY_CELL.get((method, weather), "–") if noise == 0 else "–"
+                rows.append([method, weather, f"{noise:g}", fmt(c["eta1"]), f"[{fmt(c['eta1_low'])}, {fmt(c['eta1_high'])}]",
+                             str(c["n"]), c["scheme"], fmt(c["collision_rate"]), fmt(c["off_road_rate"]),
+                             fmt(c["mean_lateral_deviation"], 2), paper])
+    report.add(table(["method", "weather", "noise", "η̂1", "interval", "n", "scheme", "collision", "off road",
+                      "mean lateral deviation (m)", "paper η̂1"], rows))
+    pooled_rows = []
+    for method in cfg.methods:
+        for noise in cfg.noises:
+            cells = [summary[method][w][f"noise{noise}"] for w in cfg.weathers]
+            dry = [summary[method][w][f"noise{noise}"] for w in cfg.weathers if w != "rain"]
+            p = Pooled.of(cells, gamma)
+            q = Pooled.of(dry, gamma) if dry and len(dry) < len(cells) else None
+            pooled_rows.append([method, f"{noise:g}", f"{fmt(p.value)} ± {fmt(p.theta)}",
+                                f"{fmt(q.value)} ± {fmt(q.theta)}" if q else "–", str(p.n),
+                                PAPER_SAFETY_POOLED.get(method, "–") if noise == 0 else "–"])
+    report.add("Pooled over weathers (equal rollouts per weather; ± is Hoeffding's θ at the same γ for independent "
+               "cells, the paper's \"across all weathers\"):")
+    report.add(table(["method", "noise", "η̂1 all weathers", "η̂1 without rain", "rollouts", "paper"], pooled_rows))
+    for noise in cfg.noises:
+        report.figure(report.root / "plots" / "safety" / "summary" / f"hexbin_noise{noise}.png",
+                      f"Visited positions per method × weather (sensor noise {noise:g}); reference route dashed, "
+                      f"safe-set boundaries red (the paper's offline-safety figure)")
+
+
+def sample_counts_section(report: Report, cells: list[dict]) -> None:
+    """What each scheme needs for this run's (θ, γ) and the paper's: why `sequential` exists."""
+    settings = sorted({(c["theta"], c["gamma"]) for c in cells} | {(0.05, 0.05)})
+    rows = []
+    for theta, gamma in settings:
+        plan = sequential_plan(theta, gamma)
+        mid, _ = sequential_operating_characteristics(plan, 0.5)
+        high, _ = sequential_operating_characteristics(plan, 0.99)
+        rows.append([f"{theta:g}", f"{gamma:g}", str(chernoff_n(theta, gamma)), str(clopper_pearson_n(theta, gamma)),
+                     "/".join(map(str, plan.looks)), fmt(mid, 1), fmt(high, 1)])
+    report.add("## Samples per estimation scheme\n\nRollouts (or weight samples) for P(|η̂ − η| > θ) ≤ γ: Chernoff "
+               "(the paper, planned), exact Clopper–Pearson (planned) and the exact group-sequential scheme "
+               "(expected count at η = 0.5 and 0.99, exact by dynamic programming). `uqdrive bound` prints more.")
+    report.add(table(["θ", "γ", "chernoff", "clopper_pearson", "sequential looks", "sequential E[n] at η=0.5",
+                      "at η=0.99"], rows))
+
+
+def run_report(cfg: DictConfig) -> dict:
+    root = Path(cfg.paths.root)
+    metrics_dir = Path(cfg.paths.metrics)
+    out_dir = Path(cfg.report.out_dir)
+    summary = read_json(metrics_dir / "safety.json")
+    cells = [c for m in summary.values() for w in m.values() for c in w.values()]
+    gamma = max(c["gamma"] for c in cells)
+    report = Report(root, out_dir)
+    seeds = {"train": [read_json(metrics_dir / "train" / f"{m}.json")["seed"] for m in cfg.methods],
+             "safety": [c["base_seed"] for c in cells]}
+    run_section(report, cfg, cells, seeds)
+    training_section(report, cfg, metrics_dir)
+    safety_section(report, cfg, summary, gamma)
+    sample_counts_section(report, cells)
+    md_path, html_path = out_dir / "report.md", out_dir / "report.html"
+    with atomic_path(md_path) as tmp:
+        tmp.write_text(report.markdown)
+    with atomic_path(html_path) as tmp:
+        tmp.write_text(report.html())
+    with stage_run(root, "report", cfg, run_name="report"):
+        mlflow.log_artifact(str(md_path))
+        mlflow.log_artifact(str(html_path))
+    return {"markdown": str(md_path), "html": str(html_path), "figures": len(report.figures)}

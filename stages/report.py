@@ -1,0 +1,16 @@
+"""DVC stage `report`: reports/report.md and a self-contained reports/report.html, our numbers beside the paper's."""
+
+import hydra
+from omegaconf import DictConfig
+
+from uqdrive.pipeline.report import run_report
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="report")
+def main(cfg: DictConfig) -> None:
+    result = run_report(cfg)
+    print(f"report: {result['figures']} figures -> {result['markdown']}, {result['html']}")
+
+
+if __name__ == "__main__":
+    main()

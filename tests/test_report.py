@@ -1,0 +1,82 @@
+"""The `report` stage: tables filled from the metrics files, figures embedded, clear error on a missing input."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from uqdrive.data.frames import encode_png
+from uqdrive.pipeline.report import fmt, run_report
+
+METHODS, WEATHERS, NOISES = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05)
+
+
+def markdown_rows(text: str, first_header: str) -> list[dict[str, str]]:
+    """Rows of the markdown table whose header starts with ``first_header``, as dicts keyed by header."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(f"| {first_header} |"))
+    headers = [h.strip() for h in lines[start].strip("|").split("|")]
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append(dict(zip(headers, (c.strip() for c in line.strip("|").split("|")))))
+    return rows
+
+
+def write_run(root):
+    """Metrics and figures shaped like a finished pipeline's (random values, fixed seed)."""
+    rng = np.random.default_rng(0)
+    (root / "params.yaml").write_text(f"scenarios: [straight, roundabout]\ntrain_weather: clear_noon\n"
+                                      f"methods: {list(METHODS)}\nweathers: {list(WEATHERS)}\nnoises: {list(NOISES)}\n")
+    png = encode_png(rng.integers(0, 255, (20, 30, 3), dtype=np.uint8))
+    for method in METHODS:
+        train = {"val_accuracy": rng.random(), "majority_baseline_accuracy": 0.5, "val_nll": 0.3, "val_ece": 0.02,
+                 "val_brier": 0.1, "train_frames": 100, "seed": 0, "dropout_p1": 0.1, "dropout_p2": 0.09,
+                 "dropout_p3": 0.08, "posterior_sigma_mean": 0.01}
+        (root / "metrics/train").mkdir(parents=True, exist_ok=True)
+        (root / f"metrics/train/{method}.json").write_text(json.dumps(train))
+        (root / "plots/train").mkdir(parents=True, exist_ok=True)
+        (root / f"plots/train/{method}_curve.png").write_bytes(png)
+    summary = {m: {w: {f"noise{x}": {"eta1": rng.random(), "eta1_low": 0.1, "eta1_high": 0.9, "theta": 0.25,
+                                     "gamma": 0.05, "n": 19, "scheme": "clopper_pearson", "base_seed": 100000,
+                                     "collision_rate": rng.random(), "off_road_rate": 0.0,
+                                     "mean_lateral_deviation": 0.2} for x in NOISES} for w in WEATHERS} for m in METHODS}
+    (root / "metrics/safety.json").write_text(json.dumps(summary))
+    (root / "plots/safety/summary").mkdir(parents=True)
+    (root / "plots/safety/summary/hexbin_noise0.0.png").write_bytes(png)  # the noise-0.05 figure is missing
+    return summary
+
+
+def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
+    summary = write_run(tmp_path)
+    result = run_report(stage_config("report"))
+    text = (tmp_path / "reports/report.md").read_text()
+    rows = markdown_rows(text, "method | weather")
+    assert len(rows) == len(METHODS) * len(WEATHERS) * len(NOISES)
+    for row in rows:
+        cell = summary[row["method"]][row["weather"]][f"noise{float(row['noise'])}"]
+        assert row["η̂1"] == fmt(cell["eta1"]) and row["collision"] == fmt(cell["collision_rate"])
+        assert row["interval"] == f"[{fmt(cell['eta1_low'])}, {fmt(cell['eta1_high'])}]" and row["n"] == "19"
+    assert [r["paper η̂1"] for r in rows if (r["method"], r["weather"], r["noise"]) == ("mcd", "clear_noon", "0")] == [
+        "1.00 (the only perfect score)"]
+    pooled = {(r["method"], r["noise"]): r for r in markdown_rows(text, "method | noise")}
+    cells = [summary["vi"][w]["noise0.0"] for w in WEATHERS]
+    k = sum(round(c["eta1"] * 19) for c in cells)
+    assert pooled[("vi", "0")]["η̂1 all weathers"].startswith(fmt(k / 38))
+    training = {r["method"]: r for r in markdown_rows(text, "method | val accuracy")}
+    assert training["vi"]["val accuracy"] == fmt(json.loads((tmp_path / "metrics/train/vi.json").read_text())["val_accuracy"])
+    assert "| profile | `tiny` |" in text and "Figure missing: `plots/safety/summary/hexbin_noise0.05.png`" in text
+
+    html = (tmp_path / "reports/report.html").read_text()
+    assert result["figures"] == 3 and html.count('src="data:image/png;base64,') == 3
+    assert not re.search(r'src="(?!data:)', html)  # self-contained: no file links left
+
+
+def test_missing_metrics_file_names_it(stage_config, tmp_path):
+    write_run(tmp_path)
+    (tmp_path / "metrics/safety.json").unlink()
+    with pytest.raises(FileNotFoundError, match="metrics/safety.json is missing"):
+        run_report(stage_config("report"))
+    assert not (tmp_path / "reports").exists()
