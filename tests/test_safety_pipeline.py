@@ -55,6 +55,13 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7"))["reused"]
 
 
+def test_a_result_of_older_code_is_not_reused(safety_config, monkeypatch):
+    cfg = safety_config("model=mcd")
+    assert not run_safety(cfg)["reused"] and run_safety(cfg)["reused"]
+    monkeypatch.setattr(safety_stage, "code_digest", lambda: "sources edited since")
+    assert not run_safety(cfg)["reused"]
+
+
 def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path, monkeypatch):
     cells = [("mcd", "clear_noon"), ("vi", "clear_noon"), ("vi", "rain")]
     configs = [safety_config(f"model={m}", f"weather={w}") for m, w in cells]

@@ -8,6 +8,7 @@ first rollout. A cell whose result file already holds its config hash is not run
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -32,6 +33,7 @@ from uqdrive.sim import (CameraConfig, ScenarioConfig, VehicleConfig, WeatherCon
 from uqdrive.tracking import stage_run
 
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
+RESULT_CODE = ("safety", "sim", "models", "uq", "data", "pipeline/safety.py")  # under src/uqdrive/
 
 
 def _check_speed(speed: object, vehicle: VehicleConfig) -> float:
@@ -50,6 +52,18 @@ def _check_int(key: str, value: object, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ValueError(f"{key}={value!r} must be an integer >= {minimum}")
     return value
+
+
+def code_digest() -> str:
+    """sha256 of the package sources a cell's result depends on (as DVC's `src/` deps do): changed code
+    is a new cell, so a rerun never reuses a result computed, or shaped, by older code."""
+    package = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    paths = [p for part in RESULT_CODE for p in ([package / part] if part.endswith(".py") else (package / part).glob("**/*.py"))]
+    for path in sorted(paths):
+        digest.update(path.relative_to(package).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
@@ -76,7 +90,7 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
                      base_seed=settings.base_seed, camera=CameraConfig.from_config(cfg.camera), vehicle=vehicle,
                      control_hz=cfg.control_hz, horizon_s=_check_horizon(cfg.safety.horizon_s), half_width=check_half_width(
                          cfg.safety.half_width))
-    identity = {"model_sha256": file_digest(model_path), "job": {**job.__dict__, "policy": {
+    identity = {"model_sha256": file_digest(model_path), "code": code_digest(), "job": {**job.__dict__, "policy": {
         k: v for k, v in spec.__dict__.items() if k != "model_path"}}, "estimator": settings.__dict__}
     return job, settings, cell_hash(identity)
 
