@@ -48,9 +48,11 @@ def class_histogram_figure(centres: np.ndarray, counts: dict[str, np.ndarray], t
 
 def safety_hexbin(ax: plt.Axes, x: np.ndarray, y: np.ndarray, route: np.ndarray,
                   boundaries: tuple[np.ndarray, np.ndarray] | None, extent: tuple[float, float, float, float],
-                  title: str) -> None:
-    """The paper's offline-safety panel: where the rollouts drove (log counts), the reference
-    trajectory and the safe set's edges, so unsafe paths show as mass outside the edges."""
+                  title: str, road: np.ndarray | None = None) -> None:
+    """The paper's offline-safety panel: where the rollouts drove (log counts) on the road map, the
+    reference trajectory and the safe set's edges, so unsafe paths show as mass outside the edges."""
+    if road is not None:
+        ax.imshow(road, extent=extent, origin="lower", cmap="gray", vmin=-1.5, vmax=2.5, interpolation="nearest")
     inside = (x >= extent[0]) & (x <= extent[1]) & (y >= extent[2]) & (y <= extent[3])
     if inside.any():
         ax.hexbin(x[inside], y[inside], gridsize=60, extent=extent, bins="log", cmap="viridis", mincnt=1)
@@ -81,7 +83,7 @@ def safety_hexbin_grid(panels: dict[tuple[str, str], dict[str, np.ndarray]], row
             boundaries = (panel["left"], panel["right"]) if len(panel["left"]) else None
             extent = tuple(float(v) for v in panel["extent"])
             safety_hexbin(ax, panel["x"], panel["y"], panel["route"], boundaries, extent,
-                          f"{row} · {column}: η̂1 = {float(panel['eta1']):.2f}")
+                          f"{row} · {column}: η̂1 = {float(panel['eta1']):.2f}", panel.get("road"))
     axes[0, 0].legend(loc="lower left", fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()

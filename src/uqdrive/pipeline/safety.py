@@ -28,7 +28,7 @@ from uqdrive.safety.controller import Controller
 from uqdrive.safety.executors import PolicySpec, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.safe_sets import SafeSet, check_half_width, safe_set_for
-from uqdrive.sim import (CameraConfig, ScenarioConfig, VehicleConfig, WeatherConfig, build_geometry,
+from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
                          check_noise)
 from uqdrive.tracking import stage_run
 
@@ -112,9 +112,18 @@ def _extent(route: np.ndarray) -> np.ndarray:
     return np.array([lo[0], hi[0], lo[1], hi[1]])
 
 
-def write_outputs(cfg: DictConfig, results: list[RolloutResult], safe_set: SafeSet, eta1: float,
-                  title: str) -> tuple[Path, Path, Path]:
-    """Per-rollout table (CSV), visited positions with the route and safe-set edges (npz, for the
+def road_raster(geometry: ScenarioGeometry, extent: np.ndarray, cell: float = 0.25) -> np.ndarray:
+    """Paved area inside ``extent`` (xmin, xmax, ymin, ymax) as a bool image [rows = y ascending, cols = x]:
+    the map the figures draw the paths on."""
+    xs = np.arange(extent[0], extent[1], cell) + cell / 2
+    ys = np.arange(extent[2], extent[3], cell) + cell / 2
+    gx, gy = np.meshgrid(xs, ys)
+    return geometry.is_paved(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape)
+
+
+def write_outputs(cfg: DictConfig, results: list[RolloutResult], geometry: ScenarioGeometry, safe_set: SafeSet,
+                  eta1: float, title: str) -> tuple[Path, Path, Path]:
+    """Per-rollout table (CSV), visited positions with the road, route and safe-set edges (npz, for the
     summary figures) and the cell's hexbin figure."""
     plots = Path(cfg.safety.plots_dir)
     table = plots / f"{cfg.safety.cell}.csv"
@@ -127,13 +136,15 @@ def write_outputs(cfg: DictConfig, results: list[RolloutResult], safe_set: SafeS
     edges = safe_set.boundaries()
     left, right = edges if edges is not None else (np.zeros((0, 2)), np.zeros((0, 2)))
     rollout, x, y = _positions(results)
+    extent = _extent(route)
+    road = road_raster(geometry, extent)
     positions = Path(cfg.safety.positions)
     with atomic_path(positions) as tmp:
         with tmp.open("wb") as f:
             np.savez_compressed(f, rollout=rollout, x=x, y=y, route=route, left=left, right=right,
-                                extent=_extent(route), eta1=eta1)
+                                extent=extent, road=road, eta1=eta1)
     fig, ax = plt.subplots(figsize=(5, 5))
-    safety_hexbin(ax, x, y, route, edges, tuple(_extent(route)), title)
+    safety_hexbin(ax, x, y, route, edges, tuple(extent), title, road)
     ax.legend(loc="lower left", fontsize=7)
     figure = save_figure(fig, plots / f"{cfg.safety.cell}.png")
     return table, positions, figure
@@ -156,9 +167,10 @@ def run_safety(cfg: DictConfig) -> dict:
     finally:
         executor.close()
     seconds = time.perf_counter() - start
-    safe_set = safe_set_for(build_geometry(job.scenario), job.half_width)
-    title = f"{cfg.model.name} · {job.weather.name} · noise {job.noise:g}: η̂1 = {estimate.value:.2f} ± {estimate.theta:g}"
-    table, positions, figure = write_outputs(cfg, results, safe_set, estimate.value, title)
+    geometry = build_geometry(job.scenario)
+    safe_set = safe_set_for(geometry, job.half_width)
+    title = f"{cfg.model.name} · {job.weather.name} · noise {job.noise:g}: η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
+    table, positions, figure = write_outputs(cfg, results, geometry, safe_set, estimate.value, title)
     metrics = {"eta1": estimate.value, "eta1_low": estimate.low, "eta1_high": estimate.high,
                "rollouts": estimate.n, "steps": int(sum(r.steps for r in results)), "seconds": seconds,
                **rates(results)}
