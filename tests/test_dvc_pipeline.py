@@ -51,6 +51,11 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         k: v for k, v in json.loads((project / "metrics/safety/vi-roundabout-rain-noise0.0.json").read_text()).items()
         if k in safety["vi"]["rain"]["noise0.0"]}
     assert (project / "plots/safety/summary/hexbin_noise0.0.png").exists()
+    assert (project / "data/heldout/roundabout-rain-noise0.0.parquet").exists()
+    evaluated = json.loads((project / "metrics/evaluate.json").read_text())
+    assert {m: list(t) for m, t in evaluated.items()} == {"mcd": ["rain"], "vi": ["rain"], "hmc": ["rain"]}
+    assert evaluated["vi"]["rain"]["noise0.0"]["frames"] > 0
+    assert (project / "plots/evaluate/figures/reliability_hmc.png").exists()
     assert (project / "mlflow.db").exists()
 
     assert "Data and pipelines are up to date" in _dvc(project, "status")
@@ -59,8 +64,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert "Running stage" not in again, again
     assert (project / "data/raw/straight.parquet").stat().st_mtime_ns == stamp
 
-    # a new weather in params.yaml runs its cells and what aggregates them, nothing upstream
+    # a new weather in params.yaml runs its cells (safety, held-out frames) and what aggregates them, nothing upstream
     params["weathers"] = ["rain", "afternoon"]
     (project / "params.yaml").write_text(yaml.safe_dump(params))
     ran = sorted(line.split("'")[1] for line in _dvc(project, "repro").splitlines() if line.startswith("Running stage"))
-    assert ran == ["safety@hmc-afternoon-0.0", "safety@mcd-afternoon-0.0", "safety@vi-afternoon-0.0", "safety_summary"]
+    assert ran == ["evaluate", "heldout@afternoon-0.0", "report", "safety@hmc-afternoon-0.0", "safety@mcd-afternoon-0.0",
+                   "safety@vi-afternoon-0.0", "safety_summary"]

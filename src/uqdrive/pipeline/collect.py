@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
@@ -73,7 +74,7 @@ def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.nda
     """Yield one column batch per episode, in episode order whatever the worker count."""
     plain = OmegaConf.to_container(cfg, resolve=True)
     results = map_ordered(_collect_one, range(cfg.collect.episodes), cfg.collect.workers, _init_worker, (plain,))
-    progress = tqdm(results, total=cfg.collect.episodes, desc=f"collect {cfg.scenario.name}", unit="episode",
+    progress = tqdm(results, total=cfg.collect.episodes, desc=f"collect {cfg.collect.name}", unit="episode",
                     disable=not cfg.progress)
     try:
         for episode, (seed, rows, termination, picks) in enumerate(progress):
@@ -88,8 +89,17 @@ def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.nda
             _worker.pop("env").close()
 
 
+def check_name(name: object) -> str:
+    """`collect.name` becomes file names, so it must be a plain one: no folders, nothing a shell would mangle."""
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name.startswith("."):
+        raise ValueError(f"collect.name={name!r} must be a plain file name: letters, digits, '_', '-', '.' "
+                         f"(not starting with '.')")
+    return name
+
+
 def run_collect(cfg: DictConfig) -> dict:
-    scenario = ScenarioConfig.from_config(cfg.scenario)
+    ScenarioConfig.from_config(cfg.scenario)
+    name = check_name(cfg.collect.name)
     WeatherConfig.from_config(cfg.weather)
     check_noise(cfg.noise)
     if cfg.collect.episodes < 1:
@@ -101,11 +111,11 @@ def run_collect(cfg: DictConfig) -> dict:
     metrics = {"episodes": cfg.collect.episodes, "frames": frames,
                "route_complete_fraction": outcomes["route_complete"] / cfg.collect.episodes,
                **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")}}
-    write_json(Path(cfg.paths.metrics) / "collect" / f"{scenario.name}.json", metrics)
-    mosaic_path = Path(cfg.paths.plots) / "collect" / f"{scenario.name}_mosaic.png"
+    write_json(Path(cfg.paths.metrics) / "collect" / f"{name}.json", metrics)
+    mosaic_path = Path(cfg.paths.plots) / "collect" / f"{name}_mosaic.png"
     with atomic_path(mosaic_path) as tmp:
         tmp.write_bytes(encode_png(mosaic(mosaic_frames, cfg.collect.mosaic_columns)))
-    with stage_run(cfg.paths.root, "collect", cfg, run_name=scenario.name):
+    with stage_run(cfg.paths.root, "collect", cfg, run_name=name):
         mlflow.log_metrics(metrics)
         mlflow.log_artifact(str(mosaic_path))
     return {**metrics, "path": str(out)}
