@@ -44,13 +44,18 @@ def write_run(root):
                                      "collision_rate": rng.random(), "off_road_rate": 0.0,
                                      "mean_lateral_deviation": 0.2} for x in NOISES} for w in WEATHERS} for m in METHODS}
     (root / "metrics/safety.json").write_text(json.dumps(summary))
+    evaluated = {m: {w: {f"noise{x}": {"frames": 50, "accuracy": rng.random(), "nll": 0.4, "ece": rng.random(),
+                                       "brier": 0.2, "mean_mutual_information": rng.random(), "mean_eta2": 0.97,
+                                       "auroc_mi": rng.random(), "auroc_one_minus_eta2": None}
+                         for x in NOISES} for w in WEATHERS} for m in METHODS}
+    (root / "metrics/evaluate.json").write_text(json.dumps(evaluated))
     (root / "plots/safety/summary").mkdir(parents=True)
     (root / "plots/safety/summary/hexbin_noise0.0.png").write_bytes(png)  # the noise-0.05 figure is missing
-    return summary
+    return summary, evaluated
 
 
 def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
-    summary = write_run(tmp_path)
+    summary, evaluated = write_run(tmp_path)
     result = run_report(stage_config("report"))
     text = (tmp_path / "reports/report.md").read_text()
     rows = markdown_rows(text, "method | weather")
@@ -67,6 +72,12 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert pooled[("vi", "0")]["η̂1 all weathers"].startswith(fmt(k / 38))
     training = {r["method"]: r for r in markdown_rows(text, "method | val accuracy")}
     assert training["vi"]["val accuracy"] == fmt(json.loads((tmp_path / "metrics/train/vi.json").read_text())["val_accuracy"])
+    held_out = markdown_rows(text, "method | weather | noise | frames")
+    assert len(held_out) == len(rows)
+    for row in held_out:
+        cell = evaluated[row["method"]][row["weather"]][f"noise{float(row['noise'])}"]
+        assert (row["accuracy"], row["ECE"], row["mean MI"], row["AUROC MI"], row["AUROC 1 − η2"]) == (
+            fmt(cell["accuracy"]), fmt(cell["ece"]), fmt(cell["mean_mutual_information"]), fmt(cell["auroc_mi"]), "–")
     assert "| profile | `tiny` |" in text and "Figure missing: `plots/safety/summary/hexbin_noise0.05.png`" in text
 
     html = (tmp_path / "reports/report.html").read_text()

@@ -218,6 +218,29 @@ with probability ≥ 1 − γ (the scheme's a-priori guarantee). The paper's num
                       f"safe-set boundaries red (the paper's offline-safety figure)")
 
 
+def evaluate_section(report: Report, cfg: DictConfig, evaluated: dict) -> None:
+    report.add("""
+## Held-out uncertainty
+
+Frames the autopilot recorded at the roundabout in each weather × noise level, on episodes never used
+for training. AUROC: how well an uncertainty score ranks frames with a wrong class above right ones
+(0.5 = chance); '–' where a condition has no mistakes or no right frames. The paper reports no such table.""")
+    rows = []
+    for method in cfg.methods:
+        for weather in cfg.weathers:
+            for noise in cfg.noises:
+                c = evaluated[method][weather][f"noise{noise}"]
+                rows.append([method, weather, f"{noise:g}", str(c["frames"]), fmt(c["accuracy"]), fmt(c["nll"]),
+                             fmt(c["ece"]), fmt(c["brier"]), fmt(c["mean_mutual_information"]), fmt(c["mean_eta2"]),
+                             fmt(c["auroc_mi"]), fmt(c["auroc_one_minus_eta2"])])
+    report.add(table(["method", "weather", "noise", "frames", "accuracy", "NLL", "ECE", "Brier", "mean MI",
+                      "mean η2", "AUROC MI", "AUROC 1 − η2"], rows))
+    figures = report.root / "plots" / "evaluate" / "figures"
+    report.figure(figures / "conditions.png", "Held-out metrics across conditions, one line per method")
+    for method in cfg.methods:
+        report.figure(figures / f"reliability_{method}.png", f"{method}: reliability diagrams per condition")
+
+
 def sample_counts_section(report: Report, cells: list[dict]) -> None:
     """What each scheme needs for this run's (θ, γ) and the paper's: why `sequential` exists."""
     settings = sorted({(c["theta"], c["gamma"]) for c in cells} | {(0.05, 0.05)})
@@ -248,6 +271,7 @@ def run_report(cfg: DictConfig) -> dict:
     run_section(report, cfg, cells, seeds)
     training_section(report, cfg, metrics_dir)
     safety_section(report, cfg, summary, gamma)
+    evaluate_section(report, cfg, read_json(metrics_dir / "evaluate.json"))
     sample_counts_section(report, cells)
     md_path, html_path = out_dir / "report.md", out_dir / "report.html"
     with atomic_path(md_path) as tmp:
