@@ -1,17 +1,21 @@
-"""Closed-loop probabilistic safety η1: controllers, safe sets, rollouts, parallel executors, sweep cells.
+"""Closed-loop probabilistic safety η1: controllers, safe sets, rollouts, parallel executors, sweep cells,
+and the three-tier warning system on real-time decision confidence η2.
 
 Composes `sim` (the world), `models` (the posteriors) and `uq` (measures and estimators).
 """
 
 from uqdrive.safety.cells import SCHEMES, EstimatorSettings, cell_hash, estimate_safety, reusable_result
-from uqdrive.safety.controller import AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
-from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessExecutor, RayExecutor, RolloutJob,
-                                      RolloutWorker, make_executor)
-from uqdrive.safety.rollout import RolloutResult, run_rollout
+from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
+from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessExecutor, ProcessPool, RayExecutor,
+                                      RolloutJob, RolloutWorker, Variant, make_executor, variant_index)
+from uqdrive.safety.rollout import HANDOVER, RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, Verdict, safe_set_for
+from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
 
 __all__ = [
     "BACKENDS",
+    "HANDOVER",
+    "NO_WARNING",
     "SCHEMES",
     "AutopilotPolicy",
     "Command",
@@ -22,16 +26,24 @@ __all__ = [
     "Policy",
     "PolicySpec",
     "ProcessExecutor",
+    "ProcessPool",
     "RayExecutor",
     "RolloutJob",
     "RolloutResult",
     "RolloutWorker",
     "SafeSet",
+    "Variant",
     "Verdict",
+    "WarningAction",
+    "WarningActions",
+    "WarningConfig",
+    "WarningController",
     "cell_hash",
+    "classify",
     "estimate_safety",
     "make_executor",
     "reusable_result",
     "run_rollout",
     "safe_set_for",
+    "variant_index",
 ]

@@ -22,15 +22,26 @@ from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
 from uqdrive.uq import frame_measures
 
 
+NO_WARNING = -1
+"""Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.safety.warnings`)."""
+
+
 @dataclass(frozen=True)
 class Command:
-    """One control decision; the uncertainty fields are NaN for controllers without a posterior."""
+    """One control decision; the uncertainty fields are NaN for controllers without a posterior.
+
+    ``warning``, ``alert``, ``handover``: set by a controller with the warning system; with
+    ``handover`` the car brakes to a stop and the rollout ends there (control goes to the operator).
+    """
 
     steer: float
     speed: float
     eta2: float = math.nan
     mutual_information: float = math.nan
     entropy: float = math.nan
+    warning: int = NO_WARNING
+    alert: bool = False
+    handover: bool = False
 
 
 class Policy(Protocol):

@@ -3,16 +3,19 @@
 Each worker owns one `DrivingEnv` (its own pybullet client) and one policy for its whole life;
 a rollout is named only by its index i and uses seed ``base_seed + i``, and results come back
 in index order, so η̂1 and every per-rollout outcome are the same whatever the backend and
-worker count.
+worker count. A job may list condition variants; rollout i then drives the variant its seed draws.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
 from collections.abc import Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Protocol
 
+import numpy as np
 import torch
 
 from uqdrive.data.binning import SteeringBins
@@ -21,7 +24,9 @@ from uqdrive.parallel import map_ordered
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
 from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
-from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig
+from uqdrive.safety.warnings import WarningConfig, WarningController
+from uqdrive.sim import (AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig,
+                         build_geometry)
 
 BACKENDS = ("process", "ray")
 POLICIES = ("bnn", "autopilot", "constant")
@@ -32,6 +37,8 @@ class PolicySpec:
     """A picklable recipe for a policy, built once in each worker.
 
     kind: ``bnn`` (posterior from ``model_path``), ``autopilot`` or ``constant`` (``steer``).
+    ``warnings``: a ``bnn`` policy with the warning system (its ``samples`` must be the warning
+    config's Chernoff n).
     """
 
     kind: str
@@ -43,23 +50,57 @@ class PolicySpec:
     eps: float = 0.1
     steer: float = 0.0
     autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
+    warnings: WarningConfig | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in POLICIES:
             raise ValueError(f"policy kind {self.kind!r} is not known; choose one of {list(POLICIES)}")
+        if self.warnings is not None and (self.kind != "bnn" or self.samples != self.warnings.samples):
+            raise ValueError(f"a policy with warnings must be kind 'bnn' with samples={self.warnings.samples} "
+                             f"(chernoff_n of warning.theta, warning.gamma), got kind={self.kind!r}, "
+                             f"samples={self.samples}")
 
-    def build(self) -> Policy:
+    def build(self, control_hz: float) -> Policy:
         if self.kind == "bnn":
             posterior = load_posterior(Path(self.model_path), expected_method=self.method, expected_classes=self.bins)
+            if self.warnings is not None:
+                return WarningController(posterior, self.bins, self.warnings, self.eps, self.speed, control_hz)
             return Controller(posterior, self.bins, self.samples, self.eps, self.speed)
         if self.kind == "autopilot":
             return AutopilotPolicy(self.autopilot)
         return ConstantPolicy(self.steer, self.speed)
 
 
+VARIANT_STREAM = 0x7661  # spawn key of the variant draw: independent of the env's and the posterior's streams
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """One condition a rollout may be driven in: world (e.g. another obstacle car), weather, sensor noise."""
+
+    name: str
+    scenario: ScenarioConfig
+    weather: WeatherConfig
+    noise: float = 0.0
+
+
+def variant_index(seed: int, count: int) -> int:
+    """The variant rollout ``seed`` drives, uniform over ``count`` and drawn from the seed alone.
+
+    Seeds base_seed + i give i.i.d. draws, so each rollout's safety is a Bernoulli draw with
+    the mixture's rate η1 = mean over variants of η1(variant), and the cell's estimator (and its
+    (θ, γ) guarantee) applies to that mixture rate unchanged.
+    """
+    return int(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(VARIANT_STREAM,))).integers(count))
+
+
 @dataclasses.dataclass(frozen=True)
 class RolloutJob:
-    """Everything a worker needs to run rollout i of a sweep cell."""
+    """Everything a worker needs to run rollout i of a sweep cell.
+
+    ``variants``: if given, rollout i drives ``variants[variant_index(base_seed + i, len(variants))]``
+    instead of (scenario, weather, noise).
+    """
 
     policy: PolicySpec
     scenario: ScenarioConfig
@@ -71,6 +112,12 @@ class RolloutJob:
     control_hz: float = 15.0
     horizon_s: float = 40.0
     half_width: float | None = None
+    variants: tuple[Variant, ...] = ()
+
+    def __post_init__(self) -> None:
+        names = [v.name for v in self.variants]
+        if len(set(names)) != len(names):
+            raise ValueError(f"variant names must be unique, got {names}")
 
 
 class RolloutWorker:
@@ -81,14 +128,21 @@ class RolloutWorker:
         torch.set_num_threads(1)
         self.job = job
         self.env = DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
-        self.policy = job.policy.build()
+        self.policy = job.policy.build(job.control_hz)
         self.env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
         self.safe_set: SafeSet = safe_set_for(self.env.geometry, job.half_width)
+        self.variant_safe_sets = [safe_set_for(build_geometry(v.scenario), job.half_width) for v in job.variants]
 
     def run(self, index: int) -> RolloutResult:
         job = self.job
-        return run_rollout(self.env, self.policy, job.base_seed + index, job.scenario, job.weather, job.noise,
-                           safe_set=self.safe_set)
+        seed = job.base_seed + index
+        if not job.variants:
+            return run_rollout(self.env, self.policy, seed, job.scenario, job.weather, job.noise,
+                               safe_set=self.safe_set)
+        k = variant_index(seed, len(job.variants))
+        v = job.variants[k]
+        return run_rollout(self.env, self.policy, seed, v.scenario, v.weather, v.noise,
+                           safe_set=self.variant_safe_sets[k], variant=v.name)
 
     def close(self) -> None:
         self.env.close()
@@ -132,6 +186,70 @@ class ProcessExecutor:
             _worker.pop("w").close()
 
 
+_keyed: dict[int, RolloutWorker] = {}
+
+
+def _run_keyed(item: tuple[int, RolloutJob, int]) -> RolloutResult:
+    key, job, index = item
+    if key not in _keyed:
+        _keyed[key] = RolloutWorker(job)
+    return _keyed[key].run(index)
+
+
+class ProcessPool:
+    """Spawned processes kept for many cells (a whole stage): each process builds a `RolloutWorker`
+    per job the first time it meets one, so the start-up (imports, model, world) is paid once per
+    process, not once per cell. ``executor(job)`` gives the `Executor` of one cell; in-process for 1 worker.
+    """
+
+    def __init__(self, workers: int):
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"executor.workers={workers!r} must be an integer >= 1")
+        self.workers = workers
+        self._pool = None if workers == 1 else ProcessPoolExecutor(
+            workers, mp_context=multiprocessing.get_context("spawn"))
+        self._jobs = 0
+
+    def executor(self, job: RolloutJob) -> PooledExecutor:
+        self._jobs += 1
+        return PooledExecutor(self, self._jobs, job)
+
+    def run(self, key: int, job: RolloutJob, indices: Sequence[int]) -> Iterator[RolloutResult]:
+        items = [(key, job, i) for i in indices]
+        yield from map(_run_keyed, items) if self._pool is None else self._pool.map(_run_keyed, items)
+
+    def release(self, key: int) -> None:
+        """Close an in-process job's worker (spawned processes keep theirs until the pool closes)."""
+        if key in _keyed and self._pool is None:
+            _keyed.pop(key).close()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+        for key in list(_keyed):
+            _keyed.pop(key).close()
+
+    def __enter__(self) -> ProcessPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class PooledExecutor:
+    """The rollouts of one job on a shared `ProcessPool`; closing it leaves the pool running."""
+
+    def __init__(self, pool: ProcessPool, key: int, job: RolloutJob):
+        self.pool, self.key, self.job = pool, key, job
+
+    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
+        yield from self.pool.run(self.key, self.job, indices)
+
+    def close(self) -> None:
+        self.pool.release(self.key)
+
+
 class RayExecutor:
     """One Ray actor per worker, each a `RolloutWorker`.
 
@@ -168,12 +286,13 @@ class RayExecutor:
             self._ray.shutdown()
 
 
-def make_executor(backend: str, job: RolloutJob, workers: int, **options: Any) -> Executor:
-    """``process`` (default) or ``ray``; ``options`` go to the Ray backend (address)."""
+def make_executor(backend: str, job: RolloutJob, workers: int, pool: ProcessPool | None = None,
+                  **options: Any) -> Executor:
+    """``process`` (default; on ``pool`` if given) or ``ray``; ``options`` go to the Ray backend (address)."""
     if backend == "process":
         if options:
             raise ValueError(f"executor options {sorted(options)} apply only to executor.name=ray")
-        return ProcessExecutor(job, workers)
+        return pool.executor(job) if pool is not None else ProcessExecutor(job, workers)
     if backend == "ray":
         return RayExecutor(job, workers, **options)
     raise ValueError(f"executor.name={backend!r} is not a known backend; choose one of {list(BACKENDS)}")

@@ -1,12 +1,14 @@
 """One closed-loop episode: seed → start jitter, weather effects, sensor noise and posterior draws → verdict.
 
 Everything random in rollout i comes from its seed (``base_seed + i``), so a rollout gives
-the same result in any process, with any backend, in any order.
+the same result in any process, with any backend, in any order. A policy that hands control
+to the operator (``Command.handover``) brakes to a stop; the rollout then ends with termination
+``handover`` and is judged by the safe set like any other path.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -15,9 +17,20 @@ from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 
 
+HANDOVER = "handover"
+STOPPED_SPEED = 1e-6  # m/s: the car tracks a speed command of 0 exactly, so this means stopped
+
+
+def _empty() -> np.ndarray:
+    return np.zeros(0)
+
+
 @dataclass(frozen=True)
 class RolloutResult:
-    """Outcome of one episode; ``x``, ``y`` are the body-centre positions at every control step."""
+    """Outcome of one episode; ``x``, ``y`` are the body-centre positions at every control step
+    (and the last pose). Per-decision traces (one value per step): ``eta2``, ``mutual_information``,
+    ``warning`` (level, -1 for none) and ``command_speed``. ``variant``: the condition drawn
+    for this rollout ("" when the cell has a single condition)."""
 
     seed: int
     safe: bool
@@ -32,15 +45,22 @@ class RolloutResult:
     steps: int
     x: np.ndarray
     y: np.ndarray
+    variant: str = ""
+    eta2: np.ndarray = field(default_factory=_empty)
+    mutual_information: np.ndarray = field(default_factory=_empty)
+    warning: np.ndarray = field(default_factory=_empty)
+    command_speed: np.ndarray = field(default_factory=_empty)
 
     def summary(self) -> dict:
         """The scalar fields (one row of the per-rollout table)."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("x", "y")}
+        return {k: v for k, v in self.__dict__.items() if not isinstance(v, np.ndarray)}
 
 
 def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioConfig, weather: WeatherConfig,
-                noise: float, half_width: float | None = None, safe_set: SafeSet | None = None) -> RolloutResult:
-    """Drive one episode until the env ends it (collision, off road, route complete or horizon T).
+                noise: float, half_width: float | None = None, safe_set: SafeSet | None = None,
+                variant: str = "") -> RolloutResult:
+    """Drive one episode until the env ends it (collision, off road, route complete or horizon T)
+    or the policy has handed over and the car has stopped.
 
     The episode runs to its end even after the car leaves the corridor, so collision and
     off-road rates and the visited positions describe the whole path.
@@ -49,19 +69,28 @@ def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioCo
     policy.reset(env, seed)
     safe_set = safe_set or safe_set_for(env.geometry, half_width)
     info = env.last_info
-    eta2, mi = [], []
+    termination = info["termination"]
+    commands = []
     while not env.done:
         command = policy.act(obs, info)
-        eta2.append(command.eta2)
-        mi.append(command.mutual_information)
+        commands.append(command)
         obs, info = env.step(command.steer, command.speed)
+        termination = info["termination"]
+        if not termination and command.handover and info["speed"] <= STOPPED_SPEED:
+            termination = HANDOVER
+            break
+    eta2 = [c.eta2 for c in commands]
+    mi = [c.mutual_information for c in commands]
     log = env.trajectory
-    verdict = safe_set.judge(env.geometry, log["x"], log["y"], info["termination"])
+    verdict = safe_set.judge(env.geometry, log["x"], log["y"], termination)
     lateral = env.geometry.lateral_deviation(np.stack([log["x"], log["y"]], axis=1))
-    return RolloutResult(seed=seed, safe=verdict.safe, termination=info["termination"], collision=verdict.collision,
+    return RolloutResult(seed=seed, safe=verdict.safe, termination=termination, collision=verdict.collision,
                          off_road=verdict.off_road, left_corridor=verdict.left_corridor,
                          reached_exit=verdict.reached_exit,
                          mean_abs_lateral_deviation=float(np.mean(np.abs(lateral))),
                          mean_eta2=float(np.mean(eta2)) if eta2 else float("nan"),
                          mean_mutual_information=float(np.mean(mi)) if mi else float("nan"),
-                         steps=len(eta2), x=log["x"], y=log["y"])
+                         steps=len(commands), x=log["x"], y=log["y"], variant=variant,
+                         eta2=np.array(eta2, dtype=float), mutual_information=np.array(mi, dtype=float),
+                         warning=np.array([c.warning for c in commands], dtype=np.int8),
+                         command_speed=np.array([c.speed for c in commands], dtype=float))

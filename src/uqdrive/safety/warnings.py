@@ -1,0 +1,367 @@
+"""The paper's three-tier warning system on real-time decision confidence η2 (Definition 2) and mutual information.
+
+Each frame falls in one of four levels: no warning (η2 ≥ δ1 and MI ≤ τ), warning 0 (η2 ≥ δ1
+but MI > τ), warning 1 (δ2 ≤ η2 < δ1) and warning 2 (η2 < δ2). Each level has a configurable
+action: a speed as a fraction of the cruise speed, an alert to the operator, and a hand-over
+(brake to a stop and give control to the operator; once fired it holds until the car stops).
+The classification and the actions are vectorised over a batch, so the live controller (a
+batch of one) and the threshold calibration (a batch of candidate thresholds × rollouts) run
+the same code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.models.posterior import Posterior
+from uqdrive.safety.controller import NO_WARNING, Command, Controller
+from uqdrive.uq import chernoff_n, clopper_pearson_interval
+
+LEVELS = (0, 1, 2)
+
+
+def _number(key: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{key}={value!r} must be a finite number")
+    return float(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class WarningAction:
+    """What one warning level does: drive at ``speed`` × the cruise speed, alert the operator, hand over
+    (brake to a stop and give control to the operator, so it needs ``speed`` = 0)."""
+
+    speed: float
+    alert: bool = False
+    handover: bool = False
+
+
+def _check_action(key: str, action: object) -> WarningAction:
+    if not isinstance(action, WarningAction):
+        raise ValueError(f"{key}={action!r} must be an action with speed, alert, handover")
+    speed = _number(f"{key}.speed", action.speed)
+    if not 0 <= speed <= 1:
+        raise ValueError(f"{key}.speed={action.speed!r} must be in [0, 1] (a fraction of the cruise speed)")
+    for name in ("alert", "handover"):
+        if not isinstance(getattr(action, name), bool):
+            raise ValueError(f"{key}.{name}={getattr(action, name)!r} must be true or false")
+    if action.handover and speed != 0:
+        raise ValueError(f"{key}.speed={action.speed!r} must be 0 when {key}.handover is true "
+                         "(a hand-over brakes to a stop)")
+    return WarningAction(speed, action.alert, action.handover)
+
+
+def _default_actions() -> tuple[WarningAction, WarningAction, WarningAction]:
+    """The paper's: warning 0 slows down, warning 1 slows down and alerts, warning 2 brakes and hands over."""
+    return WarningAction(0.5), WarningAction(0.5, alert=True), WarningAction(0.0, alert=True, handover=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class WarningConfig:
+    """Thresholds (δ1, δ2 on η2; τ on MI in nats), actions per level, and the per-frame sample size.
+
+    ``theta``, ``gamma``: each frame draws ``chernoff_n(theta, gamma)`` weight samples, so the
+    estimated η2 is within θ of the true η2 with probability ≥ 1 − γ (738 at 0.05/0.05).
+    ``hold_s``: a slow-down lasts this long after the last frame that asked for it.
+    """
+
+    delta1: float = 0.7
+    delta2: float = 0.6
+    tau: float = 0.45
+    theta: float = 0.05
+    gamma: float = 0.05
+    hold_s: float = 1.0
+    actions: tuple[WarningAction, WarningAction, WarningAction] = dataclasses.field(default_factory=_default_actions)
+
+    def __post_init__(self) -> None:
+        for name in ("delta1", "delta2"):
+            value = _number(f"warning.{name}", getattr(self, name))
+            if not 0 <= value <= 1:
+                raise ValueError(f"warning.{name}={getattr(self, name)!r} must be in [0, 1] (a threshold on η2)")
+        if self.delta2 > self.delta1:
+            raise ValueError(f"warning.delta2={self.delta2!r} must be <= warning.delta1={self.delta1!r} "
+                             "(warning 2, η2 < δ2, is the severe one)")
+        if not _number("warning.tau", self.tau) >= 0:
+            raise ValueError(f"warning.tau={self.tau!r} must be >= 0 (a threshold on mutual information, nats)")
+        for name in ("theta", "gamma"):
+            value = _number(f"warning.{name}", getattr(self, name))
+            if not 0 < value < 1:
+                raise ValueError(f"warning.{name}={getattr(self, name)!r} must be in the open interval (0, 1)")
+        if not _number("warning.hold_s", self.hold_s) >= 0:
+            raise ValueError(f"warning.hold_s={self.hold_s!r} must be a number of seconds >= 0")
+        if isinstance(self.actions, (str, bytes)) or len(self.actions) != len(LEVELS):
+            raise ValueError(f"warning.actions={self.actions!r} must hold one action per level {list(LEVELS)}")
+        object.__setattr__(self, "actions", tuple(
+            _check_action(f"warning.actions.warning{level}", a) for level, a in zip(LEVELS, self.actions)))
+        for name in ("delta1", "delta2", "tau", "theta", "gamma", "hold_s"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @classmethod
+    def from_config(cls, mapping: Mapping[str, Any]) -> WarningConfig:
+        """From the `warning` config group; ``actions`` maps warning0/1/2 to speed, alert, handover."""
+        data = dict(mapping)
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - fields)
+        if unknown:
+            raise ValueError(f"warning: unknown key(s) {unknown}; allowed keys are {sorted(fields)}")
+        if "actions" in data:
+            actions = dict(data["actions"])
+            names = [f"warning{level}" for level in LEVELS]
+            if sorted(actions) != names:
+                raise ValueError(f"warning.actions has keys {sorted(actions)}; it needs exactly {names}")
+            built = []
+            for name in names:
+                spec = dict(actions[name])
+                allowed = {"speed", "alert", "handover"}
+                if set(spec) - allowed or "speed" not in spec:
+                    raise ValueError(f"warning.actions.{name}={spec!r} needs 'speed' and may have 'alert', "
+                                     "'handover'")
+                built.append(WarningAction(**spec))
+            data["actions"] = tuple(built)
+        return cls(**data)
+
+    @property
+    def samples(self) -> int:
+        """Weight samples per frame: Chernoff's n for (θ, γ)."""
+        return chernoff_n(self.theta, self.gamma)
+
+    def with_thresholds(self, delta1: float, delta2: float, tau: float) -> WarningConfig:
+        return dataclasses.replace(self, delta1=float(delta1), delta2=float(delta2), tau=float(tau))
+
+    def to_dict(self) -> dict:
+        """Plain values (for hashes, JSON and MLflow)."""
+        return {"delta1": self.delta1, "delta2": self.delta2, "tau": self.tau, "theta": self.theta,
+                "gamma": self.gamma, "hold_s": self.hold_s, "samples": self.samples,
+                "actions": {f"warning{level}": {"speed": a.speed, "alert": a.alert, "handover": a.handover}
+                            for level, a in zip(LEVELS, self.actions)}}
+
+
+def classify(eta2: np.ndarray | float, mutual_information: np.ndarray | float, delta1: np.ndarray | float,
+             delta2: np.ndarray | float, tau: np.ndarray | float) -> np.ndarray:
+    """Warning level per frame (NO_WARNING, 0, 1 or 2); every argument broadcasts against the others.
+
+    η2 < δ2 → 2; δ2 ≤ η2 < δ1 → 1; η2 ≥ δ1 and MI > τ → 0; otherwise no warning.
+    """
+    eta2, mi = np.asarray(eta2, dtype=float), np.asarray(mutual_information, dtype=float)
+    if not (np.isfinite(eta2).all() and np.isfinite(mi).all()):
+        raise ValueError("eta2 and mutual_information must be finite (a Bayesian controller's measures)")
+    return np.where(eta2 < delta2, 2, np.where(eta2 < delta1, 1, np.where(mi > tau, 0, NO_WARNING))).astype(np.int8)
+
+
+class WarningActions:
+    """The actions' state over a batch of systems: slow-downs held ``hold_frames``, hand-over latched.
+
+    ``step(levels)`` takes this frame's levels (any shape, fixed per instance) and returns the
+    speed factor, whether an alert is raised, and whether a hand-over is under way.
+    """
+
+    def __init__(self, actions: tuple[WarningAction, ...], hold_frames: int, shape: tuple[int, ...] = ()):
+        self.speeds = np.array([a.speed for a in actions])
+        self.alerts = np.array([a.alert for a in actions])
+        self.handovers = np.array([a.handover for a in actions])
+        self.hold_frames = int(hold_frames)
+        self.remaining = np.zeros((len(actions), *shape), dtype=np.int64)  # frames each level's slow-down lasts
+        self.handover = np.zeros(shape, dtype=bool)
+
+    def step(self, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        levels = np.asarray(levels)
+        fired = levels[None] == np.arange(len(self.speeds)).reshape(-1, *([1] * levels.ndim))
+        self.remaining = np.where(fired, self.hold_frames + 1, np.maximum(self.remaining - 1, 0))
+        self.handover |= (fired & self.handovers.reshape(-1, *([1] * levels.ndim))).any(0)
+        active = self.remaining > 0
+        factor = np.where(active, self.speeds.reshape(-1, *([1] * levels.ndim)), 1.0).min(0)
+        alert = (fired & self.alerts.reshape(-1, *([1] * levels.ndim))).any(0)
+        return np.where(self.handover, 0.0, factor), alert | self.handover, self.handover.copy()
+
+
+class WarningController(Controller):
+    """The Bayesian controller with the warning system: π(o) steers, the warning level sets the speed.
+
+    Draws ``config.samples`` weight samples per frame (Chernoff's n for the config's θ, γ).
+    A hand-over brakes with the steering wheel held where it was when it fired (the network is
+    not trusted any more), at speed 0 with ``handover`` set; the rollout ends once the car has stopped.
+    """
+
+    def __init__(self, posterior: Posterior, bins: SteeringBins, config: WarningConfig, eps: float, speed: float,
+                 control_hz: float, generator: torch.Generator | None = None):
+        super().__init__(posterior, bins, config.samples, eps, speed, generator)
+        self.config = config
+        self.hold_frames = round(config.hold_s * control_hz)
+        self.actions = WarningActions(config.actions, self.hold_frames)
+        self.held_steer: float | None = None
+
+    def reset(self, env, seed: int) -> None:
+        super().reset(env, seed)
+        self.actions = WarningActions(self.config.actions, self.hold_frames)
+        self.held_steer = None
+
+    def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
+        command = super().act(obs, info)
+        cfg = self.config
+        level = classify(command.eta2, command.mutual_information, cfg.delta1, cfg.delta2, cfg.tau)
+        factor, alert, handover = self.actions.step(level)
+        if handover and self.held_steer is None:
+            self.held_steer = float((info or {}).get("steering", 0.0))
+        steer = command.steer if self.held_steer is None else self.held_steer
+        return dataclasses.replace(command, steer=steer, speed=self.speed * float(factor), warning=int(level),
+                                   alert=bool(alert), handover=bool(handover))
+
+
+@dataclasses.dataclass(frozen=True)
+class Traces:
+    """Warnings-off rollouts padded to F frames, for replaying warning thresholds over them.
+
+    ``progress``: metres along the route at each frame; ``end_progress``: where the run ended
+    (for an unsafe run, where it collided or left the road); ``group``: the run's condition.
+    """
+
+    eta2: np.ndarray  # [R, F], padding 1.0
+    mutual_information: np.ndarray  # [R, F], padding 0.0
+    progress: np.ndarray  # [R, F], padding: the end progress
+    frames: np.ndarray  # [R] real frames per run
+    end_progress: np.ndarray  # [R]
+    safe: np.ndarray  # [R]
+    group: np.ndarray  # [R] index into the group names
+
+    @classmethod
+    def from_runs(cls, runs: list[tuple[np.ndarray, np.ndarray, np.ndarray, float, bool, int]]) -> Traces:
+        """From (eta2, mutual_information, progress, end_progress, safe, group) per run."""
+        if not runs:
+            raise ValueError("calibration needs at least one recorded rollout")
+        width = max(1, max(len(r[0]) for r in runs))
+        eta2, mi, progress = np.ones((len(runs), width)), np.zeros((len(runs), width)), np.zeros((len(runs), width))
+        for i, (e, m, s, end, _, _) in enumerate(runs):
+            eta2[i, :len(e)], mi[i, :len(m)] = e, m
+            progress[i] = end
+            progress[i, :len(s)] = s
+        return cls(eta2, mi, progress, np.array([len(r[0]) for r in runs]), np.array([r[3] for r in runs], float),
+                   np.array([r[4] for r in runs], bool), np.array([r[5] for r in runs], np.int64))
+
+
+@dataclasses.dataclass(frozen=True)
+class Replay:
+    """Replayed outcome per candidate × run: safe, handed over, fraction of frames at full speed."""
+
+    safe: np.ndarray  # [C, R]
+    handover: np.ndarray  # [C, R]
+    full_speed: np.ndarray  # [C, R]
+
+
+def replay(traces: Traces, delta1: np.ndarray, delta2: np.ndarray, tau: np.ndarray, config: WarningConfig,
+           control_hz: float, cruise: float, start_speed: float, max_accel: float, max_brake: float,
+           margin_m: float) -> Replay:
+    """What candidate thresholds (arrays [C]) would have done on recorded warnings-off runs.
+
+    Approximation (the path is the recorded one; only the speed is replayed):
+    each frame is seen where the warnings-off car saw it; the warnings' actions set the speed,
+    which follows within the car's accel/brake limits over the distance between frames. A
+    hand-over (warning 2 with the default actions) at frame k stops the car within
+    v_k²/(2·max_brake); an unsafe run counts as saved if that, plus ``margin_m``, fits before
+    the point where it collided or left the road, and a safe run stays safe. Slow-downs change
+    the outcome only through a shorter stopping distance; in closed loop they also change the
+    path, which is why calibrated thresholds are validated with real rollouts.
+    """
+    delta1, delta2, tau = (np.asarray(v, float)[:, None] for v in (delta1, delta2, tau))
+    n_cand, (n_runs, width) = delta1.shape[0], traces.eta2.shape
+    actions = WarningActions(config.actions, round(config.hold_s * control_hz), (n_cand, n_runs))
+    speed = np.full((n_cand, n_runs), float(start_speed))
+    saved = np.zeros((n_cand, n_runs), dtype=bool)
+    stopped_at = np.full((n_cand, n_runs), -1)
+    full = np.zeros((n_cand, n_runs))
+    for k in range(width):
+        live = (k < traces.frames)[None] & (stopped_at < 0)
+        levels = classify(traces.eta2[None, :, k], traces.mutual_information[None, :, k], delta1, delta2, tau)
+        factor, _, handover = actions.step(np.where(live, levels, NO_WARNING))
+        full += live & (factor >= 1.0)
+        now = live & handover
+        room = traces.end_progress - traces.progress[:, k]
+        saved |= now & (room[None] >= speed**2 / (2 * max_brake) + margin_m)
+        stopped_at = np.where(now, k, stopped_at)
+        step = np.clip((traces.progress[:, min(k + 1, width - 1)] - traces.progress[:, k]), 0, None)[None]
+        target = cruise * factor
+        up = np.minimum(target, np.sqrt(speed**2 + 2 * max_accel * step))
+        down = np.maximum(target, np.sqrt(np.maximum(speed**2 - 2 * max_brake * step, 0)))
+        speed = np.where(live, np.where(target >= speed, up, down), speed)
+    driven = np.where(stopped_at >= 0, stopped_at + 1, traces.frames[None])
+    return Replay(traces.safe[None] | saved, stopped_at >= 0, full / np.maximum(driven, 1))
+
+
+@dataclasses.dataclass(frozen=True)
+class Calibration:
+    """Chosen thresholds and every candidate's replayed outcome (the safety–autonomy trade-off).
+
+    ``table`` columns: delta1, delta2, tau, autonomy and full_speed (means over the groups),
+    eta1_<group> and eta1_low_<group> (replayed η̂1 and its exact lower bound), eta1_low (the
+    smallest lower bound over the groups), feasible (eta1_low ≥ target) and pareto.
+    """
+
+    delta1: float
+    delta2: float
+    tau: float
+    feasible: bool
+    target: float
+    gamma: float
+    table: dict[str, np.ndarray]
+    chosen: int
+
+
+def candidates(deltas: list[float], taus: list[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every (δ1, δ2, τ) on the grids with δ2 ≤ δ1."""
+    rows = [(d1, d2, t) for d1 in deltas for d2 in deltas if d2 <= d1 for t in taus]
+    d1, d2, t = (np.array(c, float) for c in zip(*rows))
+    return d1, d2, t
+
+
+def pareto(autonomy: np.ndarray, safety: np.ndarray) -> np.ndarray:
+    """Candidates no other beats in both autonomy and safety (ties count as not beaten)."""
+    better = (autonomy[None] >= autonomy[:, None]) & (safety[None] >= safety[:, None]) & (
+        (autonomy[None] > autonomy[:, None]) | (safety[None] > safety[:, None]))
+    return ~better.any(1)
+
+
+def calibrate(traces: Traces, groups: list[str], config: WarningConfig, deltas: list[float], taus: list[float],
+              target: float, gamma: float, **replay_args: float) -> Calibration:
+    """Thresholds that maximise autonomy (no hand-over; then time at full speed) subject to the
+    exact (Clopper–Pearson, level 1 − ``gamma``) lower bound of the replayed η̂1 being ≥ ``target``
+    in every group (condition); remaining ties go to the candidate closest to ``config``'s thresholds.
+
+    If no candidate reaches the target, the one with the highest bound (then autonomy) is
+    returned with ``feasible`` False. The bound is computed on the runs the thresholds are
+    chosen on, so it is optimistic: only a closed-loop cell on fresh seeds says what the chosen
+    thresholds achieve.
+    """
+    d1, d2, t = candidates(deltas, taus)
+    out = replay(traces, d1, d2, t, config, **replay_args)
+    table: dict[str, np.ndarray] = {"delta1": d1, "delta2": d2, "tau": t}
+    autonomy, full, lows = [], [], []
+    for g, name in enumerate(groups):
+        members = traces.group == g
+        n = int(members.sum())
+        if n == 0:
+            raise ValueError(f"calibration group {name!r} has no rollouts")
+        k = out.safe[:, members].sum(1)
+        table[f"eta1_{name}"] = k / n
+        table[f"eta1_low_{name}"] = clopper_pearson_interval(k, n, gamma)[0]
+        autonomy.append(1 - out.handover[:, members].mean(1))
+        full.append(out.full_speed[:, members].mean(1))
+        lows.append(table[f"eta1_low_{name}"])
+    table["autonomy"], table["full_speed"] = np.mean(autonomy, 0), np.mean(full, 0)
+    table["eta1_low"] = np.min(lows, 0)
+    table["feasible"] = table["eta1_low"] >= target
+    table["pareto"] = pareto(table["autonomy"], table["eta1_low"])
+    distance = np.abs(d1 - config.delta1) + np.abs(d2 - config.delta2) + np.abs(t - config.tau)
+    if table["feasible"].any():
+        order = np.lexsort((distance, -table["eta1_low"], -table["full_speed"], -table["autonomy"],
+                            ~table["feasible"]))
+    else:
+        order = np.lexsort((distance, -table["full_speed"], -table["autonomy"], -table["eta1_low"]))
+    best = int(order[0])
+    return Calibration(float(d1[best]), float(d2[best]), float(t[best]), bool(table["feasible"][best]), float(target),
+                       float(gamma), table, best)

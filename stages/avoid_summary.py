@@ -1,0 +1,17 @@
+"""DVC stage `avoid_summary`: metrics/avoid.json (every method's cells beside the paper's numbers) and the
+paths of all methods coloured by uncertainty."""
+
+import hydra
+from omegaconf import DictConfig
+
+from uqdrive.pipeline.avoid import run_avoid_summary
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="avoid_summary")
+def main(cfg: DictConfig) -> None:
+    result = run_avoid_summary(cfg)
+    print(f"avoid summary -> {cfg.summary.out}, figures {', '.join(result['figures'])}")
+
+
+if __name__ == "__main__":
+    main()

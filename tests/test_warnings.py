@@ -1,0 +1,206 @@
+"""The three-tier warning system: levels from η2 and MI, the actions (warning 2 stops the car and hands
+over), its config, and the replay that calibrates thresholds."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.models import load_posterior
+from uqdrive.safety import (HANDOVER, NO_WARNING, Controller, WarningAction, WarningConfig, WarningController,
+                            classify, run_rollout)
+from uqdrive.safety.warnings import Traces, WarningActions, calibrate, replay
+from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.uq import chernoff_n
+
+from conftest import CONF
+
+BINS = SteeringBins()
+FAST = WarningConfig(theta=0.3)  # 21 draws per frame; the paper's thresholds and actions
+
+
+class FixedPosterior:
+    """Hand-made posterior samples: the same [n, C] class probabilities for every frame."""
+
+    def __init__(self, probs: np.ndarray):
+        self.probs = torch.as_tensor(probs, dtype=torch.float32)
+
+    def eval(self) -> "FixedPosterior":
+        return self
+
+    def sample_probs(self, x: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        assert n == len(self.probs)
+        return self.probs[:, None, :].expand(n, x.shape[0], -1)
+
+
+def samples(classes: list[int]) -> np.ndarray:
+    """One near-one-hot sample per entry of ``classes`` (0.98 on the class, the rest spread)."""
+    probs = np.full((len(classes), BINS.num_classes), 0.02 / (BINS.num_classes - 1))
+    probs[np.arange(len(classes)), classes] = 0.98
+    return probs
+
+
+CONFIDENT = samples([10] * FAST.samples)  # every draw: straight ahead
+DISAGREEING = samples([0] * 11 + [20] * 10)  # full right against full left: η2 = 11/21
+
+
+@pytest.fixture(scope="module")
+def obstacle():
+    return ScenarioConfig.from_yaml(CONF / "scenario" / "obstacle.yaml"), WeatherConfig.from_yaml(
+        CONF / "weather" / "clear_noon.yaml")
+
+
+@pytest.fixture(scope="module")
+def frame(obstacle):
+    with DrivingEnv() as env:
+        return env.reset(0, *obstacle)
+
+
+def controller(probs: np.ndarray, config: WarningConfig = FAST) -> WarningController:
+    return WarningController(FixedPosterior(probs), BINS, config, eps=0.1, speed=8.0, control_hz=15.0)
+
+
+def test_levels_follow_the_paper_thresholds():
+    eta2 = np.array([1.0, 0.7, 1.0, 0.69, 0.6, 0.599, 0.0])
+    mi = np.array([0.45, 0.0, 0.46, 2.0, 2.0, 0.0, 0.0])
+    assert classify(eta2, mi, 0.7, 0.6, 0.45).tolist() == [NO_WARNING, NO_WARNING, 0, 1, 1, 2, 2]
+    # thresholds broadcast against frames: the calibration classifies all candidates at once
+    grid = classify(eta2[None], mi[None], np.array([[0.7], [1.0]]), np.array([[0.6], [0.0]]), 0.45)
+    assert grid.shape == (2, 7) and grid[1].tolist() == [NO_WARNING, 1, 0, 1, 1, 1, 1]
+    with pytest.raises(ValueError, match="finite"):
+        classify(np.nan, 0.0, 0.7, 0.6, 0.45)
+
+
+def test_confident_posterior_raises_no_warning_and_disagreeing_one_raises_warning_2(frame):
+    calm = controller(CONFIDENT)
+    calm.reset(None, 0)
+    command = calm.act(frame)
+    assert (command.eta2, command.warning, command.speed, command.handover) == (1.0, NO_WARNING, 8.0, False)
+    assert command.mutual_information == pytest.approx(0.0, abs=1e-5)
+
+    torn = controller(DISAGREEING)
+    torn.reset(None, 0)
+    command = torn.act(frame)
+    assert command.eta2 == pytest.approx(11 / 21) and command.mutual_information > 0.6
+    assert (command.warning, command.speed, command.alert, command.handover) == (2, 0.0, True, True)
+
+
+def test_agreement_within_eps_with_high_mutual_information_is_warning_0(frame):
+    split = samples([10] * 11 + [11] * 10)  # straight vs 0.1 left: every decision within ε of π(o)
+    command = controller(split).act(frame)
+    assert command.eta2 == 1.0 and command.mutual_information > 0.45
+    assert (command.warning, command.speed, command.alert, command.handover) == (0, 4.0, False, False)
+
+
+def test_slow_down_holds_then_releases_and_hand_over_latches():
+    actions = WarningActions(FAST.actions, hold_frames=2)
+    speeds = [actions.step(np.array(level))[0].item() for level in (0, -1, -1, -1, 1, -1)]
+    assert speeds == [0.5, 0.5, 0.5, 1.0, 0.5, 0.5]
+    outcomes = [actions.step(np.array(level)) for level in (2, -1, 0)]
+    assert all(o[0] == 0.0 and o[2] for o in outcomes)  # warning 2: speed 0 until the run ends
+
+
+def test_warning_2_brakes_the_car_to_a_stop_and_hands_over(obstacle):
+    with DrivingEnv(control_hz=15.0, horizon_s=8.0) as env:
+        result = run_rollout(env, controller(DISAGREEING), 5, *obstacle, 0.0)
+        speed = env.trajectory["speed"]
+    assert result.termination == HANDOVER and result.safe and not result.collision
+    assert speed[-1] == 0.0 and np.all(np.diff(speed) <= 0)
+    assert result.steps == int(np.ceil(8.0 / (6.0 / 15.0)))  # 8 m/s at the 6 m/s² brake limit
+    assert set(result.warning.tolist()) == {2} and not result.command_speed.any()
+
+
+def test_confident_controller_drives_at_full_speed_to_the_horizon(obstacle):
+    with DrivingEnv(control_hz=15.0, horizon_s=1.0) as env:
+        result = run_rollout(env, controller(CONFIDENT), 5, *obstacle, 0.0)
+    assert result.termination == "timeout" and result.safe
+    assert set(result.warning.tolist()) == {NO_WARNING} and np.all(result.command_speed == 8.0)
+
+
+def test_warnings_that_never_fire_leave_the_rollout_unchanged(random_models, obstacle):
+    """The avoid stage reuses such warnings-off rollouts for the warnings-on cell: it must be exact."""
+    posterior = load_posterior(random_models["vi"])
+    never = WarningConfig(delta1=0.0, delta2=0.0, tau=10.0, theta=0.3)
+    with DrivingEnv(horizon_s=1.5) as env:
+        off = run_rollout(env, Controller(posterior, BINS, never.samples, 0.1, 8.0), 11, *obstacle, 0.05)
+        on = run_rollout(env, WarningController(posterior, BINS, never, 0.1, 8.0, 15.0), 11, *obstacle, 0.05)
+    assert off.summary() == on.summary()
+    for key in ("x", "y", "eta2", "mutual_information", "warning", "command_speed"):
+        assert np.array_equal(getattr(off, key), getattr(on, key))
+
+
+def test_defaults_are_the_papers_and_samples_come_from_chernoff():
+    cfg = WarningConfig()
+    assert (cfg.delta1, cfg.delta2, cfg.tau, cfg.samples) == (0.7, 0.6, 0.45, 738)
+    assert [(a.speed, a.alert, a.handover) for a in cfg.actions] == [(0.5, False, False), (0.5, True, False),
+                                                                      (0.0, True, True)]
+    assert WarningConfig(theta=0.1, gamma=0.01).samples == chernoff_n(0.1, 0.01)
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"delta1": 0.6, "delta2": 0.7}, r"warning.delta2=0.7 must be <= warning.delta1=0.6"),
+    ({"delta1": 1.2}, r"warning.delta1=1.2 must be in \[0, 1\]"),
+    ({"delta2": -0.1}, r"warning.delta2=-0.1 must be in \[0, 1\]"),
+    ({"tau": -0.5}, r"warning.tau=-0.5 must be >= 0"),
+    ({"tau": float("nan")}, r"warning.tau=nan must be a finite number"),
+    ({"theta": 0.0}, r"warning.theta=0.0 must be in the open interval \(0, 1\)"),
+    ({"hold_s": -1}, r"warning.hold_s=-1 must be a number of seconds >= 0"),
+    ({"actions": (WarningAction(1.5), WarningAction(0.5), WarningAction(0.0, True, True))},
+     r"warning.actions.warning0.speed=1.5 must be in \[0, 1\]"),
+    ({"actions": (WarningAction(0.5), WarningAction(0.5), WarningAction(0.2, True, True))},
+     r"warning.actions.warning2.speed=0.2 must be 0 when warning.actions.warning2.handover is true"),
+])
+def test_bad_warning_config_names_key_value_and_what_is_allowed(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        WarningConfig(**kwargs)
+
+
+def test_from_config_reads_actions_and_refuses_unknown_keys():
+    cfg = WarningConfig.from_config({"delta1": 0.8, "actions": {
+        "warning0": {"speed": 0.25}, "warning1": {"speed": 0.5, "alert": True},
+        "warning2": {"speed": 0.0, "alert": True, "handover": True}}})
+    assert cfg.delta1 == 0.8 and cfg.actions[0] == WarningAction(0.25)
+    with pytest.raises(ValueError, match=r"warning: unknown key\(s\) \['delta3'\]"):
+        WarningConfig.from_config({"delta3": 0.5})
+    with pytest.raises(ValueError, match=r"warning.actions has keys \['warning0'\]; it needs exactly"):
+        WarningConfig.from_config({"actions": {"warning0": {"speed": 0.5}}})
+
+
+def traces() -> Traces:
+    """Three warnings-off runs, frames 1 m apart: a safe one that wavers (η2 0.9 once), one that dips to
+    η2 = 0.5 twenty metres before it collides, one that collides with no warning sign at all."""
+    s = np.arange(30.0)
+    calm, wavers, late = np.ones(30), np.ones(30), np.ones(30)
+    wavers[12] = 0.9
+    dips = np.ones(30)
+    dips[9] = 0.5
+    runs = [(wavers, np.zeros(30), s, 29.0, True, 0), (dips, np.zeros(30), s, 29.0, False, 1),
+            (calm, np.zeros(30), s, 29.0, False, 1)]
+    return Traces.from_runs(runs)
+
+
+def test_replay_saves_a_run_only_if_warning_2_fires_a_stopping_distance_before_the_collision():
+    t = traces()
+    args = {"control_hz": 15.0, "cruise": 8.0, "start_speed": 8.0, "max_accel": 3.0, "max_brake": 6.0,
+            "margin_m": 0.5}
+    out = replay(t, np.array([0.7, 0.95, 0.7]), np.array([0.6, 0.95, 0.4]), np.array([0.45] * 3), FAST, **args)
+    assert out.handover.tolist() == [[False, True, False], [True, True, False], [False, False, False]]
+    assert out.safe.tolist() == [[True, True, False], [True, True, False], [True, False, False]]
+    # the same dip 3 m before the collision is too late at 8 m/s (5.3 m to stop)
+    late = dataclasses.replace(t, end_progress=np.array([29.0, 12.0, 29.0]))
+    assert not replay(late, np.array([0.7]), np.array([0.6]), np.array([0.45]), FAST, **args).safe[0, 1]
+
+
+def test_calibration_keeps_autonomy_where_safety_allows_and_reports_an_unreachable_target():
+    args = {"control_hz": 15.0, "cruise": 8.0, "start_speed": 8.0, "max_accel": 3.0, "max_brake": 6.0,
+            "margin_m": 0.5}
+    deltas, taus = [0.5, 0.6, 0.7, 0.9, 0.95, 1.0], [0.45]
+    t = dataclasses.replace(traces(), safe=np.array([True, False, True]))  # the silent run is safe here
+    calib = calibrate(t, ["known", "unknown"], FAST, deltas, taus, target=0.02, gamma=0.05, **args)
+    # δ2 must exceed 0.5 to save the dipping run; at most 0.9 keeps the safe run autonomous
+    assert calib.feasible and 0.5 < calib.delta2 <= 0.9 and calib.delta2 <= calib.delta1
+    assert calib.table["autonomy"][calib.chosen] == 0.75 and calib.table["pareto"][calib.chosen]
+    hopeless = calibrate(traces(), ["known", "unknown"], FAST, deltas, taus, target=0.5, gamma=0.05, **args)
+    assert not hopeless.feasible  # the silent collision can never be saved
