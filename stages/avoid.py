@@ -4,11 +4,10 @@ conditions, calibrated thresholds checked in closed loop (`model=mcd|vi|hmc`).""
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.pipeline.avoid import CONDITIONS, MODES, run_avoid
-
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid")
 def main(cfg: DictConfig) -> None:
+    from uqdrive.pipeline.avoid import CONDITIONS, MODES, run_avoid  # not at the top: spawned workers re-import this script
     r = run_avoid(cfg)
     for condition in CONDITIONS:
         for mode in MODES:

@@ -3,11 +3,10 @@
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.pipeline.safety import run_safety
-
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="safety")
 def main(cfg: DictConfig) -> None:
+    from uqdrive.pipeline.safety import run_safety  # not at the top: spawned workers re-import this script
     r = run_safety(cfg)
     print(f"safety {cfg.safety.cell}: eta1 = {r['eta1']:.3f} in [{r['eta1_low']:.3f}, {r['eta1_high']:.3f}] "
           f"from {r['n']} rollouts ({r['scheme']}, theta={r['theta']:g}, gamma={r['gamma']:g})"

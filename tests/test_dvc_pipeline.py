@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from test_report import markdown_rows
+
+from uqdrive.pipeline.report import fmt
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -56,7 +59,19 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert {m: list(t) for m, t in evaluated.items()} == {"mcd": ["rain"], "vi": ["rain"], "hmc": ["rain"]}
     assert evaluated["vi"]["rain"]["noise0.0"]["frames"] > 0
     assert (project / "plots/evaluate/figures/reliability_hmc.png").exists()
+    avoided = json.loads((project / "metrics/avoid.json").read_text())
+    assert set(avoided) >= {"mcd", "vi", "hmc"}
     assert (project / "mlflow.db").exists()
+
+    # the report's tables hold this run's numbers, as the report formats them
+    report = (project / "reports/report.md").read_text()
+    for row in markdown_rows(report, "method | weather"):
+        assert row["η̂1"] == fmt(safety[row["method"]][row["weather"]]["noise0.0"]["eta1"])
+    for row in markdown_rows(report, "method | weather | noise | frames"):
+        assert row["accuracy"] == fmt(evaluated[row["method"]][row["weather"]]["noise0.0"]["accuracy"])
+    for row in markdown_rows(report, "method | condition"):
+        assert row["η̂1"] == fmt(avoided[row["method"]][row["condition"]][row["warnings"]]["eta1"])
+    assert 'src="data:image/png;base64,' in (project / "reports/report.html").read_text()
 
     assert "Data and pipelines are up to date" in _dvc(project, "status")
     stamp = (project / "data/raw/straight.parquet").stat().st_mtime_ns

@@ -49,13 +49,23 @@ def write_run(root):
                                        "auroc_mi": rng.random(), "auroc_one_minus_eta2": None}
                          for x in NOISES} for w in WEATHERS} for m in METHODS}
     (root / "metrics/evaluate.json").write_text(json.dumps(evaluated))
+    cell = {"eta1_low": 0.1, "eta1_high": 1.0, "n": 19, "full_speed_fraction": 0.9, "collision_rate": 0.0,
+            "warning0_runs": 1, "warning1_runs": 2, "warning2_runs": 3,
+            "thresholds": {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}}
+    check = {"agreement": 1.0}
+    avoided = {m: {c: {mode: {**cell, "eta1": rng.random(), "autonomy": rng.random()} for mode in ("off", "on", "calibrated")}
+                   for c in ("known", "unknown")} for m in METHODS}
+    for m in METHODS:
+        avoided[m]["calibration"] = {"target": 0.6, "feasible": True, "delta1": 1.0, "delta2": 1.0, "tau": 0.45,
+                                     "replay_check": {"known": check, "unknown": check}}
+    (root / "metrics/avoid.json").write_text(json.dumps(avoided))
     (root / "plots/safety/summary").mkdir(parents=True)
     (root / "plots/safety/summary/hexbin_noise0.0.png").write_bytes(png)  # the noise-0.05 figure is missing
-    return summary, evaluated
+    return summary, evaluated, avoided
 
 
 def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
-    summary, evaluated = write_run(tmp_path)
+    summary, evaluated, avoided = write_run(tmp_path)
     result = run_report(stage_config("report"))
     text = (tmp_path / "reports/report.md").read_text()
     rows = markdown_rows(text, "method | weather")
@@ -78,6 +88,14 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         cell = evaluated[row["method"]][row["weather"]][f"noise{float(row['noise'])}"]
         assert (row["accuracy"], row["ECE"], row["mean MI"], row["AUROC MI"], row["AUROC 1 − η2"]) == (
             fmt(cell["accuracy"]), fmt(cell["ece"]), fmt(cell["mean_mutual_information"]), fmt(cell["auroc_mi"]), "–")
+    avoid_rows = markdown_rows(text, "method | condition")
+    assert len(avoid_rows) == len(METHODS) * 2 * 3
+    for row in avoid_rows:
+        cell = avoided[row["method"]][row["condition"]][row["warnings"]]
+        assert (row["η̂1"], row["autonomy"], row["runs with w0 / w1 / w2"]) == (
+            fmt(cell["eta1"]), fmt(cell["autonomy"]), "1 / 2 / 3")
+    assert [r["paper"] for r in avoid_rows if (r["method"], r["condition"], r["warnings"]) == ("vi", "unknown", "on")] == [
+        "0.90 ± 0.05"]
     assert "| profile | `tiny` |" in text and "Figure missing: `plots/safety/summary/hexbin_noise0.05.png`" in text
 
     html = (tmp_path / "reports/report.html").read_text()

@@ -172,7 +172,7 @@ def traces() -> Traces:
     """Three warnings-off runs, frames 1 m apart: a safe one that wavers (η2 0.9 once), one that dips to
     η2 = 0.5 twenty metres before it collides, one that collides with no warning sign at all."""
     s = np.arange(30.0)
-    calm, wavers, late = np.ones(30), np.ones(30), np.ones(30)
+    calm, wavers = np.ones(30), np.ones(30)
     wavers[12] = 0.9
     dips = np.ones(30)
     dips[9] = 0.5

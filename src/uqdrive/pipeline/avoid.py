@@ -25,6 +25,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from uqdrive.checks import finite_number, integer
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path, write_json
 from uqdrive.models.checkpoint import check_method, load_posterior
@@ -50,18 +51,6 @@ PAPER = {  # the paper's VI numbers (θ = 0.05): unknown 0.00 → 0.90 with warn
 }
 
 
-def _number(key: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{key}={value!r} must be a finite number")
-    return float(value)
-
-
-def _check_int(key: str, value: object, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{key}={value!r} must be an integer >= {minimum}")
-    return value
-
-
 @dataclasses.dataclass(frozen=True)
 class CalibrationSettings:
     """Threshold calibration: the replayed η̂1 lower bound must reach ``target`` in every condition."""
@@ -74,15 +63,15 @@ class CalibrationSettings:
 
     def __post_init__(self) -> None:
         for name in ("target", "gamma"):
-            if not 0 < _number(f"avoid.calibration.{name}", getattr(self, name)) < 1:
+            if not 0 < finite_number(f"avoid.calibration.{name}", getattr(self, name)) < 1:
                 raise ValueError(f"avoid.calibration.{name}={getattr(self, name)!r} must be in the open "
                                  "interval (0, 1)")
-        if not _number("avoid.calibration.margin_m", self.margin_m) >= 0:
+        if not finite_number("avoid.calibration.margin_m", self.margin_m) >= 0:
             raise ValueError(f"avoid.calibration.margin_m={self.margin_m!r} must be a number of metres >= 0")
         for name, ok, allowed in (("deltas", lambda v: 0 <= v <= 1, "in [0, 1]"), ("taus", lambda v: v >= 0, ">= 0")):
             values = getattr(self, name)
             if isinstance(values, (str, bytes)) or not values or not all(
-                    ok(_number(f"avoid.calibration.{name}", v)) for v in values):
+                    ok(finite_number(f"avoid.calibration.{name}", v)) for v in values):
                 raise ValueError(f"avoid.calibration.{name}={values!r} must be a non-empty list of numbers {allowed}")
             object.__setattr__(self, name, tuple(sorted({float(v) for v in values})))
 
@@ -157,14 +146,14 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     method = check_method(cfg.model.name)
     if cfg.executor.name not in BACKENDS:
         raise ValueError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
-    _check_int("executor.workers", cfg.executor.workers, 1)
+    integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
     try:
         estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
                                       base_seed=cfg.avoid.base_seed)
     except ValueError as err:
         raise ValueError(str(err).replace("safety.", "avoid.")) from err
-    validation_seed = _check_int("avoid.validation_seed", cfg.avoid.validation_seed, 0)
+    validation_seed = integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     speed = cfg.avoid.speed
     if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0 < speed <= vehicle.max_speed:
@@ -461,7 +450,7 @@ def _log_run(cfg: DictConfig, cell: Cell, metrics: dict, settings: AvoidSettings
 def run_avoid(cfg: DictConfig) -> dict:
     """All cells of one method, the calibration and its closed-loop check; writes metrics, data, figures, runs."""
     settings = build_settings(cfg)
-    workers = _check_int("executor.workers", cfg.executor.workers, 1)
+    workers = integer("executor.workers", cfg.executor.workers, 1)
     data_dir, plots_dir = Path(cfg.avoid.data_dir), Path(cfg.avoid.plots_dir)
     geometries = settings.geometries()
     start = time.perf_counter()

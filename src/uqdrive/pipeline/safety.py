@@ -19,6 +19,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from uqdrive.checks import integer
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path, write_json
 from uqdrive.models.checkpoint import check_method, load_posterior
@@ -46,12 +47,6 @@ def _check_horizon(horizon_s: object) -> float:
     if isinstance(horizon_s, bool) or not isinstance(horizon_s, (int, float)) or not horizon_s > 0:
         raise ValueError(f"safety.horizon_s={horizon_s!r} must be a number of seconds > 0")
     return float(horizon_s)
-
-
-def _check_int(key: str, value: object, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{key}={value!r} must be an integer >= {minimum}")
-    return value
 
 
 def code_digest() -> str:
@@ -153,7 +148,7 @@ def write_outputs(cfg: DictConfig, results: list[RolloutResult], geometry: Scena
 def run_safety(cfg: DictConfig) -> dict:
     """Estimate η1 for one cell; reuses the cell's result file when its config hash matches."""
     job, settings, key = build_job(cfg)
-    workers = _check_int("executor.workers", cfg.executor.workers, 1)
+    workers = integer("executor.workers", cfg.executor.workers, 1)
     out = Path(cfg.safety.out)
     previous = reusable_result(out, key)
     if previous is not None:

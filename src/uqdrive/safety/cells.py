@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uqdrive.checks import finite_number
 from uqdrive.safety.executors import Executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential, sequential_plan
@@ -25,12 +26,6 @@ _PLANNED: dict[str, tuple[Callable[[float, float], int], Callable[[int, int, flo
     "chernoff": (chernoff_n, chernoff),
     "clopper_pearson": (clopper_pearson_n, clopper_pearson),
 }
-
-
-def _number(key: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{key}={value!r} must be a finite number")
-    return float(value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,7 +41,7 @@ class EstimatorSettings:
         if self.scheme not in SCHEMES:
             raise ValueError(f"safety.scheme={self.scheme!r} is not known; choose one of {list(SCHEMES)}")
         for key in ("theta", "gamma"):
-            value = _number(f"safety.{key}", getattr(self, key))
+            value = finite_number(f"safety.{key}", getattr(self, key))
             if not 0 < value < 1:
                 raise ValueError(f"safety.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
         if isinstance(self.base_seed, bool) or not isinstance(self.base_seed, int) or self.base_seed < 0:

@@ -12,25 +12,19 @@ the same code.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import torch
 
+from uqdrive.checks import finite_number
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Command, Controller
 from uqdrive.uq import chernoff_n, clopper_pearson_interval
 
 LEVELS = (0, 1, 2)
-
-
-def _number(key: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"{key}={value!r} must be a finite number")
-    return float(value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,7 +40,7 @@ class WarningAction:
 def _check_action(key: str, action: object) -> WarningAction:
     if not isinstance(action, WarningAction):
         raise ValueError(f"{key}={action!r} must be an action with speed, alert, handover")
-    speed = _number(f"{key}.speed", action.speed)
+    speed = finite_number(f"{key}.speed", action.speed)
     if not 0 <= speed <= 1:
         raise ValueError(f"{key}.speed={action.speed!r} must be in [0, 1] (a fraction of the cruise speed)")
     for name in ("alert", "handover"):
@@ -82,19 +76,19 @@ class WarningConfig:
 
     def __post_init__(self) -> None:
         for name in ("delta1", "delta2"):
-            value = _number(f"warning.{name}", getattr(self, name))
+            value = finite_number(f"warning.{name}", getattr(self, name))
             if not 0 <= value <= 1:
                 raise ValueError(f"warning.{name}={getattr(self, name)!r} must be in [0, 1] (a threshold on η2)")
         if self.delta2 > self.delta1:
             raise ValueError(f"warning.delta2={self.delta2!r} must be <= warning.delta1={self.delta1!r} "
                              "(warning 2, η2 < δ2, is the severe one)")
-        if not _number("warning.tau", self.tau) >= 0:
+        if not finite_number("warning.tau", self.tau) >= 0:
             raise ValueError(f"warning.tau={self.tau!r} must be >= 0 (a threshold on mutual information, nats)")
         for name in ("theta", "gamma"):
-            value = _number(f"warning.{name}", getattr(self, name))
+            value = finite_number(f"warning.{name}", getattr(self, name))
             if not 0 < value < 1:
                 raise ValueError(f"warning.{name}={getattr(self, name)!r} must be in the open interval (0, 1)")
-        if not _number("warning.hold_s", self.hold_s) >= 0:
+        if not finite_number("warning.hold_s", self.hold_s) >= 0:
             raise ValueError(f"warning.hold_s={self.hold_s!r} must be a number of seconds >= 0")
         if isinstance(self.actions, (str, bytes)) or len(self.actions) != len(LEVELS):
             raise ValueError(f"warning.actions={self.actions!r} must hold one action per level {list(LEVELS)}")

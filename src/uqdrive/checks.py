@@ -1,0 +1,20 @@
+"""Config value checks shared by the stages: a bad value fails at start-up, before any work, with a
+message naming the key, the value and what is allowed."""
+
+from __future__ import annotations
+
+import math
+
+
+def finite_number(key: str, value: object) -> float:
+    """``value`` as a float if it is a finite real number (not a bool)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{key}={value!r} must be a finite number")
+    return float(value)
+
+
+def integer(key: str, value: object, minimum: int) -> int:
+    """``value`` if it is an integer (not a bool) ≥ ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{key}={value!r} must be an integer >= {minimum}")
+    return value
