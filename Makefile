@@ -3,6 +3,7 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(CURDIR)/$(VENV)/bin
 STAMP := $(VENV)/.installed
+TEST_STAMP := $(VENV)/.installed-test
 export PATH := $(BIN):$(PATH)
 
 .PHONY: install repro test ui frames clean-venv
@@ -10,16 +11,21 @@ export PATH := $(BIN):$(PATH)
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e .
 	touch $(STAMP)
+
+$(TEST_STAMP): $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(TEST_STAMP)
 
 install: $(STAMP)
 
 repro: $(STAMP)
 	dvc repro
-	@echo "Outputs: data/raw/ (collected episodes), data/processed/ (train/val), metrics/, plots/; runs in MLflow: make ui"
+	@echo "Report: reports/report.html (and report.md). Metrics: metrics/, figures: plots/, data: data/, models: models/."
+	@echo "Runs in MLflow: make ui"
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	pytest -q
 
 ui: $(STAMP)

@@ -80,6 +80,9 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     cells = [summary["vi"][w]["noise0.0"] for w in WEATHERS]
     k = sum(round(c["eta1"] * 19) for c in cells)
     assert pooled[("vi", "0")]["η̂1 all weathers"].startswith(fmt(k / 38))
+    assert f"- Offline safety, vi over all weathers: ours {fmt(k / 38, 2)}" in text
+    vi_unknown_on = avoided["vi"]["unknown"]["on"]["eta1"]
+    assert f"- Collision avoidance, vi, unknown conditions, warnings on: ours {fmt(vi_unknown_on, 2)}" in text
     training = {r["method"]: r for r in markdown_rows(text, "method | val accuracy")}
     assert training["vi"]["val accuracy"] == fmt(json.loads((tmp_path / "metrics/train/vi.json").read_text())["val_accuracy"])
     held_out = markdown_rows(text, "method | weather | noise | frames")

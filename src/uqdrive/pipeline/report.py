@@ -307,6 +307,66 @@ def sample_counts_section(report: Report, cells: list[dict]) -> None:
                       "at η=0.99"], rows))
 
 
+PAPER_POOLED_VALUES = {"hmc": 0.766, "vi": 0.91}  # across all weathers, ± 0.05
+
+
+PAPER_THETA = 0.05  # the paper's ± on every η̂1 (Chernoff, γ = 0.05)
+
+
+def _verdict(ours: float, low: float, high: float, paper: float) -> str:
+    """Consistent when our interval and the paper's (its value ± θ) overlap: both could hold the same η1."""
+    overlap = max(low, paper - PAPER_THETA) <= min(high, paper + PAPER_THETA)
+    return (f"ours {fmt(ours, 2)} [{fmt(low, 2)}, {fmt(high, 2)}] vs the paper's {paper:.2f} ± {PAPER_THETA:g}: "
+            + ("consistent (the intervals overlap)" if overlap else "**different** (the intervals are disjoint)"))
+
+
+def differences_section(report: Report, cfg: DictConfig, summary: dict, avoided: dict, gamma: float) -> None:
+    """Where our numbers and the paper's part ways, computed; then the reasons that may explain it."""
+    lines = []
+    noise = cfg.noises[0]
+    for method, paper in PAPER_POOLED_VALUES.items():
+        if method in cfg.methods:
+            p = Pooled.of([summary[method][w][f"noise{noise}"] for w in cfg.weathers], gamma)
+            lines.append(f"- Offline safety, {method} over all weathers: "
+                         + _verdict(p.value, max(0.0, p.value - p.theta), min(1.0, p.value + p.theta), paper))
+    if "mcd" in cfg.methods:
+        if "clear_noon" in cfg.weathers:
+            c = summary["mcd"]["clear_noon"][f"noise{noise}"]
+            lines.append("- Offline safety, mcd in clear_noon: " + _verdict(c["eta1"], c["eta1_low"], c["eta1_high"], 1.0))
+        if "rain" in cfg.weathers:
+            p = Pooled.of([summary["mcd"][w][f"noise{noise}"] for w in cfg.weathers], gamma)
+            lines.append("- Offline safety, mcd over all weathers with rain: "
+                         + _verdict(p.value, max(0.0, p.value - p.theta), min(1.0, p.value + p.theta), 0.58))
+    if "vi" in avoided:
+        for condition, mode, paper in (("unknown", "off", 0.0), ("unknown", "on", 0.9), ("known", "on", 1.0)):
+            c = avoided["vi"][condition][mode]
+            lines.append(f"- Collision avoidance, vi, {condition} conditions, warnings {mode}: "
+                         + _verdict(c["eta1"], c["eta1_low"], c["eta1_high"], paper)
+                         + (f"; autonomy {fmt(c['autonomy'], 2)} (paper: full)" if condition == "known" else ""))
+    report.add("## Where ours differ from the paper, and why that may be\n\n" + "\n".join(lines))
+    report.add("""
+Why the numbers may differ:
+
+- **The world.** pybullet's TinyRenderer draws a few flat-shaded bodies; our weathers are lighting plus
+  image-space effects (darkening, blur, streaks, fog by depth). After the 64×48 grayscale downsampling the lane
+  markings stay visible in our rain, while CARLA's rain changes textures, reflections and puddles. Controllers
+  that follow markings are therefore more robust to our rain than the paper's were to CARLA's; harder
+  conditions (e.g. `noise=0.2`, `weather=fog`) are one Hydra override away.
+- **The data.** Training frames come from a pure-pursuit autopilot with seeded steering perturbations in three
+  scenarios; the paper also used human driving, in CARLA's towns.
+- **The sizes.** Profiles other than `paper` train for minutes and estimate η1 with a wide θ, so differences
+  smaller than the intervals are not resolved here; `dvc exp run -S profile=paper` runs the paper's sizes
+  (θ = γ = 0.05, 738 rollouts per cell).
+- **HMC.** Short chains over the ~12,000 head weights do not mix (see split-R̂ above): our HMC posterior is a
+  few local modes around the MAP, not the full posterior the paper's longer chains may have explored.
+- **Warnings come late.** In our runs η2 drops and MI rises mostly in the last metres before the obstacle
+  (see the η2 / MI against distance figures), often inside the car's stopping distance (about 5 m from
+  8 m/s at 6 m/s²), so a hand-over there cannot prevent the collision any more.
+- **Definitions.** Our safe set is the lane corridor until the first exit; the paper's boundaries were drawn
+  by hand. Our warning actions and hand-over (brake to a stop, wheel held) are one reading of the paper's
+  description.""")
+
+
 def run_report(cfg: DictConfig) -> dict:
     root = Path(cfg.paths.root)
     metrics_dir = Path(cfg.paths.metrics)
@@ -320,9 +380,11 @@ def run_report(cfg: DictConfig) -> dict:
     run_section(report, cfg, cells, seeds)
     training_section(report, cfg, metrics_dir)
     safety_section(report, cfg, summary, gamma)
-    avoid_section(report, cfg, read_json(metrics_dir / "avoid.json"))
+    avoided = read_json(metrics_dir / "avoid.json")
+    avoid_section(report, cfg, avoided)
     evaluate_section(report, cfg, read_json(metrics_dir / "evaluate.json"))
     sample_counts_section(report, cells)
+    differences_section(report, cfg, summary, avoided, gamma)
     md_path, html_path = out_dir / "report.md", out_dir / "report.html"
     with atomic_path(md_path) as tmp:
         tmp.write_text(report.markdown)
