@@ -18,3 +18,17 @@ def integer(key: str, value: object, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ValueError(f"{key}={value!r} must be an integer >= {minimum}")
     return value
+
+
+def speed(key: str, value: object, max_speed: float) -> float:
+    """A cruise speed in m/s within the car's limit (``vehicle.max_speed``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= max_speed:
+        raise ValueError(f"{key}={value!r} must be in (0, vehicle.max_speed={max_speed}] m/s")
+    return float(value)
+
+
+def seconds(key: str, value: object) -> float:
+    """A duration (e.g. the horizon T) in seconds, > 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        raise ValueError(f"{key}={value!r} must be a number of seconds > 0")
+    return float(value)

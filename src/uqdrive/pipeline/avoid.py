@@ -25,13 +25,13 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from uqdrive.checks import finite_number, integer
+from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path, write_json
-from uqdrive.models.checkpoint import check_method, load_posterior
+from uqdrive.models.checkpoint import check_method
 from uqdrive.plots import (avoid_signals_figure, avoid_trajectories, avoid_trajectories_figure, avoid_tradeoff_figure,
                            save_figure)
-from uqdrive.safety.cells import EstimatorSettings, estimate_safety
+from uqdrive.safety.cells import EstimatorSettings, cell_posterior, estimate_safety
 from uqdrive.safety.controller import Controller
 from uqdrive.safety.executors import BACKENDS, Executor, PolicySpec, ProcessPool, RolloutJob, Variant, make_executor
 from uqdrive.safety.rollout import HANDOVER, RolloutResult
@@ -63,15 +63,15 @@ class CalibrationSettings:
 
     def __post_init__(self) -> None:
         for name in ("target", "gamma"):
-            if not 0 < finite_number(f"avoid.calibration.{name}", getattr(self, name)) < 1:
+            if not 0 < checks.finite_number(f"avoid.calibration.{name}", getattr(self, name)) < 1:
                 raise ValueError(f"avoid.calibration.{name}={getattr(self, name)!r} must be in the open "
                                  "interval (0, 1)")
-        if not finite_number("avoid.calibration.margin_m", self.margin_m) >= 0:
+        if not checks.finite_number("avoid.calibration.margin_m", self.margin_m) >= 0:
             raise ValueError(f"avoid.calibration.margin_m={self.margin_m!r} must be a number of metres >= 0")
         for name, ok, allowed in (("deltas", lambda v: 0 <= v <= 1, "in [0, 1]"), ("taus", lambda v: v >= 0, ">= 0")):
             values = getattr(self, name)
             if isinstance(values, (str, bytes)) or not values or not all(
-                    ok(finite_number(f"avoid.calibration.{name}", v)) for v in values):
+                    ok(checks.finite_number(f"avoid.calibration.{name}", v)) for v in values):
                 raise ValueError(f"avoid.calibration.{name}={values!r} must be a non-empty list of numbers {allowed}")
             object.__setattr__(self, name, tuple(sorted({float(v) for v in values})))
 
@@ -146,21 +146,17 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     method = check_method(cfg.model.name)
     if cfg.executor.name not in BACKENDS:
         raise ValueError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
-    integer("executor.workers", cfg.executor.workers, 1)
+    checks.integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
     try:
         estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
                                       base_seed=cfg.avoid.base_seed)
     except ValueError as err:
         raise ValueError(str(err).replace("safety.", "avoid.")) from err
-    validation_seed = integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
+    validation_seed = checks.integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
-    speed = cfg.avoid.speed
-    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0 < speed <= vehicle.max_speed:
-        raise ValueError(f"avoid.speed={speed!r} must be in (0, vehicle.max_speed={vehicle.max_speed}] m/s")
-    horizon = cfg.avoid.horizon_s
-    if isinstance(horizon, bool) or not isinstance(horizon, (int, float)) or not horizon > 0:
-        raise ValueError(f"avoid.horizon_s={horizon!r} must be a number of seconds > 0")
+    speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)
+    horizon = checks.seconds("avoid.horizon_s", cfg.avoid.horizon_s)
     scenario = ScenarioConfig.from_config(cfg.scenario)
     if scenario.kind != "obstacle":
         raise ValueError(f"scenario.kind={scenario.kind!r}: the avoid stage needs an 'obstacle' scenario")
@@ -169,17 +165,14 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     calibration = CalibrationSettings(**OmegaConf.to_container(cfg.avoid.calibration, resolve=True))
     bins = SteeringBins(**cfg.bins)
     model_path = Path(cfg.avoid.model_path)
-    if not model_path.exists():
-        raise FileNotFoundError(f"avoid.model_path={model_path} does not exist; train it first "
-                                f"(dvc repro train_mcd / train@{method})")
-    posterior = load_posterior(model_path, expected_method=method, expected_classes=bins)
+    posterior = cell_posterior("avoid.model_path", model_path, method, bins)
     try:
-        Controller(posterior, bins, warning.samples, cfg.avoid.eps, float(speed))  # checks eps as workers will
+        Controller(posterior, bins, warning.samples, cfg.avoid.eps, speed)  # checks eps as workers will
     except ValueError as err:
         raise ValueError(str(err).replace("safety.", "avoid.")) from err
-    spec = PolicySpec("bnn", float(speed), str(model_path), method, bins, warning.samples, float(cfg.avoid.eps))
+    spec = PolicySpec("bnn", speed, str(model_path), method, bins, warning.samples, float(cfg.avoid.eps))
     return AvoidSettings(method, spec, warning, estimator, validation_seed, scenario, known, unknown, calibration,
-                         CameraConfig.from_config(cfg.camera), vehicle, float(cfg.control_hz), float(horizon))
+                         CameraConfig.from_config(cfg.camera), vehicle, float(cfg.control_hz), horizon)
 
 
 # -- one cell ---------------------------------------------------------------------------------------
@@ -450,7 +443,7 @@ def _log_run(cfg: DictConfig, cell: Cell, metrics: dict, settings: AvoidSettings
 def run_avoid(cfg: DictConfig) -> dict:
     """All cells of one method, the calibration and its closed-loop check; writes metrics, data, figures, runs."""
     settings = build_settings(cfg)
-    workers = integer("executor.workers", cfg.executor.workers, 1)
+    workers = checks.integer("executor.workers", cfg.executor.workers, 1)
     data_dir, plots_dir = Path(cfg.avoid.data_dir), Path(cfg.avoid.plots_dir)
     geometries = settings.geometries()
     start = time.perf_counter()

@@ -19,12 +19,13 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from uqdrive.checks import integer
+from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path, write_json
-from uqdrive.models.checkpoint import check_method, load_posterior
+from uqdrive.models.checkpoint import check_method
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
-from uqdrive.safety.cells import EstimatorSettings, cell_hash, estimate_safety, file_digest, rates, reusable_result
+from uqdrive.safety.cells import (EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest, rates,
+                                  reusable_result)
 from uqdrive.safety.controller import Controller
 from uqdrive.safety.executors import PolicySpec, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
@@ -35,18 +36,6 @@ from uqdrive.tracking import stage_run
 
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
 RESULT_CODE = ("safety", "sim", "models", "uq", "data", "pipeline/safety.py")  # under src/uqdrive/
-
-
-def _check_speed(speed: object, vehicle: VehicleConfig) -> float:
-    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0 < speed <= vehicle.max_speed:
-        raise ValueError(f"safety.speed={speed!r} must be in (0, vehicle.max_speed={vehicle.max_speed}] m/s")
-    return float(speed)
-
-
-def _check_horizon(horizon_s: object) -> float:
-    if isinstance(horizon_s, bool) or not isinstance(horizon_s, (int, float)) or not horizon_s > 0:
-        raise ValueError(f"safety.horizon_s={horizon_s!r} must be a number of seconds > 0")
-    return float(horizon_s)
 
 
 def code_digest() -> str:
@@ -73,17 +62,14 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     bins = SteeringBins(**cfg.bins)
     model_path = Path(cfg.safety.model_path)
-    if not model_path.exists():
-        raise FileNotFoundError(f"safety.model_path={model_path} does not exist; train it first "
-                                f"(dvc repro train_mcd / train@{method})")
-    posterior = load_posterior(model_path, expected_method=method, expected_classes=bins)
-    speed = _check_speed(cfg.safety.speed, vehicle)
+    posterior = cell_posterior("safety.model_path", model_path, method, bins)
+    speed = checks.speed("safety.speed", cfg.safety.speed, vehicle.max_speed)
     Controller(posterior, bins, cfg.safety.samples, cfg.safety.eps, speed)  # checks samples and eps as workers will
     spec = PolicySpec("bnn", speed, str(model_path), method, bins, cfg.safety.samples, cfg.safety.eps)
     job = RolloutJob(policy=spec, scenario=ScenarioConfig.from_config(cfg.scenario),
                      weather=WeatherConfig.from_config(cfg.weather), noise=check_noise(cfg.noise),
                      base_seed=settings.base_seed, camera=CameraConfig.from_config(cfg.camera), vehicle=vehicle,
-                     control_hz=cfg.control_hz, horizon_s=_check_horizon(cfg.safety.horizon_s), half_width=check_half_width(
+                     control_hz=cfg.control_hz, horizon_s=checks.seconds("safety.horizon_s", cfg.safety.horizon_s), half_width=check_half_width(
                          cfg.safety.half_width))
     identity = {"model_sha256": file_digest(model_path), "code": code_digest(), "job": {**job.__dict__, "policy": {
         k: v for k, v in spec.__dict__.items() if k != "model_path"}}, "estimator": settings.__dict__}
@@ -148,7 +134,7 @@ def write_outputs(cfg: DictConfig, results: list[RolloutResult], geometry: Scena
 def run_safety(cfg: DictConfig) -> dict:
     """Estimate η1 for one cell; reuses the cell's result file when its config hash matches."""
     job, settings, key = build_job(cfg)
-    workers = integer("executor.workers", cfg.executor.workers, 1)
+    workers = checks.integer("executor.workers", cfg.executor.workers, 1)
     out = Path(cfg.safety.out)
     previous = reusable_result(out, key)
     if previous is not None:

@@ -17,6 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from uqdrive.checks import finite_number
+from uqdrive.data.binning import SteeringBins
+from uqdrive.models.checkpoint import load_posterior
+from uqdrive.models.posterior import Posterior
 from uqdrive.safety.executors import Executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential, sequential_plan
@@ -70,6 +73,13 @@ def estimate_safety(executor: Executor, settings: EstimatorSettings,
     n = settings.planned_rollouts()
     k = int(draw(n).sum())
     return _PLANNED[settings.scheme][1](k, n, settings.theta, settings.gamma), results
+
+
+def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins) -> Posterior:
+    """The cell's model, loaded once up front so a missing or mismatched file fails before any rollout."""
+    if not path.exists():
+        raise FileNotFoundError(f"{key}={path} does not exist; train it first (dvc repro train_mcd / train@{method})")
+    return load_posterior(path, expected_method=method, expected_classes=bins)
 
 
 def file_digest(path: str | Path) -> str:
