@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uqdrive.data.frames import encode_png
-from uqdrive.pipeline.report import fmt, run_report
+from uqdrive.pipeline.report import Pooled, fmt, run_report
 
 METHODS, WEATHERS, NOISES = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05)
 
@@ -112,3 +112,17 @@ def test_missing_metrics_file_names_it(stage_config, tmp_path):
     with pytest.raises(FileNotFoundError, match="metrics/safety.json is missing"):
         run_report(stage_config("report"))
     assert not (tmp_path / "reports").exists()
+
+
+@pytest.mark.parametrize("rates", [(1.0, 1.0, 1.0), (1.0, 0.9, 0.5), (0.99, 0.6, 0.05), (0.5, 0.5, 0.5)])
+def test_pooled_interval_covers_the_mean_rate_of_independent_cells(rates):
+    """Hoeffding's guarantee for cells with different known rates: P(|pooled − mean rate| > θ) ≤ γ,
+    checked on 2000 simulated sweeps (slack: 3 binomial standard errors of the miss rate)."""
+    gamma, n, reps = 0.05, 19, 2000
+    rng = np.random.default_rng(1)
+    counts = rng.binomial(n, rates, size=(reps, len(rates)))
+    misses = 0
+    for row in counts:
+        pooled = Pooled.of([{"eta1": k / n, "n": n} for k in row], gamma)
+        misses += abs(pooled.value - np.mean(rates)) > pooled.theta
+    assert misses / reps <= gamma + 3 * np.sqrt(gamma * (1 - gamma) / reps)
