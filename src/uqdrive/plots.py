@@ -68,22 +68,27 @@ def safety_hexbin(ax: plt.Axes, x: np.ndarray, y: np.ndarray, route: np.ndarray,
     ax.set_title(title, fontsize=9)
 
 
+def _panels(axes: np.ndarray, panels: dict[tuple[str, str], dict], rows: list[str], columns: list[str]):
+    """(ax, row, column, panel) of a figure's grid of panels, row by row; cells without a panel are blanked."""
+    for i, row in enumerate(rows):
+        for j, column in enumerate(columns):
+            panel = panels.get((row, column))
+            if panel is None:
+                axes[i, j].axis("off")
+            else:
+                yield axes[i, j], row, column, panel
+
+
 def safety_hexbin_grid(panels: dict[tuple[str, str], dict[str, np.ndarray]], rows: list[str], columns: list[str],
                        title: str) -> plt.Figure:
     """Method × weather grid of `safety_hexbin` panels; ``panels[(row, column)]`` holds x, y, route,
     left, right (empty left/right: road-only safe set) and eta1; missing cells stay blank."""
     fig, axes = plt.subplots(len(rows), len(columns), figsize=(3.2 * len(columns), 3.2 * len(rows)), squeeze=False)
-    for i, row in enumerate(rows):
-        for j, column in enumerate(columns):
-            ax = axes[i, j]
-            panel = panels.get((row, column))
-            if panel is None:
-                ax.axis("off")
-                continue
-            boundaries = (panel["left"], panel["right"]) if len(panel["left"]) else None
-            extent = tuple(float(v) for v in panel["extent"])
-            safety_hexbin(ax, panel["x"], panel["y"], panel["route"], boundaries, extent,
-                          f"{row} · {column}: η̂1 = {float(panel['eta1']):.2f}", panel.get("road"))
+    for ax, row, column, panel in _panels(axes, panels, rows, columns):
+        boundaries = (panel["left"], panel["right"]) if len(panel["left"]) else None
+        extent = tuple(float(v) for v in panel["extent"])
+        safety_hexbin(ax, panel["x"], panel["y"], panel["route"], boundaries, extent,
+                      f"{row} · {column}: η̂1 = {float(panel['eta1']):.2f}", panel.get("road"))
     axes[0, 0].legend(loc="lower left", fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
@@ -112,12 +117,12 @@ def reliability_grid(panels: dict[tuple[str, str], dict[str, np.ndarray]], rows:
     """Grid of `reliability_diagram` panels; ``panels[(row, column)]`` holds low, high, frames,
     confidence, accuracy (per bin) and ece."""
     fig, axes = plt.subplots(len(rows), len(columns), figsize=(3 * len(columns), 3 * len(rows)), squeeze=False)
-    for i, row in enumerate(rows):
-        for j, column in enumerate(columns):
-            panel = panels[(row, column)]
-            reliability_diagram(axes[i, j], panel, f"{column} · {row}: ECE {panel['ece']:.3f}")
-            axes[i, j].set_xlabel("confidence" if i == len(rows) - 1 else "")
-            axes[i, j].set_ylabel("accuracy" if j == 0 else "")
+    for ax, row, column, panel in _panels(axes, panels, rows, columns):
+        reliability_diagram(ax, panel, f"{column} · {row}: ECE {panel['ece']:.3f}")
+    for ax in axes[-1]:
+        ax.set_xlabel("confidence")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("accuracy")
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=8)
@@ -183,13 +188,8 @@ def avoid_trajectories_figure(panels: dict[tuple[str, str], dict], rows: list[st
     fig, axes = plt.subplots(len(rows), len(columns), figsize=(4.2 * len(columns), 1.9 * len(rows) + 0.8),
                              squeeze=False)
     mappable = None
-    for i, row in enumerate(rows):
-        for j, column in enumerate(columns):
-            panel = panels.get((row, column))
-            if panel is None:
-                axes[i, j].axis("off")
-                continue
-            mappable = avoid_trajectories(axes[i, j], panel, f"{row} · {column}: {panel['title']}")
+    for ax, row, column, panel in _panels(axes, panels, rows, columns):
+        mappable = avoid_trajectories(ax, panel, f"{row} · {column}: {panel['title']}")
     fig.suptitle(title)
     fig.tight_layout()
     if mappable is not None:

@@ -21,6 +21,7 @@ import torch
 
 from uqdrive.bench.posterior import random_posteriors
 from uqdrive.data.binning import SteeringBins
+from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.safety.warnings import WarningConfig, WarningController, classify
@@ -62,7 +63,7 @@ def main(argv: list[str]) -> int:
                           WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"))
         info = env.last_info
     centres = torch.as_tensor(bins.centres, dtype=torch.float32)
-    x = torch.from_numpy(preprocess_frame(frame)).float().div_(255.0)[None, None]
+    x = to_inputs(preprocess_frame(frame)[None])
     n = config.samples
     source = f"trained models from {args.models}" if args.models else "random weights"
     print(f"n={n} draws per frame (chernoff_n({args.theta:g}, {args.gamma:g})), "
@@ -79,7 +80,7 @@ def main(argv: list[str]) -> int:
             measures = frame_measures(probs, centres, 0.1)
             e2, mi = float(measures.eta2[0]), float(measures.mutual_information[0])
             parts = [statistics.median(_times_ms(fn, max(20, args.frames // 4))) for fn in (
-                lambda: torch.from_numpy(preprocess_frame(frame)).float().div_(255.0)[None, None],
+                lambda: to_inputs(preprocess_frame(frame)[None]),
                 lambda: posterior.sample_probs(x, n, generator),
                 lambda: frame_measures(probs, centres, 0.1),
                 lambda: controller.actions.step(classify(e2, mi, config.delta1, config.delta2, config.tau)))]

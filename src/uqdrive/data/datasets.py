@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import torch
 from torch.utils.data import Dataset
 
@@ -57,9 +58,13 @@ class FrameSet(Dataset):
         return torch.bincount(self.labels, minlength=self.num_classes)
 
 
-def load_frames(path: str | Path, num_classes: int) -> FrameSet:
-    """Read a processed split (``data/processed/<split>.parquet``)."""
-    table = read_table(path, PROCESSED_SCHEMA, columns=["label", "image"])
+def frames_from_table(table: pa.Table, num_classes: int, name: str) -> FrameSet:
+    """A table in the processed schema (at least its label and image columns) as a `FrameSet`."""
     images = torch.from_numpy(images_to_array(table.column("image")).copy())
     labels = torch.from_numpy(table.column("label").to_numpy().astype(np.int64))
-    return FrameSet(images, labels, num_classes, name=str(path))
+    return FrameSet(images, labels, num_classes, name=name)
+
+
+def load_frames(path: str | Path, num_classes: int) -> FrameSet:
+    """Read a processed split (``data/processed/<split>.parquet``)."""
+    return frames_from_table(read_table(path, PROCESSED_SCHEMA, columns=["label", "image"]), num_classes, str(path))

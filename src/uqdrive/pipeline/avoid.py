@@ -10,7 +10,6 @@ Then thresholds are calibrated by replaying the warnings-off rollouts and checke
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
@@ -27,13 +26,13 @@ from tqdm import tqdm
 
 from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
-from uqdrive.files import atomic_path, write_json
+from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.checkpoint import check_method
 from uqdrive.plots import (avoid_signals_figure, avoid_trajectories, avoid_trajectories_figure, avoid_tradeoff_figure,
                            save_figure)
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, estimate_safety
-from uqdrive.safety.controller import Controller
-from uqdrive.safety.executors import BACKENDS, Executor, PolicySpec, ProcessPool, RolloutJob, Variant, make_executor
+from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessPool, RolloutJob, Variant, executor_options,
+                                      make_executor)
 from uqdrive.safety.rollout import HANDOVER, RolloutResult
 from uqdrive.safety.warnings import LEVELS, Calibration, Traces, WarningConfig, calibrate, classify, replay
 from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
@@ -148,11 +147,8 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ValueError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
     checks.integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
-    try:
-        estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
-                                      base_seed=cfg.avoid.base_seed)
-    except ValueError as err:
-        raise ValueError(str(err).replace("safety.", "avoid.")) from err
+    estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
+                                  base_seed=cfg.avoid.base_seed, section="avoid")
     validation_seed = checks.integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)
@@ -165,11 +161,9 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     calibration = CalibrationSettings(**OmegaConf.to_container(cfg.avoid.calibration, resolve=True))
     bins = SteeringBins(**cfg.bins)
     model_path = Path(cfg.avoid.model_path)
-    posterior = cell_posterior("avoid.model_path", model_path, method, bins)
-    try:
-        Controller(posterior, bins, warning.samples, cfg.avoid.eps, speed)  # checks eps as workers will
-    except ValueError as err:
-        raise ValueError(str(err).replace("safety.", "avoid.")) from err
+    cell_posterior("avoid.model_path", model_path, method, bins)
+    if not checks.finite_number("avoid.eps", cfg.avoid.eps) > 0:
+        raise ValueError(f"avoid.eps={cfg.avoid.eps!r} must be a number > 0 (steering units)")
     spec = PolicySpec("bnn", speed, str(model_path), method, bins, warning.samples, float(cfg.avoid.eps))
     return AvoidSettings(method, spec, warning, estimator, validation_seed, scenario, known, unknown, calibration,
                          CameraConfig.from_config(cfg.camera), vehicle, float(cfg.control_hz), horizon)
@@ -187,11 +181,6 @@ class Cell:
     estimate: Estimate
     results: list[RolloutResult]
     seconds: float
-
-
-def _executor_options(cfg: DictConfig) -> dict:
-    options = OmegaConf.to_container(cfg.executor, resolve=True)
-    return {k: v for k, v in options.items() if k not in ("name", "workers") and v is not None}
 
 
 class ReusingExecutor:
@@ -225,7 +214,7 @@ def run_cell(cfg: DictConfig, settings: AvoidSettings, condition: str, mode: str
     estimator = dataclasses.replace(settings.estimator, base_seed=base_seed)
     job = settings.job(condition, None if mode == "off" else warning, base_seed)
     name = f"{settings.method}-{condition}-{mode}"
-    executor: Executor = make_executor(cfg.executor.name, job, cfg.executor.workers, pool, **_executor_options(cfg))
+    executor: Executor = make_executor(cfg.executor.name, job, cfg.executor.workers, pool, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
     if off is not None:
         executor = ReusingExecutor(executor, unchanged_by(warning, off))
     start = time.perf_counter()
@@ -340,27 +329,21 @@ def calibration_summary(calib: Calibration) -> dict:
 # -- outputs ----------------------------------------------------------------------------------------
 def write_cell_table(path: Path, cell: Cell) -> Path:
     """Per-rollout rows: outcome, variant, steps, time at full speed, min η2, max MI, frames per warning level."""
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
-        rows = []
-        for r in cell.results:
-            lv = levels(cell, r)
-            rows.append({**r.summary(), "min_eta2": float(np.min(r.eta2)) if r.steps else math.nan,
-                         "max_mutual_information": float(np.max(r.mutual_information)) if r.steps else math.nan,
-                         **{f"warning{level}_frames": int(np.sum(lv == level)) for level in LEVELS}})
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
+    rows = []
+    for r in cell.results:
+        lv = levels(cell, r)
+        rows.append({**r.summary(), "min_eta2": float(np.min(r.eta2)) if r.steps else math.nan,
+                     "max_mutual_information": float(np.max(r.mutual_information)) if r.steps else math.nan,
+                     **{f"warning{level}_frames": int(np.sum(lv == level)) for level in LEVELS}})
+    return write_csv(path, rows)
 
 
 def write_cell_data(path: Path, cell: Cell, geometries: dict[str, ScenarioGeometry]) -> Path:
     """Per-frame traces of a cell (npz) for the summary figure: positions, distance to the obstacle, η2, MI, level."""
     frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
     for i, r in enumerate(cell.results):
-        geometry = geometries[r.variant]
-        s, _ = progress_along(geometry, r)
         for key, value in (("rollout", np.full(r.steps, i)), ("x", r.x[:-1]), ("y", r.y[:-1]),
-                           ("distance", obstacle_progress(geometry) - s), ("eta2", r.eta2),
+                           ("distance", distances(r, geometries)), ("eta2", r.eta2),
                            ("mi", r.mutual_information), ("level", levels(cell, r))):
             frames[key].append(value)
     with atomic_path(path) as tmp, tmp.open("wb") as f:
@@ -386,26 +369,14 @@ def _road_box(geometry: ScenarioGeometry) -> np.ndarray:
 
 def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioGeometry]) -> Path:
     """η2 and MI per frame against the distance to the obstacle (a DVC plot)."""
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["condition", "rollout", "distance", "eta2", "mutual_information", "outcome"])
-        for cell in cells:
-            for i, r in enumerate(cell.results):
-                geometry = geometries[r.variant]
-                s, _ = progress_along(geometry, r)
-                for d, e, m in zip(obstacle_progress(geometry) - s, r.eta2, r.mutual_information):
-                    writer.writerow([cell.condition, i, f"{d:.3f}", f"{e:.4f}", f"{m:.4f}", r.termination])
-    return path
+    return write_csv(path, [{"condition": cell.condition, "rollout": i, "distance": f"{d:.3f}", "eta2": f"{e:.4f}",
+                             "mutual_information": f"{m:.4f}", "outcome": r.termination}
+                            for cell in cells for i, r in enumerate(cell.results)
+                            for d, e, m in zip(distances(r, geometries), r.eta2, r.mutual_information)])
 
 
 def write_tradeoff(path: Path, calib: Calibration) -> Path:
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
-        writer = csv.writer(f)
-        keys = list(calib.table)
-        writer.writerow(keys)
-        for i in range(len(calib.table["delta1"])):
-            writer.writerow([_fmt(calib.table[k][i]) for k in keys])
-    return path
+    return write_csv(path, [{k: _fmt(v[i]) for k, v in calib.table.items()} for i in range(len(calib.table["delta1"]))])
 
 
 def _fmt(value: object) -> str:
@@ -487,7 +458,7 @@ def run_avoid(cfg: DictConfig) -> dict:
             {(c, m): _panel(cells[c, m], geometries) for c in CONDITIONS for m in MODES}, list(CONDITIONS),
             list(MODES), f"{settings.method}: paths coloured by mutual information"), plots_dir / "trajectories.png"),
         save_figure(avoid_signals_figure(
-            {c: [(_distances(r, geometries), r.eta2, r.mutual_information, r.termination)
+            {c: [(distances(r, geometries), r.eta2, r.mutual_information, r.termination)
                  for r in cells[c, "off"].results] for c in CONDITIONS},
             settings.warning, calibrated, f"{settings.method}, warnings off: uncertainty approaching the obstacle"),
             plots_dir / "warnings.png"),
@@ -513,7 +484,8 @@ def run_avoid(cfg: DictConfig) -> dict:
     return result
 
 
-def _distances(result: RolloutResult, geometries: dict[str, ScenarioGeometry]) -> np.ndarray:
+def distances(result: RolloutResult, geometries: dict[str, ScenarioGeometry]) -> np.ndarray:
+    """Metres to the obstacle along the road at each decision frame."""
     geometry = geometries[result.variant]
     return obstacle_progress(geometry) - progress_along(geometry, result)[0]
 

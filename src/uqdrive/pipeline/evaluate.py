@@ -8,7 +8,6 @@ with a wrong class above right ones (AUROC). The frames are the `heldout` stage'
 
 from __future__ import annotations
 
-import csv
 import math
 import zlib
 from dataclasses import dataclass
@@ -21,10 +20,10 @@ from omegaconf import DictConfig
 from tqdm import tqdm
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.data.datasets import FrameSet
+from uqdrive.data.datasets import FrameSet, frames_from_table
 from uqdrive.data.preprocess import Split, preprocess_raw
-from uqdrive.data.tables import RAW_SCHEMA, images_to_array, read_table
-from uqdrive.files import atomic_path, write_json
+from uqdrive.data.tables import RAW_SCHEMA, read_table
+from uqdrive.files import write_csv, write_json
 from uqdrive.models.checkpoint import POSTERIORS, load_posterior
 from uqdrive.models.metrics import classification_metrics, mistake_auroc, reliability_bins
 from uqdrive.models.posterior import Posterior
@@ -107,9 +106,7 @@ def load_heldout(path: Path, scenario: str, condition: Condition, bins: Steering
                          f"{sorted(recorded['weather'])}, noise {sorted(recorded['noise'])}; expected {scenario}, "
                          f"{condition.weather}, {condition.noise}: collect it again (dvc repro heldout)")
     table, _ = preprocess_raw(raw, bins, Split(val_fraction=0.0))
-    images = torch.from_numpy(images_to_array(table.column("image")).copy())
-    labels = torch.from_numpy(table.column("label").to_numpy().astype(np.int64))
-    return FrameSet(images, labels, bins.num_classes, name=str(path))
+    return frames_from_table(table, bins.num_classes, str(path))
 
 
 def cell_generator(seed: int, method: str, condition: Condition) -> torch.Generator:
@@ -155,14 +152,6 @@ def _reliability_rows(series: str, method: str, condition: Condition, bins: dict
              "frames": int(bins["frames"][k])} for k in torch.nonzero(bins["frames"]).flatten().tolist()]
 
 
-def _write_csv(path: Path, rows: list[dict]) -> Path:
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
-
-
 def write_outputs(cfg: DictConfig, table: dict, reliability: dict, methods: list[str],
                   conditions: list[Condition]) -> dict[str, Path]:
     """DVC plot data (reliability.csv: x=confidence, y=accuracy; conditions.csv: one row per method ×
@@ -175,8 +164,8 @@ def write_outputs(cfg: DictConfig, table: dict, reliability: dict, methods: list
     condition_rows = [{"series": series[m, c], "method": m, "weather": c.weather, "noise": c.noise,
                        **{k: v for k, v in table[m][c.weather][c.key].items() if k != "auroc_note"}}
                       for m in methods for c in conditions]
-    outputs = {"reliability_csv": _write_csv(plots / "reliability.csv", reliability_rows),
-               "conditions_csv": _write_csv(plots / "conditions.csv", condition_rows)}
+    outputs = {"reliability_csv": write_csv(plots / "reliability.csv", reliability_rows),
+               "conditions_csv": write_csv(plots / "conditions.csv", condition_rows)}
     weathers = list(dict.fromkeys(c.weather for c in conditions))
     noises = list(dict.fromkeys(c.key for c in conditions))
     for m in methods:

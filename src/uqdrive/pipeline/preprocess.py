@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import mlflow
@@ -14,7 +13,7 @@ from tqdm import tqdm
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.preprocess import Split, class_histogram, preprocess_raw
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, read_table, write_table_batches
-from uqdrive.files import atomic_path, write_json
+from uqdrive.files import write_csv, write_json
 from uqdrive.plots import class_histogram_figure, save_figure
 from uqdrive.tracking import stage_run
 
@@ -44,13 +43,9 @@ def run_preprocess(cfg: DictConfig) -> dict:
         "val_frames": int(counts["val"].sum()),
         "majority_class_fraction": float(counts["train"].max() / max(counts["train"].sum(), 1)),
     }
-    histogram_csv = Path(cfg.paths.plots) / "class_histogram.csv"
-    with atomic_path(histogram_csv) as tmp, tmp.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["class", "steering", "split", "frames"])
-        for name, values in counts.items():
-            for k, (centre, n) in enumerate(zip(bins.centres, values)):
-                writer.writerow([k, f"{centre:+.1f}", name, int(n)])
+    histogram_csv = write_csv(Path(cfg.paths.plots) / "class_histogram.csv", [
+        {"class": k, "steering": f"{centre:+.1f}", "split": name, "frames": int(n)}
+        for name, values in counts.items() for k, (centre, n) in enumerate(zip(bins.centres, values))])
     write_json(Path(cfg.paths.metrics) / "preprocess.json", metrics)
 
     with stage_run(cfg.paths.root, "preprocess", cfg, run_name="preprocess"):

@@ -7,7 +7,6 @@ first rollout. A cell whose result file already holds its config hash is not run
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
 import time
@@ -21,13 +20,13 @@ from tqdm import tqdm
 
 from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
-from uqdrive.files import atomic_path, write_json
+from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.checkpoint import check_method
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
 from uqdrive.safety.cells import (EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest, rates,
                                   reusable_result)
 from uqdrive.safety.controller import Controller
-from uqdrive.safety.executors import PolicySpec, RolloutJob, make_executor
+from uqdrive.safety.executors import PolicySpec, RolloutJob, executor_options, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.safe_sets import SafeSet, check_half_width, safe_set_for
 from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
@@ -76,11 +75,6 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     return job, settings, cell_hash(identity)
 
 
-def _executor_options(cfg: DictConfig) -> dict:
-    options = {k: v for k, v in OmegaConf.to_container(cfg.executor, resolve=True).items() if k not in ("name", "workers")}
-    return {k: v for k, v in options.items() if v is not None}
-
-
 def _positions(results: list[RolloutResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rollout = np.concatenate([np.full(len(r.x), i) for i, r in enumerate(results)]) if results else np.zeros(0, int)
     x = np.concatenate([r.x for r in results]) if results else np.zeros(0)
@@ -107,12 +101,7 @@ def write_outputs(cfg: DictConfig, results: list[RolloutResult], geometry: Scena
     """Per-rollout table (CSV), visited positions with the road, route and safe-set edges (npz, for the
     summary figures) and the cell's hexbin figure."""
     plots = Path(cfg.safety.plots_dir)
-    table = plots / f"{cfg.safety.cell}.csv"
-    with atomic_path(table) as tmp, tmp.open("w", newline="") as f:
-        rows = [r.summary() for r in results]
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    table = write_csv(plots / f"{cfg.safety.cell}.csv", [r.summary() for r in results])
     route = np.stack([safe_set.route_x, safe_set.route_y], axis=1)
     edges = safe_set.boundaries()
     left, right = edges if edges is not None else (np.zeros((0, 2)), np.zeros((0, 2)))
@@ -139,7 +128,7 @@ def run_safety(cfg: DictConfig) -> dict:
     previous = reusable_result(out, key)
     if previous is not None:
         return {**previous, "reused": True}
-    executor = make_executor(cfg.executor.name, job, workers, **_executor_options(cfg))
+    executor = make_executor(cfg.executor.name, job, workers, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
     start = time.perf_counter()
     try:
         estimate, results = estimate_safety(executor, settings, lambda it: tqdm(

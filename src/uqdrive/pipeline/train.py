@@ -6,7 +6,6 @@ trunk features once for each split, and fit their Bayesian head on that cache.
 
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 
@@ -17,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet, load_frames
-from uqdrive.files import atomic_path, write_json
+from uqdrive.files import write_csv, write_json
 from uqdrive.models.checkpoint import check_method, load_posterior, save_posterior
 from uqdrive.models.mcd import MCDPosterior
 from uqdrive.models.metrics import majority_accuracy
@@ -76,7 +75,7 @@ def run_train(cfg: DictConfig) -> dict:
     }
     model_path = save_posterior(model, Path(cfg.paths.models) / f"{method}.pt", metadata={"metrics": metrics})
     plots = Path(cfg.paths.plots) / "train"
-    curve_csv = write_curve(curve, plots / f"{method}_curve.csv")
+    curve_csv = write_csv(plots / f"{method}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
     curve_png = save_figure(curve_figure(curve, method), plots / f"{method}_curve.png")
     metrics_json = Path(cfg.paths.metrics) / "train" / f"{method}.json"
     write_json(metrics_json, metrics)
@@ -115,15 +114,6 @@ def _fit(method: str, settings: MCDSettings | VISettings | HMCSettings, cfg: Dic
             model, extra, curve = sample_hmc(base, train_features, train.labels, val_features, val.labels, settings,
                                              generator, progress)
     return model, curve, val_features, extra, time.perf_counter() - started
-
-
-def write_curve(rows: list[dict], path: Path) -> Path:
-    """Learning curve as CSV (DVC plots: x=step, y=val_accuracy / train_loss)."""
-    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
 
 
 def curve_figure(rows: list[dict], method: str) -> plt.Figure:

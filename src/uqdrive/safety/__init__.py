@@ -6,8 +6,8 @@ Composes `sim` (the world), `models` (the posteriors) and `uq` (measures and est
 
 from uqdrive.safety.cells import SCHEMES, EstimatorSettings, cell_hash, estimate_safety, reusable_result
 from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
-from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessExecutor, ProcessPool, RayExecutor,
-                                      RolloutJob, RolloutWorker, Variant, make_executor, variant_index)
+from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessPool, RayExecutor, RolloutJob,
+                                      RolloutWorker, Variant, executor_options, make_executor, variant_index)
 from uqdrive.safety.rollout import HANDOVER, RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, Verdict, safe_set_for
 from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
@@ -25,7 +25,6 @@ __all__ = [
     "Executor",
     "Policy",
     "PolicySpec",
-    "ProcessExecutor",
     "ProcessPool",
     "RayExecutor",
     "RolloutJob",
@@ -41,6 +40,7 @@ __all__ = [
     "cell_hash",
     "classify",
     "estimate_safety",
+    "executor_options",
     "make_executor",
     "reusable_result",
     "run_rollout",

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uqdrive.checks import finite_number
+from uqdrive.checks import finite_number, integer
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.posterior import Posterior
@@ -33,22 +33,25 @@ _PLANNED: dict[str, tuple[Callable[[float, float], int], Callable[[int, int, flo
 
 @dataclasses.dataclass(frozen=True)
 class EstimatorSettings:
-    """How η1 is estimated: scheme and (θ, γ) with P(|η̂1 − η1| > θ) ≤ γ; rollout i uses seed base_seed + i."""
+    """How η1 is estimated: scheme and (θ, γ) with P(|η̂1 − η1| > θ) ≤ γ; rollout i uses seed base_seed + i.
+
+    ``section``: the config section these came from (`safety`, `avoid`), named in error messages.
+    """
 
     scheme: str = "chernoff"
     theta: float = 0.05
     gamma: float = 0.05
     base_seed: int = 0
+    section: str = "safety"
 
     def __post_init__(self) -> None:
         if self.scheme not in SCHEMES:
-            raise ValueError(f"safety.scheme={self.scheme!r} is not known; choose one of {list(SCHEMES)}")
+            raise ValueError(f"{self.section}.scheme={self.scheme!r} is not known; choose one of {list(SCHEMES)}")
         for key in ("theta", "gamma"):
-            value = finite_number(f"safety.{key}", getattr(self, key))
+            value = finite_number(f"{self.section}.{key}", getattr(self, key))
             if not 0 < value < 1:
-                raise ValueError(f"safety.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
-        if isinstance(self.base_seed, bool) or not isinstance(self.base_seed, int) or self.base_seed < 0:
-            raise ValueError(f"safety.base_seed={self.base_seed!r} must be an integer >= 0")
+                raise ValueError(f"{self.section}.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
+        integer(f"{self.section}.base_seed", self.base_seed, 0)
 
     def planned_rollouts(self) -> int:
         """Rollouts the scheme runs (the most it may run, for `sequential`)."""

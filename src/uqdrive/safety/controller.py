@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from uqdrive.data.binning import SteeringBins
+from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.posterior import Posterior
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
@@ -81,7 +82,7 @@ class Controller:
     def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
         if obs is None:
             raise ValueError("Controller needs a camera frame; reset the env with render=True")
-        x = torch.from_numpy(preprocess_frame(obs)).to(torch.float32).div_(255.0)[None, None]
+        x = to_inputs(preprocess_frame(obs)[None])  # exactly what the network was trained on
         m = frame_measures(self.posterior.sample_probs(x, self.n_samples, self.generator), self.centres, self.eps)
         return Command(float(m.decision[0]), self.speed, float(m.eta2[0]), float(m.mutual_information[0]),
                        float(m.entropy[0]))

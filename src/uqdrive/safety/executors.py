@@ -9,8 +9,9 @@ worker count. A job may list condition variants; rollout i then drives the varia
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import multiprocessing
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Protocol
@@ -20,7 +21,6 @@ import torch
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
-from uqdrive.parallel import map_ordered
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
 from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
@@ -156,37 +156,8 @@ class Executor(Protocol):
         """Release workers."""
 
 
-_worker: dict[str, RolloutWorker] = {}
-
-
-def _init_process(job: RolloutJob) -> None:
-    _worker["w"] = RolloutWorker(job)
-
-
-def _run_in_process(index: int) -> RolloutResult:
-    return _worker["w"].run(index)
-
-
-class ProcessExecutor:
-    """`uqdrive.parallel.map_ordered` over spawned processes, one `RolloutWorker` each (in-process for 1 worker)."""
-
-    def __init__(self, job: RolloutJob, workers: int):
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ValueError(f"executor.workers={workers!r} must be an integer >= 1")
-        self.job, self.workers = job, workers
-
-    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
-        try:
-            yield from map_ordered(_run_in_process, list(indices), self.workers, _init_process, (self.job,))
-        finally:
-            self.close()
-
-    def close(self) -> None:
-        if "w" in _worker:  # in-process run (workers=1): release the pybullet client
-            _worker.pop("w").close()
-
-
-_keyed: dict[int, RolloutWorker] = {}
+_keyed: dict[int, RolloutWorker] = {}  # this process's workers, by job key
+_job_keys = itertools.count()  # unique in the process, so two pools never share a key
 
 
 def _run_keyed(item: tuple[int, RolloutJob, int]) -> RolloutResult:
@@ -197,9 +168,10 @@ def _run_keyed(item: tuple[int, RolloutJob, int]) -> RolloutResult:
 
 
 class ProcessPool:
-    """Spawned processes kept for many cells (a whole stage): each process builds a `RolloutWorker`
-    per job the first time it meets one, so the start-up (imports, model, world) is paid once per
-    process, not once per cell. ``executor(job)`` gives the `Executor` of one cell; in-process for 1 worker.
+    """Spawned processes kept for as long as the pool (a cell, or a whole stage): each process builds a
+    `RolloutWorker` per job the first time it meets one, so the start-up (imports, model, world) is
+    paid once per process and job, not once per batch of rollouts. ``executor(job)`` gives the
+    `Executor` of one job; with 1 worker everything runs in this process.
     """
 
     def __init__(self, workers: int):
@@ -208,11 +180,13 @@ class ProcessPool:
         self.workers = workers
         self._pool = None if workers == 1 else ProcessPoolExecutor(
             workers, mp_context=multiprocessing.get_context("spawn"))
-        self._jobs = 0
+        self._keys: list[int] = []
 
-    def executor(self, job: RolloutJob) -> PooledExecutor:
-        self._jobs += 1
-        return PooledExecutor(self, self._jobs, job)
+    def executor(self, job: RolloutJob, owns_pool: bool = False) -> PooledExecutor:
+        """The job's executor; with ``owns_pool`` closing it closes the pool too."""
+        key = next(_job_keys)
+        self._keys.append(key)
+        return PooledExecutor(self, key, job, owns_pool)
 
     def run(self, key: int, job: RolloutJob, indices: Sequence[int]) -> Iterator[RolloutResult]:
         items = [(key, job, i) for i in indices]
@@ -227,8 +201,8 @@ class ProcessPool:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
-        for key in list(_keyed):
-            _keyed.pop(key).close()
+        for key in self._keys:
+            self.release(key)
 
     def __enter__(self) -> ProcessPool:
         return self
@@ -238,16 +212,16 @@ class ProcessPool:
 
 
 class PooledExecutor:
-    """The rollouts of one job on a shared `ProcessPool`; closing it leaves the pool running."""
+    """The rollouts of one job on a `ProcessPool`; closing it closes the pool only if it owns it."""
 
-    def __init__(self, pool: ProcessPool, key: int, job: RolloutJob):
-        self.pool, self.key, self.job = pool, key, job
+    def __init__(self, pool: ProcessPool, key: int, job: RolloutJob, owns_pool: bool = False):
+        self.pool, self.key, self.job, self.owns_pool = pool, key, job, owns_pool
 
     def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
         yield from self.pool.run(self.key, self.job, indices)
 
     def close(self) -> None:
-        self.pool.release(self.key)
+        self.pool.close() if self.owns_pool else self.pool.release(self.key)
 
 
 class RayExecutor:
@@ -286,13 +260,19 @@ class RayExecutor:
             self._ray.shutdown()
 
 
+def executor_options(section: Mapping[str, Any]) -> dict[str, Any]:
+    """Backend options of an `executor` config section: everything but name and workers, unset ones dropped."""
+    return {k: v for k, v in section.items() if k not in ("name", "workers") and v is not None}
+
+
 def make_executor(backend: str, job: RolloutJob, workers: int, pool: ProcessPool | None = None,
                   **options: Any) -> Executor:
-    """``process`` (default; on ``pool`` if given) or ``ray``; ``options`` go to the Ray backend (address)."""
+    """``process`` (default; on ``pool`` if given, else on a pool of its own) or ``ray``; ``options`` go to
+    the Ray backend (address)."""
     if backend == "process":
         if options:
             raise ValueError(f"executor options {sorted(options)} apply only to executor.name=ray")
-        return pool.executor(job) if pool is not None else ProcessExecutor(job, workers)
+        return (pool or ProcessPool(workers)).executor(job, owns_pool=pool is None)
     if backend == "ray":
         return RayExecutor(job, workers, **options)
     raise ValueError(f"executor.name={backend!r} is not a known backend; choose one of {list(BACKENDS)}")
