@@ -4,7 +4,7 @@ paths of all methods coloured by uncertainty."""
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.pipeline.avoid import run_avoid_summary
+from uqdrive.pipeline.avoid_summary import run_avoid_summary
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid_summary")

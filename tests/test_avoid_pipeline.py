@@ -1,48 +1,56 @@
-"""The `avoid` stage on the tiny profile: cells, calibration, outputs, MLflow runs, the summary, clear errors."""
+"""The `avoid` stage on the tiny profile: cells per condition, calibration, reuse, outputs, MLflow runs, the
+summary, clear errors."""
 
 import json
 
-import numpy as np
 import pytest
 from mlflow.tracking import MlflowClient
 
 import uqdrive.pipeline.avoid as avoid_stage
-from uqdrive.pipeline.avoid import CONDITIONS, MODES, build_settings, run_avoid, run_avoid_summary
-from uqdrive.safety import WarningController, estimate_safety, make_executor, variant_index
-from uqdrive.safety.executors import ProcessPool
+from uqdrive.pipeline.avoid import KNOWN, MODES, build_settings, run_avoid
+from uqdrive.pipeline.avoid_summary import run_avoid_summary
+from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
 
 
 @pytest.fixture
 def avoid_config(stage_config, random_models):
+    """The random-weight models predict all 21 tenths; the experiment's class set is widened to match."""
     def make(*overrides: str):
-        return stage_config("avoid", f"paths.models={random_models['mcd'].parent}", *overrides)
+        folder = random_models["mcd"].parent
+        return stage_config("avoid", "experiment.bins.low=-1.0", "experiment.bins.high=1.0",
+                            f"avoid.model_path={folder}/${{model.name}}.pt", *overrides)
     return make
 
 
 @pytest.mark.slow
-def test_stage_writes_every_cell_logs_one_run_per_cell_and_summarises(avoid_config, stage_config, tmp_path):
+def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summarises(avoid_config, stage_config,
+                                                                                  tmp_path):
     result = run_avoid(avoid_config("model=mcd"))
     saved = json.loads((tmp_path / "metrics/avoid/mcd.json").read_text())
     assert saved == result and saved["samples_per_frame"] == 21  # chernoff_n(0.3, 0.05), the tiny profile
-    for condition in CONDITIONS:
+    assert saved["conditions"] == [KNOWN, "fog"]  # the tiny profile's one unknown condition
+    for condition in saved["conditions"]:
         for mode in MODES:
             cell = saved["cells"][condition][mode]
-            assert cell["n"] == 4 and cell["scheme"] == "chernoff" and cell["guaranteed"]  # chernoff_n(0.7, 0.05)
+            # every condition gets exactly the scheme's runs: chernoff_n(0.7, 0.05) = 4, never a random share
+            assert cell["n"] == 4 and cell["scheme"] == "chernoff" and cell["guaranteed"] and not cell["reused"]
             assert cell["eta1_low"] <= cell["eta1"] <= cell["eta1_high"]
             assert cell["autonomy"] == 1 - cell["handover_rate"] and 0 <= cell["full_speed_fraction"] <= 1
             assert sum(cell["terminations"].values()) == 4
-            assert (tmp_path / f"data/avoid/mcd/mcd-{condition}-{mode}.npz").exists()
+            assert 0 <= cell["timeout_before_obstacle_rate"] <= 1 - cell["eta1"] + 1e-12  # a timeout is never safe
+            assert (tmp_path / f"data/avoid/mcd/cells/mcd-{condition}-{mode}.npz").exists()
+            assert (tmp_path / f"data/avoid/mcd/traces/mcd-{condition}-{mode}.npz").exists()
             assert (tmp_path / f"plots/avoid/mcd/cells/mcd-{condition}-{mode}.png").stat().st_size > 5000
         assert saved["cells"][condition]["off"]["handover_rate"] == 0  # off: warnings are only counted
-    unknown = saved["cells"]["unknown"]["off"]["variants"]
-    assert sum(v["n"] for v in unknown.values()) == 4 and set(unknown) <= {"afternoon", "fog", "rain_noise",
-                                                                          "white_van"}
-    assert saved["cells"]["known"]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
+    for mode in MODES:  # one unknown condition: its mixture is that cell
+        assert saved["unknown"][mode]["eta1"] == saved["cells"]["fog"][mode]["eta1"]
+    assert saved["cells"][KNOWN]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
     calibration = saved["calibration"]
-    assert saved["cells"]["known"]["calibrated"]["thresholds"] == {k: calibration[k] for k in ("delta1", "delta2",
-                                                                                                "tau")}
-    assert calibration["candidates"] > 100 and set(calibration["replay_check"]) == set(CONDITIONS)
+    assert saved["cells"][KNOWN]["calibrated"]["thresholds"] == {k: calibration[k] for k in ("delta1", "delta2",
+                                                                                              "tau")}
+    assert calibration["feasible"] and calibration["replayed"]["autonomy_low"] >= calibration["autonomy_target"]
+    assert calibration["candidates"] > 100 and set(calibration["replay_check"]) == {KNOWN, "fog"}
     rows = (tmp_path / "plots/avoid/mcd/tradeoff.csv").read_text().splitlines()
     assert len(rows) == calibration["candidates"] + 1 and rows[0].startswith("delta1,delta2,tau")
     for name in ("trajectories", "warnings", "tradeoff"):
@@ -51,21 +59,23 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_and_summarises(avoid_conf
     client = MlflowClient(store_uris(tmp_path)[0])
     runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
     by_name = {r.info.run_name: r for r in runs}
-    assert set(by_name) == {f"mcd-{c}-{m}" for c in CONDITIONS for m in MODES} | {"mcd-calibration"}
-    run = by_name["mcd-unknown-on"]
+    assert set(by_name) == {f"mcd-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-calibration"}
+    run = by_name["mcd-fog-on"]
     assert {k: run.data.params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n")} == {
-        "method": "mcd", "condition": "unknown", "warnings": "on", "delta1": "0.7", "samples_per_frame": "21",
-        "n": "4"}
-    assert run.data.metrics["eta1"] == pytest.approx(saved["cells"]["unknown"]["on"]["eta1"])
-    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"mcd-unknown-on.csv", "mcd-unknown-on.png"}
-    assert {a.path for a in client.list_artifacts(by_name["mcd-calibration"].info.run_id)} == {
-        "trajectories.png", "warnings.png", "tradeoff.png", "tradeoff.csv", "signals.csv"}
+        "method": "mcd", "condition": "fog", "warnings": "on", "delta1": "0.7", "samples_per_frame": "21", "n": "4"}
+    assert run.data.metrics["eta1"] == pytest.approx(saved["cells"]["fog"]["on"]["eta1"])
+    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"mcd-fog-on.csv", "mcd-fog-on.png"}
+
+    again = run_avoid(avoid_config("model=mcd"))  # every cell is reused, with the same numbers
+    assert all(again["cells"][c][m]["reused"] for c in again["conditions"] for m in MODES)
+    assert {c: {m: again["cells"][c][m]["eta1"] for m in MODES} for c in again["conditions"]} == {
+        c: {m: saved["cells"][c][m]["eta1"] for m in MODES} for c in saved["conditions"]}
 
     summary = run_avoid_summary(stage_config("avoid_summary", "methods=[mcd]"))
     table = json.loads((tmp_path / "metrics/avoid.json").read_text())
     assert table == summary["table"] and set(table) == {"paper", "mcd"}
-    assert table["mcd"]["unknown"]["on"]["eta1"] == saved["cells"]["unknown"]["on"]["eta1"]
-    assert table["paper"]["unknown"] == {"off": {"eta1": 0.0}, "on": {"eta1": 0.9}}
+    assert table["mcd"]["unknown"]["on"]["eta1"] == saved["unknown"]["on"]["eta1"]
+    assert table["paper"]["avoid"]["unknown_on"] == 0.9
     assert (tmp_path / "plots/avoid/summary/coll_avoid_main.png").stat().st_size > 5000
     with pytest.raises(FileNotFoundError, match="vi.json is missing"):
         run_avoid_summary(stage_config("avoid_summary", "methods=[vi]"))
@@ -73,27 +83,13 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_and_summarises(avoid_conf
 
 def test_thresholds_actions_and_samples_come_from_config(avoid_config):
     settings = build_settings(avoid_config("model=vi", "warning.delta1=0.8", "warning.tau=0.3",
-                                           "warning.actions.warning0.speed=0.25", "warning.theta=0.2"))
+                                           "warning.actions.warning0.speed=0.25", "warning.theta=0.2",
+                                           "avoid.horizon_s=10"))
     w = settings.warning
     assert (w.delta1, w.delta2, w.tau, w.actions[0].speed, w.samples) == (0.8, 0.6, 0.3, 0.25, 47)
-    policy = settings.job("known", w, 0).policy.build(15.0)
+    policy = settings.job(settings.known, w, 0).policy.build(15.0)
     assert isinstance(policy, WarningController) and policy.config == w and policy.n_samples == 47
-    assert settings.job("known", None, 0).policy.build(15.0).n_samples == 47  # warnings off: same draws per frame
-
-
-@pytest.mark.slow
-def test_unknown_variants_are_drawn_from_the_seed_and_agree_across_worker_counts(avoid_config):
-    settings = build_settings(avoid_config("model=vi", "avoid.horizon_s=0.5"))
-    draws = [variant_index(seed, 4) for seed in range(4000)]
-    assert draws == [variant_index(seed, 4) for seed in range(4000)]
-    assert np.allclose(np.bincount(draws) / 4000, 0.25, atol=0.03)
-    job = settings.job("unknown", settings.warning, 0)
-    _, one = estimate_safety(make_executor("process", job, 1), settings.estimator)
-    with ProcessPool(2) as pool:
-        _, two = estimate_safety(pool.executor(job), settings.estimator)
-    assert [r.variant for r in one] == [settings.unknown[variant_index(i, 4)].name for i in range(4)]
-    assert [r.summary() for r in one] == [r.summary() for r in two]
-    assert all(np.array_equal(a.eta2, b.eta2) and np.array_equal(a.x, b.x) for a, b in zip(one, two))
+    assert settings.job(settings.known, None, 0).policy.build(15.0).n_samples == 47  # warnings off: same draws
 
 
 @pytest.mark.parametrize(("overrides", "error", "match"), [
@@ -109,13 +105,19 @@ def test_unknown_variants_are_drawn_from_the_seed_and_agree_across_worker_counts
     (("avoid.speed=0",), ValueError, r"avoid.speed=0 must be in \(0, vehicle.max_speed=20.0\] m/s"),
     (("avoid.eps=0",), ValueError, r"avoid.eps=0 must be a number > 0"),
     (("avoid.horizon_s=-1",), ValueError, r"avoid.horizon_s=-1 must be a number of seconds > 0"),
-    (("avoid.unknown=[]",), ValueError, r"avoid.unknown=\[\] must be a non-empty list of variants"),
+    (("avoid.horizon_s=2",), ValueError, r"avoid.horizon_s=2 is too short: a run slowed to 8 m/s needs 3.1 s"),
+    (("warning.actions.warning1.speed=0",), ValueError, r"a slow-down to speed 0 without a hand-over never passes"),
+    (("avoid.unknown=[]",), ValueError, r"avoid.unknown=\[\] must be a non-empty list of conditions"),
+    (("avoid.unknown=[{name:known}]",), ValueError, r"avoid.unknown\[0\].name='known' is the training condition"),
     (("avoid.unknown=[{name:snow,weather:snow}]",), ValueError,
      r"avoid.unknown\[0\].weather='snow' is not loaded; .* add \+weather@weathers.snow=snow"),
     (("avoid.unknown=[{name:x,noise:-1}]",), ValueError, r"avoid.unknown\[0\]: noise=-1 must be >= 0"),
     (("avoid.unknown=[{name:x,scenario:{obstacle_colour:[1,1,1]}}]",), ValueError,
      r"avoid.unknown\[0\]: scenario: unknown key\(s\) \['obstacle_colour'\]"),
-    (("avoid.calibration.target=1",), ValueError, r"avoid.calibration.target=1 must be in the open interval"),
+    (("avoid.calibration.autonomy_target=1",), ValueError,
+     r"avoid.calibration.autonomy_target=1 must be in the open interval"),
+    (("avoid.calibration.autonomy_target=0.5",), ValueError,
+     r"autonomy_target=0.5 cannot be shown with 4 known-condition runs \(it needs 6\)"),
     (("avoid.calibration.deltas=[0.5,1.5]",), ValueError, r"avoid.calibration.deltas=\[0.5, 1.5\] must be"),
     (("executor.workers=0",), ValueError, r"executor.workers=0 must be an integer >= 1"),
     (("scenario=roundabout",), ValueError, r"scenario.kind='roundabout': the avoid stage needs an 'obstacle'"),

@@ -31,13 +31,29 @@ def test_nearest_centre_and_saturation(steer, cls):
 
 
 def test_other_resolutions_keep_the_same_contract():
-    bins = SteeringBins(per_unit=5, max_abs=1.0)
+    bins = SteeringBins(per_unit=5)
     assert bins.num_classes == 11
     np.testing.assert_array_equal(bins.to_class(bins.centres), np.arange(11))
 
 
-@pytest.mark.parametrize(("kwargs", "key"), [({"per_unit": 0}, "per_unit"), ({"max_abs": -1.0}, "max_abs"),
-                                             ({"max_abs": 0.95}, "max_abs")])
+@pytest.mark.parametrize(("low", "high"), [(-0.5, 0.3), (-0.2, 0.8), (0.0, 0.1), (-1.0, 1.0)])
+def test_an_experiments_class_set_round_trips_through_the_binning(low, high):
+    bins = SteeringBins(low=low, high=high)
+    assert bins.num_classes == round((high - low) * 10) + 1
+    np.testing.assert_allclose(bins.centres[[0, -1]], [low, high], atol=1e-12)
+    classes = np.arange(bins.num_classes)
+    np.testing.assert_array_equal(bins.to_class(bins.to_steering(classes)), classes)
+    assert SteeringBins.from_dict(bins.to_dict()) == bins
+    inside = np.random.default_rng(1).uniform(low - 0.049, high + 0.049, 5000)
+    assert np.max(np.abs(bins.to_steering(bins.to_class(inside)) - inside)) <= 0.05 + 1e-12
+    assert not bins.clipped(inside).any()
+    beyond = np.array([low - 0.06, high + 0.06])
+    assert bins.clipped(beyond).all()
+    np.testing.assert_array_equal(bins.to_class(beyond), [0, bins.num_classes - 1])
+
+
+@pytest.mark.parametrize(("kwargs", "key"), [({"per_unit": 0}, "per_unit"), ({"low": -1.5}, "low"),
+                                             ({"high": 0.95}, "high"), ({"low": 0.5, "high": 0.5}, "low")])
 def test_bad_bins_name_the_key(kwargs, key):
     with pytest.raises(ValueError, match=key):
         SteeringBins(**kwargs)

@@ -12,7 +12,7 @@ from uqdrive.models.pilotnet import Architecture, init_weights
 from uqdrive.models.vi import VIPosterior
 
 SMALL = Architecture(conv=(2, 2, 2, 2, 2), features=6, hidden=(5, 4, 4))
-THREE = SteeringBins(per_unit=1, max_abs=1.0)  # 3 classes
+THREE = SteeringBins(per_unit=1)  # 3 classes
 
 
 

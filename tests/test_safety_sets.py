@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from uqdrive.safety import EstimatorSettings, PolicySpec, RolloutJob, estimate_safety, make_executor, safe_set_for
+from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.sim import ScenarioConfig, WeatherConfig, build_geometry
 
 from conftest import CONF
@@ -26,17 +27,22 @@ AUTOPILOT = PolicySpec("autopilot", 6.0)  # unperturbed pure pursuit (AutopilotC
 FULL_LEFT = PolicySpec("constant", 6.0, steer=1.0)
 
 
-def test_autopilot_is_safe_at_the_roundabout():
-    value, results = eta1(AUTOPILOT, "roundabout")
+LOCATIONS = ["roundabout", "roundabout_large", "roundabout_town"]  # the offline-safety sweep's locations
+
+
+@pytest.mark.parametrize("location", LOCATIONS)
+def test_autopilot_drives_every_location_safely(location):
+    value, results = eta1(AUTOPILOT, location)
     assert value == 1.0
-    assert all(r.termination == "route_complete" and r.reached_exit and not r.left_corridor for r in results)
+    assert all(r.termination == "route_complete" and r.reached_goal and not r.left_corridor for r in results)
+    assert max(r.corridor_use for r in results) < 0.8  # with a margin, not just inside
     assert max(r.mean_abs_lateral_deviation for r in results) < 0.5
 
 
 def test_full_left_is_unsafe_at_the_roundabout():
     value, results = eta1(FULL_LEFT, "roundabout")
     assert value == 0.0
-    assert all(r.left_corridor and not r.reached_exit for r in results)
+    assert all(r.left_corridor and not r.reached_goal and r.corridor_use > 1 for r in results)
 
 
 @pytest.mark.parametrize("name", ["straight", "obstacle"])
@@ -46,22 +52,39 @@ def test_road_safe_sets_need_no_collision_and_no_off_road(name):
     assert value == 0.0 and all(r.off_road or r.collision for r in results)
 
 
+def test_a_timeout_before_the_obstacle_is_not_safe():
+    """A car too slow to reach the obstacle within the horizon has answered nothing: unsafe, goal not reached."""
+    value, results = eta1(PolicySpec("constant", 1.0), "obstacle", theta=0.5, horizon_s=5.0)
+    assert value == 0.0
+    assert all(r.termination == "timeout" and not r.reached_goal and not r.collision for r in results)
+
+
+def test_passing_the_obstacle_is_the_obstacle_roads_goal():
+    value, results = eta1(AUTOPILOT, "obstacle", theta=0.5)
+    assert value == 1.0 and all(r.reached_goal for r in results)
+    geometry = build_geometry(scenario("obstacle"))
+    safe = safe_set_for(geometry, 1.8, 4.5)
+    assert safe.half_width is None
+    assert safe.goal_progress == pytest.approx(obstacle_pass_progress(geometry, 4.5))
+    assert safe.goal_progress > geometry.config.obstacle_distance
+
+
 def test_corridor_half_width_is_configurable():
     """A corridor narrower than the autopilot's tracking error makes the same paths unsafe."""
     value, results = eta1(AUTOPILOT, "roundabout", theta=0.5, half_width=0.05)
     assert value == 0.0 and all(r.left_corridor and r.termination == "route_complete" for r in results)
 
 
-def test_default_corridor_is_the_lane_and_ends_at_the_first_exit():
+def test_default_corridor_keeps_the_body_in_its_lane_and_ends_at_the_first_exit():
     geometry = build_geometry(scenario("roundabout"))
-    safe = safe_set_for(geometry)
+    safe = safe_set_for(geometry, 1.8, 4.5)
     cfg = geometry.config
-    assert set(np.unique(safe.half_width)) == {cfg.lane_width / 2, cfg.ring_width / 2}
-    assert 0 < safe.exit_progress < geometry.route.length
-    exit_x, exit_y, _ = geometry.route.sample(safe.exit_progress)
+    np.testing.assert_allclose(np.unique(safe.half_width), sorted({cfg.lane_width / 2 - 0.9, cfg.ring_width / 2 - 0.9}))
+    assert 0 < safe.goal_progress < geometry.route.length
+    exit_x, exit_y, _ = geometry.route.sample(safe.goal_progress)
     assert np.hypot(exit_x, exit_y) == pytest.approx(cfg.ring_radius + cfg.ring_width / 2, abs=0.5)
     left, right = safe.boundaries()
     assert left.shape == right.shape == (len(geometry.route.s), 2)
-    assert safe_set_for(build_geometry(scenario("straight"))).boundaries() is None
+    assert safe_set_for(build_geometry(scenario("straight")), 1.8, 4.5).boundaries() is None
     with pytest.raises(ValueError, match=r"safety.half_width=-1"):
-        safe_set_for(geometry, -1)
+        safe_set_for(geometry, 1.8, 4.5, -1)

@@ -232,23 +232,25 @@ def avoid_signals_figure(runs: dict[str, list[tuple[np.ndarray, np.ndarray, np.n
 
 def avoid_tradeoff_figure(table: dict[str, np.ndarray], chosen: int, default: int | None, target: float,
                           title: str) -> plt.Figure:
-    """Replayed safety (lowest exact lower bound of η̂1 over the conditions) against autonomy for every
-    candidate (δ1, δ2, τ): the Pareto front, the target, the chosen and the configured thresholds."""
+    """The paper's joint claim as a front: replayed unknown-condition η̂1 against known-condition autonomy
+    for every candidate (δ1, δ2, τ); candidates whose autonomy bound misses ``target`` are hollow; the
+    Pareto front, the chosen and the configured thresholds."""
     fig, ax = plt.subplots(figsize=(5.5, 4))
-    autonomy, safety = table["autonomy"], table["eta1_low"]
-    ax.scatter(autonomy, safety, s=8, color="0.6", label="candidates")
+    autonomy, safety, feasible = table["autonomy"], table["eta1_unknown"], table["feasible"].astype(bool)
+    ax.scatter(autonomy[~feasible], safety[~feasible], s=10, facecolors="none", edgecolors="0.6",
+               label=f"autonomy bound < {target:g}")
+    ax.scatter(autonomy[feasible], safety[feasible], s=10, color="tab:blue", label=f"autonomy bound ≥ {target:g}")
     front = np.flatnonzero(table["pareto"])
     front = front[np.argsort(autonomy[front])]
-    ax.plot(autonomy[front], safety[front], "-o", color="tab:blue", ms=3, label="Pareto front")
-    ax.axhline(target, color="tab:red", ls="--", lw=1, label=f"target {target:g}")
+    ax.plot(autonomy[front], safety[front], "-", color="tab:blue", lw=1, label="Pareto front")
     if default is not None:
         ax.plot(autonomy[default], safety[default], "D", color="k", ms=7, mfc="none",
                 label=f"configured δ1={table['delta1'][default]:g} δ2={table['delta2'][default]:g} "
                       f"τ={table['tau'][default]:g}")
     ax.plot(autonomy[chosen], safety[chosen], "*", color="gold", mec="k", ms=14,
             label=f"chosen δ1={table['delta1'][chosen]:g} δ2={table['delta2'][chosen]:g} τ={table['tau'][chosen]:g}")
-    ax.set_xlabel("autonomy (runs with no hand-over, mean over conditions)")
-    ax.set_ylabel("lower bound of replayed η̂1 (worst condition)")
+    ax.set_xlabel("known-condition autonomy (runs with no hand-over)")
+    ax.set_ylabel("unknown-condition η̂1 (replayed)")
     ax.set_xlim(-0.03, 1.03)
     ax.set_ylim(-0.03, 1.03)
     ax.legend(fontsize=7, loc="lower left")

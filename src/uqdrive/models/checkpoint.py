@@ -73,7 +73,7 @@ def load_posterior(path: str | Path, expected_method: str | None = None,
     method = payload["method"]
     if expected_method is not None and method != check_method(expected_method):
         raise ValueError(f"{path} holds a {method!r} model, expected {expected_method!r}")
-    bins = SteeringBins(per_unit=payload["classes"]["per_unit"], max_abs=payload["classes"]["max_abs"])
+    bins = SteeringBins.from_dict(payload["classes"])
     if isinstance(expected_classes, SteeringBins) and expected_classes != bins:
         raise ValueError(f"{path} was trained on classes {bins.to_dict()}, expected {expected_classes.to_dict()}; "
                          f"retrain it with the current bins")

@@ -187,7 +187,7 @@ def run_evaluate(cfg: DictConfig) -> dict:
     """Evaluate every method of `methods` on the held-out frames of every weather × noise; returns the table,
     the output paths and the MLflow run id of each method."""
     settings = EvaluateSettings(cfg.evaluate.samples, cfg.evaluate.eps, cfg.evaluate.batch_size)
-    bins = SteeringBins(**cfg.bins)
+    bins = SteeringBins(**cfg.experiment.bins)
     methods = list(cfg.methods)
     if not methods or not set(methods) <= set(POSTERIORS):
         raise ValueError(f"methods={methods!r} must be a non-empty list of known methods: {sorted(POSTERIORS)}")

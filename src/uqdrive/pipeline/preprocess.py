@@ -1,4 +1,4 @@
-"""The `preprocess` stage: raw episodes of every scenario → train/val frames + class histogram."""
+"""The `preprocess` stage: raw episodes of one experiment's scenarios → its train/val frames + class histogram."""
 
 from __future__ import annotations
 
@@ -19,17 +19,22 @@ from uqdrive.tracking import stage_run
 
 
 def run_preprocess(cfg: DictConfig) -> dict:
-    bins = SteeringBins(**cfg.bins)
+    bins = SteeringBins(**cfg.experiment.bins)
     split = Split(val_fraction=cfg.preprocess.val_fraction, seed=cfg.preprocess.split_seed)
     raw_dir, out_dir = Path(cfg.paths.raw), Path(cfg.paths.processed)
-    if not cfg.scenarios:
-        raise ValueError("scenarios=[] is empty: name at least one collected scenario")
+    scenarios = list(cfg.experiment.scenarios)
+    if not scenarios:
+        raise ValueError(f"experiment.scenarios={scenarios} is empty: name at least one collected scenario")
 
     parts: dict[str, list[pa.Table]] = {"train": [], "val": []}
-    for scenario in tqdm(list(cfg.scenarios), desc="preprocess", unit="scenario", disable=not cfg.progress):
-        train, val = preprocess_raw(read_table(raw_dir / f"{scenario}.parquet", RAW_SCHEMA), bins, split)
+    steering = []
+    for scenario in tqdm(scenarios, desc="preprocess", unit="scenario", disable=not cfg.progress):
+        raw = read_table(raw_dir / f"{scenario}.parquet", RAW_SCHEMA)
+        steering.append(raw.column("steering").to_numpy())
+        train, val = preprocess_raw(raw, bins, split)
         parts["train"].append(train)
         parts["val"].append(val)
+    steering_all = np.concatenate(steering)
 
     counts: dict[str, np.ndarray] = {}
     for name, tables in parts.items():
@@ -38,7 +43,12 @@ def run_preprocess(cfg: DictConfig) -> dict:
         counts[name] = class_histogram(table.column("label").to_numpy(), bins)
 
     metrics = {
+        "experiment": cfg.experiment.name,
         "num_classes": bins.num_classes,
+        # labels beyond the experiment's end classes by more than half a tenth: the class set should cover them
+        "clipped_label_fraction": float(bins.clipped(steering_all).mean()),
+        "steering_min": float(steering_all.min()),
+        "steering_max": float(steering_all.max()),
         "train_frames": int(counts["train"].sum()),
         "val_frames": int(counts["val"].sum()),
         "majority_class_fraction": float(counts["train"].max() / max(counts["train"].sum(), 1)),
@@ -48,8 +58,8 @@ def run_preprocess(cfg: DictConfig) -> dict:
         for name, values in counts.items() for k, (centre, n) in enumerate(zip(bins.centres, values))])
     write_json(Path(cfg.paths.metrics) / "preprocess.json", metrics)
 
-    with stage_run(cfg.paths.root, "preprocess", cfg, run_name="preprocess"):
-        mlflow.log_metrics(metrics)
+    with stage_run(cfg.paths.root, "preprocess", cfg, run_name=cfg.experiment.name):
+        mlflow.log_metrics({k: v for k, v in metrics.items() if k != "experiment"})
         figure = save_figure(class_histogram_figure(bins.centres, counts, "steering classes"),
                              Path(cfg.paths.plots) / "class_histogram.png")
         mlflow.log_artifact(str(figure))

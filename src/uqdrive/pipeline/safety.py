@@ -1,5 +1,8 @@
-"""The `safety` stage: η1 of one controller in one sweep cell (method × scenario × weather × noise),
+"""The `safety` stage: η1 of one offline controller in one sweep cell (method × location × weather × noise),
 and `safety_summary`, the table and offline-safety figures over all cells.
+
+Every cell drives the same rollout seeds (base_seed + i), so methods and conditions are compared
+on paired runs: the same start jitter, rain streaks and sensor noise.
 
 Every input is checked (method, model file, estimator, speed, world, executor) before the
 first rollout. A cell whose result file already holds its config hash is not run again.
@@ -59,7 +62,7 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     settings = EstimatorSettings(scheme=cfg.safety.scheme, theta=cfg.safety.theta, gamma=cfg.safety.gamma,
                                  base_seed=cfg.safety.base_seed)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
-    bins = SteeringBins(**cfg.bins)
+    bins = SteeringBins(**cfg.experiment.bins)
     model_path = Path(cfg.safety.model_path)
     posterior = cell_posterior("safety.model_path", model_path, method, bins)
     speed = checks.speed("safety.speed", cfg.safety.speed, vehicle.max_speed)
@@ -138,13 +141,13 @@ def run_safety(cfg: DictConfig) -> dict:
         executor.close()
     seconds = time.perf_counter() - start
     geometry = build_geometry(job.scenario)
-    safe_set = safe_set_for(geometry, job.half_width)
-    title = f"{cfg.model.name} · {job.weather.name} · noise {job.noise:g}: η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
+    safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
+    title = f"{cfg.model.name} · {job.scenario.name} · {job.weather.name} · noise {job.noise:g}: η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
     table, positions, figure = write_outputs(cfg, results, geometry, safe_set, estimate.value, title)
     metrics = {"eta1": estimate.value, "eta1_low": estimate.low, "eta1_high": estimate.high,
                "rollouts": estimate.n, "steps": int(sum(r.steps for r in results)), "seconds": seconds,
                **rates(results)}
-    cell = {"method": cfg.model.name, "scenario": job.scenario.name, "weather": job.weather.name, "noise": job.noise,
+    cell = {"method": cfg.model.name, "experiment": cfg.experiment.name, "location": job.scenario.name, "weather": job.weather.name, "noise": job.noise,
             "theta": estimate.theta, "gamma": estimate.gamma, "scheme": estimate.method, "n": estimate.n,
             "base_seed": settings.base_seed}
     with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell) as run:
@@ -158,29 +161,35 @@ def run_safety(cfg: DictConfig) -> dict:
     return {**result, "reused": False}
 
 
+SUMMARY_KEYS = ("eta1", "eta1_low", "eta1_high", "theta", "gamma", "n", "scheme", "base_seed", "collision_rate",
+                "off_road_rate", "left_corridor_rate", "reached_goal_rate", "max_corridor_use", "mean_corridor_use",
+                "mean_lateral_deviation", "mean_eta2", "mean_mutual_information")
+
+
 def run_safety_summary(cfg: DictConfig) -> dict:
-    """Table of η̂1 over methods × weathers × noises, and one method × weather hexbin grid per noise."""
+    """Table of η̂1 over methods × locations × weathers × noises (metrics/safety.json: method → location →
+    weather → noise<σ>), and one method × weather hexbin grid per location and noise."""
     cells = Path(cfg.summary.cells_dir)
     table: dict = {}
     figures = []
-    for noise in cfg.noises:
-        panels = {}
-        for method in cfg.methods:
-            for weather in cfg.weathers:
-                name = f"{method}-{cfg.scenario.name}-{weather}-noise{noise}"
-                path = cells / f"{name}.json"
-                if not path.exists():
-                    raise FileNotFoundError(f"{path} is missing; run `python stages/safety.py model={method} "
-                                            f"weather={weather} noise={noise}` (or dvc repro) first")
-                result = json.loads(path.read_text())
-                table.setdefault(method, {}).setdefault(weather, {})[f"noise{noise}"] = {
-                    k: result[k] for k in ("eta1", "eta1_low", "eta1_high", "theta", "gamma", "n", "scheme", "base_seed",
-                                           "collision_rate", "off_road_rate", "left_corridor_rate", "reached_exit_rate",
-                                           "mean_lateral_deviation", "mean_eta2", "mean_mutual_information")}
-                with np.load(Path(cfg.summary.positions_dir) / f"{name}.npz") as data:
-                    panels[(method, weather)] = {k: data[k] for k in data.files}
-        fig = safety_hexbin_grid(panels, list(cfg.methods), list(cfg.weathers),
-                                 f"Closed-loop paths at the {cfg.scenario.name}, sensor noise {noise}")
-        figures.append(save_figure(fig, Path(cfg.summary.figures_dir) / f"hexbin_noise{noise}.png"))
+    for location in cfg.locations:
+        for noise in cfg.noises:
+            panels = {}
+            for method in cfg.methods:
+                for weather in cfg.weathers:
+                    name = f"{method}-{location}-{weather}-noise{noise}"
+                    path = cells / f"{name}.json"
+                    if not path.exists():
+                        raise FileNotFoundError(f"{path} is missing; run `python stages/safety.py model={method} "
+                                                f"scenario={location} weather={weather} noise={noise}` (or dvc repro) "
+                                                "first")
+                    result = json.loads(path.read_text())
+                    table.setdefault(method, {}).setdefault(location, {}).setdefault(weather, {})[f"noise{noise}"] = {
+                        k: result[k] for k in SUMMARY_KEYS}
+                    with np.load(Path(cfg.summary.positions_dir) / f"{name}.npz") as data:
+                        panels[(method, weather)] = {k: data[k] for k in data.files}
+            fig = safety_hexbin_grid(panels, list(cfg.methods), list(cfg.weathers),
+                                     f"Closed-loop paths at {location}, sensor noise {noise}")
+            figures.append(save_figure(fig, Path(cfg.summary.figures_dir) / f"hexbin_{location}_noise{noise}.png"))
     write_json(cfg.summary.out, table)
     return {"table": table, "figures": [str(f) for f in figures]}

@@ -47,7 +47,7 @@ def run_train(cfg: DictConfig) -> dict:
     eval_samples = int(cfg.train.eval_samples)
     if eval_samples < 1:
         raise ValueError(f"train.eval_samples={eval_samples} must be ≥ 1")
-    bins = SteeringBins(**cfg.bins)
+    bins = SteeringBins(**cfg.experiment.bins)
     processed = Path(cfg.paths.processed)
     train = load_frames(processed / "train.parquet", bins.num_classes)
     val = load_frames(processed / "val.parquet", bins.num_classes)

@@ -7,9 +7,9 @@ Composes `sim` (the world), `models` (the posteriors) and `uq` (measures and est
 from uqdrive.safety.cells import SCHEMES, EstimatorSettings, cell_hash, estimate_safety, reusable_result
 from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
 from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessPool, RayExecutor, RolloutJob,
-                                      RolloutWorker, Variant, executor_options, make_executor, variant_index)
-from uqdrive.safety.rollout import HANDOVER, RolloutResult, run_rollout
-from uqdrive.safety.safe_sets import SafeSet, Verdict, safe_set_for
+                                      RolloutWorker, executor_options, make_executor)
+from uqdrive.safety.rollout import RolloutResult, results_from_arrays, results_to_arrays, run_rollout
+from uqdrive.safety.safe_sets import HANDOVER, SafeSet, Verdict, safe_set_for
 from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
 
 __all__ = [
@@ -31,7 +31,6 @@ __all__ = [
     "RolloutResult",
     "RolloutWorker",
     "SafeSet",
-    "Variant",
     "Verdict",
     "WarningAction",
     "WarningActions",
@@ -42,8 +41,9 @@ __all__ = [
     "estimate_safety",
     "executor_options",
     "make_executor",
+    "results_from_arrays",
+    "results_to_arrays",
     "reusable_result",
     "run_rollout",
     "safe_set_for",
-    "variant_index",
 ]

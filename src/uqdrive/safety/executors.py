@@ -3,7 +3,7 @@
 Each worker owns one `DrivingEnv` (its own pybullet client) and one policy for its whole life;
 a rollout is named only by its index i and uses seed ``base_seed + i``, and results come back
 in index order, so η̂1 and every per-rollout outcome are the same whatever the backend and
-worker count. A job may list condition variants; rollout i then drives the variant its seed draws.
+worker count.
 """
 
 from __future__ import annotations
@@ -71,36 +71,9 @@ class PolicySpec:
         return ConstantPolicy(self.steer, self.speed)
 
 
-VARIANT_STREAM = 0x7661  # spawn key of the variant draw: independent of the env's and the posterior's streams
-
-
-@dataclasses.dataclass(frozen=True)
-class Variant:
-    """One condition a rollout may be driven in: world (e.g. another obstacle car), weather, sensor noise."""
-
-    name: str
-    scenario: ScenarioConfig
-    weather: WeatherConfig
-    noise: float = 0.0
-
-
-def variant_index(seed: int, count: int) -> int:
-    """The variant rollout ``seed`` drives, uniform over ``count`` and drawn from the seed alone.
-
-    Seeds base_seed + i give i.i.d. draws, so each rollout's safety is a Bernoulli draw with
-    the mixture's rate η1 = mean over variants of η1(variant), and the cell's estimator (and its
-    (θ, γ) guarantee) applies to that mixture rate unchanged.
-    """
-    return int(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(VARIANT_STREAM,))).integers(count))
-
-
 @dataclasses.dataclass(frozen=True)
 class RolloutJob:
-    """Everything a worker needs to run rollout i of a sweep cell.
-
-    ``variants``: if given, rollout i drives ``variants[variant_index(base_seed + i, len(variants))]``
-    instead of (scenario, weather, noise).
-    """
+    """Everything a worker needs to run rollout i of a sweep cell."""
 
     policy: PolicySpec
     scenario: ScenarioConfig
@@ -112,12 +85,6 @@ class RolloutJob:
     control_hz: float = 15.0
     horizon_s: float = 40.0
     half_width: float | None = None
-    variants: tuple[Variant, ...] = ()
-
-    def __post_init__(self) -> None:
-        names = [v.name for v in self.variants]
-        if len(set(names)) != len(names):
-            raise ValueError(f"variant names must be unique, got {names}")
 
 
 class RolloutWorker:
@@ -130,19 +97,12 @@ class RolloutWorker:
         self.env = DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
         self.policy = job.policy.build(job.control_hz)
         self.env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
-        self.safe_set: SafeSet = safe_set_for(self.env.geometry, job.half_width)
-        self.variant_safe_sets = [safe_set_for(build_geometry(v.scenario), job.half_width) for v in job.variants]
+        self.safe_set: SafeSet = safe_set_for(self.env.geometry, job.vehicle.width, job.vehicle.length, job.half_width)
 
     def run(self, index: int) -> RolloutResult:
         job = self.job
         seed = job.base_seed + index
-        if not job.variants:
-            return run_rollout(self.env, self.policy, seed, job.scenario, job.weather, job.noise,
-                               safe_set=self.safe_set)
-        k = variant_index(seed, len(job.variants))
-        v = job.variants[k]
-        return run_rollout(self.env, self.policy, seed, v.scenario, v.weather, v.noise,
-                           safe_set=self.variant_safe_sets[k], variant=v.name)
+        return run_rollout(self.env, self.policy, seed, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
 
     def close(self) -> None:
         self.env.close()

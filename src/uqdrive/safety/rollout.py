@@ -8,16 +8,14 @@ to the operator (``Command.handover``) brakes to a stop; the rollout then ends w
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
 from uqdrive.safety.controller import Policy
-from uqdrive.safety.safe_sets import SafeSet, safe_set_for
+from uqdrive.safety.safe_sets import HANDOVER, SafeSet, safe_set_for
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 
-
-HANDOVER = "handover"
 STOPPED_SPEED = 1e-6  # m/s: the car tracks a speed command of 0 exactly, so this means stopped
 
 
@@ -29,8 +27,7 @@ def _empty() -> np.ndarray:
 class RolloutResult:
     """Outcome of one episode; ``x``, ``y`` are the body-centre positions at every control step
     (and the last pose). Per-decision traces (one value per step): ``eta2``, ``mutual_information``,
-    ``warning`` (level, -1 for none) and ``command_speed``. ``variant``: the condition drawn
-    for this rollout ("" when the cell has a single condition)."""
+    ``warning`` (level, -1 for none) and ``command_speed``."""
 
     seed: int
     safe: bool
@@ -38,14 +35,14 @@ class RolloutResult:
     collision: bool
     off_road: bool
     left_corridor: bool
-    reached_exit: bool
+    reached_goal: bool
+    corridor_use: float
     mean_abs_lateral_deviation: float
     mean_eta2: float
     mean_mutual_information: float
     steps: int
     x: np.ndarray
     y: np.ndarray
-    variant: str = ""
     eta2: np.ndarray = field(default_factory=_empty)
     mutual_information: np.ndarray = field(default_factory=_empty)
     warning: np.ndarray = field(default_factory=_empty)
@@ -56,9 +53,33 @@ class RolloutResult:
         return {k: v for k, v in self.__dict__.items() if not isinstance(v, np.ndarray)}
 
 
+TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed")
+
+
+def results_to_arrays(results: list[RolloutResult]) -> dict[str, np.ndarray]:
+    """Rollouts as flat arrays (scalars per rollout, traces concatenated with their lengths), for an npz
+    a later run reloads exactly with ``results_from_arrays``."""
+    scalars = [f.name for f in fields(RolloutResult) if f.name not in TRACES]
+    out = {name: np.array([getattr(r, name) for r in results]) for name in scalars}
+    for name in TRACES:
+        parts = [getattr(r, name) for r in results]
+        out[name] = np.concatenate(parts) if parts else np.zeros(0)
+        out[f"{name}_length"] = np.array([len(p) for p in parts], dtype=np.int64)
+    return out
+
+
+def results_from_arrays(data: dict[str, np.ndarray]) -> list[RolloutResult]:
+    scalars = [f.name for f in fields(RolloutResult) if f.name not in TRACES]
+    count = len(data["seed"])
+    traces = {name: np.split(data[name], np.cumsum(data[f"{name}_length"])[:-1]) if count else []
+              for name in TRACES}
+    return [RolloutResult(**{name: data[name][i].item() for name in scalars}, **{name: traces[name][i]
+                                                                                 for name in TRACES})
+            for i in range(count)]
+
+
 def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioConfig, weather: WeatherConfig,
-                noise: float, half_width: float | None = None, safe_set: SafeSet | None = None,
-                variant: str = "") -> RolloutResult:
+                noise: float, half_width: float | None = None, safe_set: SafeSet | None = None) -> RolloutResult:
     """Drive one episode until the env ends it (collision, off road, route complete or horizon T)
     or the policy has handed over and the car has stopped.
 
@@ -67,7 +88,7 @@ def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioCo
     """
     obs = env.reset(seed, scenario, weather, noise, render=policy.needs_camera)
     policy.reset(env, seed)
-    safe_set = safe_set or safe_set_for(env.geometry, half_width)
+    safe_set = safe_set or safe_set_for(env.geometry, env.vehicle_config.width, env.vehicle_config.length, half_width)
     info = env.last_info
     termination = info["termination"]
     commands = []
@@ -86,11 +107,11 @@ def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioCo
     lateral = env.geometry.lateral_deviation(np.stack([log["x"], log["y"]], axis=1))
     return RolloutResult(seed=seed, safe=verdict.safe, termination=termination, collision=verdict.collision,
                          off_road=verdict.off_road, left_corridor=verdict.left_corridor,
-                         reached_exit=verdict.reached_exit,
+                         reached_goal=verdict.reached_goal, corridor_use=verdict.corridor_use,
                          mean_abs_lateral_deviation=float(np.mean(np.abs(lateral))),
                          mean_eta2=float(np.mean(eta2)) if eta2 else float("nan"),
                          mean_mutual_information=float(np.mean(mi)) if mi else float("nan"),
-                         steps=len(commands), x=log["x"], y=log["y"], variant=variant,
+                         steps=len(commands), x=log["x"], y=log["y"],
                          eta2=np.array(eta2, dtype=float), mutual_information=np.array(mi, dtype=float),
                          warning=np.array([c.warning for c in commands], dtype=np.int8),
                          command_speed=np.array([c.speed for c in commands], dtype=float))

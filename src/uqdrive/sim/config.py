@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 SCENARIO_KINDS = ("straight", "obstacle", "roundabout")
@@ -46,9 +47,9 @@ class _Config:
 
     @classmethod
     def from_yaml(cls: type[T], path) -> T:
-        from omegaconf import OmegaConf
-
-        return cls.from_config(OmegaConf.load(path))
+        """From a config-group file, honouring its Hydra ``defaults`` list of sibling files (a location
+        that inherits the roundabout and changes a few fields) as ``hydra.compose`` would."""
+        return cls.from_config(_load_group_file(Path(path)))
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)  # type: ignore[call-overload]
@@ -319,3 +320,17 @@ def check_noise(noise: float) -> float:
     if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not noise >= 0:
         raise ValueError(f"noise={noise!r} must be >= 0")
     return float(noise)
+
+
+def _load_group_file(path: Path) -> Any:
+    from omegaconf import OmegaConf
+
+    config = OmegaConf.load(path)
+    defaults = config.pop("defaults", None)
+    if defaults is None:
+        return config
+    parts = [config if entry == "_self_" else _load_group_file(path.with_name(f"{entry}.yaml"))
+             for entry in defaults]
+    if "_self_" not in defaults:
+        parts.append(config)
+    return OmegaConf.merge(*parts)
