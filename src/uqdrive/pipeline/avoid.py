@@ -30,10 +30,12 @@ from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.checkpoint import check_method
 from uqdrive.plots import (avoid_signals_figure, avoid_trajectories, avoid_trajectories_figure, avoid_tradeoff_figure,
                            save_figure)
-from uqdrive.safety.cells import EstimatorSettings, cell_posterior, estimate_safety
+from uqdrive.pipeline.safety import code_digest
+from uqdrive.safety.cells import EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest
 from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessPool, RolloutJob, Variant, executor_options,
                                       make_executor)
 from uqdrive.safety.rollout import HANDOVER, RolloutResult
+from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.warnings import LEVELS, Calibration, Traces, WarningConfig, calibrate, classify, replay
 from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
                          check_noise)
@@ -148,7 +150,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     checks.integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
     estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
-                                  base_seed=cfg.avoid.base_seed, section="avoid")
+                                  base_seed=cfg.avoid.base_seed, look_size=cfg.avoid.look_size, section="avoid")
     validation_seed = checks.integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)
@@ -217,11 +219,14 @@ def run_cell(cfg: DictConfig, settings: AvoidSettings, condition: str, mode: str
     executor: Executor = make_executor(cfg.executor.name, job, cfg.executor.workers, pool, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
     if off is not None:
         executor = ReusingExecutor(executor, unchanged_by(warning, off))
+    key = cell_hash({"model_sha256": file_digest(settings.spec.model_path), "code": code_digest(),
+                     "job": job.__dict__, "estimator": estimator.__dict__})
+    log = RolloutLog(Path(cfg.avoid.rollout_log) / f"{name}.jsonl", key, base_seed)
     start = time.perf_counter()
     try:
         estimate, results = estimate_safety(executor, estimator, lambda it: tqdm(
             it, total=estimator.planned_rollouts(), desc=f"avoid {name}", unit="rollout", disable=not cfg.progress,
-            leave=False))
+            leave=False), log)
     finally:
         executor.close()
     return Cell(name, condition, mode, warning, estimate, results, time.perf_counter() - start)
