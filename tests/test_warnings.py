@@ -22,7 +22,8 @@ FAST = WarningConfig(theta=0.3)  # 21 draws per frame; the paper's thresholds an
 
 
 class FixedPosterior:
-    """Hand-made posterior samples: the same [n, C] class probabilities for every frame."""
+    """Hand-made posterior samples: the same [n, C] class probabilities for every frame (repeated
+    when more draws are asked for: the controller draws π(o) and η2 separately)."""
 
     def __init__(self, probs: np.ndarray):
         self.probs = torch.as_tensor(probs, dtype=torch.float32)
@@ -31,8 +32,8 @@ class FixedPosterior:
         return self
 
     def sample_probs(self, x: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        assert n == len(self.probs)
-        return self.probs[:, None, :].expand(n, x.shape[0], -1)
+        assert n % len(self.probs) == 0
+        return self.probs.repeat(n // len(self.probs), 1)[:, None, :].expand(n, x.shape[0], -1)
 
 
 def samples(classes: list[int]) -> np.ndarray:
