@@ -157,6 +157,7 @@ def test_sequential_has_exact_error_at_most_gamma(theta: float, gamma: float, lo
     assert error.max() <= gamma
     if look_size == 1 and theta <= 0.1:  # fine looks: calibration spends almost all of the budget
         assert error.max() >= 0.9 * gamma
+    assert scheme.worst_error() >= error.max() * (1 - 1e-9)  # the scheme's own search finds the worst case
     worst = etas[np.argsort(error)[-10:]]  # the worst cases again, by the forward DP
     np.testing.assert_allclose(sequential_error(tables, theta, worst)[0], np.sort(error)[-10:], rtol=1e-8)
     mid = np.array([0.3, 0.5, 0.99])
