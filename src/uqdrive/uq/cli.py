@@ -20,7 +20,8 @@ def table(theta: float, gamma: float, rate_bounds: list[float], delta: float, lo
         ("clopper_pearson (exact, fixed n)", clopper_pearson_n(theta, gamma), "planned", "yes"),
     ]
     rows += [
-        (f"massart, a priori min(eta,1-eta) <= {b:g}", massart_n(theta, gamma, b), "planned", "yes, if the bound holds")
+        (f"massart, a priori min(eta,1-eta) <= {b:g}", massart_n(theta, gamma, b), "planned",
+         "yes" if b >= 0.5 else "yes, if the bound holds")
         for b in rate_bounds
     ]
     rows.append((f"sequential (calibrated Clopper-Pearson), a look every {scheme.look_size}", scheme.max_n,
