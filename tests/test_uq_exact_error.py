@@ -130,7 +130,10 @@ def _tables_of(scheme) -> dict[int, np.ndarray]:
 def test_fixed_n_schemes_have_exact_error_at_most_gamma(theta: float, gamma: float) -> None:
     for n, est in ((chernoff_n(theta, gamma), chernoff), (clopper_pearson_n(theta, gamma), clopper_pearson)):
         assert est(n // 2, n, theta, gamma).guaranteed
-        assert fixed_n_error(n, theta, fixed_n_etas(n, theta)).max() <= gamma
+        etas = fixed_n_etas(n, theta)
+        error = fixed_n_error(n, theta, etas)
+        near = (etas[np.argsort(error)[-20:], None] + np.linspace(-5e-4, 5e-4, 101)[None, :]).ravel()
+        assert max(error.max(), fixed_n_error(n, theta, np.clip(near, 0, 1)).max()) <= gamma
     for bound in (0.5, 0.1, 0.01):
         n = massart_n(theta, gamma, bound)
         etas = fixed_n_etas(n, theta)
@@ -155,6 +158,9 @@ def test_sequential_has_exact_error_at_most_gamma(theta: float, gamma: float, lo
     etas = jump_etas(tables, theta, points=2001)
     error = sequential_error_by_paths(tables, theta, etas)
     assert error.max() <= gamma
+    # between jumps the error is smooth: look densely around the 20 largest values as well
+    near = (etas[np.argsort(error)[-20:], None] + np.linspace(-5e-4, 5e-4, 101)[None, :]).ravel()
+    assert sequential_error_by_paths(tables, theta, np.clip(near, 0, 1)).max() <= gamma
     if look_size == 1 and theta <= 0.1:  # fine looks: calibration spends almost all of the budget
         assert error.max() >= 0.9 * gamma
     assert scheme.worst_error() >= error.max() * (1 - 1e-9)  # the scheme's own search finds the worst case
