@@ -39,7 +39,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
             assert cell["autonomy"] == 1 - cell["handover_rate"] and 0 <= cell["full_speed_fraction"] <= 1
             assert sum(cell["terminations"].values()) == 4
             assert 0 <= cell["timeout_before_obstacle_rate"] <= 1 - cell["eta1"] + 1e-12  # a timeout is never safe
-            assert (tmp_path / f"data/avoid/mcd/cells/mcd-{condition}-{mode}.npz").exists()
+            assert (tmp_path / f"cache/rollouts/avoid/mcd/mcd-{condition}-{mode}.jsonl").exists()
             assert (tmp_path / f"data/avoid/mcd/traces/mcd-{condition}-{mode}.npz").exists()
             assert (tmp_path / f"plots/avoid/mcd/cells/mcd-{condition}-{mode}.png").stat().st_size > 5000
         assert saved["cells"][condition]["off"]["handover_rate"] == 0  # off: warnings are only counted

@@ -9,7 +9,7 @@ from uqdrive.data.frames import preprocess_frame
 from uqdrive.models import load_posterior
 from uqdrive.safety import Controller
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
-from uqdrive.uq import frame_measures
+from uqdrive.uq import decision_confidence, frame_measures
 
 from conftest import CONF
 
@@ -30,12 +30,14 @@ def test_command_is_the_predictive_mode_with_its_uncertainty(random_models, fram
     assert command.speed == 5.5
     assert np.isclose(bins.centres, command.steer).any()
     assert 0 < command.eta2 <= 1 and command.mutual_information >= 0 and command.entropy > 0
-    # the same seed gives the same draws; the result is what uq computes from them
+    # the same seed gives the same draws; the result is what uq computes from them: π(o) and MI
+    # from the first 50 draws, η2 around that π(o) from 50 separate ones
     x = torch.from_numpy(preprocess_frame(frame)).float().div(255)[None, None]
-    probs = posterior.sample_probs(x, 50, torch.Generator().manual_seed(7))
-    expected = frame_measures(probs, bins.centres, 0.1)
+    probs = posterior.sample_probs(x, 100, torch.Generator().manual_seed(7))
+    expected = frame_measures(probs[:50], bins.centres, 0.1)
     assert command.steer == pytest.approx(float(expected.decision[0]))
-    assert command.eta2 == pytest.approx(float(expected.eta2[0]))
+    eta2 = decision_confidence(probs[50:], bins.centres, 0.1, expected.decision)
+    assert command.eta2 == pytest.approx(float(eta2[0]))
     assert command.mutual_information == pytest.approx(float(expected.mutual_information[0]), abs=1e-6)
     controller.reset(None, 7)
     assert controller.act(frame, {}) == command

@@ -67,11 +67,11 @@ def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path,
     configs = [safety_config(f"model={m}", f"weather={w}") for m, w in cells]
     real = safety_stage.estimate_safety
 
-    def interrupted(executor, settings, progress=iter):
+    def interrupted(executor, settings, progress=iter, log=None):
         if interrupted.calls == 1:
             raise KeyboardInterrupt  # Ctrl-C during the second cell's rollouts
         interrupted.calls += 1
-        return real(executor, settings, progress)
+        return real(executor, settings, progress, log)
 
     interrupted.calls = 0
     monkeypatch.setattr(safety_stage, "estimate_safety", interrupted)
@@ -82,6 +82,35 @@ def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path,
     assert not (tmp_path / "metrics/safety/vi-roundabout-clear_noon-noise0.0.json").exists()
     assert [run_safety(cfg)["reused"] for cfg in configs] == [True, False, False]
     assert len(runs(tmp_path)[1]) == 3
+
+
+def test_a_cell_interrupted_mid_way_keeps_its_finished_rollouts(safety_config, tmp_path, monkeypatch):
+    cfg = safety_config("model=vi")  # chernoff_n(0.7, 0.05) = 4 rollouts
+    real = safety_stage.make_executor
+    ran: list[int] = []
+
+    class Interrupting:
+        def __init__(self, inner, stop_after):
+            self.inner, self.stop_after = inner, stop_after
+
+        def run(self, indices):
+            for result in self.inner.run(indices):
+                if len(ran) == self.stop_after:
+                    raise KeyboardInterrupt
+                ran.append(result.seed)
+                yield result
+
+        def close(self):
+            self.inner.close()
+
+    monkeypatch.setattr(safety_stage, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), 2))
+    with pytest.raises(KeyboardInterrupt):
+        run_safety(cfg)
+    monkeypatch.setattr(safety_stage, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), None))
+    result = run_safety(cfg)
+    assert ran == [100000, 100001, 100002, 100003] and result["n"] == 4  # the first two were not rerun
+    rows = (tmp_path / "plots/safety/cells/vi-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
+    assert [int(r.split(",")[0]) for r in rows[1:]] == [100000, 100001, 100002, 100003]
 
 
 def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):

@@ -1,4 +1,7 @@
-"""Sample sizes, exact intervals and empirical coverage of the Bernoulli-rate estimators."""
+"""Sample sizes, exact intervals, labels and bad input of the Bernoulli-rate estimators.
+
+The exact error of every guaranteed scheme is checked in test_uq_exact_error.py.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +12,6 @@ import pytest
 from scipy import stats
 
 from uqdrive.uq import (
-    SequentialPlan,
     chernoff,
     chernoff_n,
     clopper_pearson,
@@ -18,9 +20,7 @@ from uqdrive.uq import (
     massart,
     massart_n,
     sequential,
-    sequential_operating_characteristics,
-    sequential_plan,
-    simulate_sequential,
+    sequential_scheme,
     simulate_sprt,
     sprt,
     wilson,
@@ -28,9 +28,8 @@ from uqdrive.uq import (
 from uqdrive.uq.bounds import massart_h
 
 THETA = GAMMA = 0.05
-RATES = (0.0, 0.01, 0.1, 0.5, 0.9, 0.99, 1.0)
 REPS = 2000
-# Monte-Carlo slack on a coverage estimate from REPS runs: 3 binomial standard errors at 1 - gamma.
+# Monte-Carlo slack of the (approximate, decision-only) SPRT check: 3 binomial standard errors.
 SLACK = 3 * math.sqrt(GAMMA * (1 - GAMMA) / REPS)
 
 
@@ -79,76 +78,42 @@ def test_massart_n_holds_exactly_under_its_assumption(rate_bound: float, n: int)
         assert stats.binom.pmf(k[far], n, eta).sum() <= GAMMA
 
 
-def test_default_sequential_plan() -> None:
-    plan = sequential_plan(THETA, GAMMA)
-    assert plan.looks == (119, 206, 561)
-    assert plan.gammas == pytest.approx((0.025, 0.005, 0.02))
-    assert sum(plan.gammas) <= GAMMA + 1e-15
-    assert plan.looks[-1] <= 1.05 * chernoff_n(THETA, GAMMA)
-
-
-def test_sequential_error_is_below_gamma_exactly() -> None:
-    """Exact DP over counts (no Monte-Carlo slack) on a fine grid of rates plus the jump points."""
-    plan = sequential_plan(THETA, GAMMA)
-    jumps = np.array([k / n + s * THETA for n in plan.looks for k in range(n + 1) for s in (-1, 1)])
-    grid = np.concatenate([np.linspace(0, 1, 101), jumps - 1e-9, jumps + 1e-9])
-    grid = np.unique(grid[(grid >= 0) & (grid <= 1)])
-    worst = max(sequential_operating_characteristics(plan, eta)[1] for eta in grid)
-    assert worst <= GAMMA
-
-
-def _fixed_n_values(rng: np.random.Generator, rate: float, n: int, estimator, **kw) -> tuple[np.ndarray, bool]:
-    ests = [estimator(int(k), n, THETA, GAMMA, **kw) for k in rng.binomial(n, rate, size=REPS)]
-    return np.array([e.value for e in ests]), all(e.guaranteed for e in ests)
-
-
-@pytest.mark.parametrize("rate", RATES)
-def test_coverage_of_every_guaranteed_scheme(rate: float) -> None:
-    rng = np.random.default_rng(12345 + int(rate * 1000))
-    plan = sequential_plan(THETA, GAMMA)
-    runs = {
-        "chernoff": _fixed_n_values(rng, rate, chernoff_n(THETA, GAMMA), chernoff),
-        "clopper_pearson": _fixed_n_values(rng, rate, clopper_pearson_n(THETA, GAMMA), clopper_pearson),
-        "massart": _fixed_n_values(
-            rng, rate, massart_n(THETA, GAMMA, min(rate, 1 - rate)), massart, rate_bound=min(rate, 1 - rate)
-        ),
-        "sequential": (simulate_sequential(rate, REPS, rng, plan)[0], True),
-    }
-    for name, (values, guaranteed) in runs.items():
-        assert guaranteed, name
-        coverage = np.mean(np.abs(values - rate) <= THETA)
-        assert coverage >= 1 - GAMMA - SLACK, (name, rate, coverage)
-
-
-def test_sequential_draws_in_look_sized_batches_and_stops_early() -> None:
-    plan = sequential_plan(THETA, GAMMA)
-    sizes: list[int] = []
-
-    def all_ones(k: int) -> np.ndarray:
+def _sequence(rng: np.random.Generator, rate: float, sizes: list[int]):
+    def draw(k: int) -> np.ndarray:
         sizes.append(k)
-        return np.ones(k, dtype=np.int8)
-
-    est = sequential(all_ones, THETA, GAMMA)
-    assert sizes == [119] and est.n == 119 and est.value == 1.0 and est.guaranteed
-    assert est.value - THETA <= est.low <= est.high <= 1.0
-
-    rng = np.random.default_rng(7)
-    sizes.clear()
-
-    def coin(k: int) -> np.ndarray:
-        sizes.append(k)
-        return (rng.random(k) < 0.5).astype(int)
-
-    est = sequential(coin, THETA, GAMMA, plan)
-    assert sizes == [119, 206 - 119, 561 - 206] and est.n == 561
-    assert est.value - THETA <= est.low <= est.high <= est.value + THETA
+        return (rng.random(k) < rate).astype(int)
+    return draw
 
 
-def test_sequential_saves_samples_near_one() -> None:
-    plan = sequential_plan(THETA, GAMMA)
-    n = chernoff_n(THETA, GAMMA)
-    assert sequential_operating_characteristics(plan, 0.99)[0] <= n / 5
-    assert max(sequential_operating_characteristics(plan, r)[0] for r in RATES) <= 1.05 * n
+@pytest.mark.parametrize("look_size", [1, 4, 10])
+def test_sequential_follows_its_stopping_rule(look_size: int) -> None:
+    """It draws look-sized batches and stops at the first look the rule (the one whose error is
+    computed exactly) allows: checked against the running count of the very same outcomes."""
+    scheme = sequential_scheme(THETA, GAMMA, look_size)
+    rng = np.random.default_rng(look_size)
+    for rate in (0.0, 0.02, 0.3, 0.5, 0.97, 1.0):
+        sizes: list[int] = []
+        outcomes: list[np.ndarray] = []
+        draw = _sequence(rng, rate, sizes)
+        est = sequential(lambda k: outcomes.append(draw(k)) or outcomes[-1], THETA, GAMMA, look_size)
+        x = np.concatenate(outcomes)
+        assert set(sizes) == {look_size} and est.n == x.size <= scheme.max_n
+        counts = np.cumsum(x)
+        looks = np.arange(look_size, x.size + 1, look_size)
+        stops = [bool(scheme.stop_tables[n // look_size - 1][counts[n - 1]]) or n == scheme.max_n for n in looks]
+        assert stops[-1] and not any(stops[:-1])
+        assert est.value == counts[-1] / x.size and est.guaranteed and est.method == "sequential"
+        assert (est.low, est.high) == (max(0.0, est.value - THETA), min(1.0, est.value + THETA))
+
+
+def test_sequential_at_the_extremes_and_its_savings() -> None:
+    est = sequential(lambda k: np.ones(k, dtype=np.int8), THETA, GAMMA, 1)
+    assert est.n == 72 and est.value == 1.0  # (γ'/2)^(1/n) >= 1 − θ first holds at n = 72
+    scheme = sequential_scheme(THETA, GAMMA, 1)
+    mean_n, _ = scheme.operating_characteristics(np.linspace(0, 1, 201))
+    at_099 = scheme.operating_characteristics(0.99)[0][0]
+    assert at_099 <= 95 and scheme.operating_characteristics(0.9)[0][0] <= 240
+    assert mean_n.max() <= 1.12 * clopper_pearson_n(THETA, GAMMA)
 
 
 def test_schemes_without_the_guarantee_say_so() -> None:
@@ -156,8 +121,23 @@ def test_schemes_without_the_guarantee_say_so() -> None:
     assert not chernoff(90, 100, THETA, GAMMA).guaranteed
     assert not massart(90, 100, THETA, GAMMA, rate_bound=0.5).guaranteed
     assert massart(90, 100, THETA, GAMMA, rate_bound=0.01).method == "massart(rate_bound=0.01)"
+    assert massart(0, 738, THETA, GAMMA).guaranteed and massart(0, 738, THETA, GAMMA).condition == ""
     res = sprt(lambda k: np.ones(k, dtype=int), delta=0.7, half_width=THETA)
     assert res.accept and not res.truncated and not res.estimate.guaranteed and res.estimate.method == "sprt"
+
+
+def test_massart_states_its_condition_and_checks_it_against_the_data() -> None:
+    agrees = massart(1, 77, THETA, GAMMA, rate_bound=0.01)
+    assert agrees.guaranteed and agrees.condition == "min(eta, 1 - eta) <= 0.01"
+    contradicted = massart(40, 77, THETA, GAMMA, rate_bound=0.01)  # exact error 0.43 if η ≈ 0.5
+    assert not contradicted.guaranteed and "contradicted by the data" in contradicted.condition
+
+
+def test_wilson_ends_exactly_at_zero_and_one() -> None:
+    assert wilson(404, 404, THETA, GAMMA).high == 1.0 and wilson(0, 404, THETA, GAMMA).low == 0.0
+    for k in (0, 1, 200, 403, 404):
+        est = wilson(k, 404, THETA, GAMMA)
+        assert 0.0 <= est.low <= est.value <= est.high <= 1.0
 
 
 def test_sprt_decisions_and_cap() -> None:
@@ -175,7 +155,7 @@ def test_sprt_decisions_and_cap() -> None:
 def test_theta_gamma_outside_unit_interval_are_rejected(name: str, bad: float) -> None:
     args = {"theta": THETA, "gamma": GAMMA, name: bad}
     match = rf"{name} must be in \(0, 1\), got {bad!r}"
-    for fn in (chernoff_n, massart_n, clopper_pearson_n, sequential_plan):
+    for fn in (chernoff_n, massart_n, clopper_pearson_n, sequential_scheme):
         with pytest.raises(ValueError, match=match):
             fn(**args)
     with pytest.raises(ValueError, match=match):
@@ -187,15 +167,12 @@ def test_other_bad_arguments_are_rejected() -> None:
         clopper_pearson(11, 10, THETA, GAMMA)
     with pytest.raises(ValueError, match=r"rate_bound must be in \[0, 0.5\].*got 0.7"):
         massart_n(THETA, GAMMA, 0.7)
-    with pytest.raises(ValueError, match=r"final look n=300 .* not complete"):
-        SequentialPlan(THETA, GAMMA, (100, 300), (0.025, 0.025))
-    with pytest.raises(ValueError, match=r"gammas must .* sum to at most gamma=0.05"):
-        SequentialPlan(THETA, GAMMA, (100, 700), (0.03, 0.03))
-    with pytest.raises(ValueError, match=r"looks must be strictly increasing"):
-        SequentialPlan(THETA, GAMMA, (700, 700), (0.01, 0.01))
-    with pytest.raises(ValueError, match=r"plan is for theta=0.05"):
-        sequential(lambda k: np.ones(k), 0.1, GAMMA, sequential_plan(THETA, GAMMA))
-    with pytest.raises(ValueError, match=r"draw\(119\) must return 119 outcomes in \{0, 1\}"):
-        sequential(lambda k: np.full(k, 2), THETA, GAMMA)
+    with pytest.raises(ValueError, match=r"rate_bound must be in \[0, 0.5\].*got -0.1"):
+        massart(1, 10, THETA, GAMMA, rate_bound=-0.1)
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match=rf"look_size must be an integer >= 1 .*got {bad!r}"):
+            sequential(lambda k: np.ones(k), THETA, GAMMA, bad)
+    with pytest.raises(ValueError, match=r"draw\(1\) must return 1 outcomes in \{0, 1\}"):
+        sequential(lambda k: np.full(k, 2), THETA, GAMMA, 1)
     with pytest.raises(ValueError, match=r"half_width must be > 0 with 0 < delta ± half_width < 1, got 0.1"):
         sprt(lambda k: np.ones(k), delta=0.95, half_width=0.1)

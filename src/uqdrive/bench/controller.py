@@ -1,6 +1,7 @@
 """`uqdrive bench controller`: per-frame latency of the full warning-aware controller on one thread.
 
-One frame = preprocess (gray 64×48) + posterior with n draws (738: Chernoff's n for θ = γ = 0.05)
+One frame = preprocess (gray 64×48) + posterior with 2n draws (n = 738: Chernoff's n for
+θ = γ = 0.05; n for π(o) and mutual information, n separate ones for η2)
 + π(o), η2, mutual information + warning level and action, i.e. `WarningController.act` on a
 rendered 160×120 camera frame of the obstacle road. Each method (random weights of the real
 architecture, or --models) is timed over --frames calls with fresh draws; the parts are timed
@@ -64,9 +65,9 @@ def main(argv: list[str]) -> int:
         info = env.last_info
     centres = torch.as_tensor(bins.centres, dtype=torch.float32)
     x = to_inputs(preprocess_frame(frame)[None])
-    n = config.samples
+    n = 2 * config.samples
     source = f"trained models from {args.models}" if args.models else "random weights"
-    print(f"n={n} draws per frame (chernoff_n({args.theta:g}, {args.gamma:g})), "
+    print(f"{n} draws per frame (2 x chernoff_n({args.theta:g}, {args.gamma:g}): pi(o) and eta2 draw separately), "
           f"frame {frame.shape[1]}x{frame.shape[0]}, 1 thread, {args.frames} frames, {source}")
     print(f"{'method':>6} {'median_ms':>9} {'p95_ms':>7} {'max_ms':>7} | {'preproc':>7} {'posterior':>9} "
           f"{'measures':>8} {'warning':>7}  (medians, ms)")

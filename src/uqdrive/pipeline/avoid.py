@@ -7,7 +7,7 @@ sensor noise, another obstacle car: a fixed number of runs each, so every varian
 interval and the unknown mixture is their mean); modes `off` and `on` (the configured
 thresholds). Thresholds are then calibrated on the warnings-off rollouts (the most unknown-condition
 safety whose known-condition autonomy bound meets the target) and checked in closed loop
-(`calibrated`) on fresh seeds. A cell whose file holds its identity is reused, not rerun.
+(`calibrated`) on fresh seeds. A cell whose rollout log holds its identity is reused, not rerun.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from uqdrive.safety.calibration import calibrate, min_known_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest
 from uqdrive.safety.executors import BACKENDS, Executor, PolicySpec, ProcessPool, RolloutJob, executor_options, make_executor
 from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig, classify
 from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
@@ -167,7 +168,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     checks.integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
     estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
-                                  base_seed=cfg.avoid.base_seed, section="avoid")
+                                  base_seed=cfg.avoid.base_seed, look_size=cfg.avoid.look_size, section="avoid")
     validation_seed = checks.integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)
@@ -217,7 +218,8 @@ def unchanged_by(warning: WarningConfig, off: Cell) -> dict[int, RolloutResult]:
 
 def run_cell(cfg: DictConfig, settings: AvoidSettings, condition: Condition, mode: str, warning: WarningConfig,
              pool: ProcessPool | None, off: Cell | None = None) -> Cell:
-    """η̂1 of one cell, or the saved cell with the same identity. ``mode`` off drives without warnings (its
+    """η̂1 of one cell; the rollouts its log already holds (same identity) are reused, not rerun, so a finished
+    cell costs nothing on a rerun and an interrupted one resumes. ``mode`` off drives without warnings (its
     warnings are only counted). ``pool``: the stage's worker processes (process backend). ``off``: the
     warnings-off cell on the same seeds, whose rollouts no warning would change are reused exactly."""
     base_seed = settings.validation_seed if mode == "calibrated" else settings.estimator.base_seed
@@ -226,24 +228,25 @@ def run_cell(cfg: DictConfig, settings: AvoidSettings, condition: Condition, mod
     name = f"{settings.method}-{condition.name}-{mode}"
     identity = {"model_sha256": settings.model_sha256, "code": code_digest(), "estimator": estimator.__dict__,
                 "job": {**job.__dict__, "policy": {k: v for k, v in job.policy.__dict__.items() if k != "model_path"}}}
-    key, path = cell_hash(identity), Path(cfg.avoid.data_dir) / "cells" / f"{name}.npz"
-    saved = Cell.load(path, key, name, condition.name, mode, warning)
-    if saved is not None:
-        return saved
+    log = RolloutLog(Path(cfg.avoid.rollout_log) / f"{name}.jsonl", cell_hash(identity), base_seed)
     executor: Executor = make_executor(cfg.executor.name, job, cfg.executor.workers, pool,
                                        **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
     if off is not None:
         executor = ReusingExecutor(executor, unchanged_by(warning, off))
+    ran: list[RolloutResult] = []
+
+    def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
+        for result in tqdm(fresh, total=estimator.planned_rollouts(), desc=f"avoid {name}", unit="rollout",
+                           disable=not cfg.progress, leave=False):
+            ran.append(result)
+            yield result
+
     start = time.perf_counter()
     try:
-        estimate, results = estimate_safety(executor, estimator, lambda it: tqdm(
-            it, total=estimator.planned_rollouts(), desc=f"avoid {name}", unit="rollout", disable=not cfg.progress,
-            leave=False))
+        estimate, results = estimate_safety(executor, estimator, progress, log)
     finally:
         executor.close()
-    cell = Cell(name, condition.name, mode, warning, estimate, results, time.perf_counter() - start)
-    cell.save(path, key)
-    return cell
+    return Cell(name, condition.name, mode, warning, estimate, results, time.perf_counter() - start, reused=not ran)
 
 
 def run_avoid(cfg: DictConfig) -> dict:

@@ -14,18 +14,16 @@ import numpy as np
 
 from uqdrive.files import atomic_path, write_csv
 from uqdrive.safety.calibration import Calibration, Traces
-from uqdrive.safety.rollout import RolloutResult, results_from_arrays, results_to_arrays
+from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.warnings import LEVELS, WarningConfig, classify
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.uq import Estimate
-
-ESTIMATE_FIELDS = ("value", "low", "high", "n", "theta", "gamma", "method", "guaranteed")
 
 
 @dataclasses.dataclass
 class Cell:
     """A finished cell: its estimate, rollouts and the thresholds its warnings are counted with.
-    ``reused``: loaded from an earlier run's cell file with the same identity."""
+    ``reused``: every rollout came from an earlier run's log of the same cell."""
 
     name: str
     condition: str
@@ -35,27 +33,6 @@ class Cell:
     results: list[RolloutResult]
     seconds: float
     reused: bool = False
-
-    def save(self, path: Path, key: str) -> Path:
-        """Rollouts, estimate and identity (npz): a rerun with the same ``key`` loads the cell instead."""
-        with atomic_path(path) as tmp, tmp.open("wb") as f:
-            np.savez_compressed(f, config_hash=key, seconds=self.seconds,
-                                **{f"estimate_{k}": getattr(self.estimate, k) for k in ESTIMATE_FIELDS},
-                                **results_to_arrays(self.results))
-        return path
-
-    @classmethod
-    def load(cls, path: Path, key: str, name: str, condition: str, mode: str, warning: WarningConfig) -> Cell | None:
-        """The cell saved at ``path`` if it holds identity ``key`` (else None: it must be run)."""
-        if not path.exists():
-            return None
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
-        if str(arrays.get("config_hash")) != key:
-            return None
-        estimate = Estimate(**{k: arrays[f"estimate_{k}"].item() for k in ESTIMATE_FIELDS})
-        return cls(name, condition, mode, warning, estimate, results_from_arrays(arrays),
-                   float(arrays["seconds"]), reused=True)
 
 
 def levels(cell: Cell, result: RolloutResult) -> np.ndarray:

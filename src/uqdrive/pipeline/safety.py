@@ -31,6 +31,7 @@ from uqdrive.safety.cells import (EstimatorSettings, cell_hash, cell_posterior, 
 from uqdrive.safety.controller import Controller
 from uqdrive.safety.executors import PolicySpec, RolloutJob, executor_options, make_executor
 from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.safe_sets import SafeSet, check_half_width, safe_set_for
 from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
                          check_noise)
@@ -60,7 +61,7 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     """
     method = check_method(cfg.model.name)
     settings = EstimatorSettings(scheme=cfg.safety.scheme, theta=cfg.safety.theta, gamma=cfg.safety.gamma,
-                                 base_seed=cfg.safety.base_seed)
+                                 base_seed=cfg.safety.base_seed, look_size=cfg.safety.look_size)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     bins = SteeringBins(**cfg.experiment.bins)
     model_path = Path(cfg.safety.model_path)
@@ -136,7 +137,7 @@ def run_safety(cfg: DictConfig) -> dict:
     try:
         estimate, results = estimate_safety(executor, settings, lambda it: tqdm(
             it, total=settings.planned_rollouts(), desc=f"safety {cfg.safety.cell}", unit="rollout",
-            disable=not cfg.progress, leave=False))
+            disable=not cfg.progress, leave=False), RolloutLog(cfg.safety.rollout_log, key, settings.base_seed))
     finally:
         executor.close()
     seconds = time.perf_counter() - start

@@ -8,7 +8,7 @@ from uqdrive.safety.cells import SCHEMES, EstimatorSettings, cell_hash, estimate
 from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
 from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessPool, RayExecutor, RolloutJob,
                                       RolloutWorker, executor_options, make_executor)
-from uqdrive.safety.rollout import RolloutResult, results_from_arrays, results_to_arrays, run_rollout
+from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, Verdict, safe_set_for
 from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
 
@@ -41,8 +41,6 @@ __all__ = [
     "estimate_safety",
     "executor_options",
     "make_executor",
-    "results_from_arrays",
-    "results_to_arrays",
     "reusable_result",
     "run_rollout",
     "safe_set_for",

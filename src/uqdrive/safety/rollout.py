@@ -8,7 +8,7 @@ to the operator (``Command.handover``) brakes to a stop; the rollout then ends w
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -51,31 +51,6 @@ class RolloutResult:
     def summary(self) -> dict:
         """The scalar fields (one row of the per-rollout table)."""
         return {k: v for k, v in self.__dict__.items() if not isinstance(v, np.ndarray)}
-
-
-TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed")
-
-
-def results_to_arrays(results: list[RolloutResult]) -> dict[str, np.ndarray]:
-    """Rollouts as flat arrays (scalars per rollout, traces concatenated with their lengths), for an npz
-    a later run reloads exactly with ``results_from_arrays``."""
-    scalars = [f.name for f in fields(RolloutResult) if f.name not in TRACES]
-    out = {name: np.array([getattr(r, name) for r in results]) for name in scalars}
-    for name in TRACES:
-        parts = [getattr(r, name) for r in results]
-        out[name] = np.concatenate(parts) if parts else np.zeros(0)
-        out[f"{name}_length"] = np.array([len(p) for p in parts], dtype=np.int64)
-    return out
-
-
-def results_from_arrays(data: dict[str, np.ndarray]) -> list[RolloutResult]:
-    scalars = [f.name for f in fields(RolloutResult) if f.name not in TRACES]
-    count = len(data["seed"])
-    traces = {name: np.split(data[name], np.cumsum(data[f"{name}_length"])[:-1]) if count else []
-              for name in TRACES}
-    return [RolloutResult(**{name: data[name][i].item() for name in scalars}, **{name: traces[name][i]
-                                                                                 for name in TRACES})
-            for i in range(count)]
 
 
 def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioConfig, weather: WeatherConfig,

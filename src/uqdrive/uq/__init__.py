@@ -12,15 +12,11 @@ from uqdrive.uq.bounds import (
 )
 from uqdrive.uq.estimators import (
     Estimate,
-    SequentialPlan,
     SPRTResult,
     chernoff,
     clopper_pearson,
     massart,
     sequential,
-    sequential_operating_characteristics,
-    sequential_plan,
-    simulate_sequential,
     simulate_sprt,
     sprt,
     sprt_cap,
@@ -39,12 +35,13 @@ from uqdrive.uq.measures import (
     sample_decisions,
     steering_moments,
 )
+from uqdrive.uq.sequential import SequentialScheme, sequential_scheme
 
 __all__ = [
     "Estimate",
     "FrameMeasures",
     "SPRTResult",
-    "SequentialPlan",
+    "SequentialScheme",
     "check_samples",
     "chernoff",
     "chernoff_n",
@@ -62,9 +59,7 @@ __all__ = [
     "predictive_probs",
     "sample_decisions",
     "sequential",
-    "sequential_operating_characteristics",
-    "sequential_plan",
-    "simulate_sequential",
+    "sequential_scheme",
     "simulate_sprt",
     "sprt",
     "sprt_cap",

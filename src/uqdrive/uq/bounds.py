@@ -24,6 +24,13 @@ def check_unit(name: str, value: float) -> float:
     return v
 
 
+def check_look_size(look_size: int) -> int:
+    """Validate the samples drawn between two looks of a sequential scheme (an integer ≥ 1)."""
+    if isinstance(look_size, bool) or not isinstance(look_size, (int, np.integer)) or look_size < 1:
+        raise ValueError(f"look_size must be an integer >= 1 (samples between looks), got {look_size!r}")
+    return int(look_size)
+
+
 def check_counts(k: int, n: int) -> tuple[int, int]:
     """Validate a success count ``k`` out of ``n`` draws (integers, 0 ≤ k ≤ n, n ≥ 1)."""
     if int(n) != n or n < 1:
@@ -87,15 +94,30 @@ def clopper_pearson_interval(k: np.ndarray | int, n: int, gamma: float) -> tuple
     return low, high
 
 
+@lru_cache(maxsize=2048)
+def fit_levels(n: int, theta: float) -> np.ndarray:
+    """For each count k = 0..n: the smallest γ at which the exact interval lies inside [k/n ± θ].
+
+    The interval at level 1 − γ has low ≥ k/n − θ iff P(Bin(n, k/n − θ) ≥ k) ≤ γ/2, and
+    high ≤ k/n + θ iff P(Bin(n, k/n + θ) ≤ k) ≤ γ/2 (each tail is monotone in the rate), so
+    the count fits at every γ ≥ twice the larger tail. One table serves every γ, which is what
+    lets a sequential scheme's level be calibrated quickly. Read-only (cached).
+    """
+    k = np.arange(n + 1)
+    p = k / n
+    upper = np.where((k > 0) & (p - theta > 0), special.betainc(np.maximum(k, 1), n - k + 1, np.clip(p - theta, 0, 1)), 0.0)
+    lower = np.where((k < n) & (p + theta < 1), special.betainc(np.maximum(n - k, 1), k + 1, np.clip(1 - p - theta, 0, 1)), 0.0)
+    levels = 2 * np.maximum(upper, lower)
+    levels.setflags(write=False)
+    return levels
+
+
 def clopper_pearson_fits(n: int, gamma: float, theta: float) -> np.ndarray:
     """For each count k = 0..n: does the exact interval at level 1 − γ lie inside [k/n − θ, k/n + θ]?
 
     Where it does, |k/n − η| > θ implies η outside the interval, an event of probability ≤ γ.
     """
-    k = np.arange(n + 1)
-    low, high = clopper_pearson_interval(k, n, gamma)
-    p = k / n
-    return (low >= p - theta) & (high <= p + theta)
+    return fit_levels(int(n), float(theta)) <= gamma
 
 
 def _middle_fits(n: np.ndarray, gamma: float, theta: float) -> np.ndarray:
@@ -125,17 +147,3 @@ def clopper_pearson_n(theta: float, gamma: float) -> int:
             if clopper_pearson_fits(int(cand), gamma, theta).all():
                 return int(cand)
         n += 512
-
-
-def first_fit_n(minority: int, gamma: float, theta: float) -> int:
-    """Smallest n at which a count with at most ``minority`` failures (or successes) fits in ±θ.
-
-    Used to place the early looks of the sequential scheme where stopping first becomes possible.
-    """
-    n = max(minority + 1, math.ceil(math.log(2 / gamma) / -math.log1p(-theta)))
-    while True:
-        low, high = clopper_pearson_interval(n - minority, n, gamma)
-        p = (n - minority) / n
-        if low >= p - theta and high <= p + theta:
-            return n
-        n += 1

@@ -6,22 +6,26 @@ import argparse
 import sys
 
 from uqdrive.uq.bounds import chernoff_n, clopper_pearson_n, massart_n
-from uqdrive.uq.estimators import sequential_plan, sprt_cap
+from uqdrive.uq.estimators import sprt_cap
+from uqdrive.uq.sequential import sequential_scheme
+
+RATES = (0.5, 0.9, 0.99, 1.0)
 
 
-def table(theta: float, gamma: float, rate_bounds: list[float], delta: float) -> list[str]:
+def table(theta: float, gamma: float, rate_bounds: list[float], delta: float, look_size: int = 1) -> list[str]:
     """Rows of the sample-count table; raises ``ValueError`` on bad arguments."""
-    plan = sequential_plan(theta, gamma)
-    looks = "/".join(map(str, plan.looks))
+    scheme = sequential_scheme(theta, gamma, look_size)
     rows = [
         ("chernoff (paper, n > ln(2/g)/(2 t^2))", chernoff_n(theta, gamma), "planned", "yes"),
         ("clopper_pearson (exact, fixed n)", clopper_pearson_n(theta, gamma), "planned", "yes"),
     ]
     rows += [
-        (f"massart, a priori min(eta,1-eta) <= {b:g}", massart_n(theta, gamma, b), "planned", "yes, if the bound holds")
+        (f"massart, a priori min(eta,1-eta) <= {b:g}", massart_n(theta, gamma, b), "planned",
+         "yes" if b >= 0.5 else "yes, if the bound holds")
         for b in rate_bounds
     ]
-    rows.append((f"sequential, looks {looks}", plan.looks[-1], "worst case", "yes"))
+    rows.append((f"sequential (calibrated Clopper-Pearson), a look every {scheme.look_size}", scheme.max_n,
+                 "worst case", "yes (exact error computed)"))
     sprt_name = f"sprt eta >= {delta:g} +- {theta:g} (cap)"
     if 0 < delta - theta and delta + theta < 1:
         rows.append((sprt_name, sprt_cap(delta, theta, gamma, gamma), "worst case", "no (decision only)"))
@@ -33,8 +37,10 @@ def table(theta: float, gamma: float, rate_bounds: list[float], delta: float) ->
         f"{'scheme':<{width}}  {'samples':>7}  {'kind':<10}  guaranteed",
     ]
     out += [f"{name:<{width}}  {n:>7}  {kind:<10}  {g}" for name, n, kind, g in rows]
-    gs = ", ".join(f"{g:g}" for g in plan.gammas)
-    out.append(f"sequential gamma split over looks: {gs} (union bound; stops when the exact interval fits in +-theta)")
+    mean_n, _ = scheme.operating_characteristics(RATES)
+    expected = ", ".join(f"{m:.0f} at eta={r:g}" for r, m in zip(RATES, mean_n))
+    out.append(f"sequential: stops when the exact interval at level {1 - scheme.level:.5f} fits in +-theta; "
+               f"expected samples {expected}")
     return out
 
 
@@ -47,9 +53,10 @@ def main(argv: list[str]) -> int:
         help="a-priori bounds on min(eta, 1 - eta) for the Massart rows, in [0, 0.5]",
     )
     ap.add_argument("--delta", type=float, default=0.7, help="SPRT decision threshold (paper: delta_1 = 0.7)")
+    ap.add_argument("--look-size", type=int, default=1, help="sequential scheme: samples between looks, >= 1")
     args = ap.parse_args(argv)
     try:
-        lines = table(args.theta, args.gamma, args.rate_bounds, args.delta)
+        lines = table(args.theta, args.gamma, args.rate_bounds, args.delta, args.look_size)
     except ValueError as e:
         print(f"uqdrive bound: {e}", file=sys.stderr)
         return 2

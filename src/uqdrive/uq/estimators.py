@@ -1,16 +1,18 @@
 """Estimators of a Bernoulli rate η (η1 or η2) that say whether they carry the (θ, γ) guarantee.
 
 Every estimator returns an :class:`Estimate`. ``guaranteed`` is True only when the scheme,
-as it was run, really gives P(|value − η| > θ) ≤ γ for every η (under any stated a-priori
-assumption); approximate schemes (Wilson, SPRT intervals) always say False.
+as it was run, really gives P(|value − η| > θ) ≤ γ for every η, or for every η satisfying the
+a-priori assumption written in ``condition``; approximate schemes (Wilson, SPRT intervals)
+always say False.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
+from functools import lru_cache
 
 import numpy as np
 from scipy import stats
@@ -21,10 +23,9 @@ from uqdrive.uq.bounds import (
     chernoff_n,
     clopper_pearson_fits,
     clopper_pearson_interval,
-    clopper_pearson_n,
-    first_fit_n,
     massart_n,
 )
+from uqdrive.uq.sequential import sequential_scheme
 
 Draw = Callable[[int], np.ndarray]
 """``draw(k)`` returns k independent 0/1 outcomes; it may run them in parallel."""
@@ -34,7 +35,8 @@ Draw = Callable[[int], np.ndarray]
 class Estimate:
     """A rate estimate ``value`` with interval ``[low, high]`` from ``n`` samples.
 
-    ``guaranteed``: whether P(|value − η| > θ) ≤ γ really holds for the scheme ``method``.
+    ``guaranteed``: whether P(|value − η| > θ) ≤ γ really holds for the scheme ``method``;
+    ``condition``: the assumption on η it holds under ("" when it holds for every η).
     """
 
     value: float
@@ -45,6 +47,7 @@ class Estimate:
     gamma: float
     method: str
     guaranteed: bool
+    condition: str = ""
 
 
 def _ball(k: int, n: int, theta: float, gamma: float, method: str, guaranteed: bool) -> Estimate:
@@ -60,12 +63,24 @@ def chernoff(k: int, n: int, theta: float, gamma: float) -> Estimate:
 
 
 def massart(k: int, n: int, theta: float, gamma: float, rate_bound: float = 0.5) -> Estimate:
-    """k/n ± θ sized by Massart's bound; guaranteed iff n ≥ :func:`massart_n`, *given* the
-    a-priori assumption min(η, 1 − η) ≤ ``rate_bound`` (named in ``method``)."""
+    """k/n ± θ sized by Massart's bound; holds for every η with min(η, 1 − η) ≤ ``rate_bound``.
+
+    That assumption is the ``condition`` of the result (none when ``rate_bound = 0.5``).
+    ``guaranteed`` needs n ≥ :func:`massart_n` and data that do not contradict the assumption:
+    when the exact interval at level 1 − γ lies inside (b, 1 − b), every η it admits breaks the
+    bound (40 successes of 77 with b = 0.01 would have exact error 0.43), so the flag is False.
+    """
     theta, gamma = check_unit("theta", theta), check_unit("gamma", gamma)
     k, n = check_counts(k, n)
-    ok = n >= massart_n(theta, gamma, rate_bound)
-    return _ball(k, n, theta, gamma, f"massart(rate_bound={rate_bound:g})", ok)
+    planned = massart_n(theta, gamma, rate_bound)
+    b = float(rate_bound)
+    if b >= 0.5:
+        return _ball(k, n, theta, gamma, "massart(rate_bound=0.5)", n >= planned)
+    low, high = clopper_pearson_interval(k, n, gamma)
+    contradicted = bool(low > b and high < 1 - b)
+    condition = f"min(eta, 1 - eta) <= {b:g}" + (" (contradicted by the data)" if contradicted else "")
+    est = _ball(k, n, theta, gamma, f"massart(rate_bound={b:g})", n >= planned and not contradicted)
+    return dataclasses.replace(est, condition=condition)
 
 
 @lru_cache(maxsize=1024)
@@ -97,78 +112,9 @@ def wilson(k: int, n: int, theta: float, gamma: float) -> Estimate:
     p = k / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    return Estimate(p, max(0.0, centre - half), min(1.0, centre + half), n, theta, gamma, "wilson", False)
-
-
-@dataclass(frozen=True)
-class SequentialPlan:
-    """Group-sequential look schedule: after ``looks[j]`` samples, spend ``gammas[j]`` of γ.
-
-    Rule: at look j compute the exact (Clopper–Pearson) interval at level 1 − γ_j and stop
-    when it lies inside [p̂ − θ, p̂ + θ]; the final look must be *complete* (every count stops).
-    Guarantee: when the run stops at look j with |p̂ − η| > θ, η lies outside that look's
-    interval; each interval misses η with probability ≤ γ_j whatever η is, so by the union
-    bound over looks P(|p̂ − η| > θ) ≤ Σ γ_j ≤ γ (Bonferroni holds for any, unequal, split).
-    The same bound shows the reported interval covers η with probability ≥ 1 − γ.
-    """
-
-    theta: float
-    gamma: float
-    looks: tuple[int, ...]
-    gammas: tuple[float, ...]
-
-    def __post_init__(self) -> None:
-        check_unit("theta", self.theta)
-        check_unit("gamma", self.gamma)
-        looks, gammas = tuple(self.looks), tuple(float(g) for g in self.gammas)
-        if not looks or len(looks) != len(gammas):
-            raise ValueError(f"looks and gammas must be non-empty and of equal length, got {looks} and {gammas}")
-        if any(int(n) != n or n < 1 for n in looks) or any(b <= a for a, b in zip(looks, looks[1:])):
-            raise ValueError(f"looks must be strictly increasing integers >= 1, got {looks}")
-        object.__setattr__(self, "looks", tuple(int(n) for n in looks))
-        object.__setattr__(self, "gammas", gammas)
-        if any(not 0 < g < 1 for g in gammas) or sum(gammas) > self.gamma * (1 + 1e-12):
-            raise ValueError(f"gammas must be in (0, 1) and sum to at most gamma={self.gamma}, got {gammas}")
-        if not _cp_complete(looks[-1], gammas[-1], self.theta):
-            raise ValueError(
-                f"final look n={looks[-1]} at gamma={gammas[-1]} is not complete for theta={self.theta}: "
-                f"use n >= clopper_pearson_n(theta, gamma_final)={clopper_pearson_n(self.theta, gammas[-1])}"
-            )
-
-    @cached_property
-    def stop_tables(self) -> tuple[np.ndarray, ...]:
-        """``stop_tables[j][k]``: does look j stop with k successes? (The last is all True.)"""
-        return tuple(clopper_pearson_fits(n, g, self.theta) for n, g in zip(self.looks, self.gammas))
-
-
-def sequential_plan(theta: float, gamma: float) -> SequentialPlan:
-    """Default plan: two early looks and one final look, γ split γ/2, γ/10, 2γ/5.
-
-    The final look is :func:`clopper_pearson_n` at 2γ/5 (561 at θ = γ = 0.05, 0.76 of
-    Chernoff's 738, so the worst case stays below the paper's n). The early looks sit where a
-    count with ≤ 2 (at level γ/2) and ≤ 6 (at level γ/10) minority outcomes first fits in ±θ
-    (119 and 206 at θ = γ = 0.05): near η = 0 or 1 most runs stop there. The split was chosen
-    by exact expected sample sizes (:func:`sequential_operating_characteristics`): a large
-    first-look share buys early stops near 0 and 1, the final share keeps the worst case low.
-    Early looks that would not come before the final one are dropped (their γ is unspent).
-    """
-    theta, gamma = check_unit("theta", theta), check_unit("gamma", gamma)
-    g1, g2, g_final = gamma / 2, gamma / 10, 2 * gamma / 5
-    final = clopper_pearson_n(theta, g_final)
-    early = [(n, g) for n, g in ((first_fit_n(2, g1, theta), g1), (first_fit_n(6, g2, theta), g2)) if n < final]
-    if len(early) == 2 and early[1][0] <= early[0][0]:
-        early = early[:1]
-    looks = tuple(n for n, _ in early) + (final,)
-    return SequentialPlan(theta, gamma, looks, tuple(g for _, g in early) + (g_final,))
-
-
-def _plan_for(theta: float, gamma: float, plan: SequentialPlan | None) -> SequentialPlan:
-    theta, gamma = check_unit("theta", theta), check_unit("gamma", gamma)
-    if plan is None:
-        return sequential_plan(theta, gamma)
-    if (plan.theta, plan.gamma) != (theta, gamma):
-        raise ValueError(f"plan is for theta={plan.theta}, gamma={plan.gamma}, not theta={theta}, gamma={gamma}")
-    return plan
+    low = 0.0 if k == 0 else min(max(centre - half, 0.0), 1.0)  # exact endpoints, not 1 − 1e-16
+    high = 1.0 if k == n else min(max(centre + half, 0.0), 1.0)
+    return Estimate(p, low, high, n, theta, gamma, "wilson", False)
 
 
 def _outcomes(batch: np.ndarray, size: int) -> np.ndarray:
@@ -178,53 +124,21 @@ def _outcomes(batch: np.ndarray, size: int) -> np.ndarray:
     return b.astype(np.int64)
 
 
-def sequential(draw: Draw, theta: float, gamma: float, plan: SequentialPlan | None = None) -> Estimate:
-    """Group-sequential estimate with the (θ, γ) guarantee (see :class:`SequentialPlan`).
+def sequential(draw: Draw, theta: float, gamma: float, look_size: int = 1) -> Estimate:
+    """Sequential Clopper–Pearson estimate with the (θ, γ) guarantee (:mod:`uqdrive.uq.sequential`).
 
-    Calls ``draw`` once per look with the number of new samples needed, so each batch can be
-    run in parallel; stops early when η is near 0 or 1, never uses more than the final look.
+    Calls ``draw(look_size)`` once per look (each batch can run in parallel) and stops as soon as
+    the calibrated rule allows; at most ``sequential_scheme(θ, γ, look_size).max_n`` samples.
+    The interval is the ball [value ± θ] ∩ [0, 1], which covers η with probability ≥ 1 − γ:
+    the exact error computed when the level was calibrated.
     """
-    plan = _plan_for(theta, gamma, plan)
-    k, used = 0, 0
-    for n, g, stop in zip(plan.looks, plan.gammas, plan.stop_tables):
-        k += int(_outcomes(draw(n - used), n - used).sum())
-        used = n
-        if stop[k]:
-            break
-    low, high = clopper_pearson_interval(k, used, g)
-    return Estimate(k / used, float(low), float(high), used, plan.theta, plan.gamma, "sequential", True)
-
-
-def simulate_sequential(
-    rate: float, reps: int, rng: np.random.Generator, plan: SequentialPlan
-) -> tuple[np.ndarray, np.ndarray]:
-    """Run ``reps`` independent sequential estimates at true ``rate`` at once: (values, samples used)."""
-    k = np.zeros(reps, dtype=np.int64)
-    value = np.empty(reps)
-    used = np.zeros(reps, dtype=np.int64)
-    prev = 0
-    for n, stop in zip(plan.looks, plan.stop_tables):
-        k += rng.binomial(n - prev, rate, size=reps)
-        prev = n
-        now = (used == 0) & stop[k]
-        value[now] = k[now] / n
-        used[now] = n
-    return value, used
-
-
-def sequential_operating_characteristics(plan: SequentialPlan, rate: float) -> tuple[float, float]:
-    """Exact (expected samples, P(|p̂ − η| > θ)) of ``plan`` at true ``rate``, by dynamic programming
-    over the count at each look; lets tests check the guarantee with no Monte-Carlo slack."""
-    dist = np.ones(1)
-    prev, mean_n, error = 0, 0.0, 0.0
-    for n, stop in zip(plan.looks, plan.stop_tables):
-        dist = np.convolve(dist, stats.binom.pmf(np.arange(n - prev + 1), n - prev, rate))
-        prev = n
-        far = np.abs(np.arange(n + 1) / n - rate) > plan.theta
-        mean_n += n * dist[stop].sum()
-        error += dist[stop & far].sum()
-        dist = np.where(stop, 0.0, dist)
-    return float(mean_n), float(error)
+    scheme = sequential_scheme(theta, gamma, look_size)
+    k, n = 0, 0
+    while True:
+        k += int(_outcomes(draw(scheme.look_size), scheme.look_size).sum())
+        n += scheme.look_size
+        if scheme.stops(k, n):
+            return _ball(k, n, scheme.theta, scheme.gamma, "sequential", True)
 
 
 @dataclass(frozen=True)

@@ -116,11 +116,13 @@ def decision_confidence(
     """Real-time decision confidence η2 per frame ``[B]`` (the paper's Definition 2).
 
     η2 = fraction of weight samples whose decision lies within ``eps`` (steering units, closed
-    ball) of π(o); ``pi`` defaults to :func:`decision`. Why this is enough: each sample's
-    "inside the ball" is a Bernoulli draw with rate η2, so the fraction over n samples is the
-    estimator η̂2 of the paper, and with n ≥ ``chernoff_n(theta, gamma)`` samples it satisfies
+    ball) of π(o); ``pi`` defaults to :func:`decision` of these same samples. Given a ``pi``
+    chosen independently of ``probs`` (the controller draws π(o) from other samples), each
+    sample's "inside the ball" is a Bernoulli draw with rate η2, so the fraction over n samples
+    is the estimator η̂2 of the paper, and with n ≥ ``chernoff_n(theta, gamma)`` samples
     P(|η̂2 − η2| > θ) ≤ γ (Chernoff–Hoeffding); the estimators in :mod:`uqdrive.uq.estimators`
-    apply unchanged to its count.
+    apply unchanged to its count. With the default ``pi`` the mode is picked where these draws
+    agree, so the fraction is biased upwards and the bound is not claimed.
     """
     e = _check_eps(eps)
     p, c = check_samples(probs, centres)
