@@ -30,6 +30,10 @@ def one_thread():
     torch.set_num_threads(previous)
 
 
+# The random-weight models predict all 21 tenths: stages using them widen the experiment's class set to match.
+ALL_TENTHS = ("experiment.bins.low=-1.0", "experiment.bins.high=1.0")
+
+
 @pytest.fixture(scope="session")
 def random_models(tmp_path_factory):
     """models/{mcd,vi,hmc}.pt with seeded random weights: closed-loop plumbing needs a posterior, not a good one."""

@@ -12,14 +12,14 @@ from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
 
+from conftest import ALL_TENTHS
+
 
 @pytest.fixture
 def avoid_config(stage_config, random_models):
-    """The random-weight models predict all 21 tenths; the experiment's class set is widened to match."""
     def make(*overrides: str):
         folder = random_models["mcd"].parent
-        return stage_config("avoid", "experiment.bins.low=-1.0", "experiment.bins.high=1.0",
-                            f"avoid.model_path={folder}/${{model.name}}.pt", *overrides)
+        return stage_config("avoid", *ALL_TENTHS, f"avoid.model_path={folder}/${{model.name}}.pt", *overrides)
     return make
 
 

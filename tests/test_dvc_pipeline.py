@@ -11,7 +11,7 @@ import pytest
 import yaml
 from test_report import markdown_rows
 
-from uqdrive.pipeline.report import fmt
+from uqdrive.pipeline.report_document import fmt
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,27 +33,29 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     for name in ("conf", "stages", "src"):
         shutil.copytree(ROOT / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
     params = yaml.safe_load((project / "params.yaml").read_text())
-    params.update(profile="tiny", scenarios=["straight", "roundabout"], methods=["mcd", "vi", "hmc"],
-                  weathers=["rain"], noises=[0.0])
+    params.update(profile="tiny", methods=["mcd", "vi", "hmc"], weathers=["rain"], noises=[0.0],
+                  locations=["roundabout"])
     (project / "params.yaml").write_text(yaml.safe_dump(params))
     _dvc(project, "init", "--no-scm", "-q")
 
     _dvc(project, "repro")
-    for scenario in ("straight", "roundabout"):
+    for scenario in ("obstacle", "roundabout"):
         assert (project / f"data/raw/{scenario}.parquet").exists()
         assert json.loads((project / f"metrics/collect/{scenario}.json").read_text())["frames"] > 0
-    metrics = json.loads((project / "metrics/preprocess.json").read_text())
-    assert metrics["train_frames"] > 0 and metrics["num_classes"] == 21
-    for method in ("mcd", "vi", "hmc"):
-        assert (project / f"models/{method}.pt").exists()
-        trained = json.loads((project / f"metrics/train/{method}.json").read_text())
-        assert trained["method"] == method and trained["val_frames"] == metrics["val_frames"]
+    for experiment in ("avoid", "offline"):  # one controller per experiment × method, each on its own class set
+        metrics = json.loads((project / f"metrics/{experiment}/preprocess.json").read_text())
+        classes = yaml.safe_load((project / f"conf/experiment/{experiment}.yaml").read_text())["bins"]
+        assert metrics["train_frames"] > 0 and metrics["num_classes"] == round((classes["high"] - classes["low"]) * 10) + 1
+        for method in ("mcd", "vi", "hmc"):
+            assert (project / f"models/{experiment}/{method}.pt").exists()
+            trained = json.loads((project / f"metrics/{experiment}/train/{method}.json").read_text())
+            assert trained["method"] == method and trained["val_frames"] == metrics["val_frames"]
     safety = json.loads((project / "metrics/safety.json").read_text())
-    assert set(safety) == {"mcd", "vi", "hmc"} and set(safety["vi"]) == {"rain"}
-    assert safety["vi"]["rain"]["noise0.0"] == {
-        k: v for k, v in json.loads((project / "metrics/safety/vi-roundabout-rain-noise0.0.json").read_text()).items()
-        if k in safety["vi"]["rain"]["noise0.0"]}
-    assert (project / "plots/safety/summary/hexbin_noise0.0.png").exists()
+    assert set(safety) == {"mcd", "vi", "hmc"} and set(safety["vi"]) == {"roundabout"}
+    cell = safety["vi"]["roundabout"]["rain"]["noise0.0"]
+    assert cell == {k: v for k, v in json.loads((project / "metrics/safety/vi-roundabout-rain-noise0.0.json")
+                                                .read_text()).items() if k in cell}
+    assert (project / "plots/safety/summary/hexbin_roundabout_noise0.0.png").exists()
     assert (project / "data/heldout/roundabout-rain-noise0.0.parquet").exists()
     evaluated = json.loads((project / "metrics/evaluate.json").read_text())
     assert {m: list(t) for m, t in evaluated.items()} == {"mcd": ["rain"], "vi": ["rain"], "hmc": ["rain"]}
@@ -65,23 +67,24 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
 
     # the report's tables hold this run's numbers, as the report formats them
     report = (project / "reports/report.md").read_text()
-    for row in markdown_rows(report, "method | weather"):
-        assert row["η̂1"] == fmt(safety[row["method"]][row["weather"]]["noise0.0"]["eta1"])
+    for row in markdown_rows(report, "method | location | weather"):
+        assert row["η̂1"] == fmt(safety[row["method"]][row["location"]][row["weather"]]["noise0.0"]["eta1"])
     for row in markdown_rows(report, "method | weather | noise | frames"):
         assert row["accuracy"] == fmt(evaluated[row["method"]][row["weather"]]["noise0.0"]["accuracy"])
     for row in markdown_rows(report, "method | condition"):
-        assert row["η̂1"] == fmt(avoided[row["method"]][row["condition"]][row["warnings"]]["eta1"])
+        if "mixture" not in row["condition"]:
+            assert row["η̂1"] == fmt(avoided[row["method"]]["cells"][row["condition"]][row["warnings"]]["eta1"])
     assert 'src="data:image/png;base64,' in (project / "reports/report.html").read_text()
 
     assert "Data and pipelines are up to date" in _dvc(project, "status")
-    stamp = (project / "data/raw/straight.parquet").stat().st_mtime_ns
+    stamp = (project / "data/raw/obstacle.parquet").stat().st_mtime_ns
     again = _dvc(project, "repro")
     assert "Running stage" not in again, again
-    assert (project / "data/raw/straight.parquet").stat().st_mtime_ns == stamp
+    assert (project / "data/raw/obstacle.parquet").stat().st_mtime_ns == stamp
 
     # a new weather in params.yaml runs its cells (safety, held-out frames) and what aggregates them, nothing upstream
     params["weathers"] = ["rain", "afternoon"]
     (project / "params.yaml").write_text(yaml.safe_dump(params))
     ran = sorted(line.split("'")[1] for line in _dvc(project, "repro").splitlines() if line.startswith("Running stage"))
-    assert ran == ["evaluate", "heldout@afternoon-0.0", "report", "safety@hmc-afternoon-0.0", "safety@mcd-afternoon-0.0",
-                   "safety@vi-afternoon-0.0", "safety_summary"]
+    assert ran == ["evaluate", "heldout@afternoon-0.0", "report", "safety@hmc-afternoon-0.0-roundabout",
+                   "safety@mcd-afternoon-0.0-roundabout", "safety@vi-afternoon-0.0-roundabout", "safety_summary"]

@@ -14,6 +14,8 @@ from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
 from uqdrive.pipeline.evaluate import Condition, cell_metrics, run_evaluate
 from uqdrive.tracking import store_uris
 
+from conftest import ALL_TENTHS
+
 METRIC_KEYS = {"accuracy", "nll", "ece", "brier", "mean_mutual_information", "mean_eta2", "auroc_mi",
                "auroc_one_minus_eta2", "auroc_note", "frames", "mistakes"}
 
@@ -43,7 +45,7 @@ def store_root(tmp_path_factory):
 def evaluate_config(stage_config, random_models, store_root, out, *overrides: str):
     """The evaluate config on the random models, inputs and outputs under `out`, MLflow runs in `store_root`."""
     models = next(iter(random_models.values())).parent
-    return stage_config("evaluate", f"paths.root={store_root}", f"paths.models={models}",
+    return stage_config("evaluate", f"paths.root={store_root}", f"paths.models={models}", *ALL_TENTHS,
                         f"paths.metrics={out}/metrics", f"paths.plots={out}/plots",
                         f"evaluate.heldout_dir={out}/data/heldout", *overrides)
 

@@ -36,7 +36,7 @@ def test_collect_writes_one_row_per_frame_with_the_autopilot_label(collected):
 
 
 def test_collect_and_preprocess_log_config_and_metrics_to_mlflow(collected, stage_config):
-    run_preprocess(stage_config("preprocess", "scenarios=[straight,roundabout]"))
+    run_preprocess(stage_config("preprocess", "experiment=joint", "experiment.scenarios=[straight,roundabout]"))
     client = MlflowClient(store_uris(collected)[0])
     for stage, runs_expected in (("collect", 2), ("preprocess", 1)):
         experiment = client.get_experiment_by_name(stage)
@@ -49,9 +49,9 @@ def test_collect_and_preprocess_log_config_and_metrics_to_mlflow(collected, stag
 
 
 def test_preprocess_outputs_frames_labels_and_histogram(collected, stage_config):
-    metrics = run_preprocess(stage_config("preprocess", "scenarios=[straight,roundabout]"))
-    train = pq.read_table(collected / "data/processed/train.parquet")
-    val = pq.read_table(collected / "data/processed/val.parquet")
+    metrics = run_preprocess(stage_config("preprocess", "experiment=joint", "experiment.scenarios=[straight,roundabout]"))
+    train = pq.read_table(collected / "data/processed/joint/train.parquet")
+    val = pq.read_table(collected / "data/processed/joint/val.parquet")
     assert train.schema.equals(PROCESSED_SCHEMA)
     assert metrics["train_frames"] == train.num_rows and metrics["val_frames"] == val.num_rows
     raw_rows = sum(pq.read_table(collected / f"data/raw/{s}.parquet").num_rows for s in ("straight", "roundabout"))
@@ -62,14 +62,21 @@ def test_preprocess_outputs_frames_labels_and_histogram(collected, stage_config)
     assert frames.shape[1:] == (48, 64) and frames.std() > 10  # a picture, not a blank
     np.testing.assert_array_equal(train.column("label").to_numpy(),
                                   SteeringBins().to_class(train.column("steering").to_numpy()))
-    histogram = (collected / "plots/class_histogram.csv").read_text().splitlines()
+    histogram = (collected / "plots/joint/class_histogram.csv").read_text().splitlines()
     assert histogram[0] == "class,steering,split,frames" and len(histogram) == 1 + 2 * 21
-    assert json.loads((collected / "metrics/preprocess.json").read_text()) == metrics
+    assert json.loads((collected / "metrics/joint/preprocess.json").read_text()) == metrics
+    assert metrics["clipped_label_fraction"] == 0.0  # the joint class set spans every tenth
 
 
-def test_scenarios_default_to_the_list_in_params_yaml(stage_config, tmp_path):
-    (tmp_path / "params.yaml").write_text("scenarios: [roundabout]\n")
-    assert list(stage_config("preprocess").scenarios) == ["roundabout"]
+def test_an_experiment_keeps_only_its_class_set_and_reports_what_it_clips(collected, stage_config):
+    metrics = run_preprocess(stage_config("preprocess", "experiment=offline", "experiment.scenarios=[roundabout]",
+                                          "experiment.bins.low=-0.2", "experiment.bins.high=0.2"))
+    train = pq.read_table(collected / "data/processed/offline/train.parquet")
+    labels, steering = train.column("label").to_numpy(), train.column("steering").to_numpy()
+    assert metrics["num_classes"] == 5 and labels.min() >= 0 and labels.max() <= 4
+    np.testing.assert_array_equal(labels, SteeringBins(low=-0.2, high=0.2).to_class(steering))
+    raw = pq.read_table(collected / "data/raw/roundabout.parquet").column("steering").to_numpy()
+    assert metrics["clipped_label_fraction"] == pytest.approx(np.mean((raw < -0.25) | (raw >= 0.25)))
 
 
 def test_bad_values_fail_before_any_work(stage_config, tmp_path):
@@ -82,7 +89,7 @@ def test_bad_values_fail_before_any_work(stage_config, tmp_path):
     with pytest.raises(ValueError, match=r"collect.name='\.\./x' must be a plain file name"):
         run_collect(stage_config("collect", "collect.name=../x"))
     with pytest.raises(FileNotFoundError, match="dvc repro"):
-        run_preprocess(stage_config("preprocess", "scenarios=[straight]"))
+        run_preprocess(stage_config("preprocess", "experiment.scenarios=[straight]"))
     assert not (tmp_path / "data").exists()
 
 
@@ -91,7 +98,7 @@ def test_corrupt_raw_file_fails_naming_it_and_writes_nothing(stage_config, tmp_p
     raw.parent.mkdir(parents=True)
     raw.write_bytes(b"PAR1 half of a file")
     with pytest.raises(ValueError, match=f"{raw} is not a readable parquet file"):
-        run_preprocess(stage_config("preprocess", "scenarios=[straight]"))
+        run_preprocess(stage_config("preprocess", "experiment.scenarios=[straight]"))
     assert not (tmp_path / "data/processed").exists() and not (tmp_path / "metrics").exists()
 
 

@@ -9,11 +9,14 @@ import uqdrive.pipeline.safety as safety_stage
 from uqdrive.pipeline.safety import run_safety, run_safety_summary
 from uqdrive.tracking import store_uris
 
+from conftest import ALL_TENTHS
+
 
 @pytest.fixture
 def safety_config(stage_config, random_models):
     def make(*overrides: str):
-        return stage_config("safety", f"paths.models={random_models['mcd'].parent}", *overrides)
+        folder = random_models["mcd"].parent
+        return stage_config("safety", f"safety.model_path={folder}/${{model.name}}.pt", *ALL_TENTHS, *overrides)
     return make
 
 
@@ -38,9 +41,10 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     client, logged = runs(tmp_path)
     (run,) = logged
     params = run.data.params
-    assert {k: params[k] for k in ("method", "scenario", "weather", "noise", "theta", "gamma", "scheme", "n")} == {
-        "method": "hmc", "scenario": "roundabout", "weather": "afternoon", "noise": "0.05", "theta": "0.7",
-        "gamma": "0.05", "scheme": "chernoff", "n": "4"}
+    assert {k: params[k] for k in ("method", "experiment", "location", "weather", "noise", "theta", "gamma", "scheme",
+                                   "n")} == {
+        "method": "hmc", "experiment": "offline", "location": "roundabout", "weather": "afternoon", "noise": "0.05",
+        "theta": "0.7", "gamma": "0.05", "scheme": "chernoff", "n": "4"}
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
         assert run.data.metrics[key] == pytest.approx(result[key])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
@@ -148,15 +152,19 @@ def test_model_of_another_method_is_refused(safety_config, random_models):
         run_safety(safety_config("model=vi", f"safety.model_path={random_models['mcd']}"))
 
 
-def test_summary_tabulates_cells_and_draws_one_grid_per_noise(safety_config, stage_config, tmp_path):
+def test_summary_tabulates_cells_and_draws_one_grid_per_location_and_noise(safety_config, stage_config, tmp_path):
     for method in ("mcd", "vi"):
-        run_safety(safety_config(f"model={method}", "noise=0"))
+        for location in ("roundabout", "roundabout_town"):
+            run_safety(safety_config(f"model={method}", "noise=0", f"scenario={location}"))
     summary = run_safety_summary(stage_config("safety_summary", "methods=[mcd,vi]", "weathers=[clear_noon]",
-                                              "noises=[0]"))
+                                              "noises=[0]", "locations=[roundabout,roundabout_town]"))
     table = json.loads((tmp_path / "metrics/safety.json").read_text())
     assert table == summary["table"] and set(table) == {"mcd", "vi"}
-    cell = table["vi"]["clear_noon"]["noise0"]
-    assert cell["n"] == 4 and 0 <= cell["eta1"] <= 1
-    assert (tmp_path / "plots/safety/summary/hexbin_noise0.png").stat().st_size > 5000
+    cell = table["vi"]["roundabout_town"]["clear_noon"]["noise0"]
+    assert cell["n"] == 4 and 0 <= cell["eta1"] <= 1 and cell["max_corridor_use"] >= cell["mean_corridor_use"]
+    assert cell["left_corridor_rate"] == 0 or cell["max_corridor_use"] > 1  # one rule: leaving the lane is > 1
+    for location in ("roundabout", "roundabout_town"):
+        assert (tmp_path / f"plots/safety/summary/hexbin_{location}_noise0.png").stat().st_size > 5000
     with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.json is missing"):
-        run_safety_summary(stage_config("safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]"))
+        run_safety_summary(stage_config("safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]",
+                                        "locations=[roundabout]"))

@@ -11,6 +11,8 @@ from mlflow.tracking import MlflowClient
 
 from uqdrive.tracking import store_uris
 
+from conftest import ALL_TENTHS
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -21,7 +23,7 @@ def test_joblib_multirun_of_4_cells_on_2_workers_logs_4_child_runs(random_models
     project.mkdir()
     result = subprocess.run(
         [sys.executable, str(ROOT / "stages/safety.py"), "-m", "profile=tiny", "progress=false",
-         f"paths.models={random_models['mcd'].parent}", "model=mcd,vi",
+         f"safety.model_path={random_models['mcd'].parent}/${{model.name}}.pt", *ALL_TENTHS, "model=mcd,vi",
          "weather=clear_noon,rain", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
          f"hydra.sweep.dir={tmp_path / 'multirun'}"],
         cwd=project, capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONWARNINGS": "ignore"})
