@@ -102,21 +102,25 @@ def main(argv: list[str]) -> int:
         worker, base_worker = RolloutWorker(job), RolloutWorker(dataclasses.replace(job, camera=baseline))
         for w in (worker, base_worker):
             drive(w.env, w.policy, w.job, 20, 0)  # warm-up
-        env_s, loop_s, base_s = [], [], []
+        env_s, loop_s, base_env_s, base_s = [], [], [], []
         for _ in range(args.repeats):
             env_s.append(drive(worker.env, AutopilotPolicy(), job, args.steps, 0))
             loop_s.append(drive(worker.env, worker.policy, job, args.steps, 0))
+            base_env_s.append(drive(base_worker.env, AutopilotPolicy(), base_worker.job, args.steps, 0))
             base_s.append(drive(base_worker.env, base_worker.policy, base_worker.job, args.steps, 0))
         worker.close()
         base_worker.close()
         overhead = statistics.median(loop / env for loop, env in zip(loop_s, env_s))
         render_speedup = statistics.median(base / loop for base, loop in zip(base_s, loop_s))
+        env_speedup = statistics.median(base / env for base, env in zip(base_env_s, env_s))
         print(f"{args.method} controller, n={args.samples} draws, roundabout, {weather.name}, "
               f"{'trained model ' + str(model) if args.models else 'random weights'}, 1 torch thread per process, "
               f"{args.steps} steps x {args.repeats}")
         print(f"env only, {camera.width}x{camera.height}:      {args.steps / statistics.median(env_s):8.1f} steps/s")
         print(f"closed loop, {camera.width}x{camera.height}:   {args.steps / statistics.median(loop_s):8.1f} steps/s   "
               f"overhead {overhead:.2f}x (target <= 2)")
+        print(f"env only, {baseline.width}x{baseline.height}:    {args.steps / statistics.median(base_env_s):8.1f} steps/s   "
+              f"env speed-up {env_speedup:.2f}x")
         print(f"closed loop, {baseline.width}x{baseline.height}: {args.steps / statistics.median(base_s):8.1f} steps/s   "
               f"render speed-up {render_speedup:.2f}x (target >= 2)")
         one = throughput(job, 1, args.chunks, args.steps)

@@ -84,13 +84,13 @@ class World:
         self._cull_xy = np.array([[c[1], c[2]] for c in self._cullable]).reshape(-1, 2)
         self._cull_reach = -np.array([c[3] for c in self._cullable])[:, None]  # signed distance a body reaches
         self._shown = np.ones(len(self._cullable), bool)
-        # road mask of a segmentation image in one lookup: road_lookup[seg + 1] (seg is -1 on the sky)
-        self.road_lookup = np.zeros(client.getNumBodies() + 1, bool)
-        self.road_lookup[np.asarray(self.road_ids, int) + 1] = True
 
         self.vehicle = vehicle
         self.ego_id = self.car_body(client, (vehicle.length, vehicle.width, vehicle.height), vehicle.color,
                                     vehicle.wheelbase, visible=False)
+        # road mask of a segmentation image in one lookup: road_lookup[seg + 1] (seg is -1 on the sky)
+        self.road_lookup = np.zeros(client.getNumBodies() + 1, bool)
+        self.road_lookup[np.asarray(self.road_ids, int) + 1] = True
         self._col_reach2 = (self._col_r + 0.5 * math.hypot(vehicle.length, vehicle.width) + 0.1) ** 2  # squared
 
     def _mesh(self, triangles: np.ndarray, z: float, color) -> list[int]:
@@ -144,14 +144,13 @@ class World:
 
         Body box, cabin and four dark wheels are visuals; the collision box spans the body
         above a ground clearance so it only ever touches raised things. The ego is not
-        ``visible``: its own camera must not see it, and a body without visuals costs the
-        renderer nothing (one parked out of sight is still rasterised).
+        ``visible`` (alpha 0, which the renderer skips at no cost): its own camera must not see
+        it, and one parked out of sight would still be rasterised. (Without visuals at all,
+        pybullet would draw the collision box instead.)
         """
         col_h = size[2] - _CHASSIS_CLEARANCE
         col = client.createCollisionShape(p.GEOM_BOX, halfExtents=[size[0] / 2, size[1] / 2, col_h / 2],
                                           collisionFramePosition=[0, 0, _CHASSIS_CLEARANCE + col_h / 2])
-        if not visible:
-            return client.createMultiBody(0, col, -1)
         length, width, height = size
         body_h = 0.55 * height
         base_z = 0.3
@@ -162,7 +161,7 @@ class World:
         half = [[length / 2, width / 2, body_h / 2], [0.27 * length, 0.45 * width, cabin_h / 2]] + [[0, 0, 0]] * 4
         positions = [[0, 0, base_z + body_h / 2], [-0.08 * length, 0, base_z + body_h + cabin_h / 2]]
         positions += [[sx * wx, sy * wy, wheel_r] for sx in (1, -1) for sy in (1, -1)]
-        colors = World.car_colors(color)
+        colors = [[*rgba[:3], 1.0 if visible else 0.0] for rgba in World.car_colors(color)]
         wheel_q = p.getQuaternionFromEuler([math.pi / 2, 0, 0])
         vis = client.createVisualShapeArray(
             shapeTypes=shapes, halfExtents=half, radii=[0, 0] + [wheel_r] * 4, lengths=[0, 0] + [0.25] * 4,
