@@ -7,7 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
+from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.camera import _rain_cover
+from uqdrive.sim.world import World
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 WEATHERS = {n: WeatherConfig.from_yaml(CONF / "weather" / f"{n}.yaml") for n in ("clear_noon", "afternoon", "rain", "fog")}
@@ -30,7 +33,9 @@ def run(env, seed, weather, noise=0.0, steps=4, scenario=OBSTACLE, render=True):
 
 def test_observation_shape_and_render_off(env):
     frames, traj = run(env, 0, WEATHERS["clear_noon"], steps=1)
-    assert frames[0].shape == (120, 160, 3) and frames[0].dtype == np.uint8
+    assert frames[0].shape == (INPUT_HEIGHT, INPUT_WIDTH, 3) and frames[0].dtype == np.uint8  # the network's size
+    with DrivingEnv(CameraConfig(width=160, height=120)) as large:
+        assert run(large, 0, WEATHERS["clear_noon"], steps=0)[0][0].shape == (120, 160, 3)
     frames, _ = run(env, 0, WEATHERS["clear_noon"], steps=1, render=False)
     assert frames == [None, None]
     assert set(traj) == {"t", "x", "y", "yaw", "speed", "steering"} and len(traj["t"]) == 2
@@ -117,15 +122,40 @@ def test_fog_lowers_contrast_with_depth(env):
     assert ratio_far < 0.5 * ratio_near
 
 
-def test_noise_only_adds_noise(env):
+def test_noise_only_adds_noise_and_sigma_is_what_the_network_sees(env):
     rain = WEATHERS["rain"]
     clean, t_clean = run(env, 3, rain, noise=0.0)
     noisy, t_noisy = run(env, 3, rain, noise=0.05)
     for c, n in zip(clean, noisy):
         diff = n.astype(float) - c.astype(float)
-        assert abs(diff.mean()) < 1.5 and all(10 < diff[..., k].std() < 14 for k in range(3))  # every channel
+        assert abs(diff.mean()) < 1.5
+        assert (np.abs(diff[..., 0] - diff[..., 1]) <= 1).mean() > 0.95  # one luminance draw, all channels
+        seen = preprocess_frame(n).astype(float) - preprocess_frame(c).astype(float)
+        assert 0.05 * 255 * 0.93 < seen.std() < 0.05 * 255 * 1.07  # sigma on the network's input
         assert (np.abs(diff) > 5.5 * 12.75).mean() < 1e-3  # same rain streaks underneath
     assert all(np.array_equal(t_clean[k], t_noisy[k]) for k in t_clean)
+
+
+@pytest.mark.parametrize("scenario", ["roundabout", "obstacle"])
+def test_culling_hides_bodies_but_never_changes_the_image(env, scenario):
+    config = ScenarioConfig.from_yaml(CONF / "scenario" / f"{scenario}.yaml")
+    culled, _ = run(env, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
+    hidden = int((~env.world._shown).sum())
+    with DrivingEnv() as every_body:
+        every_body.reset(2, config, render=False)  # builds the world
+        world = every_body.world
+        world.cull = lambda x, y, yaw, half_angle: World.cull(world, x, y, yaw, np.pi)  # a wedge hiding nothing
+        shown, _ = run(every_body, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
+        assert world._shown.all()
+    assert hidden > 0
+    assert all(np.array_equal(a, b) for a, b in zip(culled, shown))
+
+
+def test_rain_covers_the_same_share_of_the_image_at_every_resolution():
+    rain = WEATHERS["rain"]
+    rng = np.random.default_rng(0)
+    share = {size: np.mean([_rain_cover(size, rain, rng)[1].mean() for _ in range(200)]) for size in ((48, 64), (120, 160))}
+    assert share[(120, 160)] > 0.005 and abs(share[(48, 64)] / share[(120, 160)] - 1) < 0.05
 
 
 def test_world_is_cached_per_scenario(env):

@@ -244,8 +244,8 @@ class CameraConfig(_Config):
 
     _section: ClassVar[str] = "camera"
 
-    width: int = 160
-    height: int = 120
+    width: int = 64  # the network's input size (conf/sim.yaml says why)
+    height: int = 48
     fov_deg: float = 60.0
     mount_forward: float = 0.6
     mount_height: float = 1.4

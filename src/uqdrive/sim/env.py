@@ -124,11 +124,9 @@ class DrivingEnv:
         if not self.render_enabled:
             return None
         st = self._state
-        self._world.hide_ego()
-        obs = self.camera.render(st.x, st.y, st.yaw, self.weather, self._world.road_ids, self._streak_rng,
-                                 self.noise, self._noise_rng)
-        self._world.set_ego_pose(st.x, st.y, st.yaw)
-        return obs
+        self._world.cull(*self.camera.view_wedge(st.x, st.y, st.yaw))
+        return self.camera.render(st.x, st.y, st.yaw, self.weather, self._world.road_lookup, self._streak_rng,
+                                  self.noise, self._noise_rng)
 
     # -- accessors ------------------------------------------------------------------------
     @property

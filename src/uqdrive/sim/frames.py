@@ -1,7 +1,9 @@
 """``uqdrive frames``: one example camera frame per weather, to eyeball the simulator.
 
 Writes ``<weather>.png`` (camera resolution, RGB) and ``weathers.png``: the weathers side
-by side, top row as rendered, bottom row as the network sees it (grey 64x48, enlarged).
+by side, top row as rendered, bottom row as the network sees it (grey 64x48), enlarged.
+``--compare-render 160x120`` writes instead ``resolution.png`` and ``resolution.json``: the
+network's input at the configured render size against that one (`uqdrive.sim.resolution`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,16 @@ def find_conf(start: Path | None = None) -> Path:
     raise FileNotFoundError("no conf/weather directory found; pass --conf")
 
 
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--compare-render={text!r} must be WIDTHxHEIGHT, e.g. 160x120") from None
+    if width < 8 or height < 8:
+        raise argparse.ArgumentTypeError(f"--compare-render={text!r}: width and height must be >= 8")
+    return width, height
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="uqdrive frames", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/frames", help="output folder (default: docs/frames)")
@@ -38,9 +50,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--time", type=float, default=2.0, help="seconds of autopilot driving before the snapshot")
     parser.add_argument("--noise", type=float, default=0.0, help="pixel noise sigma (fraction of full intensity)")
     parser.add_argument("--conf", type=Path, default=None, help="Hydra conf/ folder (default: found from the repo)")
+    parser.add_argument("--compare-render", metavar="WxH", type=_size, default=None,
+                        help="compare the network's input rendered at WxH (then reduced) with the configured size")
+    parser.add_argument("--episodes", type=int, default=4, help="--compare-render: autopilot episodes per scenario")
+    parser.add_argument("--every", type=int, default=5, help="--compare-render: every n-th step of an episode")
+    parser.add_argument("--sigma", type=float, default=0.05,
+                        help="--compare-render: sensor noise whose standard deviation on the network's input is reported")
     args = parser.parse_args(argv)
 
     conf = args.conf or find_conf()
+    if args.compare_render:
+        from .resolution import write
+
+        result = write(Path(args.out), conf, args.compare_render, range(args.seed, args.seed + args.episodes),
+                       args.every, args.sigma)
+        print(f"wrote resolution.png and resolution.json to {args.out} ({result['configured']} against "
+              f"{result['reference']})")
+        return 0
     scenario = ScenarioConfig.from_yaml(conf / "scenario" / f"{args.scenario}.yaml")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -56,9 +82,10 @@ def main(argv: list[str] | None = None) -> int:
                 obs, info = env.step(action.steer, action.speed)
             bgr = np.ascontiguousarray(obs[..., ::-1])
             cv2.imwrite(str(out / f"{name}.png"), bgr)
-            h, w = bgr.shape[:2]
+            h, w = 120, 160  # shown at least this large
             grey = cv2.resize(preprocess_frame(obs), (w, h), interpolation=cv2.INTER_NEAREST)
-            tile = np.vstack([bgr, cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)])
+            tile = np.vstack([cv2.resize(bgr, (w, h), interpolation=cv2.INTER_NEAREST),
+                              cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)])
             cv2.putText(tile, name, (3, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
             tiles.append(tile)
     cv2.imwrite(str(out / "weathers.png"), np.hstack(tiles))

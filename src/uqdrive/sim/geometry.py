@@ -7,6 +7,7 @@ the same geometry the world was built from. World frame: x east, y north, z up, 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import cv2
@@ -77,28 +78,30 @@ class Route:
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Arc length of the closest route point and signed lateral offset (+ = left of route).
 
-        Vectorised over points x segments; past either end the end segment is extended so
+        Vectorised over points x segments, x and y apart (numpy is slow over a last axis of 2,
+        and every env step projects the car); past either end the end segment is extended so
         progress and deviation stay meaningful when a car overshoots.
         """
         q = np.atleast_2d(np.asarray(points, float))
-        a = self.points[:-1]
-        d = np.diff(self.points, axis=0)
-        seg_len2 = np.einsum("ij,ij->i", d, d)
-        rel = q[:, None, :] - a[None, :, :]
-        t = np.einsum("nmj,mj->nm", rel, d) / seg_len2
-        lo = np.zeros_like(t)
-        hi = np.ones_like(t)
-        lo[:, 0], hi[:, -1] = -np.inf, np.inf
-        t = np.clip(t, lo, hi)
-        closest = a[None] + t[..., None] * d[None]
-        dist2 = np.sum((q[:, None, :] - closest) ** 2, axis=2)
+        ax, ay, dx, dy, seg_len2, lo, hi = self._segments
+        rel_x, rel_y = q[:, :1] - ax, q[:, 1:] - ay
+        t = np.clip((rel_x * dx + rel_y * dy) / seg_len2, lo, hi)
+        dist2 = (q[:, :1] - (ax + t * dx)) ** 2 + (q[:, 1:] - (ay + t * dy)) ** 2
         k = np.argmin(dist2, axis=1)
         rows = np.arange(len(q))
         seg = np.sqrt(seg_len2[k])
         s = self.s[k] + t[rows, k] * seg
-        cross = d[k, 0] * rel[rows, k, 1] - d[k, 1] * rel[rows, k, 0]
-        lateral = cross / seg
+        lateral = (dx[k] * rel_y[rows, k] - dy[k] * rel_x[rows, k]) / seg
         return s, lateral
+
+    @functools.cached_property
+    def _segments(self) -> tuple[np.ndarray, ...]:
+        """Start x, y, direction x, y, squared length and the clip range of each segment's parameter
+        (the end segments extend beyond the route): computed once, `project` runs every step."""
+        dx, dy = np.diff(self.x), np.diff(self.y)
+        lo, hi = np.zeros_like(dx), np.ones_like(dx)
+        lo[0], hi[-1] = -np.inf, np.inf
+        return self.x[:-1], self.y[:-1], dx, dy, dx * dx + dy * dy, lo, hi
 
     def sample(self, s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, heading) at arc length s, extrapolated straight beyond the ends."""

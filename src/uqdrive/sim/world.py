@@ -3,6 +3,11 @@
 Road and markings are visual-only so they never take part in collision checks; the obstacle
 car, scenery and the roundabout island have collision shapes. Nothing here is ever stepped
 by the physics engine: the ego pose is set kinematically and collisions are queried.
+
+TinyRenderer transforms and clips every triangle of every visible body, in view or not; for
+the trees and buildings that is about half of a 64x48 render. `World.cull` hides (alpha 0,
+which TinyRenderer skips) the bodies whose ground footprint lies outside the camera's view,
+so the image is unchanged and only what can be seen is rasterised.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ class World:
         client.resetSimulation()
         self.road_ids: list[int] = []
         self._collidable: list[tuple[int, float, float, float]] = []  # id, x, y, bounding radius
+        self._cullable: list[tuple[int, float, float, float, list[list[float]]]] = []  # id, x, y, radius, rgba per shape
 
         xmin, ymin, xmax, ymax = geometry.bounds
         cx, cy = (xmin + xmax) / 2, (ymin + ymax) / 2
@@ -53,26 +59,39 @@ class World:
         for ob in geometry.obstacles:
             body = self.car_body(client, ob.size, ob.color, wheelbase=0.6 * ob.size[0])
             client.resetBasePositionAndOrientation(body, [ob.x, ob.y, 0.0], _yaw_quat(ob.yaw))
-            self._collidable.append((body, ob.x, ob.y, 0.5 * math.hypot(ob.size[0], ob.size[1])))
+            radius = 0.5 * math.hypot(ob.size[0], ob.size[1])
+            self._collidable.append((body, ob.x, ob.y, radius))
+            self._cullable.append((body, ob.x, ob.y, radius, self.car_colors(ob.color)))
         if geometry.island is not None:
             ix, iy, r = geometry.island
-            kerb = client.createVisualShape(p.GEOM_CYLINDER, radius=r + 0.3, length=0.2, rgbaColor=[0.75, 0.75, 0.72, 1])
-            client.createMultiBody(0, -1, kerb, basePosition=[ix, iy, 0.1])
+            kerb_rgba = [0.75, 0.75, 0.72, 1.0]
+            kerb = client.createVisualShape(p.GEOM_CYLINDER, radius=r + 0.3, length=0.2, rgbaColor=kerb_rgba)
+            self._cullable.append((client.createMultiBody(0, -1, kerb, basePosition=[ix, iy, 0.1]), ix, iy, r + 0.3,
+                                   [kerb_rgba]))
             col = client.createCollisionShape(p.GEOM_CYLINDER, radius=r, height=cfg.island_height)
-            vis = client.createVisualShape(p.GEOM_CYLINDER, radius=r, length=cfg.island_height,
-                                           rgbaColor=_rgba(np.clip(np.asarray(cfg.ground_color) * 1.15, 0, 1)))
+            island_rgba = _rgba(np.clip(np.asarray(cfg.ground_color) * 1.15, 0, 1))
+            vis = client.createVisualShape(p.GEOM_CYLINDER, radius=r, length=cfg.island_height, rgbaColor=island_rgba)
             body = client.createMultiBody(0, col, vis, basePosition=[ix, iy, cfg.island_height / 2])
             self._collidable.append((body, ix, iy, r))
+            self._cullable.append((body, ix, iy, r, [island_rgba]))
         for item in geometry.scenery:
-            self._collidable.append((self._prop(item), item.x, item.y,
-                                     item.size[1] if item.kind == "tree" else 0.5 * math.hypot(*item.size[:2])))
+            body, colors = self._prop(item)
+            radius = item.size[1] if item.kind == "tree" else 0.5 * math.hypot(*item.size[:2])
+            self._collidable.append((body, item.x, item.y, radius))
+            self._cullable.append((body, item.x, item.y, radius, colors))
         self._col_xy = np.array([[c[1], c[2]] for c in self._collidable]).reshape(-1, 2)
         self._col_r = np.array([c[3] for c in self._collidable])
+        self._cull_xy = np.array([[c[1], c[2]] for c in self._cullable]).reshape(-1, 2)
+        self._cull_reach = -np.array([c[3] for c in self._cullable])[:, None]  # signed distance a body reaches
+        self._shown = np.ones(len(self._cullable), bool)
 
         self.vehicle = vehicle
         self.ego_id = self.car_body(client, (vehicle.length, vehicle.width, vehicle.height), vehicle.color,
-                                    vehicle.wheelbase)
-        self._ego_radius = 0.5 * math.hypot(vehicle.length, vehicle.width)
+                                    vehicle.wheelbase, visible=False)
+        # road mask of a segmentation image in one lookup: road_lookup[seg + 1] (seg is -1 on the sky)
+        self.road_lookup = np.zeros(client.getNumBodies() + 1, bool)
+        self.road_lookup[np.asarray(self.road_ids, int) + 1] = True
+        self._col_reach2 = (self._col_r + 0.5 * math.hypot(vehicle.length, vehicle.width) + 0.1) ** 2  # squared
 
     def _mesh(self, triangles: np.ndarray, z: float, color) -> list[int]:
         """Flat triangle mesh bodies (visual only); triangles made counter-clockwise so they face up."""
@@ -87,33 +106,51 @@ class World:
             vis = self.client.createVisualShape(p.GEOM_MESH, vertices=verts.tolist(), indices=list(range(len(verts))),
                                                 normals=[[0.0, 0.0, 1.0]] * len(verts), rgbaColor=_rgba(color))
             ids.append(self.client.createMultiBody(0, -1, vis))
+            lo, hi = chunk.min(axis=0), chunk.max(axis=0)
+            centre = (lo + hi) / 2
+            radius = float(np.max(np.hypot(*(chunk - centre).T)))
+            self._cullable.append((ids[-1], float(centre[0]), float(centre[1]), radius, [_rgba(color)]))
         return ids
 
-    def _prop(self, item) -> int:
+    def _prop(self, item) -> tuple[int, list[list[float]]]:
+        """Body of a tree or building, and the RGBA of each of its visual shapes."""
         c = self.client
         if item.kind == "tree":
             trunk_r, crown_r, height = item.size
             trunk_h = height - crown_r
             col = c.createCollisionShape(p.GEOM_CYLINDER, radius=trunk_r, height=trunk_h,
                                          collisionFramePosition=[0, 0, trunk_h / 2])
+            colors = [_rgba(self.geometry.config.trunk_color), _rgba(item.color)]
             vis = c.createVisualShapeArray(
                 shapeTypes=[p.GEOM_CYLINDER, p.GEOM_SPHERE], radii=[trunk_r, crown_r], lengths=[trunk_h, 0],
-                rgbaColors=[_rgba(self.geometry.config.trunk_color), _rgba(item.color)],
-                visualFramePositions=[[0, 0, trunk_h / 2], [0, 0, trunk_h]])
+                rgbaColors=colors, visualFramePositions=[[0, 0, trunk_h / 2], [0, 0, trunk_h]])
         else:
             he = [item.size[0] / 2, item.size[1] / 2, item.size[2] / 2]
             col = c.createCollisionShape(p.GEOM_BOX, halfExtents=he, collisionFramePosition=[0, 0, he[2]])
-            vis = c.createVisualShape(p.GEOM_BOX, halfExtents=he, rgbaColor=_rgba(item.color),
-                                      visualFramePosition=[0, 0, he[2]])
-        return c.createMultiBody(0, col, vis, basePosition=[item.x, item.y, 0.0], baseOrientation=_yaw_quat(item.yaw))
+            colors = [_rgba(item.color)]
+            vis = c.createVisualShape(p.GEOM_BOX, halfExtents=he, rgbaColor=colors[0], visualFramePosition=[0, 0, he[2]])
+        body = c.createMultiBody(0, col, vis, basePosition=[item.x, item.y, 0.0], baseOrientation=_yaw_quat(item.yaw))
+        return body, colors
 
     @staticmethod
-    def car_body(client, size, color, wheelbase: float) -> int:
+    def car_colors(color) -> list[list[float]]:
+        """RGBA of the visual shapes of `car_body`, in order: body, cabin, four wheels."""
+        cabin_color = np.clip(np.asarray(color) * 0.55 + 0.12, 0, 1)
+        return [_rgba(color), _rgba(cabin_color)] + [[0.08, 0.08, 0.08, 1.0]] * 4
+
+    @staticmethod
+    def car_body(client, size, color, wheelbase: float, visible: bool = True) -> int:
         """Car-shaped static body, origin on the ground under the body centre, x forward.
 
         Body box, cabin and four dark wheels are visuals; the collision box spans the body
-        above a ground clearance so it only ever touches raised things.
+        above a ground clearance so it only ever touches raised things. The ego is not
+        ``visible`` (alpha 0, which the renderer skips at no cost): its own camera must not see
+        it, and one parked out of sight would still be rasterised. (Without visuals at all,
+        pybullet would draw the collision box instead.)
         """
+        col_h = size[2] - _CHASSIS_CLEARANCE
+        col = client.createCollisionShape(p.GEOM_BOX, halfExtents=[size[0] / 2, size[1] / 2, col_h / 2],
+                                          collisionFramePosition=[0, 0, _CHASSIS_CLEARANCE + col_h / 2])
         length, width, height = size
         body_h = 0.55 * height
         base_z = 0.3
@@ -124,30 +161,44 @@ class World:
         half = [[length / 2, width / 2, body_h / 2], [0.27 * length, 0.45 * width, cabin_h / 2]] + [[0, 0, 0]] * 4
         positions = [[0, 0, base_z + body_h / 2], [-0.08 * length, 0, base_z + body_h + cabin_h / 2]]
         positions += [[sx * wx, sy * wy, wheel_r] for sx in (1, -1) for sy in (1, -1)]
-        cabin_color = np.clip(np.asarray(color) * 0.55 + 0.12, 0, 1)
-        colors = [_rgba(color), _rgba(cabin_color)] + [[0.08, 0.08, 0.08, 1.0]] * 4
+        colors = [[*rgba[:3], 1.0 if visible else 0.0] for rgba in World.car_colors(color)]
         wheel_q = p.getQuaternionFromEuler([math.pi / 2, 0, 0])
         vis = client.createVisualShapeArray(
             shapeTypes=shapes, halfExtents=half, radii=[0, 0] + [wheel_r] * 4, lengths=[0, 0] + [0.25] * 4,
             rgbaColors=colors, visualFramePositions=positions,
             visualFrameOrientations=[[0, 0, 0, 1]] * 2 + [wheel_q] * 4)
-        col_h = height - _CHASSIS_CLEARANCE
-        col = client.createCollisionShape(p.GEOM_BOX, halfExtents=[length / 2, width / 2, col_h / 2],
-                                          collisionFramePosition=[0, 0, _CHASSIS_CLEARANCE + col_h / 2])
         return client.createMultiBody(0, col, vis)
 
     def set_ego_pose(self, x: float, y: float, yaw: float) -> None:
         self.client.resetBasePositionAndOrientation(self.ego_id, [x, y, 0.0], _yaw_quat(yaw))
 
-    def hide_ego(self) -> None:
-        """Park the ego below the ground so its own camera does not see the bonnet."""
-        self.client.resetBasePositionAndOrientation(self.ego_id, [0.0, 0.0, -50.0], [0, 0, 0, 1])
+    def cull(self, apex_x: float, apex_y: float, yaw: float, half_angle: float) -> None:
+        """Show exactly the bodies whose ground footprint (bounding circle) meets the wedge of
+        directions ``yaw ± half_angle`` from the apex; hide the others (alpha 0).
+
+        The wedge must contain the ground projection of every camera ray (`Camera.view_wedge`),
+        so a hidden body is one the camera could not see: the rendered image does not change.
+        Only bodies whose visibility changed are touched.
+        """
+        if half_angle >= math.pi / 2:
+            visible = np.ones_like(self._shown)
+        else:
+            left, right = yaw + half_angle, yaw - half_angle
+            inward = np.array([[math.sin(left), -math.sin(right)], [-math.cos(left), math.cos(right)]])
+            visible = np.all((self._cull_xy - (apex_x, apex_y)) @ inward >= self._cull_reach, axis=1)
+        for k in np.flatnonzero(visible != self._shown):
+            body, *_, colors = self._cullable[k]
+            for shape, rgba in enumerate(colors):
+                self.client.changeVisualShape(body, -1, shapeIndex=shape,
+                                              rgbaColor=rgba if visible[k] else [*rgba[:3], 0.0])
+        self._shown = visible
 
     def in_collision(self, x: float, y: float) -> bool:
         """Exact pybullet overlap test of the ego (at its current pose) against nearby props."""
         if not len(self._col_r):
             return False
-        near = np.hypot(self._col_xy[:, 0] - x, self._col_xy[:, 1] - y) <= self._col_r + self._ego_radius + 0.1
+        rel = self._col_xy - (x, y)
+        near = np.einsum("ij,ij->i", rel, rel) <= self._col_reach2
         for k in np.flatnonzero(near):
             if self.client.getClosestPoints(self.ego_id, self._collidable[k][0], distance=0.0):
                 return True
