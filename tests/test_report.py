@@ -117,6 +117,13 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert "| profile | `tiny` |" in text
     assert "Figure missing: `plots/safety/summary/hexbin_roundabout_noise0.05.png`" in text
 
+    headline = json.loads((tmp_path / "metrics/summary.json").read_text())
+    assert headline["offline_safety"]["vi"]["eta1_pooled"] == pytest.approx(np.mean(
+        [summary["vi"][loc][w][f"noise{x}"]["eta1"] for loc in LOCATIONS for w in WEATHERS for x in NOISES]))
+    assert headline["avoid"]["mcd"]["unknown_on_eta1"] == avoided["mcd"]["unknown"]["on"]["eta1"]
+    assert headline["val_accuracy"]["avoid"]["vi"] == json.loads(
+        (tmp_path / "metrics/avoid/train/vi.json").read_text())["val_accuracy"]
+
     html = (tmp_path / "reports/report.html").read_text()
     figures = len(EXPERIMENTS) * len(METHODS) + 1
     assert result["figures"] == figures and html.count('src="data:image/png;base64,') == figures

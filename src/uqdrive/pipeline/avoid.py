@@ -150,8 +150,8 @@ def check_horizon(horizon: float, warning: WarningConfig, speed: float, scenario
     slowest = min(a.speed for a in warning.actions if not a.handover) if any(
         not a.handover for a in warning.actions) else 1.0
     if slowest <= 0:
-        raise ValueError(f"warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
-                         f"give it a speed > 0 or handover: true")
+        raise ValueError("warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
+                         "give it a speed > 0 or handover: true")
     distance = obstacle_pass_progress(build_geometry(scenario), vehicle.length) - scenario.start_distance
     needed = distance / (slowest * speed) + 1.0  # + 1 s for the start jitter and speed changes
     if horizon < needed:

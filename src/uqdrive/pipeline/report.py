@@ -17,9 +17,10 @@ from pathlib import Path
 import mlflow
 from omegaconf import DictConfig
 
-from uqdrive.files import atomic_path
+from uqdrive.files import atomic_path, write_json
 from uqdrive.pipeline.report_document import Report, fmt, read_json, table
-from uqdrive.pipeline.report_experiments import avoid_section, fidelity_section, safety_section, training_section
+from uqdrive.pipeline.report_experiments import (avoid_section, fidelity_section, pooled_cells, safety_section,
+                                                  training_section)
 from uqdrive.tracking import stage_run
 from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_scheme
 
@@ -106,6 +107,23 @@ def sample_counts_section(report: Report, cells: list[dict], look_size: int = 4)
                       "at η=0.99"], rows))
 
 
+def headline_metrics(cfg: DictConfig, metrics_dir: Path, summary: dict, avoided: dict, gamma: float) -> dict:
+    """metrics/summary.json: the few numbers an experiment is compared by (DVC's one metrics file), read from
+    the stages' own files: validation accuracy per controller, η̂1 pooled over every offline-safety cell
+    and its worst cell per method, and the avoid experiment's unknown mixture and known autonomy."""
+    controllers = {e: {m: read_json(metrics_dir / e / "train" / f"{m}.json")["val_accuracy"] for m in cfg.methods}
+                   for e in cfg.experiments}
+    offline = {}
+    for method, locations in summary.items():
+        cells = [c for loc in locations.values() for w in loc.values() for c in w.values()]
+        offline[method] = {"eta1_pooled": pooled_cells(cells, gamma).value, "eta1_worst_cell": min(c["eta1"] for c in cells)}
+    avoid = {m: {"unknown_off_eta1": r["unknown"]["off"]["eta1"], "unknown_on_eta1": r["unknown"]["on"]["eta1"],
+                 "unknown_calibrated_eta1": r["unknown"]["calibrated"]["eta1"],
+                 "known_calibrated_autonomy": r["cells"]["known"]["calibrated"]["autonomy"]}
+             for m, r in avoided.items() if m in cfg.methods}
+    return {"val_accuracy": controllers, "offline_safety": offline, "avoid": avoid}
+
+
 def run_report(cfg: DictConfig) -> dict:
     root = Path(cfg.paths.root)
     metrics_dir = Path(cfg.paths.metrics)
@@ -126,6 +144,7 @@ def run_report(cfg: DictConfig) -> dict:
     avoid_section(report, cfg, avoided)
     evaluate_section(report, cfg, evaluated)
     sample_counts_section(report, cells)
+    write_json(Path(cfg.report.summary), headline_metrics(cfg, metrics_dir, summary, avoided, gamma))
     md_path, html_path = out_dir / "report.md", out_dir / "report.html"
     with atomic_path(md_path) as tmp:
         tmp.write_text(report.markdown)

@@ -16,7 +16,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Protocol
 
-import numpy as np
 import torch
 
 from uqdrive.data.binning import SteeringBins
@@ -25,8 +24,7 @@ from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controlle
 from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningConfig, WarningController
-from uqdrive.sim import (AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig,
-                         build_geometry)
+from uqdrive.sim import (AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig)
 
 BACKENDS = ("process", "ray")
 POLICIES = ("bnn", "autopilot", "constant")
