@@ -27,11 +27,12 @@ def linear_regression(n: int = 40, noise: float = 0.5, prior: float = 2.0):
     return log_prob_grad, mean.float(), cov.float()
 
 
-def test_hmc_matches_the_analytic_posterior_of_bayesian_linear_regression():
+@pytest.mark.parametrize("adapt_mass", [False, True])
+def test_hmc_matches_the_analytic_posterior_of_bayesian_linear_regression(adapt_mass):
     log_prob_grad, mean, cov = linear_regression()
     init = torch.zeros(4, 3)
     result = hmc(log_prob_grad, init, num_samples=1000, warmup=300, leapfrog_steps=10, step_size=0.5,
-                 target_accept=0.75, generator=torch.Generator().manual_seed(1))
+                 target_accept=0.75, adapt_mass=adapt_mass, generator=torch.Generator().manual_seed(1))
     samples = result.samples  # [4, 1000, 3]
     assert samples.shape == (4, 1000, 3)
     assert 0.6 < float(result.accept_rate.mean()) < 0.95  # adapted to the 0.75 target
