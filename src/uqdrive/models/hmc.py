@@ -1,10 +1,16 @@
 """HMC posterior over the last `bayesian_layers` head layers on the fixed MCD trunk.
 
 Fitting: a MAP head from the MCD head fixes the layers below the sampled ones (all four are
-sampled when bayesian_layers = 4); each chain starts from its own He initialisation of the
-sampled layers, trained `start_epochs` towards its own MAP (dispersed starts, so chains that
-agree have found the same distribution, not inherited it); full-batch HMC with step size and
-diagonal mass adapted in warm-up. Convergence is judged in function space
+sampled when bayesian_layers = 4). Chains start dispersed, so chains that agree have found the
+same distribution rather than inherited it, and the metric (mass matrix) is one of
+- `laplace` (bayesian_layers = 1): the last layer's posterior is log-concave and close to the
+  Gaussian of the Laplace approximation at the MAP, so HMC runs in the coordinates that whiten
+  that Gaussian (dense mass = its precision); chains start at `start_scale`× overdispersed
+  draws of it. Softmax weights are far from isotropic (a shift of all classes' weights leaves
+  the likelihood unchanged), which an identity or diagonal metric mixes through very slowly;
+- `diagonal`: each chain starts from its own He initialisation trained `start_epochs` towards
+  its own MAP, with a diagonal mass adapted in warm-up (any number of layers).
+Full-batch HMC with the step size adapted in warm-up. Convergence is judged in function space
 (`uqdrive.models.diagnostics`); weight-space split-R̂ is kept as a secondary number.
 """
 
@@ -25,7 +31,8 @@ from uqdrive.models.heads import (
     train_heads,
     unflatten,
 )
-from uqdrive.models.mcmc import LogProbGrad, hmc, split_rhat
+from uqdrive.models.laplace import last_layer_hessian, posterior_covariance, with_bias_input
+from uqdrive.models.mcmc import LogProbGrad, hmc, split_rhat, whitened
 from uqdrive.models.metrics import classification_metrics
 from uqdrive.models.pilotnet import sampled_mlp_logits
 from uqdrive.models.posterior import Fitted
@@ -42,7 +49,9 @@ class HMCSettings:
     leapfrog_steps: int = 10
     step_size: float = 1e-3  # initial; adapted during warm-up
     target_accept: float = 0.75
-    adapt_mass: bool = True
+    metric: str = "laplace"  # laplace (dense, from the last-layer Laplace; bayesian_layers = 1) | diagonal
+    adapt_mass: bool = True  # diagonal mass adapted in warm-up (in the whitened coordinates with metric=laplace)
+    start_scale: float = 2.0  # metric=laplace: chains start at this many Laplace standard deviations' spread
     prior_sigma: float = 1.0
     map_epochs: int = 5  # minibatch Adam epochs from the MCD head to the MAP that fixes the lower layers
     start_epochs: int = 2  # minibatch Adam epochs of each chain from its own random start
@@ -61,6 +70,10 @@ class HMCSettings:
         require("step_size", self.step_size, self.step_size > 0, "> 0")
         require("target_accept", self.target_accept, 0 < self.target_accept < 1, "in (0, 1)")
         require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
+        require("metric", self.metric, self.metric in ("laplace", "diagonal"), "laplace or diagonal")
+        require("metric", self.metric, self.metric != "laplace" or self.bayesian_layers == 1,
+                f"diagonal when bayesian_layers={self.bayesian_layers} (laplace whitens the last layer only)")
+        require("start_scale", self.start_scale, self.start_scale > 0, "> 0")
         require("map_epochs", self.map_epochs, self.map_epochs >= 0, "≥ 0")
         require("start_epochs", self.start_epochs, self.start_epochs >= 0, "≥ 0")
         require("map_lr", self.map_lr, self.map_lr > 0, "> 0")
@@ -112,10 +125,23 @@ class HMCPosterior(StoredHeadPosterior):
                                progress=progress, desc="hmc map")[0][0]
         train_phi = fixed_layer_features(data.train_features, head, shapes, fixed)
         val_phi = fixed_layer_features(data.val_features, head, shapes, fixed)
-        starts = train_heads(he_init_heads(settings.chains, sampled_shapes, generator), sampled_shapes, train_phi,
-                             train_labels, val_phi, val_labels, epochs=settings.start_epochs,
-                             batch_size=settings.map_batch_size, lr=settings.map_lr, prior_sigma=settings.prior_sigma,
-                             generator=generator, progress=progress, desc="hmc starts")[0]
+        log_prob_grad = head_log_posterior(train_phi, train_labels, sampled_shapes, settings.prior_sigma)
+        if settings.metric == "laplace":
+            centre = head[head_size(shapes[:fixed]):]  # the MAP's last layer, flat = W̃ [J, C] row-major
+            psi = with_bias_input(train_phi).double()
+            weights = centre.double().view(psi.shape[1], -1)
+            hessian = last_layer_hessian(psi, torch.softmax(psi @ weights, -1))
+            scale = torch.linalg.cholesky(posterior_covariance(hessian, settings.prior_sigma ** -2)).float()
+            to_theta = lambda u: centre + u @ scale.T  # noqa: E731
+            log_prob_grad = whitened(log_prob_grad, centre, scale)
+            starts = settings.start_scale * torch.randn((settings.chains, len(centre)), generator=generator)
+        else:
+            to_theta = lambda u: u  # noqa: E731
+            starts = train_heads(he_init_heads(settings.chains, sampled_shapes, generator), sampled_shapes, train_phi,
+                                 train_labels, val_phi, val_labels, epochs=settings.start_epochs,
+                                 batch_size=settings.map_batch_size, lr=settings.map_lr,
+                                 prior_sigma=settings.prior_sigma, generator=generator, progress=progress,
+                                 desc="hmc starts")[0]
         n_train = len(train_labels)
         total = settings.warmup + settings.samples * settings.thin
         every = max(1, total // 100)
@@ -124,27 +150,26 @@ class HMCPosterior(StoredHeadPosterior):
         def record(it: int, theta: torch.Tensor, lp: torch.Tensor, accept_prob: torch.Tensor) -> None:
             if (it + 1) % every and it + 1 != total:
                 return
-            probs = torch.softmax(sampled_mlp_logits(val_phi, unflatten(theta, sampled_shapes)), -1).mean(0)
+            probs = torch.softmax(sampled_mlp_logits(val_phi, unflatten(to_theta(theta), sampled_shapes)), -1).mean(0)
             scores = classification_metrics(probs, val_labels)
             curve.append({"step": it + 1, "train_loss": float(-lp.mean()) / n_train,
                           "val_accuracy": scores["accuracy"], "val_nll": scores["nll"],
                           "accept_prob": float(accept_prob.mean()), "warmup": int(it < settings.warmup)})
 
-        result = hmc(head_log_posterior(train_phi, train_labels, sampled_shapes, settings.prior_sigma), starts,
+        result = hmc(log_prob_grad, starts,
                      num_samples=settings.samples, warmup=settings.warmup, thin=settings.thin,
                      leapfrog_steps=settings.leapfrog_steps, step_size=settings.step_size,
                      target_accept=settings.target_accept, adapt_mass=settings.adapt_mass, generator=generator,
                      callback=record, progress=progress, desc="hmc")
         chains, kept = result.samples.shape[:2]
-        full = torch.cat([head[:head_size(shapes[:fixed])].expand(chains * kept, -1),
-                          result.samples.flatten(0, 1)], 1)
+        samples = to_theta(result.samples.flatten(0, 1))  # [chains·kept, D_k], chain-major
+        full = torch.cat([head[:head_size(shapes[:fixed])].expand(chains * kept, -1), samples], 1)
         frames = torch.linspace(0, len(val_labels) - 1, min(settings.diagnostic_frames, len(val_labels))).long()
         with torch.no_grad():
-            probs = torch.softmax(sampled_mlp_logits(val_phi[frames], unflatten(result.samples.flatten(0, 1),
-                                                                                sampled_shapes)), -1)
+            probs = torch.softmax(sampled_mlp_logits(val_phi[frames], unflatten(samples, sampled_shapes)), -1)
         probs = probs.view(chains, kept, len(frames), -1)
         fs = function_space_diagnostics(probs)
-        weight_rhat = split_rhat(result.samples)
+        weight_rhat = split_rhat(samples.view(chains, kept, -1))
         extra = {
             **fs,
             "fs_rhat_target_share": settings.rhat_target_share,
@@ -161,7 +186,7 @@ class HMCPosterior(StoredHeadPosterior):
             "kept_samples": int(chains * kept),
         }
         extra["diagnostics"] = (
-            f"{chains} chains × {kept} samples over the last {settings.bayesian_layers} layer(s) "
+            f"{chains} chains × {kept} samples ({settings.metric} metric) over the last {settings.bayesian_layers} layer(s) "
             f"({extra['bayesian_weights']} weights); function-space R̂ ≤ {RHAT_OK} for "
             f"{100 * fs['fs_rhat_share_ok']:.0f}% of {fs['fs_pairs']} (frame, class) pairs "
             f"(target {100 * settings.rhat_target_share:.0f}%), median {fs['fs_rhat_median']:.3f}, "

@@ -100,4 +100,6 @@ class MCDPosterior(Posterior):
             rates = {f"dropout_p{k + 1}": p for k, p in enumerate(model.dropout_rates())}
             curve.append(curve_row(epoch, total / len(data.train), scores, **rates))
         model.requires_grad_(False)
-        return Fitted(model, curve, {f"dropout_p{k + 1}": p for k, p in enumerate(model.dropout_rates())})
+        rates = model.dropout_rates()
+        return Fitted(model, curve, {**{f"dropout_p{k + 1}": p for k, p in enumerate(rates)},
+                                     "diagnostics": "learned dropout rates " + ", ".join(f"{p:.3f}" for p in rates)})

@@ -90,6 +90,17 @@ def hmc(log_prob_grad: LogProbGrad, init: torch.Tensor, *, num_samples: int, war
     return HMCResult(torch.stack(kept, 1), torch.stack(kept_lp, 1), accept_sum / (num_samples * thin), eps)
 
 
+def whitened(log_prob_grad: LogProbGrad, centre: torch.Tensor, scale: torch.Tensor) -> LogProbGrad:
+    """The same density in coordinates u with θ = centre + scale·u (scale [D, D], e.g. the Cholesky factor of a
+    Laplace covariance): HMC on u with identity mass is HMC on θ with the dense mass matrix (scale·scaleᵀ)⁻¹."""
+
+    def log_prob_grad_u(u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        lp, grad = log_prob_grad(centre + u @ scale.T)
+        return lp, grad @ scale
+
+    return log_prob_grad_u
+
+
 class _Welford:
     """Running mean and variance per chain and coordinate."""
 

@@ -99,7 +99,8 @@ class VIPosterior(Posterior):
             scores = evaluate(vi, data.val_features, data.val.labels, data.eval_samples, generator)
             curve.append(curve_row(epoch, total / n_train, scores, sigma_mean=vi.posterior_sigma_mean()))
         vi.requires_grad_(False)
-        return Fitted(vi, curve, {"posterior_sigma_mean": vi.posterior_sigma_mean()})
+        sigma = vi.posterior_sigma_mean()
+        return Fitted(vi, curve, {"posterior_sigma_mean": sigma, "diagnostics": f"mean posterior σ {sigma:.3f}"})
 
     def head_parameters(self) -> list[nn.Parameter]:
         return [*self.w_mu, *self.b_mu, *self.w_rho, *self.b_rho]

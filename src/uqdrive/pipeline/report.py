@@ -36,6 +36,8 @@ PAPER_DROPOUT_RATES = (0.1, 0.08, 0.08)
 PAPER_SAFETY_POOLED = {"hmc": "0.766 ± 0.05 (all weathers)", "vi": "0.91 ± 0.05 (all weathers)",
                        "mcd": "0.87 without rain, 0.58 ± 0.05 with rain"}
 PAPER_SAFETY_CELL = {("mcd", "clear_noon"): "1.00 (the only perfect score)"}
+PAPER_TRAINING = {"mcd": "dropout rates " + ", ".join(f"{p:g}" for p in PAPER_DROPOUT_RATES),
+                  "hmc": "10 leapfrog steps (as here)"}
 
 
 def fmt(value: object, digits: int = 3) -> str:
@@ -160,23 +162,26 @@ Built by `dvc repro` from this run's metrics files; every number below is read f
 
 def training_section(report: Report, cfg: DictConfig, metrics_dir: Path) -> None:
     rows = []
-    for method in cfg.methods:
-        m = read_json(metrics_dir / "train" / f"{method}.json")
-        if method == "mcd":
-            extra = "learned dropout rates " + ", ".join(fmt(m[f"dropout_p{k}"], 3) for k in (1, 2, 3))
-            paper = "dropout rates " + ", ".join(f"{p:g}" for p in PAPER_DROPOUT_RATES)
-        elif method == "vi":
-            extra, paper = f"mean posterior σ {fmt(m['posterior_sigma_mean'])}", "–"
-        else:
-            extra = (f"acceptance {fmt(m['accept_rate'], 2)}, split-R̂ max {fmt(m['rhat_max'], 2)} "
-                     f"(median {fmt(m['rhat_median'], 2)}), {m['kept_samples']} samples")
-            paper = "10 leapfrog steps (as here)"
+    trained = {method: read_json(metrics_dir / "train" / f"{method}.json") for method in cfg.methods}
+    for method, m in trained.items():
         rows.append([method, fmt(m["val_accuracy"]), fmt(m["majority_baseline_accuracy"]), fmt(m["val_nll"]),
-                     fmt(m["val_ece"]), fmt(m["val_brier"]), str(m["train_frames"]), extra, paper])
+                     fmt(m["val_ece"]), fmt(m["val_brier"]), str(m["train_frames"]), m.get("diagnostics", "–"),
+                     PAPER_TRAINING.get(method, "–")])
     report.add("## Controllers\n\nValidation frames are whole held-out episodes of the training collection "
                "(training weather, no noise).")
     report.add(table(["method", "val accuracy", "majority class", "NLL", "ECE", "Brier", "train frames",
                       "diagnostics", "paper"], rows))
+    sampled = {method: m for method, m in trained.items() if "fs_rhat_share_ok" in m}
+    if sampled:
+        report.add("Convergence of the sampled posteriors in function space (rank-normalised split-R̂ and ESS from "
+                   "ArviZ over the predictive class probabilities of validation frames, pairs with mean probability "
+                   "> 0.01, and over each frame's mutual information):")
+        report.add(table(["method", "share R̂ ≤ 1.1", "target", "median R̂", "min bulk / tail ESS", "MI R̂ max",
+                          "MI min bulk ESS", "between-chain share of MI", "train seconds"],
+                         [[method, fmt(m["fs_rhat_share_ok"]), fmt(m["fs_rhat_target_share"], 2), fmt(m["fs_rhat_median"]),
+                           f"{fmt(m['fs_ess_bulk_min'], 0)} / {fmt(m['fs_ess_tail_min'], 0)}", fmt(m["mi_rhat_max"]),
+                           fmt(m["mi_ess_bulk_min"], 0), fmt(m["between_chain_mi_share"]), fmt(m["train_seconds"], 0)]
+                          for method, m in sampled.items()]))
     for method in cfg.methods:
         report.figure(report.root / "plots" / "train" / f"{method}_curve.png", f"{method} learning curve")
 
@@ -288,6 +293,27 @@ for training. AUROC: how well an uncertainty score ranks frames with a wrong cla
     report.figure(figures / "conditions.png", "Held-out metrics across conditions, one line per method")
     for method in cfg.methods:
         report.figure(figures / f"reliability_{method}.png", f"{method}: reliability diagrams per condition")
+    agreement_table(report, cfg, evaluated)
+
+
+def agreement_table(report: Report, cfg: DictConfig, evaluated: dict) -> None:
+    """Each method against HMC's predictive on the same held-out frames (when HMC was evaluated)."""
+    cells = {m: [evaluated[m][w][f"noise{x}"] for w in cfg.weathers for x in cfg.noises] for m in cfg.methods}
+    if not all("hmc_tv_distance" in c for by_method in cells.values() for c in by_method):
+        return
+    mean = lambda key, cs: fmt(sum(c[key] for c in cs) / len(cs)) if all(c[key] is not None for c in cs) else "–"  # noqa: E731
+    report.add("""
+### Agreement with HMC
+
+HMC is the reference the other posteriors approximate. Per method, over the held-out frames of every condition:
+mean total-variation distance between its predictive and HMC's (worst condition beside it), share of frames with
+the same decision (argmax), Spearman correlation of per-frame mutual information with HMC's. The hmc row compares
+two independent sets of HMC draws: the Monte-Carlo noise floor.""")
+    report.add(table(["method", "mean TV to HMC", "worst condition TV", "argmax agreement", "MI Spearman ρ"],
+                     [[m, mean("hmc_tv_distance", cs), fmt(max(c["hmc_tv_distance"] for c in cs)),
+                       mean("hmc_argmax_agreement", cs), mean("hmc_mi_spearman", cs)] for m, cs in cells.items()]))
+    report.figure(report.root / "plots" / "evaluate" / "figures" / "agreement_hmc.png",
+                  "Agreement with HMC across conditions, one line per method")
 
 
 def sample_counts_section(report: Report, cells: list[dict]) -> None:
