@@ -100,19 +100,32 @@ def train_heads(theta: torch.Tensor, shapes: Shapes, features: torch.Tensor, lab
 
 
 class StoredHeadPosterior(Posterior):
-    """A posterior given by S stored heads [S, D] (HMC samples, ensemble members); draws index them."""
+    """A posterior given by S stored heads (HMC samples, ensemble members); draws index them.
 
-    def __init__(self, arch: Architecture, bins: SteeringBins, num_samples: int) -> None:
+    The lowest `fixed_layers` head layers may be shared by every stored head (HMC over the last
+    layers only): they are stored once and run once per frame batch, before the stored heads.
+    """
+
+    def __init__(self, arch: Architecture, bins: SteeringBins, num_samples: int, fixed_layers: int = 0) -> None:
         super().__init__(arch, bins)
-        self.shapes = arch.head_shapes(bins.num_classes)
+        head_shapes = arch.head_shapes(bins.num_classes)
+        if not 0 <= fixed_layers < len(head_shapes):
+            raise ValueError(f"fixed_layers={fixed_layers} must leave at least one of the {len(head_shapes)} head "
+                             f"layers to sample")
+        self.fixed_layers = fixed_layers
+        self.fixed_shapes, self.shapes = head_shapes[:fixed_layers], head_shapes[fixed_layers:]
+        self.register_buffer("fixed_head", torch.zeros(head_size(self.fixed_shapes)))
         self.register_buffer("samples", torch.zeros(num_samples, head_size(self.shapes)))
 
     @classmethod
-    def from_heads(cls, base: Posterior, heads: torch.Tensor) -> StoredHeadPosterior:
-        """Keep the base model's trunk (frozen) and the flat heads [S, D]."""
-        post = cls(base.arch, base.bins, len(heads))
+    def from_heads(cls, base: Posterior, heads: torch.Tensor, fixed_head: torch.Tensor | None = None,
+                   fixed_layers: int = 0) -> StoredHeadPosterior:
+        """Keep the base model's trunk (frozen), the shared lowest layers (flat) and the heads [S, D] above them."""
+        post = cls(base.arch, base.bins, len(heads), fixed_layers)
         post.trunk.load_state_dict(base.trunk.state_dict())
         post.trunk.requires_grad_(False)
+        if fixed_layers:
+            post.fixed_head.copy_(fixed_head)
         post.samples.copy_(heads)
         return post
 
@@ -120,22 +133,25 @@ class StoredHeadPosterior(Posterior):
         self.samples.copy_(heads)
 
     def init_kwargs(self) -> dict:
-        return {"num_samples": len(self.samples)}
+        return {"num_samples": len(self.samples), "fixed_layers": self.fixed_layers}
 
     @abstractmethod
     def draw_index(self, n: int, generator: torch.Generator | None) -> torch.Tensor:
         """Which stored head each of n draws uses [n]."""
 
+    def sampled_inputs(self, features: torch.Tensor) -> torch.Tensor:
+        return fixed_layer_features(features, self.fixed_head, self.fixed_shapes, self.fixed_layers)
+
     @torch.no_grad()
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """When n ≥ S every stored head is evaluated once and the outputs indexed (cheaper than copying n heads)."""
         index = self.draw_index(check_draws(n), generator)
+        inputs = self.sampled_inputs(features)
         if n >= len(self.samples):
-            return torch.softmax(sampled_mlp_logits(features, unflatten(self.samples, self.shapes)), -1)[index]
-        return torch.softmax(sampled_mlp_logits(features, unflatten(self.samples[index], self.shapes)), -1)
+            return torch.softmax(sampled_mlp_logits(inputs, unflatten(self.samples, self.shapes)), -1)[index]
+        return torch.softmax(sampled_mlp_logits(inputs, unflatten(self.samples[index], self.shapes)), -1)
 
     @torch.no_grad()
     def stored_probs(self, features: torch.Tensor) -> torch.Tensor:
         """Probabilities [S, B, C] of every stored head, in storage order (diagnostics compare them by chain)."""
-        return torch.softmax(sampled_mlp_logits(features, unflatten(self.samples, self.shapes)), -1)
-
+        return torch.softmax(sampled_mlp_logits(self.sampled_inputs(features), unflatten(self.samples, self.shapes)), -1)

@@ -163,7 +163,6 @@ class HMCPosterior(StoredHeadPosterior):
                      callback=record, progress=progress, desc="hmc")
         chains, kept = result.samples.shape[:2]
         samples = to_theta(result.samples.flatten(0, 1))  # [chains·kept, D_k], chain-major
-        full = torch.cat([head[:head_size(shapes[:fixed])].expand(chains * kept, -1), samples], 1)
         frames = torch.linspace(0, len(val_labels) - 1, min(settings.diagnostic_frames, len(val_labels))).long()
         with torch.no_grad():
             probs = torch.softmax(sampled_mlp_logits(val_phi[frames], unflatten(samples, sampled_shapes)), -1)
@@ -193,4 +192,4 @@ class HMCPosterior(StoredHeadPosterior):
             f"min bulk/tail ESS {fs['fs_ess_bulk_min']:.0f}/{fs['fs_ess_tail_min']:.0f}; MI R̂ max "
             f"{fs['mi_rhat_max']:.2f}, min ESS {fs['mi_ess_bulk_min']:.0f}; acceptance {extra['accept_rate']:.2f}; "
             f"weight-space split-R̂ median {extra['rhat_median']:.2f} (secondary)")
-        return Fitted(cls.from_heads(base, full), curve, extra)
+        return Fitted(cls.from_heads(base, samples, head[:head_size(shapes[:fixed])], fixed), curve, extra)
