@@ -77,3 +77,13 @@ def test_split_rhat_is_one_for_mixed_chains_and_large_for_stuck_ones():
     drifting = mixed + torch.linspace(0, 5, 500).view(1, 500, 1)  # each chain's halves disagree
     assert float(split_rhat(drifting).min()) > 1.3
     assert split_rhat(mixed[..., 0]).shape == ()
+
+
+def test_settled_iteration_is_where_loss_and_nll_come_within_three_sd_of_their_kept_mean():
+    from uqdrive.models.hmc import settled_iteration
+
+    losses = [5.0, 3.0, 1.2, 1.0, 1.1, 0.9, 1.05, 1.0, 0.95, 1.1]  # kept: mean 1.0, sd 0.079 → band [0.76, 1.24]
+    curve = [{"step": 10 * (i + 1), "train_loss": v, "val_nll": 2.0, "warmup": int(i < 5)} for i, v in enumerate(losses)]
+    assert settled_iteration(curve) == 30  # 3.0 at step 20 is the last value outside the band
+    curve[3]["val_nll"] = 9.0  # the predictive still drifting at step 40
+    assert settled_iteration(curve) == 50

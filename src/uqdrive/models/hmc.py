@@ -96,6 +96,23 @@ def head_log_posterior(features: torch.Tensor, labels: torch.Tensor, shapes: lis
     return log_prob_grad
 
 
+def settled_iteration(curve: list[dict]) -> int:
+    """First recorded iteration from which the chains' mean training loss and validation NLL stay within 3 sd
+    of their post-warm-up mean: when the run stopped drifting. Well below `warmup` means the warm-up is long
+    enough; near or beyond it, the kept samples still carry the start."""
+    kept = [row for row in curve if not row["warmup"]]
+    settled = curve[0]["step"]
+    for key in ("train_loss", "val_nll"):
+        values = torch.tensor([r[key] for r in kept], dtype=torch.float64)
+        centre, spread = float(values.mean()), 3 * float(values.std()) if len(values) > 1 else 0.0
+        outside = [i for i, r in enumerate(curve) if abs(r[key] - centre) > spread]
+        if outside and outside[-1] + 1 < len(curve):
+            settled = max(settled, curve[outside[-1] + 1]["step"])
+        elif outside:
+            settled = max(settled, curve[-1]["step"])
+    return settled
+
+
 class HMCPosterior(StoredHeadPosterior):
     """Draws index the stored samples: without replacement when n ≤ S, with replacement when n > S."""
 
@@ -171,6 +188,8 @@ class HMCPosterior(StoredHeadPosterior):
         weight_rhat = split_rhat(samples.view(chains, kept, -1))
         extra = {
             **fs,
+            "settled_iteration": settled_iteration(curve),
+            "warmup": settings.warmup,
             "fs_rhat_target_share": settings.rhat_target_share,
             "fs_rhat_target_met": int(fs["fs_rhat_share_ok"] >= settings.rhat_target_share),
             "between_chain_mi_share": between_chain_mi_share(probs),
@@ -190,6 +209,7 @@ class HMCPosterior(StoredHeadPosterior):
             f"{100 * fs['fs_rhat_share_ok']:.0f}% of {fs['fs_pairs']} (frame, class) pairs "
             f"(target {100 * settings.rhat_target_share:.0f}%), median {fs['fs_rhat_median']:.3f}, "
             f"min bulk/tail ESS {fs['fs_ess_bulk_min']:.0f}/{fs['fs_ess_tail_min']:.0f}; MI R̂ max "
-            f"{fs['mi_rhat_max']:.2f}, min ESS {fs['mi_ess_bulk_min']:.0f}; acceptance {extra['accept_rate']:.2f}; "
+            f"{fs['mi_rhat_max']:.2f}, min ESS {fs['mi_ess_bulk_min']:.0f}; loss and predictive settled by iteration "
+            f"{extra['settled_iteration']} of {settings.warmup} warm-up; acceptance {extra['accept_rate']:.2f}; "
             f"weight-space split-R̂ median {extra['rhat_median']:.2f} (secondary)")
         return Fitted(cls.from_heads(base, samples, head[:head_size(shapes[:fixed])], fixed), curve, extra)
