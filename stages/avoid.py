@@ -1,5 +1,5 @@
 """DVC stage `avoid@<method>`: collision avoidance with the warning system, warnings off/on, known/unknown
-conditions, calibrated thresholds checked in closed loop (`model=mcd|vi|hmc`)."""
+conditions, calibrated thresholds checked in closed loop (`model=<method>`)."""
 
 import hydra
 from omegaconf import DictConfig
