@@ -19,7 +19,7 @@ import torch
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.ensemble import EnsemblePosterior
-from uqdrive.models.heads import flatten_mcd_head, he_init_heads
+from uqdrive.models.heads import flatten_mcd_head, he_init_heads, head_size
 from uqdrive.models.hmc import HMCPosterior
 from uqdrive.models.laplace import LaplacePosterior
 from uqdrive.models.mcd import MCDPosterior
@@ -27,7 +27,7 @@ from uqdrive.models.pilotnet import Architecture, init_weights
 from uqdrive.models.posterior import Posterior
 from uqdrive.models.vi import VIPosterior
 
-HMC_STORED = 600  # kept samples of the paper profile (4 chains x 150)
+HMC_STORED = 600  # kept last-layer samples of the paper profile (4 chains x 150)
 ENSEMBLE_MEMBERS = 10  # the paper profile's
 
 
@@ -36,14 +36,15 @@ def random_posteriors(generator: torch.Generator) -> dict[str, Posterior]:
     mcd = init_weights(MCDPosterior(Architecture(), SteeringBins()), generator).eval()
     vi = VIPosterior.from_mcd(mcd, prior_sigma=1.0, init_sigma=0.05).eval()
     start = flatten_mcd_head(mcd)
-    samples = start + 0.05 * torch.randn((HMC_STORED, len(start)), generator=generator)
     shapes = mcd.arch.head_shapes(mcd.num_classes)
+    lower = head_size(shapes[:-1])  # HMC samples the last layer; the three below stay fixed
+    samples = start[lower:] + 0.05 * torch.randn((HMC_STORED, len(start) - lower), generator=generator)
     laplace = LaplacePosterior(mcd.arch, mcd.bins)
     laplace.trunk.load_state_dict(mcd.trunk.state_dict())
     laplace.head.copy_(start)
     factor = torch.randn(laplace.covariance.shape, generator=generator, dtype=torch.float64)
     laplace.covariance.copy_(0.05 * factor @ factor.T / len(factor) + 1e-3 * torch.eye(len(factor), dtype=torch.float64))
-    return {"mcd": mcd, "vi": vi, "hmc": HMCPosterior.from_heads(mcd, samples).eval(),
+    return {"mcd": mcd, "vi": vi, "hmc": HMCPosterior.from_heads(mcd, samples, start[:lower], len(shapes) - 1).eval(),
             "ensemble": EnsemblePosterior.from_heads(mcd, he_init_heads(ENSEMBLE_MEMBERS, shapes, generator)).eval(),
             "laplace": laplace.eval()}
 
