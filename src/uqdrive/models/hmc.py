@@ -50,7 +50,7 @@ class HMCSettings:
     step_size: float = 1e-3  # initial; adapted during warm-up
     target_accept: float = 0.75
     metric: str = "laplace"  # laplace (dense, from the last-layer Laplace; bayesian_layers = 1) | diagonal
-    adapt_mass: bool = True  # diagonal mass adapted in warm-up (in the whitened coordinates with metric=laplace)
+    adapt_mass: bool = False  # diagonal mass adapted in warm-up, on top of the metric (use it with metric=diagonal)
     start_scale: float = 2.0  # metric=laplace: chains start at this many Laplace standard deviations' spread
     prior_sigma: float = 1.0
     map_epochs: int = 5  # minibatch Adam epochs from the MCD head to the MAP that fixes the lower layers
