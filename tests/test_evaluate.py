@@ -161,7 +161,7 @@ def test_a_file_of_another_condition_is_refused(stage_config, tmp_path, random_m
     ("evaluate.samples=0", "evaluate.samples=0 must be an integer >= 1"),
     ("evaluate.samples=2.5", "evaluate.samples=2.5 must be an integer >= 1"),
     ("evaluate.batch_size=0", "evaluate.batch_size=0 must be an integer >= 1"),
-    ("methods=[mcd,bnn]", r"methods=\['mcd', 'bnn'\] must be a non-empty list of known methods"),
+    ("methods=[mcd,Bnn]", r"methods=\['mcd', 'Bnn'\] must be a non-empty list of method names"),
     ("methods=[]", r"methods=\[\] must be a non-empty list"),
     ("noises=[-0.1]", r"noises=\[-0.1\] must be a non-empty list of numbers >= 0"),
     ("weathers=[]", r"weathers=\[\] must be a non-empty list"),

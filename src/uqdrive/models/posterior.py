@@ -91,9 +91,13 @@ def check_draws(n: int) -> int:
     return n
 
 
+def is_method_name(name: object) -> bool:
+    return isinstance(name, str) and METHOD_NAME.fullmatch(name) is not None
+
+
 def check_method(name: object) -> str:
     """A method name as used in file names (models/<method>.pt) and `methods` lists."""
-    if not isinstance(name, str) or not METHOD_NAME.fullmatch(name):
+    if not is_method_name(name):
         raise ValueError(f"model.name={name!r} is not a method name: lower-case letters, digits and _ "
                          f"(the name of a conf/model/<name>.yaml)")
     return name

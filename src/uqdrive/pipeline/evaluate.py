@@ -28,9 +28,9 @@ from uqdrive.data.preprocess import Split, preprocess_raw
 from uqdrive.data.tables import RAW_SCHEMA, read_table
 from uqdrive.files import write_csv, write_json
 from uqdrive.models.agreement import agreement_with_reference
-from uqdrive.models.checkpoint import check_method, load_posterior
+from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.metrics import classification_metrics, mistake_auroc, reliability_bins
-from uqdrive.models.posterior import Posterior
+from uqdrive.models.posterior import Posterior, is_method_name
 from uqdrive.plots import condition_lines_figure, reliability_grid, save_figure
 from uqdrive.tracking import stage_run
 from uqdrive.uq import frame_measures
@@ -203,9 +203,10 @@ def run_evaluate(cfg: DictConfig) -> dict:
     the output paths and the MLflow run id of each method."""
     settings = EvaluateSettings(cfg.evaluate.samples, cfg.evaluate.eps, cfg.evaluate.batch_size)
     bins = SteeringBins(**cfg.bins)
-    methods = [check_method(m) for m in cfg.methods]
-    if not methods:
-        raise ValueError("methods=[] must be a non-empty list of methods (conf/model/<name>.yaml)")
+    methods = list(cfg.methods)
+    if not methods or not all(is_method_name(m) for m in methods):
+        raise ValueError(f"methods={methods!r} must be a non-empty list of method names (conf/model/<name>.yaml: "
+                         f"lower-case letters, digits and _)")
     conditions = conditions_from(cfg)
     model_paths = check_inputs(cfg, methods, conditions)
     posteriors = {m: load_posterior(path, expected_method=m, expected_classes=bins)
