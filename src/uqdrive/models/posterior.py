@@ -116,5 +116,18 @@ def posterior_class(target: object) -> type[Posterior]:
     return cls
 
 
+def posterior_from_config(model: Any) -> type[Posterior]:
+    """The Posterior class a conf/model section (mapping with name and _target_) names, checked against its name."""
+    method = check_method(model.get("name"))
+    if "_target_" not in model:
+        raise ValueError(f"model._target_ is missing in conf/model/{method}.yaml: it must name the Posterior "
+                         f"class, e.g. uqdrive.models.vi.VIPosterior")
+    cls = posterior_class(model["_target_"])
+    if cls.method != method:
+        raise ValueError(f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is "
+                         f"{cls.method!r}")
+    return cls
+
+
 def class_path(cls: type[Posterior]) -> str:
     return f"{cls.__module__}.{cls.__qualname__}"

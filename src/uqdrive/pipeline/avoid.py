@@ -27,7 +27,7 @@ from tqdm import tqdm
 from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path, write_csv, write_json
-from uqdrive.models.checkpoint import check_method
+from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import (avoid_signals_figure, avoid_trajectories, avoid_trajectories_figure, avoid_tradeoff_figure,
                            save_figure)
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, estimate_safety
@@ -142,7 +142,7 @@ def _variants(cfg: DictConfig, scenario: ScenarioConfig) -> tuple[Variant, ...]:
 
 def build_settings(cfg: DictConfig) -> AvoidSettings:
     """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
-    method = check_method(cfg.model.name)
+    method = posterior_from_config(cfg.model).method
     if cfg.executor.name not in BACKENDS:
         raise ValueError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
     checks.integer("executor.workers", cfg.executor.workers, 1)

@@ -21,7 +21,7 @@ from uqdrive.files import write_csv, write_json
 from uqdrive.models.checkpoint import save_posterior
 from uqdrive.models.metrics import majority_accuracy
 from uqdrive.models.pilotnet import Architecture
-from uqdrive.models.posterior import Posterior, check_method, posterior_class
+from uqdrive.models.posterior import Posterior, posterior_from_config
 from uqdrive.models.training import TrainingData, compute_features, evaluate, settings_from
 from uqdrive.plots import save_figure
 from uqdrive.tracking import stage_run
@@ -29,16 +29,9 @@ from uqdrive.tracking import stage_run
 
 def model_from_config(cfg: DictConfig) -> tuple[type[Posterior], object]:
     """The Posterior class `model._target_` names and its checked settings (the model keys besides name, _target_)."""
+    cls = posterior_from_config(cfg.model)
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    method = check_method(model_cfg.pop("name", None))
-    if "_target_" not in model_cfg:
-        raise ValueError(f"model._target_ is missing in conf/model/{method}.yaml: it must name the Posterior "
-                         f"class, e.g. uqdrive.models.vi.VIPosterior")
-    cls = posterior_class(model_cfg.pop("_target_"))
-    if cls.method != method:
-        raise ValueError(f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is "
-                         f"{cls.method!r}")
-    return cls, settings_from(cls.Settings, model_cfg)
+    return cls, settings_from(cls.Settings, {k: v for k, v in model_cfg.items() if k not in ("name", "_target_")})
 
 
 def run_train(cfg: DictConfig) -> dict:
