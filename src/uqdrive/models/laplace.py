@@ -81,16 +81,18 @@ def glm_logits(psi: torch.Tensor, weights: torch.Tensor, covariance: torch.Tenso
     """Mean [B, C] and covariance [B, C, C] of the logits under W̃ ~ N(weights [J, C], covariance [J·C, J·C])."""
     j, c = weights.shape
     mean = psi @ weights
-    cov = torch.einsum("bj,jckd,bk->bcd", psi, covariance.view(j, c, j, c), psi)
+    left = (psi @ covariance.reshape(j, c * j * c)).view(-1, c, j, c)  # Σ_j ψ_j Σ[(j,c),(k,d)]: one matmul
+    cov = torch.matmul(left.transpose(2, 3), psi[:, None, :, None]).squeeze(-1)  # then Σ_k ·ψ_k: [B, C, C]
     return mean, cov
 
 
 def sample_glm_probs(mean: torch.Tensor, cov: torch.Tensor, n: int, generator: torch.Generator | None) -> torch.Tensor:
     """Softmax of n logit draws per frame from N(mean [B, C], cov [B, C, C]): [n, B, C]."""
     jitter = CHOLESKY_JITTER * torch.eye(cov.shape[-1], dtype=cov.dtype)
-    scale = torch.linalg.cholesky(cov + jitter)
-    z = torch.randn((n, *mean.shape), generator=generator, dtype=cov.dtype)
-    return torch.softmax((mean + torch.einsum("bcd,nbd->nbc", scale, z)).float(), -1)
+    scale = torch.linalg.cholesky(cov + jitter).float()  # factorised in double, applied in float
+    z = torch.randn((mean.shape[0], n, mean.shape[1]), generator=generator)  # [B, n, C]
+    logits = mean.float().unsqueeze(1) + torch.matmul(z, scale.transpose(1, 2))
+    return torch.softmax(logits, -1).transpose(0, 1).contiguous()
 
 
 class LaplacePosterior(Posterior):
