@@ -1,5 +1,5 @@
 """DVC stage `avoid@<method>`: collision avoidance with the warning system, warnings off/on/calibrated, in the
-known condition and each unknown one (`model=mcd|vi|hmc`, the `avoid` experiment's controllers)."""
+known condition and each unknown one (`model=<method>`, the `avoid` experiment's controllers)."""
 
 import hydra
 from omegaconf import DictConfig

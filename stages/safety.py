@@ -1,4 +1,4 @@
-"""DVC stage `safety@<cell>`: η1 of one controller (`model=mcd|vi|hmc`) in one weather and noise level."""
+"""DVC stage `safety@<cell>`: η1 of one controller (`model=<method>`) in one weather and noise level."""
 
 import hydra
 from omegaconf import DictConfig

@@ -98,7 +98,7 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
     (("warning.delta2=-0.2",), ValueError, r"warning.delta2=-0.2 must be in \[0, 1\]"),
     (("warning.tau=-1",), ValueError, r"warning.tau=-1 must be >= 0"),
     (("warning.actions.warning2.speed=0.5",), ValueError, r"warning.actions.warning2.speed=0.5 must be 0 when"),
-    (("model.name=lasso",), ValueError, r"model.name='lasso' is not a known method"),
+    (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
     (("avoid.model_path=/nonexistent/vi.pt",), FileNotFoundError, r"avoid.model_path=/nonexistent/vi.pt does not"),
     (("avoid.theta=0",), ValueError, r"avoid.theta=0 must be in the open interval"),
     (("avoid.scheme=bootstrap",), ValueError, r"avoid.scheme='bootstrap' is not known"),

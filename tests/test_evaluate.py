@@ -18,6 +18,7 @@ from conftest import ALL_TENTHS
 
 METRIC_KEYS = {"accuracy", "nll", "ece", "brier", "mean_mutual_information", "mean_eta2", "auroc_mi",
                "auroc_one_minus_eta2", "auroc_note", "frames", "mistakes"}
+AGREEMENT_KEYS = {"hmc_tv_distance", "hmc_tv_distance_max", "hmc_argmax_agreement", "hmc_mi_spearman"}
 
 
 def write_heldout(root, weather: str, noise: float, frames: int = 24, seed: int = 0, scenario: str = "roundabout",
@@ -81,7 +82,12 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     assert {m: {w: sorted(c) for w, c in t.items()} for m, t in table.items()} == {
         m: {"clear_noon": ["noise0.0", "noise0.05"], "rain": ["noise0.0", "noise0.05"]} for m in ("mcd", "hmc")}
     cell = table["hmc"]["rain"]["noise0.05"]
-    assert set(cell) == METRIC_KEYS and cell["frames"] == 24
+    assert set(cell) == METRIC_KEYS | AGREEMENT_KEYS and cell["frames"] == 24
+    mcd = table["mcd"]["rain"]["noise0.05"]
+    assert set(mcd) == METRIC_KEYS | AGREEMENT_KEYS
+    # HMC against its own second draw set is the noise floor: closer than a different (random) model
+    assert cell["hmc_tv_distance"] < mcd["hmc_tv_distance"]
+    assert 0 <= mcd["hmc_tv_distance"] <= mcd["hmc_tv_distance_max"] <= 1 and -1 <= mcd["hmc_mi_spearman"] <= 1
     assert 0 <= cell["accuracy"] <= 1 and cell["nll"] > 0 and 0 <= cell["ece"] <= 1 and 0 <= cell["brier"] <= 2
     assert 0 < cell["mean_eta2"] <= 1 and cell["mean_mutual_information"] >= 0
     assert cell["mistakes"] == round((1 - cell["accuracy"]) * cell["frames"])
@@ -92,8 +98,8 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     reliability = (plots / "reliability.csv").read_text().splitlines()
     assert reliability[0] == "series,method,weather,noise,bin,bin_low,bin_high,confidence,accuracy,frames"
     assert sum(int(line.split(",")[-1]) for line in reliability[1:] if line.startswith("mcd rain noise0.05,")) == 24
-    assert sorted(p.name for p in (plots / "figures").iterdir()) == ["conditions.png", "reliability_hmc.png",
-                                                                     "reliability_mcd.png"]
+    assert sorted(p.name for p in (plots / "figures").iterdir()) == ["agreement_hmc.png", "conditions.png",
+                                                                     "reliability_hmc.png", "reliability_mcd.png"]
 
     client = MlflowClient(store_uris(store_root)[0])
     runs = {m: client.get_run(run_id) for m, run_id in result["mlflow_runs"].items()}
@@ -104,7 +110,8 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     assert hmc.data.metrics["rain/noise0.05/accuracy"] == pytest.approx(cell["accuracy"])
     assert len([k for k in hmc.data.metrics if k.endswith("/ece")]) == 4
     artifacts = {a.path for a in client.list_artifacts(hmc.info.run_id)}
-    assert {"reliability_hmc.png", "conditions.png", "evaluate.json", "conditions.csv", "reliability.csv"} <= artifacts
+    assert {"reliability_hmc.png", "conditions.png", "agreement_hmc.png", "evaluate.json", "conditions.csv",
+            "reliability.csv"} <= artifacts
 
 
 def test_a_cell_does_not_change_when_another_condition_is_added(stage_config, tmp_path, random_models, store_root):
@@ -115,6 +122,7 @@ def test_a_cell_does_not_change_when_another_condition_is_added(stage_config, tm
     alone = run_evaluate(config("[rain]"))["table"]
     both = run_evaluate(config("[afternoon,rain]"))["table"]
     assert both["vi"]["rain"] == alone["vi"]["rain"]
+    assert not any(k.startswith("hmc_") for k in both["vi"]["rain"]["noise0.0"])  # no reference, no agreement
 
 
 def test_auroc_without_mistakes_is_null_with_the_reason():
@@ -155,7 +163,7 @@ def test_a_file_of_another_condition_is_refused(stage_config, tmp_path, random_m
     ("evaluate.samples=0", "evaluate.samples=0 must be an integer >= 1"),
     ("evaluate.samples=2.5", "evaluate.samples=2.5 must be an integer >= 1"),
     ("evaluate.batch_size=0", "evaluate.batch_size=0 must be an integer >= 1"),
-    ("methods=[mcd,bnn]", r"methods=\['mcd', 'bnn'\] must be a non-empty list of known methods"),
+    ("methods=[mcd,Bnn]", r"methods=\['mcd', 'Bnn'\] must be a non-empty list of method names"),
     ("methods=[]", r"methods=\[\] must be a non-empty list"),
     ("noises=[-0.1]", r"noises=\[-0.1\] must be a non-empty list of numbers >= 0"),
     ("weathers=[]", r"weathers=\[\] must be a non-empty list"),

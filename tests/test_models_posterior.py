@@ -1,4 +1,4 @@
-"""The `Posterior` interface shared by MCD, VI and HMC, and the model files it is saved in."""
+"""The `Posterior` interface shared by every method, and the model files it is saved in."""
 
 import pytest
 import torch
@@ -7,9 +7,10 @@ from uqdrive.bench.posterior import random_posteriors
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet, to_inputs
 from uqdrive.models.checkpoint import load_posterior, save_posterior
-from uqdrive.models.hmc import HMCPosterior, flatten_mcd_head
+from uqdrive.models.heads import flatten_mcd_head
+from uqdrive.models.hmc import HMCPosterior
 
-METHODS = ("mcd", "vi", "hmc")
+METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def test_sample_probs_is_n_by_batch_by_classes_and_seeded(posteriors, frames, me
     assert not torch.equal(probs, other)  # draws are random (fixed trunk, sampled head)
 
 
-@pytest.mark.parametrize("method", ("mcd", "hmc"))
+@pytest.mark.parametrize("method", ("mcd", "hmc", "ensemble"))
 def test_a_draw_is_one_network_for_every_frame_of_a_batch(posteriors, frames, method):
     twice = torch.cat([frames[:1], frames[:1]])
     probs = posteriors[method].sample_probs(twice, 50, torch.Generator().manual_seed(0))
@@ -43,16 +44,17 @@ def test_a_draw_is_one_network_for_every_frame_of_a_batch(posteriors, frames, me
     assert probs[:, 0].std(0).max() > 0.01
 
 
-def test_vi_draws_of_a_frame_match_in_distribution_across_batch_positions(posteriors, frames):
+@pytest.mark.parametrize("method", ("vi", "laplace"))
+def test_per_frame_draws_match_in_distribution_across_batch_positions(posteriors, frames, method):
     twice = torch.cat([frames[:1], frames[:1]])
-    probs = posteriors["vi"].sample_probs(twice, 4000, torch.Generator().manual_seed(0))
+    probs = posteriors[method].sample_probs(twice, 4000, torch.Generator().manual_seed(0))
     torch.testing.assert_close(probs[:, 0].mean(0), probs[:, 1].mean(0), atol=0.01, rtol=0)
 
 
 def test_hmc_indexes_stored_samples_with_replacement_only_beyond_the_store(posteriors, frames):
     mcd = posteriors["mcd"]
     samples = flatten_mcd_head(mcd) + 0.5 * torch.randn((6, len(flatten_mcd_head(mcd))), generator=torch.Generator().manual_seed(0))
-    hmc = HMCPosterior.from_samples(mcd, samples)
+    hmc = HMCPosterior.from_heads(mcd, samples)
     features = hmc.features(frames[:1])
     each = hmc.head_probs(features, 6, torch.Generator().manual_seed(0))[:, 0]
     assert len({tuple(p.tolist()) for p in each}) == 6  # a permutation of the 6 stored samples
@@ -79,8 +81,10 @@ def test_loading_the_wrong_file_fails_clearly(posteriors, tmp_path):
         load_posterior(path, expected_classes=11)
     with pytest.raises(ValueError, match="trained on classes"):
         load_posterior(path, expected_classes=SteeringBins(per_unit=5))
-    with pytest.raises(ValueError, match="'lasso' is not a known method"):
+    with pytest.raises(ValueError, match="holds a 'vi' model, expected 'lasso'"):
         load_posterior(path, expected_method="lasso")
+    with pytest.raises(ValueError, match="is not a method name"):
+        load_posterior(path, expected_method="../vi")
     (tmp_path / "notes.pt").write_text("not a model")
     with pytest.raises(ValueError, match="not a uqdrive model file"):
         load_posterior(tmp_path / "notes.pt")
@@ -109,3 +113,17 @@ def test_frame_sets_scale_pixels_and_refuse_empty_or_out_of_range_data():
         FrameSet(images, torch.tensor([0, 5, 21]), 21)
     batches = list(FrameSet(images, torch.tensor([0, 1, 2]), 21).batches(2, torch.Generator().manual_seed(0)))
     assert [len(y) for _, y in batches] == [2, 1]
+
+
+def test_ensemble_draws_are_its_members(posteriors, frames):
+    ensemble = posteriors["ensemble"]
+    features = ensemble.features(frames)
+    members = ensemble.stored_probs(features)  # [M, B, C], one network each
+    m = len(members)
+    draws = ensemble.head_probs(features, 3 * m + 2, torch.Generator().manual_seed(0))
+    match = [[torch.allclose(d, member, atol=1e-6) for member in members] for d in draws]
+    assert all(sum(row) == 1 for row in match)  # every draw is exactly one member, for every frame at once
+    counts = torch.tensor(match).sum(0)
+    assert counts.min() == 3 and counts.max() == 4  # cycles through a permutation: each member 3 or 4 times
+    few = ensemble.head_probs(features, m, torch.Generator().manual_seed(1))
+    torch.testing.assert_close(few.mean(0), members.mean(0))  # n = M draws: the mixture exactly

@@ -40,7 +40,7 @@ def write_run(root):
         for method in METHODS:
             train = {"val_accuracy": rng.random(), "majority_baseline_accuracy": 0.5, "val_nll": 0.3, "val_ece": 0.02,
                      "val_brier": 0.1, "train_frames": 100, "seed": 0, "dropout_p1": 0.1, "dropout_p2": 0.09,
-                     "dropout_p3": 0.08, "posterior_sigma_mean": 0.01}
+                     "dropout_p3": 0.08, "posterior_sigma_mean": 0.01, "diagnostics": f"{method} diagnostics"}
             (root / f"metrics/{experiment}/train/{method}.json").write_text(json.dumps(train))
             (root / f"plots/{experiment}/train").mkdir(parents=True, exist_ok=True)
             (root / f"plots/{experiment}/train/{method}_curve.png").write_bytes(png)
@@ -53,7 +53,9 @@ def write_run(root):
     (root / "metrics/safety.json").write_text(json.dumps(summary))
     evaluated = {m: {w: {f"noise{x}": {"frames": 50, "accuracy": rng.random(), "nll": 0.4, "ece": rng.random(),
                                        "brier": 0.2, "mean_mutual_information": rng.random(), "mean_eta2": 0.97,
-                                       "auroc_mi": rng.random(), "auroc_one_minus_eta2": None}
+                                       "auroc_mi": rng.random(), "auroc_one_minus_eta2": None,
+                                       "hmc_tv_distance": rng.random(), "hmc_argmax_agreement": rng.random(),
+                                       "hmc_mi_spearman": None if m == "vi" else rng.random()}
                          for x in NOISES} for w in WEATHERS} for m in METHODS}
     (root / "metrics/evaluate.json").write_text(json.dumps(evaluated))
     cell = {"eta1_low": 0.1, "eta1_high": 1.0, "n": 19, "full_speed_fraction": 0.9, "collision_rate": 0.0,
@@ -100,6 +102,12 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     training = {(r["experiment"], r["method"]): r for r in markdown_rows(text, "experiment | method")}
     assert training[("avoid", "vi")]["val accuracy"] == fmt(
         json.loads((tmp_path / "metrics/avoid/train/vi.json").read_text())["val_accuracy"])
+    assert training[("offline", "mcd")]["diagnostics"] == "mcd diagnostics"
+    agreement = {r["method"]: r for r in markdown_rows(text, "method | mean TV to HMC")}
+    mcd_cells = [evaluated["mcd"][w][f"noise{x}"] for w in WEATHERS for x in NOISES]
+    assert agreement["mcd"]["mean TV to HMC"] == fmt(sum(c["hmc_tv_distance"] for c in mcd_cells) / 4)
+    assert agreement["mcd"]["worst condition TV"] == fmt(max(c["hmc_tv_distance"] for c in mcd_cells))
+    assert agreement["vi"]["MI Spearman ρ"] == "–"
     held_out = markdown_rows(text, "method | weather | noise | frames")
     assert len(held_out) == len(METHODS) * len(WEATHERS) * len(NOISES)
     for row in held_out:
@@ -125,7 +133,7 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         (tmp_path / "metrics/avoid/train/vi.json").read_text())["val_accuracy"]
 
     html = (tmp_path / "reports/report.html").read_text()
-    figures = len(EXPERIMENTS) * len(METHODS) + 1
+    figures = len(EXPERIMENTS) * len(METHODS) + 1  # learning curves and one hexbin; agreement_hmc.png is missing
     assert result["figures"] == figures and html.count('src="data:image/png;base64,') == figures
     assert not re.search(r'src="(?!data:)', html)  # self-contained: no file links left
 

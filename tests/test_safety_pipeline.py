@@ -125,7 +125,7 @@ def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
 
 
 @pytest.mark.parametrize(("overrides", "error", "match"), [
-    (("model.name=lasso",), ValueError, r"model.name='lasso' is not a known method; choose one of \['hmc', 'mcd', 'vi'\]"),
+    (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
     (("safety.model_path=/nonexistent/vi.pt",), FileNotFoundError, r"safety.model_path=/nonexistent/vi.pt does not exist"),
     (("safety.theta=1.5",), ValueError, r"safety.theta=1.5 must be in the open interval \(0, 1\)"),
     (("safety.gamma=0",), ValueError, r"safety.gamma=0 must be in the open interval \(0, 1\)"),

@@ -1,4 +1,4 @@
-"""The train stage (mcd → vi → hmc) on a small synthetic road data set, called as DVC would call it.
+"""The train stage (mcd → vi, hmc, ensemble, laplace) on a small synthetic road data set, called as DVC would call it.
 
 Synthetic but shaped like the real data: 48x64 gray frames with sky, grass and a road whose
 vanishing point moves with the steering label, 45% of frames "straight ahead" (the majority
@@ -21,12 +21,13 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
 from uqdrive.data.datasets import load_frames
 from uqdrive.models.checkpoint import load_posterior
+from uqdrive.models.laplace import PRIOR_GRID
 from uqdrive.models.training import compute_features, evaluate
 from uqdrive.pipeline.train import run_train
 from uqdrive.tracking import store_uris
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
-METHODS = ("mcd", "vi", "hmc")
+METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
 
 
 
@@ -95,9 +96,16 @@ def test_method_specific_diagnostics(trained):
     rates = [metrics["mcd"][f"dropout_p{k}"] for k in (1, 2, 3)]
     assert all(0 < p < 1 for p in rates) and any(abs(p - 0.1) > 1e-4 for p in rates)  # learned, from 0.1
     hmc = metrics["hmc"]
-    assert 0.3 < hmc["accept_rate"] <= 1 and hmc["kept_samples"] == 2 * 10
+    assert 0.3 < hmc["accept_rate"] <= 1 and hmc["kept_samples"] == 4 * 10 and hmc["chains"] == 4
     assert hmc["rhat_max"] >= 1 and hmc["rhat_log_prob"] > 0
+    assert hmc["bayesian_weights"] == 32 * 21 + 21  # tiny profile: the last layer
+    assert 0 < hmc["fs_pairs"] <= 200 * 21 and 0 <= hmc["fs_rhat_share_ok"] <= 1
+    assert hmc["fs_ess_bulk_min"] > 0 and hmc["mi_ess_tail_min"] > 0 and hmc["fs_rhat_median"] > 0.9
+    assert hmc["fs_rhat_target_met"] == int(hmc["fs_rhat_share_ok"] >= 0.9)
+    assert "function-space R̂" in hmc["diagnostics"]
     assert metrics["vi"]["posterior_sigma_mean"] > 0
+    assert metrics["ensemble"]["members"] == 3
+    assert PRIOR_GRID[0] <= metrics["laplace"]["prior_precision"] <= PRIOR_GRID[-1]
 
 
 def test_saved_models_reload_with_the_reported_accuracy(trained):
@@ -110,7 +118,7 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
         assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
 
 
-def test_vi_and_hmc_share_the_mcd_trunk(trained):
+def test_head_methods_share_the_mcd_trunk(trained):
     root, _ = trained
     trunks = [load_posterior(root / f"models/{m}.pt").trunk.state_dict() for m in METHODS]
     for other in trunks[1:]:
@@ -118,8 +126,12 @@ def test_vi_and_hmc_share_the_mcd_trunk(trained):
 
 
 def test_bad_input_fails_clearly(tmp_path):
-    with pytest.raises(ValueError, match="model.name='lasso' is not a known method"):
+    with pytest.raises(ValueError, match="model.name='lasso' does not match model._target_ MCDPosterior"):
         run_train(compose_train(tmp_path, "model.name=lasso"))
+    with pytest.raises(ValueError, match="model._target_='uqdrive.models.nothing.Posterior' cannot be imported"):
+        run_train(compose_train(tmp_path, "model._target_=uqdrive.models.nothing.Posterior"))
+    with pytest.raises(ValueError, match="is not a concrete uqdrive.models.posterior.Posterior subclass"):
+        run_train(compose_train(tmp_path, "model._target_=uqdrive.models.heads.StoredHeadPosterior"))
     with pytest.raises(FileNotFoundError, match="dvc repro"):
         run_train(compose_train(tmp_path))  # nothing preprocessed yet
     write_processed(tmp_path / "data/processed/train.parquet", 0, seed=1)
@@ -133,4 +145,8 @@ def test_bad_input_fails_clearly(tmp_path):
         run_train(compose_train(tmp_path, "model.epochs=0"))
     with pytest.raises(ValueError, match=r"unknown model keys \['leapfrog'\]"):
         run_train(compose_train(tmp_path, "model=hmc", "+model.leapfrog=5"))
+    with pytest.raises(ValueError, match="model.chains=2 is invalid: must be ≥ 4"):
+        run_train(compose_train(tmp_path, "model=hmc", "model.chains=2"))
+    with pytest.raises(ValueError, match="model.members=1 is invalid"):
+        run_train(compose_train(tmp_path, "model=ensemble", "model.members=1"))
     assert not (tmp_path / "models").exists()

@@ -1,6 +1,6 @@
 """Model files `models/<method>.pt`: a posterior plus what is needed to trust it on load.
 
-Each file carries a format tag and version, the method, the class mapping (steering bins),
+Each file carries a format tag and version, the method and its class, the class mapping (steering bins),
 the input shape and the architecture, so that a consumer asking for a VI model with 21
 classes gets exactly that or a clear error, never a silently wrong network.
 """
@@ -14,21 +14,11 @@ import torch
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path
-from uqdrive.models.hmc import HMCPosterior
-from uqdrive.models.mcd import MCDPosterior
 from uqdrive.models.pilotnet import INPUT_SHAPE, Architecture
-from uqdrive.models.posterior import Posterior
-from uqdrive.models.vi import VIPosterior
+from uqdrive.models.posterior import Posterior, check_method, class_path, posterior_class
 
 FORMAT = "uqdrive-posterior"
-VERSION = 1
-POSTERIORS: dict[str, type[Posterior]] = {cls.method: cls for cls in (MCDPosterior, VIPosterior, HMCPosterior)}
-
-
-def check_method(method: str) -> str:
-    if method not in POSTERIORS:
-        raise ValueError(f"model.name={method!r} is not a known method; choose one of {sorted(POSTERIORS)}")
-    return method
+VERSION = 2  # 2: the file names its class (`target`), so any Posterior subclass loads without a list of methods
 
 
 def save_posterior(posterior: Posterior, path: str | Path, metadata: dict | None = None) -> Path:
@@ -38,6 +28,7 @@ def save_posterior(posterior: Posterior, path: str | Path, metadata: dict | None
         "format": FORMAT,
         "version": VERSION,
         "method": posterior.method,
+        "target": class_path(type(posterior)),
         "classes": posterior.bins.to_dict(),
         "input_shape": list(INPUT_SHAPE),
         "arch": posterior.arch.to_dict(),
@@ -81,7 +72,10 @@ def load_posterior(path: str | Path, expected_method: str | None = None,
         raise ValueError(f"{path} predicts {bins.num_classes} classes, expected {expected_classes}")
     if tuple(payload["input_shape"]) != INPUT_SHAPE:
         raise ValueError(f"{path} takes input {payload['input_shape']}, this code feeds {list(INPUT_SHAPE)}")
-    posterior = POSTERIORS[check_method(method)](Architecture(**payload["arch"]), bins, **payload["init_kwargs"])
+    cls = posterior_class(payload["target"])
+    if cls.method != method:
+        raise ValueError(f"{path} holds a {method!r} model but names class {payload['target']} (method {cls.method!r})")
+    posterior = cls(Architecture(**payload["arch"]), bins, **payload["init_kwargs"])
     posterior.load_state_dict(payload["state"])
     posterior.requires_grad_(False)
     return posterior.eval()

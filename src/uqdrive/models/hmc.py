@@ -1,92 +1,215 @@
-"""HMC posterior over the four head layers: a stored set of weight samples on the MCD trunk.
+"""HMC posterior over the last `bayesian_layers` head layers on the fixed MCD trunk.
 
-The head's weights live as one flat vector per sample (layer by layer: W [in, out], then b),
-so the generic kernel in `uqdrive.models.mcmc` can sample them, and `head_probs` evaluates
-many stored samples with one batched matmul per layer.
+Fitting: a MAP head from the MCD head fixes the layers below the sampled ones (all four are
+sampled when bayesian_layers = 4). Chains start dispersed, so chains that agree have found the
+same distribution rather than inherited it, and the metric (mass matrix) is one of
+- `laplace` (bayesian_layers = 1): the last layer's posterior is log-concave and close to the
+  Gaussian of the Laplace approximation at the MAP, so HMC runs in the coordinates that whiten
+  that Gaussian (dense mass = its precision); chains start at `start_scale`× overdispersed
+  draws of it. Softmax weights are far from isotropic (a shift of all classes' weights leaves
+  the likelihood unchanged), which an identity or diagonal metric mixes through very slowly;
+- `diagonal`: each chain starts from its own He initialisation trained `start_epochs` towards
+  its own MAP, with a diagonal mass adapted in warm-up (any number of layers).
+Full-batch HMC with the step size adapted in warm-up. Convergence is judged in function space
+(`uqdrive.models.diagnostics`); weight-space split-R̂ is kept as a secondary number.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
-from torch.nn.functional import cross_entropy
 
-from uqdrive.data.binning import SteeringBins
-from uqdrive.models.mcd import MCDPosterior
-from uqdrive.models.mcmc import LogProbGrad
-from uqdrive.models.pilotnet import Architecture, sampled_mlp_logits
-from uqdrive.models.posterior import Posterior, check_draws
-
-
-def head_size(shapes: list[tuple[int, int]]) -> int:
-    return sum(i * o + o for i, o in shapes)
-
-
-def unflatten(theta: torch.Tensor, shapes: list[tuple[int, int]]) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """Flat head weights [k, D] → [(W [k, in, out], b [k, out])] as views (no copy)."""
-    layers, start = [], 0
-    for i, o in shapes:
-        w = theta[:, start:start + i * o].view(-1, i, o)
-        start += i * o
-        layers.append((w, theta[:, start:start + o]))
-        start += o
-    return layers
+from uqdrive.models.diagnostics import RHAT_OK, between_chain_mi_share, function_space_diagnostics
+from uqdrive.models.heads import (
+    StoredHeadPosterior,
+    fixed_layer_features,
+    flatten_mcd_head,
+    he_init_heads,
+    head_nll,
+    head_size,
+    train_heads,
+    unflatten,
+)
+from uqdrive.models.laplace import last_layer_hessian, posterior_covariance, with_bias_input
+from uqdrive.models.mcmc import LogProbGrad, hmc, split_rhat, whitened
+from uqdrive.models.metrics import classification_metrics
+from uqdrive.models.pilotnet import sampled_mlp_logits
+from uqdrive.models.posterior import Fitted
+from uqdrive.models.training import TrainingData, require
 
 
-def flatten_mcd_head(mcd: MCDPosterior) -> torch.Tensor:
-    """The MCD head's weights as one flat vector [D] (the chains' starting point)."""
-    return torch.cat([t for layer in mcd.head for t in (layer.weight.T.flatten(), layer.bias)]).detach()
+@dataclass(frozen=True)
+class HMCSettings:
+    chains: int
+    samples: int  # kept per chain
+    warmup: int  # iterations during which step size and mass adapt (discarded)
+    thin: int = 1
+    bayesian_layers: int = 4  # the last k of the 4 head layers are sampled; the ones below stay at the MAP
+    leapfrog_steps: int = 10
+    step_size: float = 1e-3  # initial; adapted during warm-up
+    target_accept: float = 0.75
+    metric: str = "laplace"  # laplace (dense, from the last-layer Laplace; bayesian_layers = 1) | diagonal
+    adapt_mass: bool = False  # diagonal mass adapted in warm-up, on top of the metric (use it with metric=diagonal)
+    start_scale: float = 2.0  # metric=laplace: chains start at this many Laplace standard deviations' spread
+    prior_sigma: float = 1.0
+    map_epochs: int = 5  # minibatch Adam epochs from the MCD head to the MAP that fixes the lower layers
+    start_epochs: int = 2  # minibatch Adam epochs of each chain from its own random start
+    map_lr: float = 1e-3
+    map_batch_size: int = 64
+    diagnostic_frames: int = 200  # validation frames whose predictive R̂/ESS are computed
+    rhat_target_share: float = 0.9  # of (frame, class) pairs with R̂ ≤ 1.1: the profile's convergence target
+
+    def __post_init__(self) -> None:
+        require("chains", self.chains, self.chains >= 4, "≥ 4 (R-hat compares chains from dispersed starts)")
+        require("samples", self.samples, self.samples >= 4, "≥ 4 (split R-hat needs them)")
+        require("warmup", self.warmup, self.warmup >= 0, "≥ 0")
+        require("thin", self.thin, self.thin >= 1, "≥ 1")
+        require("bayesian_layers", self.bayesian_layers, self.bayesian_layers in (1, 2, 3, 4), "1, 2, 3 or 4")
+        require("leapfrog_steps", self.leapfrog_steps, self.leapfrog_steps >= 1, "≥ 1")
+        require("step_size", self.step_size, self.step_size > 0, "> 0")
+        require("target_accept", self.target_accept, 0 < self.target_accept < 1, "in (0, 1)")
+        require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
+        require("metric", self.metric, self.metric in ("laplace", "diagonal"), "laplace or diagonal")
+        require("metric", self.metric, self.metric != "laplace" or self.bayesian_layers == 1,
+                f"diagonal when bayesian_layers={self.bayesian_layers} (laplace whitens the last layer only)")
+        require("start_scale", self.start_scale, self.start_scale > 0, "> 0")
+        require("map_epochs", self.map_epochs, self.map_epochs >= 0, "≥ 0")
+        require("start_epochs", self.start_epochs, self.start_epochs >= 0, "≥ 0")
+        require("map_lr", self.map_lr, self.map_lr > 0, "> 0")
+        require("map_batch_size", self.map_batch_size, self.map_batch_size >= 1, "≥ 1")
+        require("diagnostic_frames", self.diagnostic_frames, self.diagnostic_frames >= 1, "≥ 1")
+        require("rhat_target_share", self.rhat_target_share, 0 < self.rhat_target_share <= 1, "in (0, 1]")
 
 
 def head_log_posterior(features: torch.Tensor, labels: torch.Tensor, shapes: list[tuple[int, int]],
                        prior_sigma: float) -> LogProbGrad:
-    """Unnormalised log posterior of the head (softmax likelihood of every frame + N(0, σ²) prior) and its gradient."""
-    n = len(labels)
+    """Unnormalised log posterior of heads (softmax likelihood of every frame + N(0, σ²) prior) and its gradient."""
 
     def log_prob_grad(theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         theta = theta.detach().requires_grad_(True)
         with torch.enable_grad():
-            logits = sampled_mlp_logits(features, unflatten(theta, shapes))  # [chains, N, C]
-            nll = cross_entropy(logits.flatten(0, 1), labels.repeat(len(theta)), reduction="none")
-            lp = -nll.view(len(theta), n).sum(1) - 0.5 * theta.square().sum(1) / prior_sigma**2
+            lp = -head_nll(features, labels, theta, shapes) - 0.5 * theta.square().sum(1) / prior_sigma**2
             (grad,) = torch.autograd.grad(lp.sum(), theta)
         return lp.detach(), grad
 
     return log_prob_grad
 
 
-class HMCPosterior(Posterior):
-    method = "hmc"
+def settled_iteration(curve: list[dict]) -> int:
+    """First recorded iteration from which the chains' mean training loss and validation NLL stay within 3 sd
+    of their post-warm-up mean: when the run stopped drifting. Well below `warmup` means the warm-up is long
+    enough; near or beyond it, the kept samples still carry the start."""
+    kept = [row for row in curve if not row["warmup"]]
+    settled = curve[0]["step"]
+    for key in ("train_loss", "val_nll"):
+        values = torch.tensor([r[key] for r in kept], dtype=torch.float64)
+        centre, spread = float(values.mean()), 3 * float(values.std()) if len(values) > 1 else 0.0
+        outside = [i for i, r in enumerate(curve) if abs(r[key] - centre) > spread]
+        if outside and outside[-1] + 1 < len(curve):
+            settled = max(settled, curve[outside[-1] + 1]["step"])
+        elif outside:
+            settled = max(settled, curve[-1]["step"])
+    return settled
 
-    def __init__(self, arch: Architecture, bins: SteeringBins, num_samples: int) -> None:
-        super().__init__(arch, bins)
-        self.shapes = arch.head_shapes(bins.num_classes)
-        self.register_buffer("samples", torch.zeros(num_samples, head_size(self.shapes)))
+
+class HMCPosterior(StoredHeadPosterior):
+    """Draws index the stored samples: without replacement when n ≤ S, with replacement when n > S."""
+
+    method = "hmc"
+    Settings = HMCSettings
+    curve_unit = "iteration"
+
+    def draw_index(self, n: int, generator: torch.Generator | None) -> torch.Tensor:
+        stored = len(self.samples)
+        if n > stored:
+            return torch.randint(stored, (n,), generator=generator)
+        return torch.randperm(stored, generator=generator)[:n]
 
     @classmethod
-    def from_samples(cls, mcd: MCDPosterior, samples: torch.Tensor) -> HMCPosterior:
-        """Keep the MCD trunk (frozen) and the flat head samples [S, D] of all chains."""
-        hmc = cls(mcd.arch, mcd.bins, len(samples))
-        hmc.trunk.load_state_dict(mcd.trunk.state_dict())
-        hmc.trunk.requires_grad_(False)
-        hmc.samples.copy_(samples)
-        return hmc
-
-    def init_kwargs(self) -> dict:
-        return {"num_samples": len(self.samples)}
-
-    @torch.no_grad()
-    def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        """n stored samples, drawn without replacement when n ≤ S and with replacement when n > S.
-
-        When n ≥ S every stored sample is evaluated once and the outputs are indexed, which is
-        cheaper than copying n weight vectors.
-        """
-        stored = len(self.samples)
-        n = check_draws(n)
-        if n > stored:
-            index = torch.randint(stored, (n,), generator=generator)
+    def fit(cls, settings: HMCSettings, data: TrainingData, generator: torch.Generator,
+            progress: bool = False) -> Fitted:
+        base = data.base
+        shapes = base.arch.head_shapes(base.num_classes)
+        fixed = len(shapes) - settings.bayesian_layers
+        sampled_shapes = shapes[fixed:]
+        train_labels, val_labels = data.train.labels, data.val.labels
+        head = flatten_mcd_head(base)
+        if fixed:
+            head = train_heads(head.unsqueeze(0), shapes, data.train_features, train_labels, data.val_features,
+                               val_labels, epochs=settings.map_epochs, batch_size=settings.map_batch_size,
+                               lr=settings.map_lr, prior_sigma=settings.prior_sigma, generator=generator,
+                               progress=progress, desc="hmc map")[0][0]
+        train_phi = fixed_layer_features(data.train_features, head, shapes, fixed)
+        val_phi = fixed_layer_features(data.val_features, head, shapes, fixed)
+        log_prob_grad = head_log_posterior(train_phi, train_labels, sampled_shapes, settings.prior_sigma)
+        if settings.metric == "laplace":
+            centre = head[head_size(shapes[:fixed]):]  # the MAP's last layer, flat = W̃ [J, C] row-major
+            psi = with_bias_input(train_phi).double()
+            weights = centre.double().view(psi.shape[1], -1)
+            hessian = last_layer_hessian(psi, torch.softmax(psi @ weights, -1))
+            scale = torch.linalg.cholesky(posterior_covariance(hessian, settings.prior_sigma ** -2)).float()
+            to_theta = lambda u: centre + u @ scale.T  # noqa: E731
+            log_prob_grad = whitened(log_prob_grad, centre, scale)
+            starts = settings.start_scale * torch.randn((settings.chains, len(centre)), generator=generator)
         else:
-            index = torch.randperm(stored, generator=generator)[:n]
-        if n >= stored:
-            return torch.softmax(sampled_mlp_logits(features, unflatten(self.samples, self.shapes)), -1)[index]
-        return torch.softmax(sampled_mlp_logits(features, unflatten(self.samples[index], self.shapes)), -1)
+            to_theta = lambda u: u  # noqa: E731
+            starts = train_heads(he_init_heads(settings.chains, sampled_shapes, generator), sampled_shapes, train_phi,
+                                 train_labels, val_phi, val_labels, epochs=settings.start_epochs,
+                                 batch_size=settings.map_batch_size, lr=settings.map_lr,
+                                 prior_sigma=settings.prior_sigma, generator=generator, progress=progress,
+                                 desc="hmc starts")[0]
+        n_train = len(train_labels)
+        total = settings.warmup + settings.samples * settings.thin
+        every = max(1, total // 100)
+        curve: list[dict] = []
+
+        def record(it: int, theta: torch.Tensor, lp: torch.Tensor, accept_prob: torch.Tensor) -> None:
+            if (it + 1) % every and it + 1 != total:
+                return
+            probs = torch.softmax(sampled_mlp_logits(val_phi, unflatten(to_theta(theta), sampled_shapes)), -1).mean(0)
+            scores = classification_metrics(probs, val_labels)
+            curve.append({"step": it + 1, "train_loss": float(-lp.mean()) / n_train,
+                          "val_accuracy": scores["accuracy"], "val_nll": scores["nll"],
+                          "accept_prob": float(accept_prob.mean()), "warmup": int(it < settings.warmup)})
+
+        result = hmc(log_prob_grad, starts,
+                     num_samples=settings.samples, warmup=settings.warmup, thin=settings.thin,
+                     leapfrog_steps=settings.leapfrog_steps, step_size=settings.step_size,
+                     target_accept=settings.target_accept, adapt_mass=settings.adapt_mass, generator=generator,
+                     callback=record, progress=progress, desc="hmc")
+        chains, kept = result.samples.shape[:2]
+        samples = to_theta(result.samples.flatten(0, 1))  # [chains·kept, D_k], chain-major
+        frames = torch.linspace(0, len(val_labels) - 1, min(settings.diagnostic_frames, len(val_labels))).long()
+        with torch.no_grad():
+            probs = torch.softmax(sampled_mlp_logits(val_phi[frames], unflatten(samples, sampled_shapes)), -1)
+        probs = probs.view(chains, kept, len(frames), -1)
+        fs = function_space_diagnostics(probs)
+        weight_rhat = split_rhat(samples.view(chains, kept, -1))
+        extra = {
+            **fs,
+            "settled_iteration": settled_iteration(curve),
+            "warmup": settings.warmup,
+            "fs_rhat_target_share": settings.rhat_target_share,
+            "fs_rhat_target_met": int(fs["fs_rhat_share_ok"] >= settings.rhat_target_share),
+            "between_chain_mi_share": between_chain_mi_share(probs),
+            "chains": chains,
+            "bayesian_weights": result.samples.shape[2],
+            "accept_rate": float(result.accept_rate.mean()),
+            "accept_rate_min_chain": float(result.accept_rate.min()),
+            "step_size": float(result.step_size.mean()),
+            "rhat_max": float(weight_rhat.max()),
+            "rhat_median": float(weight_rhat.median()),
+            "rhat_log_prob": float(split_rhat(result.log_prob)),
+            "kept_samples": int(chains * kept),
+        }
+        extra["diagnostics"] = (
+            f"{chains} chains × {kept} samples ({settings.metric} metric) over the last {settings.bayesian_layers} layer(s) "
+            f"({extra['bayesian_weights']} weights); function-space R̂ ≤ {RHAT_OK} for "
+            f"{100 * fs['fs_rhat_share_ok']:.0f}% of {fs['fs_pairs']} (frame, class) pairs "
+            f"(target {100 * settings.rhat_target_share:.0f}%), median {fs['fs_rhat_median']:.3f}, "
+            f"min bulk/tail ESS {fs['fs_ess_bulk_min']:.0f}/{fs['fs_ess_tail_min']:.0f}; MI R̂ max "
+            f"{fs['mi_rhat_max']:.2f}, min ESS {fs['mi_ess_bulk_min']:.0f}; loss and predictive settled by iteration "
+            f"{extra['settled_iteration']} of {settings.warmup} warm-up; acceptance {extra['accept_rate']:.2f}; "
+            f"weight-space split-R̂ median {extra['rhat_median']:.2f} (secondary)")
+        return Fitted(cls.from_heads(base, samples, head[:head_size(shapes[:fixed])], fixed), curve, extra)

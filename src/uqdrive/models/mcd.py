@@ -6,17 +6,41 @@ plain; dropout rates are learned (concrete dropout) rather than tuned by grid se
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import nn
+from torch.nn.functional import cross_entropy
+from tqdm import trange
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.concrete_dropout import ConcreteDropout
-from uqdrive.models.pilotnet import Architecture
-from uqdrive.models.posterior import Posterior, check_draws
+from uqdrive.models.pilotnet import Architecture, init_weights
+from uqdrive.models.posterior import Fitted, Posterior, check_draws
+from uqdrive.models.training import TrainingData, compute_features, curve_row, evaluate, require
+
+
+@dataclass(frozen=True)
+class MCDSettings:
+    epochs: int
+    batch_size: int
+    lr: float
+    init_p: float = 0.1
+    temperature: float = 0.1
+    lengthscale: float = 1e-4  # prior length scale l of concrete dropout's weight term l²/N
+
+    def __post_init__(self) -> None:
+        require("epochs", self.epochs, self.epochs >= 1, "≥ 1")
+        require("batch_size", self.batch_size, self.batch_size >= 1, "≥ 1")
+        require("lr", self.lr, self.lr > 0, "> 0")
+        require("init_p", self.init_p, 0 < self.init_p < 1, "in (0, 1)")
+        require("temperature", self.temperature, self.temperature > 0, "> 0")
+        require("lengthscale", self.lengthscale, self.lengthscale >= 0, "≥ 0")
 
 
 class MCDPosterior(Posterior):
     method = "mcd"
+    Settings = MCDSettings
 
     def __init__(self, arch: Architecture, bins: SteeringBins, init_p: float = 0.1, temperature: float = 0.1) -> None:
         super().__init__(arch, bins)
@@ -53,3 +77,29 @@ class MCDPosterior(Posterior):
             if k < len(self.dropout) - 1:
                 h = torch.relu(h)
         return torch.softmax(h, dim=-1)
+
+    @classmethod
+    def fit(cls, settings: MCDSettings, data: TrainingData, generator: torch.Generator,
+            progress: bool = False) -> Fitted:
+        """Adam on cross-entropy + concrete dropout regulariser, end to end on the frames."""
+        model = init_weights(cls(data.arch, data.bins, settings.init_p, settings.temperature), generator)
+        optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
+        curve = []
+        for epoch in trange(1, settings.epochs + 1, desc="mcd", unit="epoch", disable=not progress):
+            model.train()
+            total = 0.0
+            for x, y in data.train.batches(settings.batch_size, generator):
+                loss = (cross_entropy(model.train_logits(x, generator), y)
+                        + model.regularizer(len(data.train), settings.lengthscale))
+                optimizer.zero_grad()
+                loss.backward()
+                optimizer.step()
+                total += loss.item() * len(y)
+            model.eval()
+            scores = evaluate(model, compute_features(model, data.val), data.val.labels, data.eval_samples, generator)
+            rates = {f"dropout_p{k + 1}": p for k, p in enumerate(model.dropout_rates())}
+            curve.append(curve_row(epoch, total / len(data.train), scores, **rates))
+        model.requires_grad_(False)
+        rates = model.dropout_rates()
+        return Fitted(model, curve, {**{f"dropout_p{k + 1}": p for k, p in enumerate(rates)},
+                                     "diagnostics": "learned dropout rates " + ", ".join(f"{p:.3f}" for p in rates)})

@@ -1,9 +1,13 @@
 """Hamiltonian Monte Carlo (Neal 2011) for any differentiable log-density, chains run as a batch.
 
 Generic on purpose: the same kernel samples the steering head and, in the tests, a Bayesian
-linear regression whose posterior is known in closed form. Identity mass matrix, L leapfrog
-steps, Metropolis accept/reject, step size tuned per chain by dual averaging (Hoffman & Gelman
-2014) during warm-up and jittered ±10% per proposal (breaks periodic trajectories).
+linear regression whose posterior is known in closed form. L leapfrog steps, Metropolis
+accept/reject, step size tuned per chain by dual averaging (Hoffman & Gelman 2014) during
+warm-up and jittered ±10% per proposal (breaks periodic trajectories). With `adapt_mass`, a
+diagonal mass matrix per chain is set to the inverse of the variances the chain showed in the
+middle half of warm-up (Stan's regularised estimate), then the step size adapts again: the
+head's weights differ in scale by orders of magnitude, and one step size for all of them is
+what kept the identity-mass chains from moving.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ class HMCResult:
 
 def hmc(log_prob_grad: LogProbGrad, init: torch.Tensor, *, num_samples: int, warmup: int, thin: int = 1,
         leapfrog_steps: int = 10, step_size: float = 0.01, target_accept: float = 0.75,
-        generator: torch.Generator | None = None, callback: Callback | None = None,
+        adapt_mass: bool = False, generator: torch.Generator | None = None, callback: Callback | None = None,
         progress: bool = False, desc: str = "hmc") -> HMCResult:
     """Run len(init) chains for warmup + num_samples·thin iterations; keep every thin-th after warm-up."""
     if num_samples < 1 or warmup < 0 or thin < 1 or leapfrog_steps < 1 or not step_size > 0:
@@ -47,17 +51,20 @@ def hmc(log_prob_grad: LogProbGrad, init: torch.Tensor, *, num_samples: int, war
         raise ValueError("hmc: the log density is not finite at the initial point")
     adapt = _DualAveraging(torch.full((chains,), float(step_size)), target_accept)
     eps = adapt.step_size
+    inv_mass = torch.ones_like(theta)
+    window = (warmup // 4, warmup * 3 // 4) if adapt_mass and warmup >= 40 else None  # too short: identity mass
+    moments = _Welford(theta.shape)
     kept, kept_lp, accept_sum = [], [], torch.zeros(chains)
     for it in trange(warmup + num_samples * thin, desc=desc, unit="it", disable=not progress):
         e = (eps * (1.0 + 0.2 * (torch.rand(chains, generator=generator) - 0.5))).unsqueeze(1)
-        p0 = torch.randn(theta.shape, generator=generator)
+        p0 = torch.randn(theta.shape, generator=generator) / inv_mass.sqrt()
         p = p0 + 0.5 * e * grad
         new = theta
         for step in range(leapfrog_steps):
-            new = new + e * p
+            new = new + e * inv_mass * p
             new_lp, new_grad = log_prob_grad(new)
             p = p + (e if step < leapfrog_steps - 1 else 0.5 * e) * new_grad
-        log_ratio = new_lp - lp - 0.5 * (p.square().sum(1) - p0.square().sum(1))
+        log_ratio = new_lp - lp - 0.5 * ((inv_mass * p.square()).sum(1) - (inv_mass * p0.square()).sum(1))
         log_ratio = torch.nan_to_num(log_ratio, nan=-math.inf)
         accept_prob = log_ratio.clamp(max=0.0).exp()
         accept = torch.log(torch.rand(chains, generator=generator)) < log_ratio
@@ -66,6 +73,11 @@ def hmc(log_prob_grad: LogProbGrad, init: torch.Tensor, *, num_samples: int, war
         grad = torch.where(accept.unsqueeze(1), new_grad, grad)
         if it < warmup:
             eps = adapt.update(accept_prob)
+            if window and window[0] <= it < window[1]:
+                moments.add(theta)
+            if window and it == window[1] - 1:
+                inv_mass = moments.regularised_variance()
+                adapt = _DualAveraging(eps, target_accept)  # the step size that fits the new metric differs
             if it == warmup - 1:
                 eps = adapt.final()
         else:
@@ -76,6 +88,36 @@ def hmc(log_prob_grad: LogProbGrad, init: torch.Tensor, *, num_samples: int, war
         if callback is not None:
             callback(it, theta, lp, accept_prob)
     return HMCResult(torch.stack(kept, 1), torch.stack(kept_lp, 1), accept_sum / (num_samples * thin), eps)
+
+
+def whitened(log_prob_grad: LogProbGrad, centre: torch.Tensor, scale: torch.Tensor) -> LogProbGrad:
+    """The same density in coordinates u with θ = centre + scale·u (scale [D, D], e.g. the Cholesky factor of a
+    Laplace covariance): HMC on u with identity mass is HMC on θ with the dense mass matrix (scale·scaleᵀ)⁻¹."""
+
+    def log_prob_grad_u(u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        lp, grad = log_prob_grad(centre + u @ scale.T)
+        return lp, grad @ scale
+
+    return log_prob_grad_u
+
+
+class _Welford:
+    """Running mean and variance per chain and coordinate."""
+
+    def __init__(self, shape: torch.Size) -> None:
+        self.count, self.mean, self.m2 = 0, torch.zeros(shape, dtype=torch.float64), torch.zeros(shape, dtype=torch.float64)
+
+    def add(self, x: torch.Tensor) -> None:
+        self.count += 1
+        delta = x.double() - self.mean
+        self.mean += delta / self.count
+        self.m2 += delta * (x.double() - self.mean)
+
+    def regularised_variance(self) -> torch.Tensor:
+        """Stan's shrinkage towards 1e-3: (n/(n+5))·var + 1e-3·5/(n+5)."""
+        n = self.count
+        var = self.m2 / max(n - 1, 1)
+        return ((n / (n + 5.0)) * var + 1e-3 * 5.0 / (n + 5.0)).float()
 
 
 class _DualAveraging:

@@ -4,6 +4,10 @@ A posterior is a deterministic trunk (run once per frame batch) plus a Bayesian 
 for n weight draws at once, vectorised over a sample dimension). Callers that already hold
 trunk outputs (e.g. a sweep over n) use `features` + `head_probs` and skip the trunk.
 
+A method is one subclass: it names itself (`method`), declares the dataclass its
+`conf/model/<method>.yaml` fills (`Settings`) and fits itself (`fit`). The yaml names the class
+by Hydra's `_target_`, and model files record it, so the pipeline needs no list of methods.
+
 Draws are only promised to be exact *per frame*: MCD and HMC share draw s across the frames
 of a batch, VI draws its pre-activations per frame (local reparameterisation, same per-frame
 distribution, ~100x fewer random numbers). No consumer may rely on draw s being the same
@@ -12,8 +16,11 @@ network for two frames.
 
 from __future__ import annotations
 
+import importlib
+import re
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
 from torch import nn
@@ -21,17 +28,39 @@ from torch import nn
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture, Trunk
 
+if TYPE_CHECKING:
+    from uqdrive.models.training import TrainingData
+
+METHOD_NAME = re.compile(r"[a-z][a-z0-9_]*")
+
+
+@dataclass
+class Fitted:
+    """What `Posterior.fit` returns: the posterior, its learning curve (one dict per step, with at
+    least step, train_loss, val_accuracy, val_nll) and method-specific metrics for metrics/train."""
+
+    posterior: Posterior
+    curve: list[dict]
+    extra: dict[str, Any] = field(default_factory=dict)
+
 
 class Posterior(nn.Module, ABC):
     """Trunk + Bayesian head over the steering classes of `bins`."""
 
     method: ClassVar[str]
+    Settings: ClassVar[type]  # frozen dataclass of the method's conf/model keys (besides name and _target_)
+    curve_unit: ClassVar[str] = "epoch"  # the x axis of its learning curve
 
     def __init__(self, arch: Architecture, bins: SteeringBins) -> None:
         super().__init__()
         self.arch = arch
         self.bins = bins
         self.trunk = Trunk(arch)
+
+    @classmethod
+    @abstractmethod
+    def fit(cls, settings: Any, data: TrainingData, generator: torch.Generator, progress: bool = False) -> Fitted:
+        """Fit the method on `data` (frames, or the base model's fixed trunk features)."""
 
     @property
     def num_classes(self) -> int:
@@ -60,3 +89,45 @@ def check_draws(n: int) -> int:
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"number of posterior draws n={n!r} must be a positive integer")
     return n
+
+
+def is_method_name(name: object) -> bool:
+    return isinstance(name, str) and METHOD_NAME.fullmatch(name) is not None
+
+
+def check_method(name: object) -> str:
+    """A method name as used in file names (models/<method>.pt) and `methods` lists."""
+    if not is_method_name(name):
+        raise ValueError(f"model.name={name!r} is not a method name: lower-case letters, digits and _ "
+                         f"(the name of a conf/model/<name>.yaml)")
+    return name
+
+
+def posterior_class(target: object) -> type[Posterior]:
+    """The Posterior subclass a dotted path (`_target_` of conf/model/*.yaml, `target` of a model file) names."""
+    module_name, _, class_name = str(target).rpartition(".")
+    try:
+        cls = getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError, ValueError) as err:
+        raise ValueError(f"model._target_={target!r} cannot be imported ({err}); it must be the dotted path "
+                         f"of a Posterior subclass, e.g. uqdrive.models.vi.VIPosterior") from None
+    if not (isinstance(cls, type) and issubclass(cls, Posterior)) or getattr(cls, "__abstractmethods__", None):
+        raise ValueError(f"model._target_={target!r} is not a concrete uqdrive.models.posterior.Posterior subclass")
+    return cls
+
+
+def posterior_from_config(model: Any) -> type[Posterior]:
+    """The Posterior class a conf/model section (mapping with name and _target_) names, checked against its name."""
+    method = check_method(model.get("name"))
+    if "_target_" not in model:
+        raise ValueError(f"model._target_ is missing in conf/model/{method}.yaml: it must name the Posterior "
+                         f"class, e.g. uqdrive.models.vi.VIPosterior")
+    cls = posterior_class(model["_target_"])
+    if cls.method != method:
+        raise ValueError(f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is "
+                         f"{cls.method!r}")
+    return cls
+
+
+def class_path(cls: type[Posterior]) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"

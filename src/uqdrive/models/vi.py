@@ -12,23 +12,42 @@ W ~ N(μ, σ²) is N(aμ, a²σ²) per unit, so we draw n·B·units normals inst
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import nn
-from torch.nn.functional import softplus
+from torch.nn.functional import cross_entropy, softplus
+from tqdm import trange
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.models.mcd import MCDPosterior
 from uqdrive.models.pilotnet import Architecture
-from uqdrive.models.posterior import Posterior, check_draws
+from uqdrive.models.posterior import Fitted, Posterior, check_draws
+from uqdrive.models.training import TrainingData, curve_row, evaluate, require
 
 
 def _inverse_softplus(y: float) -> float:
     return y + math.log(-math.expm1(-y))
 
 
+@dataclass(frozen=True)
+class VISettings:
+    epochs: int
+    batch_size: int
+    lr: float
+    prior_sigma: float = 1.0
+    init_sigma: float = 0.01
+
+    def __post_init__(self) -> None:
+        require("epochs", self.epochs, self.epochs >= 1, "≥ 1")
+        require("batch_size", self.batch_size, self.batch_size >= 1, "≥ 1")
+        require("lr", self.lr, self.lr > 0, "> 0")
+        require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
+        require("init_sigma", self.init_sigma, self.init_sigma > 0, "> 0")
+
+
 class VIPosterior(Posterior):
     method = "vi"
+    Settings = VISettings
 
     def __init__(self, arch: Architecture, bins: SteeringBins, prior_sigma: float = 1.0, init_sigma: float = 1e-3) -> None:
         super().__init__(arch, bins)
@@ -45,7 +64,7 @@ class VIPosterior(Posterior):
         self.b_rho = nn.ParameterList(nn.Parameter(torch.full((o,), rho)) for _, o in shapes)
 
     @classmethod
-    def from_mcd(cls, mcd: MCDPosterior, prior_sigma: float, init_sigma: float) -> VIPosterior:
+    def from_mcd(cls, mcd: Posterior, prior_sigma: float, init_sigma: float) -> VIPosterior:
         """Frozen copy of the MCD trunk; posterior means start at the MCD head weights."""
         vi = cls(mcd.arch, mcd.bins, prior_sigma, init_sigma)
         vi.trunk.load_state_dict(mcd.trunk.state_dict())
@@ -58,6 +77,30 @@ class VIPosterior(Posterior):
 
     def init_kwargs(self) -> dict:
         return {"prior_sigma": self.prior_sigma}
+
+    @classmethod
+    def fit(cls, settings: VISettings, data: TrainingData, generator: torch.Generator,
+            progress: bool = False) -> Fitted:
+        """Maximise the ELBO (per frame: expected log-likelihood − KL/N) by Adam with one draw per step."""
+        vi = cls.from_mcd(data.base, settings.prior_sigma, settings.init_sigma)
+        features, labels = data.train_features, data.train.labels
+        optimizer = torch.optim.Adam(vi.head_parameters(), lr=settings.lr)
+        n_train = len(labels)
+        curve = []
+        for epoch in trange(1, settings.epochs + 1, desc="vi", unit="epoch", disable=not progress):
+            total = 0.0
+            for index in torch.randperm(n_train, generator=generator).split(settings.batch_size):
+                logits = vi.head_logits(features[index], 1, generator)[0]
+                loss = cross_entropy(logits, labels[index]) + vi.kl() / n_train
+                optimizer.zero_grad()
+                loss.backward()
+                optimizer.step()
+                total += loss.item() * len(index)
+            scores = evaluate(vi, data.val_features, data.val.labels, data.eval_samples, generator)
+            curve.append(curve_row(epoch, total / n_train, scores, sigma_mean=vi.posterior_sigma_mean()))
+        vi.requires_grad_(False)
+        sigma = vi.posterior_sigma_mean()
+        return Fitted(vi, curve, {"posterior_sigma_mean": sigma, "diagnostics": f"mean posterior σ {sigma:.3f}"})
 
     def head_parameters(self) -> list[nn.Parameter]:
         return [*self.w_mu, *self.b_mu, *self.w_rho, *self.b_rho]

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
-from uqdrive.models.checkpoint import check_method
+from uqdrive.models.posterior import posterior_from_config
 from uqdrive.pipeline.avoid_cells import Cell, traces_of
 from uqdrive.pipeline.avoid_outputs import write_outputs
 from uqdrive.pipeline.safety import code_digest
@@ -162,7 +162,7 @@ def check_horizon(horizon: float, warning: WarningConfig, speed: float, scenario
 
 def build_settings(cfg: DictConfig) -> AvoidSettings:
     """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
-    method = check_method(cfg.model.name)
+    method = posterior_from_config(cfg.model).method
     if cfg.executor.name not in BACKENDS:
         raise ValueError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
     checks.integer("executor.workers", cfg.executor.workers, 1)

@@ -2,7 +2,10 @@
 
 Per (method, condition) cell: accuracy, NLL, ECE and Brier score of the posterior predictive, the mean
 mutual information and decision confidence η2 over the frames, and how well MI and 1 − η2 rank frames
-with a wrong class above right ones (AUROC). The frames are the `heldout` stage's autopilot frames
+with a wrong class above right ones (AUROC), and, when HMC (the asymptotically exact reference) is among the
+methods, agreement with HMC's predictive on the same frames (keys `hmc_*`: total-variation distance, argmax
+agreement, Spearman correlation of MI; HMC's own row compares two independent draw sets: the Monte-Carlo
+noise floor). The frames are the `heldout` stage's autopilot frames
 (conf/heldout.yaml), preprocessed exactly as the training frames were.
 """
 
@@ -24,9 +27,10 @@ from uqdrive.data.datasets import FrameSet, frames_from_table
 from uqdrive.data.preprocess import Split, preprocess_raw
 from uqdrive.data.tables import RAW_SCHEMA, read_table
 from uqdrive.files import write_csv, write_json
-from uqdrive.models.checkpoint import POSTERIORS, load_posterior
+from uqdrive.models.agreement import agreement_with_reference
+from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.metrics import classification_metrics, mistake_auroc, reliability_bins
-from uqdrive.models.posterior import Posterior
+from uqdrive.models.posterior import Posterior, is_method_name
 from uqdrive.plots import condition_lines_figure, reliability_grid, save_figure
 from uqdrive.tracking import stage_run
 from uqdrive.uq import frame_measures
@@ -34,6 +38,10 @@ from uqdrive.uq import frame_measures
 PLOTTED = [("accuracy", "accuracy"), ("ece", "ECE"), ("mean_mutual_information", "mean MI (nats)"),
            ("mean_eta2", "mean η2"), ("auroc_mi", "AUROC of MI for wrong class"),
            ("auroc_one_minus_eta2", "AUROC of 1 − η2 for wrong class")]
+REFERENCE = "hmc"  # the reference posterior every method is compared with, when it is evaluated
+AGREEMENT_PLOTTED = [(f"{REFERENCE}_tv_distance", "mean TV distance to HMC's predictive"),
+                     (f"{REFERENCE}_argmax_agreement", "decision (argmax) agreement with HMC"),
+                     (f"{REFERENCE}_mi_spearman", "Spearman ρ of MI with HMC's")]
 
 
 @dataclass(frozen=True)
@@ -178,6 +186,13 @@ def write_outputs(cfg: DictConfig, table: dict, reliability: dict, methods: list
     fig = condition_lines_figure(lines, [c.label for c in conditions], PLOTTED,
                                  f"Held-out frames at the {cfg.scenario.name}: methods across weather × sensor noise")
     outputs["conditions_png"] = save_figure(fig, plots / "figures" / "conditions.png")
+    if REFERENCE in methods:
+        agreement = {m: {k: [table[m][c.weather][c.key][k] for c in conditions] for k, _ in AGREEMENT_PLOTTED}
+                     for m in methods}
+        fig = condition_lines_figure(agreement, [c.label for c in conditions], AGREEMENT_PLOTTED,
+                                     f"Agreement with HMC on held-out frames at the {cfg.scenario.name} "
+                                     f"(hmc: two independent draw sets)")
+        outputs["agreement_png"] = save_figure(fig, plots / "figures" / f"agreement_{REFERENCE}.png")
     write_json(cfg.evaluate.out, table)
     outputs["metrics"] = Path(cfg.evaluate.out)
     return outputs
@@ -189,8 +204,9 @@ def run_evaluate(cfg: DictConfig) -> dict:
     settings = EvaluateSettings(cfg.evaluate.samples, cfg.evaluate.eps, cfg.evaluate.batch_size)
     bins = SteeringBins(**cfg.experiment.bins)
     methods = list(cfg.methods)
-    if not methods or not set(methods) <= set(POSTERIORS):
-        raise ValueError(f"methods={methods!r} must be a non-empty list of known methods: {sorted(POSTERIORS)}")
+    if not methods or not all(is_method_name(m) for m in methods):
+        raise ValueError(f"methods={methods!r} must be a non-empty list of method names (conf/model/<name>.yaml: "
+                         f"lower-case letters, digits and _)")
     conditions = conditions_from(cfg)
     model_paths = check_inputs(cfg, methods, conditions)
     posteriors = {m: load_posterior(path, expected_method=m, expected_classes=bins)
@@ -202,13 +218,24 @@ def run_evaluate(cfg: DictConfig) -> dict:
     table: dict = {}
     reliability: dict = {}
     cells = [(m, c) for m in methods for c in conditions]
+    predictives = {}
     for m, c in tqdm(cells, desc="evaluate", unit="cell", disable=not cfg.progress):
         probs, eta2, mi = predict(posteriors[m], frames[c], settings, bins.centres, cell_generator(int(cfg.seed), m, c))
         table.setdefault(m, {}).setdefault(c.weather, {})[c.key] = cell_metrics(probs, frames[c].labels, eta2, mi)
         reliability[m, c] = reliability_bins(probs, frames[c].labels)
+        predictives[m, c] = probs, mi
+    if REFERENCE in methods:
+        for m, c in cells:
+            probs, mi = predictives[m, c]
+            if m == REFERENCE:  # against a second, independent set of HMC draws: the noise floor
+                probs, _, mi = predict(posteriors[m], frames[c], settings, bins.centres,
+                                       cell_generator(int(cfg.seed), f"{m}-repeat", c))
+            agreement = agreement_with_reference(probs, mi, *predictives[REFERENCE, c])
+            table[m][c.weather][c.key].update({f"{REFERENCE}_{k}": v for k, v in agreement.items()})
     outputs = write_outputs(cfg, table, reliability, methods, conditions)
 
-    shared = [outputs[k] for k in ("metrics", "conditions_csv", "reliability_csv", "conditions_png")]
+    shared = [outputs[k] for k in ("metrics", "conditions_csv", "reliability_csv", "conditions_png", "agreement_png")
+              if k in outputs]
     runs = {}
     for m in methods:
         with stage_run(cfg.paths.root, "evaluate", cfg, run_name=m) as run:

@@ -88,6 +88,27 @@ for training. AUROC: how well an uncertainty score ranks frames with a wrong cla
     report.figure(figures / "conditions.png", "Held-out metrics across conditions, one line per method")
     for method in cfg.methods:
         report.figure(figures / f"reliability_{method}.png", f"{method}: reliability diagrams per condition")
+    agreement_table(report, cfg, evaluated)
+
+
+def agreement_table(report: Report, cfg: DictConfig, evaluated: dict) -> None:
+    """Each method against HMC's predictive on the same held-out frames (when HMC was evaluated)."""
+    cells = {m: [evaluated[m][w][f"noise{x}"] for w in cfg.weathers for x in cfg.noises] for m in cfg.methods}
+    if not all("hmc_tv_distance" in c for by_method in cells.values() for c in by_method):
+        return
+    mean = lambda key, cs: fmt(sum(c[key] for c in cs) / len(cs)) if all(c[key] is not None for c in cs) else "–"  # noqa: E731
+    report.add("""
+### Agreement with HMC
+
+HMC is the reference the other posteriors approximate. Per method, over the held-out frames of every condition:
+mean total-variation distance between its predictive and HMC's (worst condition beside it), share of frames with
+the same decision (argmax), Spearman correlation of per-frame mutual information with HMC's. The hmc row compares
+two independent sets of HMC draws: the Monte-Carlo noise floor.""")
+    report.add(table(["method", "mean TV to HMC", "worst condition TV", "argmax agreement", "MI Spearman ρ"],
+                     [[m, mean("hmc_tv_distance", cs), fmt(max(c["hmc_tv_distance"] for c in cs)),
+                       mean("hmc_argmax_agreement", cs), mean("hmc_mi_spearman", cs)] for m, cs in cells.items()]))
+    report.figure(report.root / "plots" / "evaluate" / "figures" / "agreement_hmc.png",
+                  "Agreement with HMC across conditions, one line per method")
 
 
 def sample_counts_section(report: Report, cells: list[dict], look_size: int = 4) -> None:

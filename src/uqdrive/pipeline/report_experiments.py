@@ -15,30 +15,36 @@ from uqdrive.uq.pooled import Pooled, pooled
 STOPPING_NOTE = "a car at 8 m/s needs 5.3 m to stop at 6 m/s²"
 
 
+TRAINING_REFERENCE = {"mcd": "dropout rates " + ", ".join(f"{p:g}" for p in paper.DROPOUT_RATES),
+                      "hmc": "10 leapfrog steps (as here)"}
+
+
 def training_section(report: Report, cfg: DictConfig, metrics_dir: Path) -> None:
-    rows = []
+    rows, sampled = [], []
     for experiment in cfg.experiments:
+        classes = read_json(metrics_dir / experiment / "preprocess.json")["num_classes"]
         for method in cfg.methods:
             m = read_json(metrics_dir / experiment / "train" / f"{method}.json")
-            if method == "mcd":
-                extra = "learned dropout rates " + ", ".join(fmt(m[f"dropout_p{k}"], 3) for k in (1, 2, 3))
-                reference = "dropout rates " + ", ".join(f"{p:g}" for p in paper.DROPOUT_RATES)
-            elif method == "hmc":
-                extra = (f"acceptance {fmt(m['accept_rate'], 2)}, split-R̂ max {fmt(m['rhat_max'], 2)} "
-                         f"(median {fmt(m['rhat_median'], 2)}), {m['kept_samples']} samples")
-                reference = "10 leapfrog steps (as here)"
-            else:
-                extra = f"mean posterior σ {fmt(m['posterior_sigma_mean'])}" if "posterior_sigma_mean" in m else "–"
-                reference = "–"
-            rows.append([experiment, method, str(read_json(metrics_dir / experiment / "preprocess.json")["num_classes"]),
-                         fmt(m["val_accuracy"]), fmt(m["majority_baseline_accuracy"]), fmt(m["val_nll"]),
-                         fmt(m["val_ece"]), str(m["train_frames"]), extra, reference])
+            rows.append([experiment, method, str(classes), fmt(m["val_accuracy"]), fmt(m["majority_baseline_accuracy"]),
+                         fmt(m["val_nll"]), fmt(m["val_ece"]), str(m["train_frames"]), m.get("diagnostics", "–"),
+                         TRAINING_REFERENCE.get(method, "–")])
+            if "fs_rhat_share_ok" in m:
+                sampled.append([experiment, method, fmt(m["fs_rhat_share_ok"]), fmt(m["fs_rhat_target_share"], 2),
+                                fmt(m["fs_rhat_median"]), f"{fmt(m['fs_ess_bulk_min'], 0)} / {fmt(m['fs_ess_tail_min'], 0)}",
+                                fmt(m["mi_rhat_max"]), fmt(m["mi_ess_bulk_min"], 0), fmt(m["between_chain_mi_share"]),
+                                fmt(m["train_seconds"], 0)])
     report.add("## Controllers\n\nOne controller per experiment × method, as the paper (\"neurons equal to the number "
                "of classes (variable per experiment)\"): each experiment trains on its own scenario and keeps the "
                "steering tenths its labels use. Validation frames are whole held-out episodes of the training "
                "collection (training weather, no noise).")
     report.add(table(["experiment", "method", "classes", "val accuracy", "majority class", "NLL", "ECE",
                       "train frames", "diagnostics", "paper"], rows))
+    if sampled:
+        report.add("Convergence of the sampled posteriors in function space (rank-normalised split-R̂ and ESS from "
+                   "ArviZ over the predictive class probabilities of validation frames, pairs with mean probability "
+                   "> 0.01, and over each frame's mutual information):")
+        report.add(table(["experiment", "method", "share R̂ ≤ 1.1", "target", "median R̂", "min bulk / tail ESS",
+                          "MI R̂ max", "MI min bulk ESS", "between-chain share of MI", "train seconds"], sampled))
     for experiment in cfg.experiments:
         for method in cfg.methods:
             report.figure(report.root / "plots" / experiment / "train" / f"{method}_curve.png",

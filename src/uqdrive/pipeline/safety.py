@@ -24,7 +24,7 @@ from tqdm import tqdm
 from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path, write_csv, write_json
-from uqdrive.models.checkpoint import check_method
+from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
 from uqdrive.safety.cells import (EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest, rates,
                                   reusable_result)
@@ -59,7 +59,7 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     Raises before any rollout on an unknown method, a missing or mismatched model file, or a
     bad value (the message names the key, the value and what is allowed).
     """
-    method = check_method(cfg.model.name)
+    method = posterior_from_config(cfg.model).method
     settings = EstimatorSettings(scheme=cfg.safety.scheme, theta=cfg.safety.theta, gamma=cfg.safety.gamma,
                                  base_seed=cfg.safety.base_seed, look_size=cfg.safety.look_size)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
