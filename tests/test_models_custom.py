@@ -75,20 +75,20 @@ def test_a_user_posterior_trains_and_evaluates_through_the_pipeline(tmp_path):
     user_conf = tmp_path / "user_conf"
     (user_conf / "model").mkdir(parents=True)
     (user_conf / "model" / "noisy_head.yaml").write_text(TOY_YAML)
-    write_processed(tmp_path / "data/processed/train.parquet", 320, seed=1)
-    write_processed(tmp_path / "data/processed/val.parquet", 80, seed=2)
+    write_processed(tmp_path / "data/processed/joint/train.parquet", 320, seed=1)
+    write_processed(tmp_path / "data/processed/joint/val.parquet", 80, seed=2)
     for weather in ("clear_noon", "rain"):
         write_heldout(tmp_path, weather, 0.0, frames=12)
 
     def config(stage: str, *overrides: str):
         with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-            return compose(stage, overrides=[f"paths.root={tmp_path}", "profile=tiny", "progress=false",
+            return compose(stage, overrides=[f"paths.root={tmp_path}", "profile=tiny", "progress=false", "experiment=joint",
                                              f"hydra.searchpath=[file://{user_conf}]", *overrides])
 
     run_train(config("train", "model=mcd"))
     metrics = run_train(config("train", "model=noisy_head", "model.scale=0.3"))
     assert metrics["method"] == "noisy_head" and metrics["diagnostics"] == "noise scale 0.3"
-    loaded = load_posterior(tmp_path / "models/noisy_head.pt", expected_method="noisy_head")
+    loaded = load_posterior(tmp_path / "models/joint/noisy_head.pt", expected_method="noisy_head")
     assert isinstance(loaded, NoisyHeadPosterior) and loaded.scale == 0.3
     result = run_evaluate(config("evaluate", "methods=[mcd,noisy_head]", "weathers=[clear_noon,rain]", "noises=[0.0]"))
     cell = result["table"]["noisy_head"]["rain"]["noise0.0"]

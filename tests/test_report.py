@@ -31,8 +31,8 @@ def write_run(root):
     """Metrics and figures shaped like a finished pipeline's (random values, fixed seed)."""
     rng = np.random.default_rng(0)
     (root / "params.yaml").write_text(f"experiments: {list(EXPERIMENTS)}\ntrain_weather: clear_noon\n"
-                                      f"methods: {list(METHODS)}\nweathers: {list(WEATHERS)}\nnoises: {list(NOISES)}\n"
-                                      f"locations: {list(LOCATIONS)}\n")
+                                      f"posteriors: {list(METHODS)}\nmethods: {list(METHODS)}\n"
+                                      f"weathers: {list(WEATHERS)}\nnoises: {list(NOISES)}\nlocations: {list(LOCATIONS)}\n")
     png = encode_png(rng.integers(0, 255, (20, 30, 3), dtype=np.uint8))
     for experiment in EXPERIMENTS:
         (root / f"metrics/{experiment}/train").mkdir(parents=True, exist_ok=True)

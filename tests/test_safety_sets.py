@@ -35,7 +35,7 @@ def test_autopilot_drives_every_location_safely(location):
     value, results = eta1(AUTOPILOT, location)
     assert value == 1.0
     assert all(r.termination == "route_complete" and r.reached_goal and not r.left_corridor for r in results)
-    assert max(r.corridor_use for r in results) < 0.8  # with a margin, not just inside
+    assert max(r.corridor_use for r in results) < 0.95  # the body stays in its lane with a margin (measured 0.89)
     assert max(r.mean_abs_lateral_deviation for r in results) < 0.5
 
 
@@ -69,17 +69,35 @@ def test_passing_the_obstacle_is_the_obstacle_roads_goal():
     assert safe.goal_progress > geometry.config.obstacle_distance
 
 
+def test_the_body_not_its_centre_must_stay_in_the_lane():
+    """A car whose centre is inside the lane but which points out of the ring has a corner beyond the lane: unsafe,
+    before any off-road termination (a path that turned too little at the large ring did exactly this)."""
+    geometry = build_geometry(scenario("roundabout_large"))
+    safe = safe_set_for(geometry, 1.8, 4.5)
+    route = geometry.route
+    cx, cy, _ = geometry.island
+    on_ring = np.flatnonzero(np.abs(np.hypot(route.x - cx, route.y - cy) - geometry.config.ring_radius) < 0.05)
+    k = int(on_ring[len(on_ring) // 2])  # the middle of the ring part of the route
+    heading = np.arctan2(np.gradient(route.y)[k], np.gradient(route.x)[k])
+    normal = np.array([-np.sin(heading), np.cos(heading)])
+    centre = np.array([route.x[k], route.y[k]]) - 1.3 * normal  # 1.3 m outwards of the lane's centre line
+    along = safe.judge(geometry, np.array([centre[0]]), np.array([centre[1]]), np.array([heading]), "")
+    across = safe.judge(geometry, np.array([centre[0]]), np.array([centre[1]]), np.array([heading - 1.0]), "")
+    assert along.corridor_use < 1 and not along.left_corridor
+    assert across.corridor_use > 1 and across.left_corridor and not across.safe
+
+
 def test_corridor_half_width_is_configurable():
     """A corridor narrower than the autopilot's tracking error makes the same paths unsafe."""
     value, results = eta1(AUTOPILOT, "roundabout", theta=0.5, half_width=0.05)
     assert value == 0.0 and all(r.left_corridor and r.termination == "route_complete" for r in results)
 
 
-def test_default_corridor_keeps_the_body_in_its_lane_and_ends_at_the_first_exit():
+def test_default_corridor_is_the_lane_and_ends_at_the_first_exit():
     geometry = build_geometry(scenario("roundabout"))
     safe = safe_set_for(geometry, 1.8, 4.5)
     cfg = geometry.config
-    np.testing.assert_allclose(np.unique(safe.half_width), sorted({cfg.lane_width / 2 - 0.9, cfg.ring_width / 2 - 0.9}))
+    np.testing.assert_allclose(np.unique(safe.half_width), sorted({cfg.lane_width / 2, cfg.ring_width / 2}))
     assert 0 < safe.goal_progress < geometry.route.length
     exit_x, exit_y, _ = geometry.route.sample(safe.goal_progress)
     assert np.hypot(exit_x, exit_y) == pytest.approx(cfg.ring_radius + cfg.ring_width / 2, abs=0.5)

@@ -75,7 +75,7 @@ Frames the autopilot recorded at the roundabout in each weather × noise level, 
 for training. AUROC: how well an uncertainty score ranks frames with a wrong class above right ones
 (0.5 = chance); '–' where a condition has no mistakes or no right frames. The paper reports no such table.""")
     rows = []
-    for method in cfg.methods:
+    for method in cfg.posteriors:
         for weather in cfg.weathers:
             for noise in cfg.noises:
                 c = evaluated[method][weather][f"noise{noise}"]
@@ -86,14 +86,14 @@ for training. AUROC: how well an uncertainty score ranks frames with a wrong cla
                       "mean η2", "AUROC MI", "AUROC 1 − η2"], rows))
     figures = report.root / "plots" / "evaluate" / "figures"
     report.figure(figures / "conditions.png", "Held-out metrics across conditions, one line per method")
-    for method in cfg.methods:
+    for method in cfg.posteriors:
         report.figure(figures / f"reliability_{method}.png", f"{method}: reliability diagrams per condition")
     agreement_table(report, cfg, evaluated)
 
 
 def agreement_table(report: Report, cfg: DictConfig, evaluated: dict) -> None:
     """Each method against HMC's predictive on the same held-out frames (when HMC was evaluated)."""
-    cells = {m: [evaluated[m][w][f"noise{x}"] for w in cfg.weathers for x in cfg.noises] for m in cfg.methods}
+    cells = {m: [evaluated[m][w][f"noise{x}"] for w in cfg.weathers for x in cfg.noises] for m in cfg.posteriors}
     if not all("hmc_tv_distance" in c for by_method in cells.values() for c in by_method):
         return
     mean = lambda key, cs: fmt(sum(c[key] for c in cs) / len(cs)) if all(c[key] is not None for c in cs) else "–"  # noqa: E731
@@ -132,7 +132,7 @@ def headline_metrics(cfg: DictConfig, metrics_dir: Path, summary: dict, avoided:
     """metrics/summary.json: the few numbers an experiment is compared by (DVC's one metrics file), read from
     the stages' own files: validation accuracy per controller, η̂1 pooled over every offline-safety cell
     and its worst cell per method, and the avoid experiment's unknown mixture and known autonomy."""
-    controllers = {e: {m: read_json(metrics_dir / e / "train" / f"{m}.json")["val_accuracy"] for m in cfg.methods}
+    controllers = {e: {m: read_json(metrics_dir / e / "train" / f"{m}.json")["val_accuracy"] for m in cfg.posteriors}
                    for e in cfg.experiments}
     offline = {}
     for method, locations in summary.items():
@@ -154,7 +154,7 @@ def run_report(cfg: DictConfig) -> dict:
     gamma = max(c["gamma"] for c in cells)
     report = Report(root, out_dir)
     seeds = {"train": [read_json(metrics_dir / e / "train" / f"{m}.json")["seed"] for e in cfg.experiments
-                       for m in cfg.methods],
+                       for m in cfg.posteriors],
              "safety": [c["base_seed"] for c in cells]}
     avoided = read_json(metrics_dir / "avoid.json")
     evaluated = read_json(metrics_dir / "evaluate.json")

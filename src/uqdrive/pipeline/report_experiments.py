@@ -23,7 +23,7 @@ def training_section(report: Report, cfg: DictConfig, metrics_dir: Path) -> None
     rows, sampled = [], []
     for experiment in cfg.experiments:
         classes = read_json(metrics_dir / experiment / "preprocess.json")["num_classes"]
-        for method in cfg.methods:
+        for method in cfg.posteriors:
             m = read_json(metrics_dir / experiment / "train" / f"{method}.json")
             rows.append([experiment, method, str(classes), fmt(m["val_accuracy"]), fmt(m["majority_baseline_accuracy"]),
                          fmt(m["val_nll"]), fmt(m["val_ece"]), str(m["train_frames"]), m.get("diagnostics", "–"),
@@ -46,7 +46,7 @@ def training_section(report: Report, cfg: DictConfig, metrics_dir: Path) -> None
         report.add(table(["experiment", "method", "share R̂ ≤ 1.1", "target", "median R̂", "min bulk / tail ESS",
                           "MI R̂ max", "MI min bulk ESS", "between-chain share of MI", "train seconds"], sampled))
     for experiment in cfg.experiments:
-        for method in cfg.methods:
+        for method in cfg.posteriors:
             report.figure(report.root / "plots" / experiment / "train" / f"{method}_curve.png",
                           f"{experiment} · {method} learning curve")
 

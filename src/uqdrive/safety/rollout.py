@@ -78,7 +78,7 @@ def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioCo
     eta2 = [c.eta2 for c in commands]
     mi = [c.mutual_information for c in commands]
     log = env.trajectory
-    verdict = safe_set.judge(env.geometry, log["x"], log["y"], termination)
+    verdict = safe_set.judge(env.geometry, log["x"], log["y"], log["yaw"], termination)
     lateral = env.geometry.lateral_deviation(np.stack([log["x"], log["y"]], axis=1))
     return RolloutResult(seed=seed, safe=verdict.safe, termination=termination, collision=verdict.collision,
                          off_road=verdict.off_road, left_corridor=verdict.left_corridor,

@@ -3,10 +3,12 @@
 A path is judged from its logged positions and the environment's termination, so the same
 test applies to any controller. One rule per scenario kind, and it is the one the figures draw:
 
-- ``roundabout``: the car's body keeps to its lane (the right lane on the arms, the ring's lane
-  on the ring) for the whole horizon and reaches the first exit. Judged on the body centre, the
-  corridor is the lane's half-width less half the car's width (``half_width`` overrides it), so
-  the corridor binds before the car's corners leave the pavement.
+- ``roundabout``: the car's body (its four corners, from the logged pose) keeps to its lane (the
+  right lane on the arms, the ring's lane on the ring; ``half_width`` overrides the lane) for the
+  whole horizon and reaches the first exit. The lane lies inside the pavement, so this rule binds
+  before the environment's off-road check (a corner off the pavement) can: the rule that decides
+  is the one the figures draw. (Judged on the body centre instead, a car turning too little left
+  the pavement with its front corner while its centre was well inside the lane.)
 - ``obstacle``: no collision, never off the road, and the car either passes the obstacle or
   stops after a hand-over within the horizon. A run that times out before the obstacle has
   answered nothing: it is its own outcome (``goal`` not reached), never safe.
@@ -28,8 +30,8 @@ HANDOVER = "handover"  # termination of a run whose warning system braked to a s
 @dataclass(frozen=True)
 class Verdict:
     """Outcome of one path. ``reached_goal``: the first exit (roundabout), past the obstacle (obstacle road),
-    always True on a straight road. ``corridor_use``: max |lateral deviation| / corridor half-width (NaN
-    where no corridor applies); above 1 the car left the corridor."""
+    always True on a straight road. ``corridor_use``: the largest |lateral deviation| of a body corner over
+    the lane half-width there (NaN where no lane rule applies); above 1 the car's body left its lane."""
 
     safe: bool
     collision: bool
@@ -41,25 +43,30 @@ class Verdict:
 
 @dataclass(frozen=True)
 class SafeSet:
-    """A scenario's safe set: ``half_width`` per route point (None where only the road matters) and the
-    progress along the route that counts as the goal (None: no goal)."""
+    """A scenario's safe set for a car of ``car_size`` (length, width): ``half_width`` of the lane per route
+    point (None where only the road matters) and the progress along the route that counts as the goal
+    (None: no goal)."""
 
     kind: str
     route_x: np.ndarray
     route_y: np.ndarray
     half_width: np.ndarray | None
     goal_progress: float | None
+    car_size: tuple[float, float]
 
-    def judge(self, geometry: ScenarioGeometry, x: np.ndarray, y: np.ndarray, termination: str) -> Verdict:
-        """Verdict for a path of body-centre positions ``x``, ``y`` that ended with ``termination``."""
+    def judge(self, geometry: ScenarioGeometry, x: np.ndarray, y: np.ndarray, yaw: np.ndarray,
+              termination: str) -> Verdict:
+        """Verdict for a path of body-centre poses ``x``, ``y``, ``yaw`` that ended with ``termination``."""
         collision, off_road = termination == "collision", termination == "off_road"
-        s, lateral = geometry.route.project(np.stack([x, y], axis=1))
+        s, _ = geometry.route.project(np.stack([x, y], axis=1))
         reached = self.goal_progress is None or bool(s.max() >= self.goal_progress)
         if self.half_width is None:
             stopped = termination == HANDOVER
             return Verdict(not (collision or off_road) and (reached or stopped), collision, off_road, False,
                            reached, math.nan)
-        use = float(np.max(np.abs(lateral) / np.interp(s, geometry.route.s, self.half_width)))
+        corners = body_corners(np.asarray(x), np.asarray(y), np.asarray(yaw), *self.car_size)
+        corner_s, lateral = geometry.route.project(corners)
+        use = float(np.max(np.abs(lateral) / np.interp(corner_s, geometry.route.s, self.half_width)))
         left = use > 1.0
         return Verdict(not (collision or off_road or left) and reached, collision, off_road, left, reached, use)
 
@@ -73,12 +80,21 @@ class SafeSet:
         return centre + normal * self.half_width[:, None], centre - normal * self.half_width[:, None]
 
 
+def body_corners(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
+    """The four footprint corners of every pose, [4 N, 2] (as the vehicle model's own ``corners``)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = [np.stack([x + c * u - s * v, y + s * u + c * v], axis=1)
+           for u, v in ((length / 2, width / 2), (length / 2, -width / 2), (-length / 2, -width / 2),
+                        (-length / 2, width / 2))]
+    return np.concatenate(out)
+
+
 def check_half_width(half_width: float | None, key: str = "safety.half_width") -> float | None:
     if half_width is None:
         return None
     if isinstance(half_width, bool) or not isinstance(half_width, (int, float)) or not (
             math.isfinite(half_width) and half_width > 0):
-        raise ValueError(f"{key}={half_width!r} must be null (the lane less half the car) or a number of metres > 0")
+        raise ValueError(f"{key}={half_width!r} must be null (the lane) or a number of metres > 0")
     return float(half_width)
 
 
@@ -101,20 +117,16 @@ def obstacle_pass_progress(geometry: ScenarioGeometry, vehicle_length: float) ->
 def safe_set_for(geometry: ScenarioGeometry, vehicle_width: float, vehicle_length: float,
                  half_width: float | None = None) -> SafeSet:
     """The safe set of ``geometry``'s scenario for a car of the given size; ``half_width`` (m) replaces the
-    lane-less-half-the-car corridor at the roundabout."""
+    lane's half-width at the roundabout."""
     half_width = check_half_width(half_width)
     route, cfg = geometry.route, geometry.config
+    car = (float(vehicle_length), float(vehicle_width))
     if cfg.kind == "obstacle":
-        return SafeSet(cfg.kind, route.x, route.y, None, obstacle_pass_progress(geometry, vehicle_length))
+        return SafeSet(cfg.kind, route.x, route.y, None, obstacle_pass_progress(geometry, vehicle_length), car)
     if cfg.kind != "roundabout":
-        return SafeSet(cfg.kind, route.x, route.y, None, None)
+        return SafeSet(cfg.kind, route.x, route.y, None, None, car)
     cx, cy, _ = geometry.island
     on_ring = np.flatnonzero(np.hypot(route.x - cx, route.y - cy) <= cfg.ring_radius + cfg.ring_width / 2)
     exit_progress = float(route.s[on_ring[-1]])  # where the route leaves the ring: the first exit
-    if half_width is None:
-        widths = lane_half_width(geometry) - vehicle_width / 2
-        if widths.min() <= 0:
-            raise ValueError(f"scenario {cfg.name!r}: a {vehicle_width} m wide car does not fit its lanes")
-    else:
-        widths = np.full(len(route.s), half_width)
-    return SafeSet("roundabout", route.x, route.y, widths, exit_progress)
+    widths = lane_half_width(geometry) if half_width is None else np.full(len(route.s), half_width)
+    return SafeSet("roundabout", route.x, route.y, widths, exit_progress, car)
