@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uqdrive.checks import ConfigError
+
 
 @dataclass(frozen=True)
 class SteeringBins:
@@ -22,12 +24,12 @@ class SteeringBins:
 
     def __post_init__(self) -> None:
         if not isinstance(self.per_unit, int) or self.per_unit < 1:
-            raise ValueError(f"bins.per_unit={self.per_unit!r} must be a positive integer")
+            raise ConfigError(f"bins.per_unit={self.per_unit!r} must be a positive integer")
         if not self.max_abs > 0:
-            raise ValueError(f"bins.max_abs={self.max_abs!r} must be > 0")
+            raise ConfigError(f"bins.max_abs={self.max_abs!r} must be > 0")
         steps = self.max_abs * self.per_unit
         if abs(steps - round(steps)) > 1e-9:
-            raise ValueError(f"bins.max_abs={self.max_abs!r} must be a multiple of 1/per_unit={1 / self.per_unit}")
+            raise ConfigError(f"bins.max_abs={self.max_abs!r} must be a multiple of 1/per_unit={1 / self.per_unit}")
 
     @property
     def num_classes(self) -> int:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import torch
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.files import atomic_path
 from uqdrive.models.hmc import HMCPosterior
@@ -27,7 +28,7 @@ POSTERIORS: dict[str, type[Posterior]] = {cls.method: cls for cls in (MCDPosteri
 
 def check_method(method: str) -> str:
     if method not in POSTERIORS:
-        raise ValueError(f"model.name={method!r} is not a known method; choose one of {sorted(POSTERIORS)}")
+        raise ConfigError(f"model.name={method!r} is not a known method; choose one of {sorted(POSTERIORS)}")
     return method
 
 

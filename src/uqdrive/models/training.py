@@ -12,6 +12,7 @@ import torch
 from torch.nn.functional import cross_entropy
 from tqdm import trange
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.datasets import FrameSet
 from uqdrive.models.hmc import HMCPosterior, flatten_mcd_head, head_log_posterior, unflatten
 from uqdrive.models.mcd import MCDPosterior
@@ -26,7 +27,7 @@ EVAL_CHUNK = 2048  # frames per head evaluation: bounds memory at n draws x chun
 
 def _require(name: str, value: float, ok: bool, allowed: str) -> None:
     if not ok:
-        raise ValueError(f"model.{name}={value!r} is invalid: must be {allowed}")
+        raise ConfigError(f"model.{name}={value!r} is invalid: must be {allowed}")
 
 
 @dataclass(frozen=True)
@@ -96,7 +97,7 @@ def settings_from(cls: type, values: dict) -> MCDSettings | VISettings | HMCSett
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(values) - known)
     if unknown:
-        raise ValueError(f"unknown model keys {unknown} for {cls.__name__}; allowed: {sorted(known)}")
+        raise ConfigError(f"unknown model keys {unknown} for {cls.__name__}; allowed: {sorted(known)}")
     return cls(**values)
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uqdrive.checks import ConfigError
 from uqdrive.sim import ScenarioGeometry
 
 
@@ -64,7 +65,7 @@ def check_half_width(half_width: float | None) -> float | None:
         return None
     if isinstance(half_width, bool) or not isinstance(half_width, (int, float)) or not (
             math.isfinite(half_width) and half_width > 0):
-        raise ValueError(f"safety.half_width={half_width!r} must be null (the lane boundaries) or a number of metres > 0")
+        raise ConfigError(f"safety.half_width={half_width!r} must be null (the lane boundaries) or a number of metres > 0")
     return float(half_width)
 
 
