@@ -7,7 +7,6 @@ first rollout. A cell whose result file already holds its config hash is not run
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -20,6 +19,7 @@ from tqdm import tqdm
 
 from uqdrive import checks
 from uqdrive.data.binning import SteeringBins
+from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.checkpoint import check_method
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
@@ -34,19 +34,13 @@ from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, Vehicle
 from uqdrive.tracking import stage_run
 
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
-RESULT_CODE = ("safety", "sim", "models", "uq", "data", "pipeline/safety.py")  # under src/uqdrive/
 
 
 def code_digest() -> str:
-    """sha256 of the package sources a cell's result depends on (as DVC's `src/` deps do): changed code
-    is a new cell, so a rerun never reuses a result computed, or shaped, by older code."""
-    package = Path(__file__).resolve().parents[1]
-    digest = hashlib.sha256()
-    paths = [p for part in RESULT_CODE for p in ([package / part] if part.endswith(".py") else (package / part).glob("**/*.py"))]
-    for path in sorted(paths):
-        digest.update(path.relative_to(package).as_posix().encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
+    """sha256 of the package sources this module imports, transitively (the import closure DVC's deps are
+    checked against): changed code is a new cell, so a rerun never reuses a result computed, or shaped,
+    by older code."""
+    return files_digest(import_closure(__file__), SRC)
 
 
 def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
