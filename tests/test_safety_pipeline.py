@@ -46,11 +46,13 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
         "hmc-roundabout-afternoon-noise0.05.png", "hmc-roundabout-afternoon-noise0.05.csv"}
 
-    # same config, other worker count: reused, nothing rerun or logged
+    # same config, other worker count: reused, nothing rerun; a run tagged reused lists the cell
     stamp = out.stat().st_mtime_ns
     again = run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "executor.workers=2"))
     assert again["reused"] and again["eta1"] == result["eta1"] and out.stat().st_mtime_ns == stamp
-    assert len(runs(tmp_path)[1]) == 1
+    first, reused = sorted(runs(tmp_path)[1], key=lambda r: r.info.start_time)
+    assert (first.data.tags["reused"], reused.data.tags["reused"]) == ("false", "true")
+    assert reused.data.metrics["eta1"] == result["eta1"] and reused.data.params["n"] == "4"
     # another seed is another cell config: recomputed
     assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7"))["reused"]
 
@@ -81,7 +83,7 @@ def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path,
     monkeypatch.setattr(safety_stage, "estimate_safety", real)
     assert not (tmp_path / "metrics/safety/vi-roundabout-clear_noon-noise0.0.json").exists()
     assert [run_safety(cfg)["reused"] for cfg in configs] == [True, False, False]
-    assert len(runs(tmp_path)[1]) == 3
+    assert sorted(r.data.tags["reused"] for r in runs(tmp_path)[1]) == ["false", "false", "false", "true"]
 
 
 def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):

@@ -1,15 +1,17 @@
 """A parallel Hydra multirun starting from no MLflow store logs every job (the SQLite creation race)."""
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 from mlflow.tracking import MlflowClient
 
 from uqdrive.pipeline.collect import run_collect
-from uqdrive.tracking import store_uris
+from uqdrive.tracking import store_lock, store_uris
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,3 +32,41 @@ def test_joblib_multirun_of_4_jobs_on_2_workers_logs_4_runs(stage_config, tmp_pa
     client = MlflowClient(store_uris(project)[0])
     runs = client.search_runs([client.get_experiment_by_name("preprocess").experiment_id])
     assert sorted(r.data.params["preprocess.split_seed"] for r in runs) == ["0", "1", "2", "3"]
+
+
+def _sweep(project: Path, *overrides: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, str(ROOT / "stages/collect.py"), "-m", "profile=tiny", "progress=false", "scenario=straight",
+         "collect.workers=1", "+tracking.parent_run=true", *overrides],
+        cwd=project, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "PYTHONWARNINGS": "ignore"})
+
+
+def _runs(project: Path) -> list:
+    with store_lock(project):  # the sweep may be creating the store right now
+        client = MlflowClient(store_uris(project)[0])
+    experiment = client.get_experiment_by_name("collect")
+    return client.search_runs([experiment.experiment_id]) if experiment else []
+
+
+@pytest.mark.slow
+def test_an_interrupted_or_failed_sweep_leaves_no_run_running(tmp_path):
+    interrupted = tmp_path / "interrupted"
+    interrupted.mkdir()
+    sweep = _sweep(interrupted, "collect.episodes=500", "collect.base_seed=1,2")
+    deadline = time.monotonic() + 300
+    while not (interrupted / "mlflow.db").exists() or not _runs(interrupted):  # the parent run is open
+        assert time.monotonic() < deadline and sweep.poll() is None, sweep.communicate()[1][-3000:]
+        time.sleep(0.5)
+    sweep.send_signal(signal.SIGINT)  # Ctrl-C during the first job
+    sweep.communicate(timeout=120)
+    (parent,) = _runs(interrupted)
+    assert parent.info.status == "KILLED" and sweep.returncode != 0
+
+    failed = tmp_path / "failed"
+    failed.mkdir()
+    sweep = _sweep(failed, "collect.episodes=1", "noise=0,-1")  # the second job has a bad value
+    _, err = sweep.communicate(timeout=300)
+    assert sweep.returncode == 2 and "error: noise=-1 must be >= 0" in err
+    statuses = sorted((r.info.status, "mlflow.parentRunId" in r.data.tags) for r in _runs(failed))
+    assert statuses == [("FAILED", False), ("FINISHED", True)]  # the parent, and the first job's run

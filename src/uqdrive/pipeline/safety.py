@@ -121,6 +121,7 @@ def run_safety(cfg: DictConfig) -> dict:
     out = Path(cfg.safety.out)
     previous = reusable_result(out, key)
     if previous is not None:
+        log_cell(cfg, previous, [p for p in _cell_files(cfg) if p.exists()], reused=True)
         return {**previous, "reused": True}
     executor = make_executor(cfg.executor.name, job, workers, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
     start = time.perf_counter()
@@ -141,15 +142,30 @@ def run_safety(cfg: DictConfig) -> dict:
     cell = {"method": cfg.model.name, "scenario": job.scenario.name, "weather": job.weather.name, "noise": job.noise,
             "theta": estimate.theta, "gamma": estimate.gamma, "scheme": estimate.method, "n": estimate.n,
             "base_seed": settings.base_seed}
-    with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell) as run:
-        mlflow.log_params({k: v for k, v in cell.items() if k != "noise"})
-        mlflow.log_metrics({k: v for k, v in metrics.items() if not np.isnan(v)})
-        for path in (figure, table):
-            mlflow.log_artifact(str(path))
-        run_id = run.info.run_id
-    result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key, "mlflow_run_id": run_id}
-    write_json(out, result)  # last: its presence marks the cell as done
+    result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key}
+    write_json(out, result)  # before logging: a tracking failure never loses the cell; its presence marks it done
+    log_cell(cfg, result, [figure, table])
     return {**result, "reused": False}
+
+
+CELL_PARAMS = ("method", "scenario", "weather", "theta", "gamma", "scheme", "n", "base_seed")  # noise: tracking's own
+
+
+def _cell_files(cfg: DictConfig) -> list[Path]:
+    plots = Path(cfg.safety.plots_dir)
+    return [plots / f"{cfg.safety.cell}.png", plots / f"{cfg.safety.cell}.csv"]
+
+
+def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool = False) -> None:
+    """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
+    metrics = {k: float(v) for k, v in result.items() if k not in CELL_PARAMS and k != "noise"
+               and isinstance(v, (int, float)) and not isinstance(v, bool) and not np.isnan(v)}
+    with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell,
+                   tags={"reused": str(reused).lower(), "config_hash": result["config_hash"]}):
+        mlflow.log_params({k: result[k] for k in CELL_PARAMS})
+        mlflow.log_metrics(metrics)
+        for path in artifacts:
+            mlflow.log_artifact(str(path))
 
 
 def run_safety_summary(cfg: DictConfig) -> dict:
