@@ -4,11 +4,11 @@ conditions, calibrated thresholds checked in closed loop (`model=mcd|vi|hmc`).""
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.checks import one_line_errors
+from uqdrive.stage import stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid")
-@one_line_errors
+@stage_main
 def main(cfg: DictConfig) -> None:
     from uqdrive.pipeline.avoid import CONDITIONS, MODES, run_avoid  # not at the top: spawned workers re-import this script
     r = run_avoid(cfg)

@@ -4,12 +4,12 @@ paths of all methods coloured by uncertainty."""
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.checks import one_line_errors
+from uqdrive.stage import stage_main
 from uqdrive.pipeline.avoid import run_avoid_summary
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid_summary")
-@one_line_errors
+@stage_main
 def main(cfg: DictConfig) -> None:
     result = run_avoid_summary(cfg)
     print(f"avoid summary -> {cfg.summary.out}, figures {', '.join(result['figures'])}")

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from uqdrive.checks import ConfigError, one_line_errors
+from uqdrive.checks import ConfigError
+from uqdrive.stage import stage_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -15,6 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.parametrize(("stage", "overrides", "message"), [
     ("safety", ["safety.theta=2"], "error: safety.theta=2 must be in the open interval (0, 1)"),
     ("collect", ["scenario=straight", "noise=-0.1"], "error: noise=-0.1 must be >= 0"),
+    ("collect", ["scenario=straight", "outputs=x"], "error: outputs='x' is not known; choose one of ['auto', 'pipeline']"),
 ])
 def test_a_bad_value_prints_one_line_and_writes_nothing(tmp_path, stage, overrides, message):
     result = subprocess.run([sys.executable, str(ROOT / "stages" / f"{stage}.py"), "profile=tiny", *overrides],
@@ -28,11 +30,11 @@ def test_a_bad_value_prints_one_line_and_writes_nothing(tmp_path, stage, overrid
 
 
 def test_only_config_errors_become_one_line():
-    @one_line_errors
+    @stage_main
     def bad_value(_cfg: object) -> None:
         raise ConfigError("x=1 must be 2")
 
-    @one_line_errors
+    @stage_main
     def bug(_cfg: object) -> None:
         raise KeyError("a bug keeps its traceback")
 

@@ -1,41 +1,23 @@
 """Config value checks shared by the stages: a bad value fails at start-up, before any work, with a
 message naming the key, the value and what is allowed.
 
-`ConfigError` is that failure; `one_line_errors` turns it, in a stage's entry point, into one line on
-stderr and exit code 2 (Hydra would print a traceback for any exception leaving the task function).
+`ConfigError` is that failure; `uqdrive.stage.stage_main` turns it into one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-import sys
-from collections.abc import Callable
-from typing import TypeVar
-
-R = TypeVar("R")
 
 
 class ConfigError(ValueError):
     """A bad config value; the message names the key, the value and what is allowed."""
 
 
-def one_line_errors(main: Callable[..., R]) -> Callable[..., R]:
-    """Wrap a stage's Hydra task function: a `ConfigError` prints ``error: <message>`` and exits with 2.
-
-    Put it under ``@hydra.main`` (Hydra unwraps it to find the stage's config path). Checks run before
-    any output is opened, so a run that stops here has written nothing.
-    """
-
-    @functools.wraps(main)
-    def run(*args, **kwargs) -> R:
-        try:
-            return main(*args, **kwargs)
-        except ConfigError as err:
-            print(f"error: {err}", file=sys.stderr, flush=True)
-            raise SystemExit(2) from None
-
-    return run
+def config_error(err: BaseException) -> ConfigError | None:
+    """The `ConfigError` behind ``err``, if any (OmegaConf wraps one raised by a resolver)."""
+    while err is not None and not isinstance(err, ConfigError):
+        err = err.__cause__ or err.__context__
+    return err
 
 
 def finite_number(key: str, value: object) -> float:
