@@ -92,7 +92,7 @@ def _end_processes_of(session_dir: str) -> None:
         for pid in ours():
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, sig)
-        deadline = time.monotonic() + 20
+        deadline = time.monotonic() + 5
         while ours() and time.monotonic() < deadline:
             time.sleep(0.2)
 
@@ -103,8 +103,12 @@ def ray_cluster():
     pytest.importorskip("ray")
     temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths live under it
     address = f"127.0.0.1:{_free_port()}"
+    # RAY_ADDRESS: `address=auto` reads it first (else the shared /tmp/ray/ray_current_cluster, maybe someone else's).
+    # RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0: a driver keeps 127.0.0.1 as is; Ray otherwise swaps a loopback
+    # address for the machine's outward IP, where a loopback-only cluster does not listen.
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")])),
-           "RAY_ADDRESS": address}
+           "RAY_ADDRESS": address, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
+           "RAY_AUTH_MODE": "disabled"}  # loopback only; else a token in ~/.ray turns auth on for the head alone
     try:
         subprocess.run([str(Path(sys.executable).parent / "ray"), "start", "--head", "--node-ip-address=127.0.0.1",
                         f"--port={address.rsplit(':', 1)[1]}", "--num-cpus=2", "--include-dashboard=false",
