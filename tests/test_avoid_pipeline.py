@@ -50,7 +50,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_and_summarises(avoid_conf
 
     client = MlflowClient(store_uris(tmp_path)[0])
     runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
-    by_name = {r.info.run_name: r for r in runs}
+    by_name = {r.info.run_name.split(" · ")[0]: r for r in runs}  # the name carries η̂1
     assert set(by_name) == {f"mcd-{c}-{m}" for c in CONDITIONS for m in MODES} | {"mcd-calibration"}
     run = by_name["mcd-unknown-on"]
     assert {k: run.data.params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n")} == {

@@ -128,8 +128,8 @@ def test_summary_tabulates_cells_and_draws_one_grid_per_noise(safety_config, sta
                                               "noises=[0]"))
     table = json.loads((tmp_path / "metrics/safety.json").read_text())
     assert table == summary["table"] and set(table) == {"mcd", "vi"}
-    cell = table["vi"]["clear_noon"]["noise0"]
+    cell = table["vi"]["clear_noon"]["noise0.0"]  # noise=0 and 0.0 are one cell
     assert cell["n"] == 4 and 0 <= cell["eta1"] <= 1
-    assert (tmp_path / "plots/safety/summary/hexbin_noise0.png").stat().st_size > 5000
-    with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.json is missing"):
+    assert (tmp_path / "plots/safety/summary/hexbin_noise0.0.png").stat().st_size > 5000
+    with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.0.json is missing"):
         run_safety_summary(stage_config("safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]"))

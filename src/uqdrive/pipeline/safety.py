@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from uqdrive import checks
+from uqdrive.config import noise_label
 from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
@@ -173,7 +174,7 @@ def run_safety_summary(cfg: DictConfig) -> dict:
     cells = Path(cfg.summary.cells_dir)
     table: dict = {}
     figures = []
-    for noise in cfg.noises:
+    for noise in map(noise_label, cfg.noises):  # as the cells name it: 0 and 0.0 are one level
         panels = {}
         for method in cfg.methods:
             for weather in cfg.weathers:
