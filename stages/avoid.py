@@ -4,8 +4,11 @@ known condition and each unknown one (`model=<method>`, the `avoid` experiment's
 import hydra
 from omegaconf import DictConfig
 
+from uqdrive.stage import stage_main
+
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid")
+@stage_main
 def main(cfg: DictConfig) -> None:
     from uqdrive.pipeline.avoid import MODES, run_avoid  # not at the top: spawned workers re-import this script
     r = run_avoid(cfg)

@@ -5,9 +5,11 @@ import hydra
 from omegaconf import DictConfig
 
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
+from uqdrive.stage import stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid_summary")
+@stage_main
 def main(cfg: DictConfig) -> None:
     result = run_avoid_summary(cfg)
     print(f"avoid summary -> {cfg.summary.out}, figures {', '.join(result['figures'])}")

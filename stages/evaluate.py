@@ -3,6 +3,7 @@
 import hydra
 from omegaconf import DictConfig
 
+from uqdrive.stage import stage_main
 from uqdrive.pipeline.evaluate import run_evaluate
 
 
@@ -11,6 +12,7 @@ def _fmt(value: float | None) -> str:
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
+@stage_main
 def main(cfg: DictConfig) -> None:
     result = run_evaluate(cfg)
     for method, by_weather in result["table"].items():

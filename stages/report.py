@@ -3,10 +3,12 @@
 import hydra
 from omegaconf import DictConfig
 
+from uqdrive.stage import stage_main
 from uqdrive.pipeline.report import run_report
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="report")
+@stage_main
 def main(cfg: DictConfig) -> None:
     result = run_report(cfg)
     print(f"report: {result['figures']} figures -> {result['markdown']}, {result['html']}")

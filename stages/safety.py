@@ -3,8 +3,11 @@
 import hydra
 from omegaconf import DictConfig
 
+from uqdrive.stage import stage_main
+
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="safety")
+@stage_main
 def main(cfg: DictConfig) -> None:
     from uqdrive.pipeline.safety import run_safety  # not at the top: spawned workers re-import this script
     r = run_safety(cfg)

@@ -3,10 +3,12 @@
 import hydra
 from omegaconf import DictConfig
 
+from uqdrive.stage import stage_main
 from uqdrive.pipeline.safety import run_safety_summary
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="safety_summary")
+@stage_main
 def main(cfg: DictConfig) -> None:
     result = run_safety_summary(cfg)
     print(f"safety summary -> {cfg.summary.out}, figures {', '.join(result['figures'])}")

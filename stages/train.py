@@ -3,10 +3,12 @@
 import hydra
 from omegaconf import DictConfig
 
+from uqdrive.stage import stage_main
 from uqdrive.pipeline.train import run_train
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
+@stage_main
 def main(cfg: DictConfig) -> None:
     m = run_train(cfg)
     print(f"train {m['method']}: val accuracy {m['val_accuracy']:.3f} (majority baseline "

@@ -58,7 +58,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
 
     client = MlflowClient(store_uris(tmp_path)[0])
     runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
-    by_name = {r.info.run_name: r for r in runs}
+    by_name = {r.info.run_name.split(" · ")[0]: r for r in runs}  # the name carries η̂1
     assert set(by_name) == {f"mcd-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-calibration"}
     run = by_name["mcd-fog-on"]
     assert {k: run.data.params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n")} == {
@@ -105,7 +105,7 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
     (("avoid.speed=0",), ValueError, r"avoid.speed=0 must be in \(0, vehicle.max_speed=20.0\] m/s"),
     (("avoid.eps=0",), ValueError, r"avoid.eps=0 must be a number > 0"),
     (("avoid.horizon_s=-1",), ValueError, r"avoid.horizon_s=-1 must be a number of seconds > 0"),
-    (("avoid.horizon_s=2",), ValueError, r"avoid.horizon_s=2 is too short: a run slowed to 8 m/s needs 3.1 s"),
+    (("avoid.horizon_s=2",), ValueError, r"avoid.horizon_s=2 is too short: a run slowed to 8 m/s needs 3\.\d s to pass the obstacle \(\d+ m\); set at least 4"),
     (("warning.actions.warning1.speed=0",), ValueError, r"a slow-down to speed 0 without a hand-over never passes"),
     (("avoid.unknown=[]",), ValueError, r"avoid.unknown=\[\] must be a non-empty list of conditions"),
     (("avoid.unknown=[{name:known}]",), ValueError, r"avoid.unknown\[0\].name='known' is the training condition"),

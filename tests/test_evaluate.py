@@ -106,7 +106,7 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     assert {m: r.info.run_name for m, r in runs.items()} == {"mcd": "mcd", "hmc": "hmc"}
     assert {client.get_experiment(r.info.experiment_id).name for r in runs.values()} == {"evaluate"}
     hmc = runs["hmc"]
-    assert hmc.data.params["method"] == "hmc" and hmc.data.params["profile_name"] == "tiny"
+    assert hmc.data.params["method"] == "hmc" and hmc.data.params["profile"] == "tiny"
     assert hmc.data.metrics["rain/noise0.05/accuracy"] == pytest.approx(cell["accuracy"])
     assert len([k for k in hmc.data.metrics if k.endswith("/ece")]) == 4
     artifacts = {a.path for a in client.list_artifacts(hmc.info.run_id)}

@@ -42,9 +42,9 @@ def test_collect_and_preprocess_log_config_and_metrics_to_mlflow(collected, stag
         experiment = client.get_experiment_by_name(stage)
         runs = client.search_runs([experiment.experiment_id])
         assert len(runs) == runs_expected
-        assert runs[0].data.params["profile_name"] == "tiny"
+        assert runs[0].data.params["profile"] == "tiny"
     collect_runs = client.search_runs([client.get_experiment_by_name("collect").experiment_id])
-    assert {r.data.params["scenario.name"] for r in collect_runs} == {"straight", "roundabout"}
+    assert {r.data.params["location"] for r in collect_runs} == {"straight", "roundabout"}
     assert all(r.data.metrics["frames"] > 0 for r in collect_runs)
 
 

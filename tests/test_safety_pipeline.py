@@ -50,11 +50,13 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
         "hmc-roundabout-afternoon-noise0.05.png", "hmc-roundabout-afternoon-noise0.05.csv"}
 
-    # same config, other worker count: reused, nothing rerun or logged
+    # same config, other worker count: reused, nothing rerun; a run tagged reused lists the cell
     stamp = out.stat().st_mtime_ns
     again = run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "executor.workers=2"))
     assert again["reused"] and again["eta1"] == result["eta1"] and out.stat().st_mtime_ns == stamp
-    assert len(runs(tmp_path)[1]) == 1
+    first, reused = sorted(runs(tmp_path)[1], key=lambda r: r.info.start_time)
+    assert (first.data.tags["reused"], reused.data.tags["reused"]) == ("false", "true")
+    assert reused.data.metrics["eta1"] == result["eta1"] and reused.data.params["n"] == "4"
     # another seed is another cell config: recomputed
     assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7"))["reused"]
 
@@ -85,7 +87,7 @@ def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path,
     monkeypatch.setattr(safety_stage, "estimate_safety", real)
     assert not (tmp_path / "metrics/safety/vi-roundabout-clear_noon-noise0.0.json").exists()
     assert [run_safety(cfg)["reused"] for cfg in configs] == [True, False, False]
-    assert len(runs(tmp_path)[1]) == 3
+    assert sorted(r.data.tags["reused"] for r in runs(tmp_path)[1]) == ["false", "false", "false", "true"]
 
 
 def test_a_cell_interrupted_mid_way_keeps_its_finished_rollouts(safety_config, tmp_path, monkeypatch):
@@ -160,11 +162,11 @@ def test_summary_tabulates_cells_and_draws_one_grid_per_location_and_noise(safet
                                               "noises=[0]", "locations=[roundabout,roundabout_town]"))
     table = json.loads((tmp_path / "metrics/safety.json").read_text())
     assert table == summary["table"] and set(table) == {"mcd", "vi"}
-    cell = table["vi"]["roundabout_town"]["clear_noon"]["noise0"]
+    cell = table["vi"]["roundabout_town"]["clear_noon"]["noise0.0"]  # noise=0 and 0.0 are one cell
     assert cell["n"] == 4 and 0 <= cell["eta1"] <= 1 and cell["max_corridor_use"] >= cell["mean_corridor_use"]
     assert cell["left_corridor_rate"] == 0 or cell["max_corridor_use"] > 1  # one rule: leaving the lane is > 1
     for location in ("roundabout", "roundabout_town"):
-        assert (tmp_path / f"plots/safety/summary/hexbin_{location}_noise0.png").stat().st_size > 5000
-    with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.json is missing"):
+        assert (tmp_path / f"plots/safety/summary/hexbin_{location}_noise0.0.png").stat().st_size > 5000
+    with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.0.json is missing"):
         run_safety_summary(stage_config("safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]",
                                         "locations=[roundabout]"))

@@ -37,4 +37,5 @@ def test_joblib_multirun_of_4_cells_on_2_workers_logs_4_child_runs(random_models
     assert sorted((r.data.params["method"], r.data.params["weather"]) for r in children) == [
         ("mcd", "clear_noon"), ("mcd", "rain"), ("vi", "clear_noon"), ("vi", "rain")]
     assert len(runs) == 5
-    assert len(list((project / "metrics/safety").glob("*.json"))) == 4
+    assert len(list((tmp_path / "multirun/metrics/safety").glob("*.json"))) == 4  # the sweep's own folder
+    assert not (project / "metrics").exists()

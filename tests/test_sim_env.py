@@ -53,18 +53,23 @@ def test_same_seed_same_path_and_images_different_seed_differs(env):
     assert not any(np.array_equal(x, y) for x, y in zip(a, c))
 
 
-def test_same_path_in_a_fresh_process_and_with_render_off(env):
+def test_same_path_in_a_fresh_process_and_with_render_off(env, tmp_path):
     _, here = run(env, 5, WEATHERS["clear_noon"], render=False)
     _, rendered = run(env, 5, WEATHERS["rain"], noise=0.05, render=True)
-    code = ("import json, numpy as np\nfrom uqdrive.sim import DrivingEnv, ScenarioConfig\n"
+    out = tmp_path / "trajectory.json"  # a file, not stdout: the child's output is not ours to parse
+    code = ("import json, sys, numpy as np\nfrom uqdrive.sim import DrivingEnv, ScenarioConfig\n"
+            "print('before', flush=True)\n"
             "with DrivingEnv() as env:\n    env.reset(5, ScenarioConfig(kind='obstacle', name='obstacle'), render=False)\n"
             "    for k in range(4): env.step(0.1 * np.sin(k), 8.0)\n"
-            "    print(json.dumps({k: v.tolist() for k, v in env.trajectory.items()}))\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    other = json.loads(out.strip().splitlines()[-1])
+            "    open(sys.argv[1], 'w').write(json.dumps({k: v.tolist() for k, v in env.trajectory.items()}))\n"
+            "print('after')\n")
+    child = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True, text=True, check=True)
+    other = json.loads(out.read_text())
     for key in here:
         assert here[key].tolist() == other[key]
         assert np.array_equal(here[key], rendered[key])
+    assert child.stdout == "before\nafter\n"  # pybullet's native "argv[0]=" is silenced at the descriptor
+    assert "pybullet build time" not in child.stderr
 
 
 def test_collision_driving_straight_into_the_obstacle(env):

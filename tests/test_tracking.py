@@ -1,8 +1,15 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import mlflow
+import pytest
 from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
-from uqdrive.tracking import ensure_experiment, flatten, stage_run, store_uris
+from uqdrive import tracking
+from uqdrive.tracking import JOB_START_ENV, ensure_experiment, flatten, run_params, stage_run, store_uris
 
 
 def test_flatten_nested_config_to_dotted_params():
@@ -10,21 +17,90 @@ def test_flatten_nested_config_to_dotted_params():
     assert flatten(cfg) == {"a.b": "1", "a.c.d": "x", "lst": "[1, 2]", "ref": "1"}
 
 
-def test_stage_run_creates_store_at_root_and_logs_the_config(tmp_path):
+def test_params_are_the_stage_section_and_the_compared_keys_with_project_paths_relative(tmp_path):
+    cfg = OmegaConf.create({"safety": {"theta": 0.25, "out": f"{tmp_path}/metrics/safety/a.json"},
+                            "avoid": {"theta": 0.05}, "paths": {"root": str(tmp_path)}, "model": {"name": "vi"},
+                            "weather": {"name": "rain", "fog": 0.1}, "noise": 0.05, "scenario": {"name": "roundabout"},
+                            "profile_name": "tiny", "seed": 0, "camera": {"width": 160}})
+    assert run_params(cfg, "safety", tmp_path) == {
+        "safety.theta": "0.25", "safety.out": "metrics/safety/a.json", "method": "vi", "weather": "rain",
+        "noise": "0.05", "location": "roundabout", "profile": "tiny", "seed": "0"}
+
+
+def test_stage_run_creates_store_at_root_and_starts_when_the_job_started(tmp_path, monkeypatch):
+    monkeypatch.setenv(JOB_START_ENV, "1700000000000")
     cfg = OmegaConf.create({"collect": {"episodes": 3}, "scenario": {"name": "obstacle"}})
     with stage_run(tmp_path, "collect", cfg, run_name="obstacle") as run:
-        mlflow.log_metric("frames", 42)
+        mlflow.log_metrics({"frames": 42, "route_complete_fraction": 0.5})
         mlflow.log_text("hello", "note.txt")
     tracking_uri, artifact_root = store_uris(tmp_path)
     assert (tmp_path / "mlflow.db").exists()
     logged = MlflowClient(tracking_uri).get_run(run.info.run_id)
-    assert logged.data.params == {"collect.episodes": "3", "scenario.name": "obstacle"}
-    assert logged.data.metrics == {"frames": 42.0}
+    assert logged.data.params == {"collect.episodes": "3", "location": "obstacle"}
+    assert logged.data.metrics == {"frames": 42.0, "route_complete_fraction": 0.5}
+    assert logged.info.start_time == 1700000000000 and logged.info.status == "FINISHED"
+    assert logged.info.run_name == "obstacle · route_complete_fraction=0.5"  # the key metric, seen without set-up
     assert logged.info.artifact_uri.startswith(artifact_root)
     assert (tmp_path / "mlartifacts").is_dir()
+
+
+def test_a_store_that_cannot_be_opened_warns_and_the_stage_goes_on(tmp_path, monkeypatch):
+    monkeypatch.setattr(tracking, "LOCK_TIMEOUT_S", 0.2)
+    result = tmp_path / "result.json"
+    result.write_text("{}")
+    with tracking.store_lock(tmp_path):  # another process stuck while creating the store
+        with pytest.warns(UserWarning, match="MLflow: no run logged for safety cell"):
+            with stage_run(tmp_path, "safety", OmegaConf.create({}), run_name="cell") as run:
+                mlflow.log_metric("eta1", 1.0)
+    assert run.info.run_id is None and result.read_text() == "{}"
+    assert not (tmp_path / "mlflow.db").exists() and not (tmp_path / "mlruns").exists()
+
+
+def test_a_failure_while_logging_warns_and_ends_the_run_failed(tmp_path):
+    with pytest.warns(UserWarning, match="logging safety cell failed"):
+        with stage_run(tmp_path, "safety", OmegaConf.create({}), run_name="cell") as run:
+            mlflow.log_artifact(str(tmp_path / "no-such-file.png"))
+    assert MlflowClient(store_uris(tmp_path)[0]).get_run(run.info.run_id).info.status == "FAILED"
 
 
 def test_one_experiment_per_stage_is_reused(tmp_path):
     first = ensure_experiment(tmp_path, "preprocess")
     assert ensure_experiment(tmp_path, "preprocess") == first
     assert ensure_experiment(tmp_path, "collect") != first
+
+
+CHILD = """
+import sys, time
+from pathlib import Path
+import mlflow
+from omegaconf import OmegaConf
+from uqdrive.files import write_json
+from uqdrive.tracking import stage_run
+root, name = Path(sys.argv[1]), sys.argv[2]
+(root / f"ready-{name}").touch()
+while len(list(root.glob("ready-*"))) < 2:  # both processes imported everything: go at the same moment
+    time.sleep(0.002)
+write_json(root / f"{name}.json", {"eta1": 1.0})
+with stage_run(root, "safety", OmegaConf.create({"safety": {"cell": name}}), run_name=name):
+    mlflow.log_metric("eta1", 1.0)
+"""
+
+
+@pytest.mark.slow
+def test_two_processes_creating_the_store_at_once_both_log(tmp_path):
+    """Separate jobs (not one multirun) on a new store: without the lock, MLflow 3.17's migration races
+    ('duplicate column name: step', 'Online migration expected to match one row')."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src"), "PYTHONWARNINGS": "default"}
+    for attempt in range(5):
+        root = tmp_path / f"attempt{attempt}"
+        root.mkdir()
+        children = [subprocess.Popen([sys.executable, "-c", CHILD, str(root), name], env=env, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True) for name in ("a", "b")]
+        outputs = [child.communicate(timeout=300) for child in children]
+        for child, (_, err) in zip(children, outputs):
+            assert child.returncode == 0 and "MLflow:" not in err, err[-3000:]
+        client = MlflowClient(store_uris(root)[0])
+        runs = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
+        assert sorted(r.info.run_name for r in runs) == ["a · eta1=1", "b · eta1=1"]
+        assert all(r.info.status == "FINISHED" for r in runs)
+        assert (root / "a.json").exists() and (root / "b.json").exists()

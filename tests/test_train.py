@@ -91,12 +91,14 @@ def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
         assert (root / f"plots/joint/train/{method}_curve.png").stat().st_size > 1000
     client = MlflowClient(store_uris(root)[0])
     runs = client.search_runs([client.get_experiment_by_name("train").experiment_id])
-    assert sorted(r.info.run_name for r in runs) == sorted(METHODS)
+    assert sorted(r.data.params["method"] for r in runs) == sorted(METHODS)
     for run in runs:
-        assert run.data.params["model.name"] == run.info.run_name
-        assert run.data.metrics["val_accuracy"] == metrics[run.info.run_name]["val_accuracy"]
+        method = run.data.params["method"]
+        assert run.data.params["model.name"] == method
+        assert run.info.run_name == f"{method} · val_accuracy={metrics[method]['val_accuracy']:.3g}"
+        assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
-        assert {f"{run.info.run_name}_curve.csv", f"{run.info.run_name}_curve.png", f"{run.info.run_name}.pt"} <= artefacts
+        assert {f"{method}_curve.csv", f"{method}_curve.png", f"{method}.pt"} <= artefacts
 
 
 def test_method_specific_diagnostics(trained):

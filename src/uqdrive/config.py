@@ -1,8 +1,12 @@
-"""Hydra/OmegaConf glue: the `${params:KEY,ROOT}` resolver reads a knob from the project's params.yaml.
+"""Hydra/OmegaConf glue, as resolvers the stage configs use:
 
-DVC cannot template a list into a command line, so stages that take the pipeline's lists
-(e.g. which scenarios to preprocess) read them from params.yaml, the single source of truth;
-a Hydra CLI override (`scenarios=[straight]`) still wins.
+- `${params:KEY,ROOT}` reads a knob from the project's params.yaml. DVC cannot template a list into a
+  command line, so stages that take the pipeline's lists (e.g. which scenarios to preprocess) read them
+  from params.yaml, the single source of truth; a Hydra CLI override (`scenarios=[straight]`) still wins.
+- `${noise_label:NOISE}` is the one text of a noise level in cell names and paths: `noise=0` and
+  `noise=0.0` are one cell.
+- `${output_root:ROOT,OUTPUTS}` is where a run writes: the project for a single run (what `dvc repro`
+  runs), the sweep's own folder for a Hydra multirun, so ad-hoc sweeps leave the pipeline's outputs alone.
 """
 
 from __future__ import annotations
@@ -10,7 +14,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import OmegaConf
+
+from uqdrive.checks import ConfigError
+
+OUTPUTS = ("auto", "pipeline")  # the `outputs` key: auto = the sweep's folder in a multirun; pipeline = always the project
 
 
 def read_param(key: str, root: str) -> object:
@@ -23,6 +33,24 @@ def read_param(key: str, root: str) -> object:
     return params[key]
 
 
+def noise_label(noise: object) -> str:
+    """A noise sigma as DVC renders a float of params.yaml (0 and 0.0 → "0.0", 0.05 → "0.05"); a value that
+    is not a number is left for the stage's check to reject."""
+    if isinstance(noise, bool) or not isinstance(noise, (int, float)):
+        return str(noise)
+    return repr(float(noise))
+
+
+def output_root(root: str, outputs: str) -> str:
+    """``root`` for a single run or ``outputs=pipeline``; in a multirun, its sweep folder (hydra.sweep.dir)."""
+    if outputs not in OUTPUTS:
+        raise ConfigError(f"outputs={outputs!r} is not known; choose one of {list(OUTPUTS)}")
+    if outputs == "pipeline" or not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.MULTIRUN:
+        return root
+    return str(Path(root) / HydraConfig.get().sweep.dir)
+
+
 def register_resolvers() -> None:
-    if not OmegaConf.has_resolver("params"):
-        OmegaConf.register_new_resolver("params", read_param)
+    for name, resolver in (("params", read_param), ("noise_label", noise_label), ("output_root", output_root)):
+        if not OmegaConf.has_resolver(name):
+            OmegaConf.register_new_resolver(name, resolver)

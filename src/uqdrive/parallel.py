@@ -11,6 +11,8 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
 
+from uqdrive.checks import ConfigError
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -23,7 +25,7 @@ def map_ordered(fn: Callable[[T], R], items: Iterable[T], workers: int,
     in order, so a caller can stream them to disk and show progress.
     """
     if not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers={workers!r} must be an integer >= 1")
+        raise ConfigError(f"workers={workers!r} must be an integer >= 1")
     if workers == 1:
         if initializer is not None:
             initializer(*initargs)

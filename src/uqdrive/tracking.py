@@ -1,31 +1,80 @@
 """MLflow helpers: one SQLite store at the project root, artefacts beside it, absolute URIs.
 
-Every stage opens its run through `stage_run`, which logs the composed Hydra config
-(flattened) as params, so any two runs can be compared column by column in the UI.
+What the records must get right:
+- the store is created (its schema migrated) under a file lock, by whichever process comes first;
+  two processes migrating one new SQLite file at once corrupt it;
+- a stage writes its outputs first and logs them after (`stage_run`): a logging failure warns and
+  never loses a result;
+- a run's start time is its job's (Hydra's job start), so durations are true;
+- params are the stage's own config section and the keys runs are compared by, not every key;
+- a sweep's parent run ends FINISHED, FAILED or KILLED, never stays RUNNING.
 """
 
 from __future__ import annotations
 
+import atexit
+import dataclasses
 import os
+import signal
+import threading
+import time
+import warnings
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
 import mlflow
+from filelock import FileLock
+from filelock import Timeout as LockTimeout
 from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
+from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
+from sqlalchemy.exc import SQLAlchemyError
 
 MAX_PARAM_CHARS = 6000  # MLflow's limit on one param value
+LOCK_TIMEOUT_S = 600.0  # a migration takes seconds; a lock held this long is a stuck process
 PARENT_RUN_ENV = "UQDRIVE_MLFLOW_PARENT_RUN"  # "<experiment id>:<run id>" of the sweep's parent run
+JOB_START_ENV = "UQDRIVE_JOB_START_MS"  # set at Hydra's job start: the run's start time
+# The keys runs are compared by, logged under these short names (config key; absent keys are skipped).
+COMPARED_BY = {"method": "model.name", "experiment": "experiment.name", "weather": "weather.name", "noise": "noise",
+               "location": "scenario.name", "profile": "profile_name", "seed": "seed"}
+SECTIONS = {"train": ("train", "model", "arch")}  # a stage's own config sections, when not just its name
+# The number each experiment is judged by. MLflow 3.17's runs table shows no metric column until a user
+# picks one (its default columns are Source, Models, Dataset), so the run's name carries it too.
+KEY_METRICS = {"safety": "eta1", "avoid": "eta1", "train": "val_accuracy", "collect": "route_complete_fraction",
+               "preprocess": "train_frames"}
+# Where the block's logging calls go when the store could not be opened: nowhere (every call fails and is
+# skipped), rather than a fresh store made outside the lock.
+UNTRACKED_URI = "file:///dev/null/uqdrive-untracked"
+LOGGING_ERRORS = (MlflowException, SQLAlchemyError, OSError, LockTimeout)
 
 
 def store_uris(root: str | Path) -> tuple[str, str]:
     """(tracking URI, artefact root URI) for a project root; absolute so every process agrees."""
     root = Path(root).resolve()
     return f"sqlite:///{root / 'mlflow.db'}", (root / "mlartifacts").as_uri()
+
+
+def store_lock(root: str | Path) -> FileLock:
+    """The lock every process holds while it first opens (and so may create) the store."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    return FileLock(str(root / "mlflow.db.lock"), timeout=LOCK_TIMEOUT_S)
+
+
+def ensure_experiment(root: str | Path, name: str) -> str:
+    """Create the store and the experiment if needed, under the store's lock; returns the experiment id."""
+    tracking_uri, artifact_root = store_uris(root)
+    mlflow.set_tracking_uri(tracking_uri)
+    with store_lock(root):
+        client = MlflowClient(tracking_uri)  # opening a new store migrates its schema
+        experiment = client.get_experiment_by_name(name)
+        if experiment is not None:
+            return experiment.experiment_id
+        return client.create_experiment(name, artifact_location=f"{artifact_root}/{name}")
 
 
 def flatten(config: Mapping[str, Any] | DictConfig, prefix: str = "") -> dict[str, str]:
@@ -42,43 +91,109 @@ def flatten(config: Mapping[str, Any] | DictConfig, prefix: str = "") -> dict[st
     return flat
 
 
-def ensure_experiment(root: str | Path, name: str) -> str:
-    """Create the store and the experiment if needed; returns the experiment id.
+def run_params(config: DictConfig | Mapping[str, Any], stage: str, root: str | Path) -> dict[str, str]:
+    """The stage's own config sections, flattened, and the keys runs are compared by; paths inside the
+    project are shown relative to it."""
+    config = config if isinstance(config, DictConfig) else OmegaConf.create(dict(config))
+    params: dict[str, str] = {}
+    for section in SECTIONS.get(stage, (stage,)):
+        value = OmegaConf.select(config, section, default=None)
+        if isinstance(value, DictConfig):
+            params.update(flatten(value, prefix=f"{section}."))
+    for name, key in COMPARED_BY.items():
+        value = OmegaConf.select(config, key, default=None)
+        if value is not None and not isinstance(value, DictConfig):
+            params[name] = str(value)
+    prefix = f"{Path(root).resolve()}{os.sep}"
+    return {k: v.replace(prefix, "") for k, v in params.items()}
 
-    Call this once in a parent process before parallel jobs start: concurrent first-time
-    creation of the SQLite store races in its schema migration.
-    """
-    tracking_uri, artifact_root = store_uris(root)
-    mlflow.set_tracking_uri(tracking_uri)
-    client = MlflowClient(tracking_uri)
-    experiment = client.get_experiment_by_name(name)
-    if experiment is not None:
-        return experiment.experiment_id
-    return client.create_experiment(name, artifact_location=f"{artifact_root}/{name}")
+
+@dataclasses.dataclass(frozen=True)
+class UntrackedRun:
+    """Stands in for the run when the store cannot be opened: ``info.run_id`` is None."""
+
+    run_id: None = None
+
+    @property
+    def info(self) -> UntrackedRun:
+        return self
 
 
 @contextmanager
-def stage_run(root: str | Path, stage: str, config: DictConfig | Mapping[str, Any],
-              run_name: str | None = None, tags: Mapping[str, str] | None = None) -> Iterator[mlflow.ActiveRun]:
-    """An MLflow run in experiment `stage` with the flattened config logged as params."""
-    experiment_id = ensure_experiment(root, stage)
+def stage_run(root: str | Path, stage: str, config: DictConfig | Mapping[str, Any], run_name: str | None = None,
+              tags: Mapping[str, str] | None = None) -> Iterator[mlflow.ActiveRun | UntrackedRun]:
+    """An MLflow run in experiment `stage`, started when the job started, with the stage's params.
+
+    Enter it after the stage's outputs are on disk. A tracking failure (store, lock, artefact copy)
+    inside it warns and ends the block; the outputs stay and the stage goes on.
+    """
+    started = int(os.environ.get(JOB_START_ENV) or time.time() * 1000)
     tags = dict(tags or {})
-    parent = os.environ.get(PARENT_RUN_ENV, "")
-    if parent.startswith(f"{experiment_id}:"):  # a job of a sweep of this stage: nest it under the sweep's run
-        tags.setdefault("mlflow.parentRunId", parent.split(":", 1)[1])
-    with mlflow.start_run(experiment_id=experiment_id, run_name=run_name, tags=tags) as run:
-        mlflow.log_params(flatten(config))
-        yield run
+    created = None
+    try:
+        experiment_id = ensure_experiment(root, stage)
+        parent = os.environ.get(PARENT_RUN_ENV, "")
+        if parent.startswith(f"{experiment_id}:"):  # a job of a sweep of this stage: nest it under the sweep's run
+            tags.setdefault("mlflow.parentRunId", parent.split(":", 1)[1])
+        created = MlflowClient(store_uris(root)[0]).create_run(experiment_id, start_time=started, tags=tags,
+                                                               run_name=run_name)
+    except LOGGING_ERRORS as err:
+        warnings.warn(f"MLflow: no run logged for {stage} {run_name or ''} ({err}); the outputs on disk are complete",
+                      stacklevel=3)
+    if created is None:
+        mlflow.set_tracking_uri(UNTRACKED_URI)
+        try:
+            with suppress(*LOGGING_ERRORS):
+                yield UntrackedRun()
+        finally:
+            mlflow.set_tracking_uri(store_uris(root)[0])
+        return
+    try:
+        with mlflow.start_run(run_id=created.info.run_id) as run:  # ends FAILED if the block raises
+            mlflow.log_params(run_params(config, stage, root))
+            yield run
+            _name_with_key_metric(run.info.run_id, stage, run_name)
+    except LOGGING_ERRORS as err:
+        _terminate(root, created.info.run_id, "FAILED")
+        warnings.warn(f"MLflow: logging {stage} {run_name or ''} failed ({err}); the outputs on disk are complete",
+                      stacklevel=3)
+
+
+def _name_with_key_metric(run_id: str, stage: str, run_name: str | None) -> None:
+    """Append the experiment's key metric to the run's name, so the runs table shows it without set-up."""
+    key = KEY_METRICS.get(stage)
+    client = mlflow.MlflowClient()
+    value = client.get_run(run_id).data.metrics.get(key) if key else None
+    if value is not None:
+        client.update_run(run_id, name=f"{run_name or stage} · {key}={value:.3g}")
+
+
+def _terminate(root: str | Path, run_id: str, status: str) -> None:
+    try:
+        MlflowClient(store_uris(root)[0]).set_terminated(run_id, status=status)
+    except LOGGING_ERRORS as err:
+        warnings.warn(f"MLflow: could not mark run {run_id} {status} ({err})", stacklevel=2)
 
 
 class CreateStoreCallback(Callback):
-    """Hydra callback: create the store and the stage's experiment in the parent process, once,
-    before a multirun's (possibly parallel) jobs start — see `ensure_experiment`.
+    """Hydra callback for tracking: creates the store and the stage's experiment before a multirun's
+    jobs start, and notes each job's start time for its run (`JOB_START_ENV`).
 
-    With ``tracking.parent_run: true`` in the stage's config it also opens the sweep's parent
-    run and hands its id to the jobs through the environment (`PARENT_RUN_ENV`, inherited by
-    joblib's worker processes), so each job's run is its child.
+    With ``tracking.parent_run: true`` in the stage's config it also opens the sweep's parent run and
+    hands its id to the jobs through the environment (`PARENT_RUN_ENV`, inherited by joblib's worker
+    processes), so each job's run is its child. The parent ends FINISHED when the sweep ends, KILLED on
+    SIGINT/SIGTERM, FAILED when the process exits otherwise (a job's error ends a Hydra sweep).
     """
+
+    def __init__(self) -> None:
+        self._parent: tuple[str, str] | None = None  # (project root, run id) while the sweep runs
+        self._handlers: dict[int, Any] = {}  # the signal handlers replaced while the sweep runs
+
+    def on_job_start(self, config: DictConfig, **kwargs: Any) -> None:
+        os.environ[JOB_START_ENV] = str(int(time.time() * 1000))
+
+    def on_job_end(self, config: DictConfig, job_return: Any, **kwargs: Any) -> None:
+        os.environ.pop(JOB_START_ENV, None)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         root = _project_root(config)
@@ -89,12 +204,37 @@ class CreateStoreCallback(Callback):
         overrides = " ".join(config.hydra.overrides.task)
         run = client.create_run(experiment_id, run_name=f"sweep {config.hydra.job.name}",
                                 tags={"uqdrive.sweep_dir": str(config.hydra.sweep.dir), "uqdrive.overrides": overrides})
+        self._parent = (root, run.info.run_id)
         os.environ[PARENT_RUN_ENV] = f"{experiment_id}:{run.info.run_id}"
+        atexit.register(self._end_parent, "FAILED")
+        if threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                self._handlers[signum] = signal.signal(signum, self._interrupted(signal.getsignal(signum)))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        parent = os.environ.pop(PARENT_RUN_ENV, "")
-        if parent:
-            MlflowClient(store_uris(_project_root(config))[0]).set_terminated(parent.split(":", 1)[1])
+        self._end_parent("FINISHED")
+
+    def _end_parent(self, status: str) -> None:
+        if self._parent is not None:
+            root, run_id = self._parent
+            self._parent = None
+            os.environ.pop(PARENT_RUN_ENV, None)
+            _terminate(root, run_id, status)
+        for signum, handler in self._handlers.items():
+            signal.signal(signum, handler)
+        self._handlers.clear()
+
+    def _interrupted(self, previous: Any) -> Any:
+        """A signal handler: mark the parent KILLED, then do what the previous handler did."""
+
+        def handle(signum: int, frame: Any) -> None:
+            self._end_parent("KILLED")
+            if callable(previous):
+                previous(signum, frame)
+            elif previous != signal.SIG_IGN:
+                raise SystemExit(128 + signum)
+
+        return handle
 
 
 def _project_root(config: DictConfig) -> str:

@@ -18,9 +18,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pybullet as p
 
 from uqdrive.sim import Autopilot, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.bullet import pybullet as p
 
 CONF = Path(__file__).resolve().parents[3] / "conf"
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uqdrive.checks import ConfigError
+
 
 @dataclass(frozen=True)
 class SteeringBins:
@@ -27,16 +29,16 @@ class SteeringBins:
 
     def __post_init__(self) -> None:
         if isinstance(self.per_unit, bool) or not isinstance(self.per_unit, int) or self.per_unit < 1:
-            raise ValueError(f"bins.per_unit={self.per_unit!r} must be a positive integer")
+            raise ConfigError(f"bins.per_unit={self.per_unit!r} must be a positive integer")
         for name in ("low", "high"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not -1.0 <= value <= 1.0:
-                raise ValueError(f"bins.{name}={value!r} must be a steering value in [-1, 1]")
+                raise ConfigError(f"bins.{name}={value!r} must be a steering value in [-1, 1]")
             steps = value * self.per_unit
             if abs(steps - round(steps)) > 1e-9:
-                raise ValueError(f"bins.{name}={value!r} must be a multiple of 1/per_unit={1 / self.per_unit}")
+                raise ConfigError(f"bins.{name}={value!r} must be a multiple of 1/per_unit={1 / self.per_unit}")
         if not self.low < self.high:
-            raise ValueError(f"bins.low={self.low!r} must be < bins.high={self.high!r} (at least two classes)")
+            raise ConfigError(f"bins.low={self.low!r} must be < bins.high={self.high!r} (at least two classes)")
 
     @classmethod
     def from_dict(cls, data: Mapping) -> SteeringBins:

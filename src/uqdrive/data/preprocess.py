@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import decode_png, preprocess_frame
 from uqdrive.data.tables import PROCESSED_SCHEMA
@@ -21,7 +22,7 @@ class Split:
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.val_fraction < 1.0:
-            raise ValueError(f"preprocess.val_fraction={self.val_fraction!r} must be in [0, 1)")
+            raise ConfigError(f"preprocess.val_fraction={self.val_fraction!r} must be in [0, 1)")
 
     def val_episodes(self, episodes: np.ndarray) -> set[int]:
         """At least one episode goes to validation when val_fraction > 0 and there are two or more."""

@@ -13,6 +13,8 @@ import math
 import torch
 from torch import nn
 
+from uqdrive.checks import ConfigError
+
 EPS = 1e-7
 
 
@@ -22,9 +24,9 @@ class ConcreteDropout(nn.Module):
     def __init__(self, width: int, init_p: float = 0.1, temperature: float = 0.1) -> None:
         super().__init__()
         if not 0.0 < init_p < 1.0:
-            raise ValueError(f"model.init_p={init_p} must lie in (0, 1)")
+            raise ConfigError(f"model.init_p={init_p} must lie in (0, 1)")
         if not temperature > 0.0:
-            raise ValueError(f"model.temperature={temperature} must be > 0")
+            raise ConfigError(f"model.temperature={temperature} must be > 0")
         self.width = width
         self.temperature = temperature
         self.p_logit = nn.Parameter(torch.tensor([math.log(init_p) - math.log1p(-init_p)]))

@@ -14,6 +14,8 @@ from dataclasses import asdict, dataclass, field
 import torch
 from torch import nn
 
+from uqdrive.checks import ConfigError
+
 INPUT_SHAPE = (1, 48, 64)
 
 
@@ -29,9 +31,9 @@ class Architecture:
         object.__setattr__(self, "conv", tuple(int(c) for c in self.conv))
         object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
         if len(self.conv) != 5 or min(self.conv) < 1:
-            raise ValueError(f"arch.conv={list(self.conv)} must be 5 positive channel counts (PilotNet's 5 convolutions)")
+            raise ConfigError(f"arch.conv={list(self.conv)} must be 5 positive channel counts (PilotNet's 5 convolutions)")
         if len(self.hidden) != 3 or min(self.hidden) < 1 or self.features < 1:
-            raise ValueError(f"arch.hidden={list(self.hidden)} must be 3 positive widths (4 head layers) "
+            raise ConfigError(f"arch.hidden={list(self.hidden)} must be 3 positive widths (4 head layers) "
                              f"and arch.features={self.features} positive")
 
     def head_shapes(self, num_classes: int) -> list[tuple[int, int]]:

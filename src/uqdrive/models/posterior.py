@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import torch
 from torch import nn
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture, Trunk
 
@@ -98,7 +99,7 @@ def is_method_name(name: object) -> bool:
 def check_method(name: object) -> str:
     """A method name as used in file names (models/<method>.pt) and `methods` lists."""
     if not is_method_name(name):
-        raise ValueError(f"model.name={name!r} is not a method name: lower-case letters, digits and _ "
+        raise ConfigError(f"model.name={name!r} is not a method name: lower-case letters, digits and _ "
                          f"(the name of a conf/model/<name>.yaml)")
     return name
 
@@ -109,10 +110,10 @@ def posterior_class(target: object) -> type[Posterior]:
     try:
         cls = getattr(importlib.import_module(module_name), class_name)
     except (ImportError, AttributeError, ValueError) as err:
-        raise ValueError(f"model._target_={target!r} cannot be imported ({err}); it must be the dotted path "
+        raise ConfigError(f"model._target_={target!r} cannot be imported ({err}); it must be the dotted path "
                          f"of a Posterior subclass, e.g. uqdrive.models.vi.VIPosterior") from None
     if not (isinstance(cls, type) and issubclass(cls, Posterior)) or getattr(cls, "__abstractmethods__", None):
-        raise ValueError(f"model._target_={target!r} is not a concrete uqdrive.models.posterior.Posterior subclass")
+        raise ConfigError(f"model._target_={target!r} is not a concrete uqdrive.models.posterior.Posterior subclass")
     return cls
 
 
@@ -120,11 +121,11 @@ def posterior_from_config(model: Any) -> type[Posterior]:
     """The Posterior class a conf/model section (mapping with name and _target_) names, checked against its name."""
     method = check_method(model.get("name"))
     if "_target_" not in model:
-        raise ValueError(f"model._target_ is missing in conf/model/{method}.yaml: it must name the Posterior "
+        raise ConfigError(f"model._target_ is missing in conf/model/{method}.yaml: it must name the Posterior "
                          f"class, e.g. uqdrive.models.vi.VIPosterior")
     cls = posterior_class(model["_target_"])
     if cls.method != method:
-        raise ValueError(f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is "
+        raise ConfigError(f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is "
                          f"{cls.method!r}")
     return cls
 

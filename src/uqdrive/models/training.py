@@ -13,6 +13,7 @@ from pathlib import Path
 
 import torch
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet
 from uqdrive.models.checkpoint import load_posterior
@@ -26,7 +27,7 @@ BASE_METHOD = "mcd"  # the model whose trunk (and head, as a start) the head met
 
 def require(name: str, value: object, ok: bool, allowed: str) -> None:
     if not ok:
-        raise ValueError(f"model.{name}={value!r} is invalid: must be {allowed}")
+        raise ConfigError(f"model.{name}={value!r} is invalid: must be {allowed}")
 
 
 def settings_from(cls: type, values: dict) -> object:
@@ -34,7 +35,7 @@ def settings_from(cls: type, values: dict) -> object:
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(values) - known)
     if unknown:
-        raise ValueError(f"unknown model keys {unknown} for {cls.__name__}; allowed: {sorted(known)}")
+        raise ConfigError(f"unknown model keys {unknown} for {cls.__name__}; allowed: {sorted(known)}")
     return cls(**values)
 
 

@@ -19,6 +19,7 @@ from torch import nn
 from torch.nn.functional import cross_entropy, softplus
 from tqdm import trange
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
@@ -52,9 +53,9 @@ class VIPosterior(Posterior):
     def __init__(self, arch: Architecture, bins: SteeringBins, prior_sigma: float = 1.0, init_sigma: float = 1e-3) -> None:
         super().__init__(arch, bins)
         if not prior_sigma > 0:
-            raise ValueError(f"model.prior_sigma={prior_sigma} must be > 0")
+            raise ConfigError(f"model.prior_sigma={prior_sigma} must be > 0")
         if not init_sigma > 0:
-            raise ValueError(f"model.init_sigma={init_sigma} must be > 0")
+            raise ConfigError(f"model.init_sigma={init_sigma} must be > 0")
         self.prior_sigma = float(prior_sigma)
         shapes = arch.head_shapes(bins.num_classes)
         rho = _inverse_softplus(init_sigma)

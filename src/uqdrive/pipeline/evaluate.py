@@ -22,6 +22,7 @@ import torch
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from uqdrive.config import noise_label
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet, frames_from_table
 from uqdrive.data.preprocess import Split, preprocess_raw
@@ -61,15 +62,15 @@ class EvaluateSettings:
 
 @dataclass(frozen=True)
 class Condition:
-    """One weather × noise cell. `noise` keeps the literal it was given (0.0 vs 0) because file names use it,
-    as the heldout stage wrote them from the same params.yaml value."""
+    """One weather × noise cell; file names and keys format the noise as the heldout stage does (`noise_label`:
+    0 and 0.0 are one level)."""
 
     weather: str
     noise: float
 
     @property
     def key(self) -> str:
-        return f"noise{self.noise}"
+        return f"noise{noise_label(self.noise)}"
 
     @property
     def label(self) -> str:

@@ -10,7 +10,6 @@ first rollout. A cell whose result file already holds its config hash is not run
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -22,7 +21,9 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from uqdrive import checks
+from uqdrive.config import noise_label
 from uqdrive.data.binning import SteeringBins
+from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
@@ -38,19 +39,13 @@ from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, Vehicle
 from uqdrive.tracking import stage_run
 
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
-RESULT_CODE = ("safety", "sim", "models", "uq", "data", "pipeline/safety.py")  # under src/uqdrive/
 
 
 def code_digest() -> str:
-    """sha256 of the package sources a cell's result depends on (as DVC's `src/` deps do): changed code
-    is a new cell, so a rerun never reuses a result computed, or shaped, by older code."""
-    package = Path(__file__).resolve().parents[1]
-    digest = hashlib.sha256()
-    paths = [p for part in RESULT_CODE for p in ([package / part] if part.endswith(".py") else (package / part).glob("**/*.py"))]
-    for path in sorted(paths):
-        digest.update(path.relative_to(package).as_posix().encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
+    """sha256 of the package sources this module imports, transitively (the import closure DVC's deps are
+    checked against): changed code is a new cell, so a rerun never reuses a result computed, or shaped,
+    by older code."""
+    return files_digest(import_closure(__file__), SRC)
 
 
 def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
@@ -131,6 +126,7 @@ def run_safety(cfg: DictConfig) -> dict:
     out = Path(cfg.safety.out)
     previous = reusable_result(out, key)
     if previous is not None:
+        log_cell(cfg, previous, [p for p in _cell_files(cfg) if p.exists()], reused=True)
         return {**previous, "reused": True}
     executor = make_executor(cfg.executor.name, job, workers, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
     start = time.perf_counter()
@@ -151,20 +147,33 @@ def run_safety(cfg: DictConfig) -> dict:
     cell = {"method": cfg.model.name, "experiment": cfg.experiment.name, "location": job.scenario.name, "weather": job.weather.name, "noise": job.noise,
             "theta": estimate.theta, "gamma": estimate.gamma, "scheme": estimate.method, "n": estimate.n,
             "base_seed": settings.base_seed}
-    with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell) as run:
-        mlflow.log_params({k: v for k, v in cell.items() if k != "noise"})
-        mlflow.log_metrics({k: v for k, v in metrics.items() if not np.isnan(v)})
-        for path in (figure, table):
-            mlflow.log_artifact(str(path))
-        run_id = run.info.run_id
-    result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key, "mlflow_run_id": run_id}
-    write_json(out, result)  # last: its presence marks the cell as done
+    result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key}
+    write_json(out, result)  # before logging: a tracking failure never loses the cell; its presence marks it done
+    log_cell(cfg, result, [figure, table])
     return {**result, "reused": False}
 
 
 SUMMARY_KEYS = ("eta1", "eta1_low", "eta1_high", "theta", "gamma", "n", "scheme", "base_seed", "collision_rate",
                 "off_road_rate", "left_corridor_rate", "reached_goal_rate", "max_corridor_use", "mean_corridor_use",
                 "mean_lateral_deviation", "mean_eta2", "mean_mutual_information")
+CELL_PARAMS = ("method", "experiment", "location", "weather", "theta", "gamma", "scheme", "n", "base_seed")  # noise: tracking's own
+
+
+def _cell_files(cfg: DictConfig) -> list[Path]:
+    plots = Path(cfg.safety.plots_dir)
+    return [plots / f"{cfg.safety.cell}.png", plots / f"{cfg.safety.cell}.csv"]
+
+
+def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool = False) -> None:
+    """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
+    metrics = {k: float(v) for k, v in result.items() if k not in CELL_PARAMS and k != "noise"
+               and isinstance(v, (int, float)) and not isinstance(v, bool) and not np.isnan(v)}
+    with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell,
+                   tags={"reused": str(reused).lower(), "config_hash": result["config_hash"]}):
+        mlflow.log_params({k: result[k] for k in CELL_PARAMS})
+        mlflow.log_metrics(metrics)
+        for path in artifacts:
+            mlflow.log_artifact(str(path))
 
 
 def run_safety_summary(cfg: DictConfig) -> dict:
@@ -174,7 +183,7 @@ def run_safety_summary(cfg: DictConfig) -> dict:
     table: dict = {}
     figures = []
     for location in cfg.locations:
-        for noise in cfg.noises:
+        for noise in map(noise_label, cfg.noises):  # as the cells name it: 0 and 0.0 are one level
             panels = {}
             for method in cfg.methods:
                 for weather in cfg.weathers:

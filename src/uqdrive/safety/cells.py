@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uqdrive.checks import finite_number, integer
+from uqdrive.checks import ConfigError, finite_number, integer
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.posterior import Posterior
@@ -50,11 +50,11 @@ class EstimatorSettings:
 
     def __post_init__(self) -> None:
         if self.scheme not in SCHEMES:
-            raise ValueError(f"{self.section}.scheme={self.scheme!r} is not known; choose one of {list(SCHEMES)}")
+            raise ConfigError(f"{self.section}.scheme={self.scheme!r} is not known; choose one of {list(SCHEMES)}")
         for key in ("theta", "gamma"):
             value = finite_number(f"{self.section}.{key}", getattr(self, key))
             if not 0 < value < 1:
-                raise ValueError(f"{self.section}.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
+                raise ConfigError(f"{self.section}.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
         integer(f"{self.section}.base_seed", self.base_seed, 0)
         integer(f"{self.section}.look_size", self.look_size, 1)
 

@@ -15,6 +15,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
@@ -75,11 +76,11 @@ class Controller:
     def __init__(self, posterior: Posterior, bins: SteeringBins, n_samples: int, eps: float, speed: float,
                  generator: torch.Generator | None = None):
         if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
-            raise ValueError(f"safety.samples={n_samples!r} must be an integer >= 1 (posterior draws per frame)")
+            raise ConfigError(f"safety.samples={n_samples!r} must be an integer >= 1 (posterior draws per frame)")
         if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not (math.isfinite(eps) and eps > 0):
-            raise ValueError(f"safety.eps={eps!r} must be a number > 0 (steering units)")
+            raise ConfigError(f"safety.eps={eps!r} must be a number > 0 (steering units)")
         if not isinstance(speed, (int, float)) or isinstance(speed, bool) or not speed > 0:
-            raise ValueError(f"safety.speed={speed!r} must be a number > 0 (m/s)")
+            raise ConfigError(f"safety.speed={speed!r} must be a number > 0 (m/s)")
         self.posterior = posterior.eval()
         self.centres = torch.as_tensor(bins.centres, dtype=torch.float32)
         self.n_samples, self.eps, self.speed = n_samples, float(eps), float(speed)

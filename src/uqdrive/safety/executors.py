@@ -18,6 +18,7 @@ from typing import Any, Protocol
 
 import torch
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
@@ -134,7 +135,7 @@ class ProcessPool:
 
     def __init__(self, workers: int):
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ValueError(f"executor.workers={workers!r} must be an integer >= 1")
+            raise ConfigError(f"executor.workers={workers!r} must be an integer >= 1")
         self.workers = workers
         self._pool = None if workers == 1 else ProcessPoolExecutor(
             workers, mp_context=multiprocessing.get_context("spawn"))
@@ -191,7 +192,7 @@ class RayExecutor:
 
     def __init__(self, job: RolloutJob, workers: int, address: str | None = None):
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ValueError(f"executor.workers={workers!r} must be an integer >= 1")
+            raise ConfigError(f"executor.workers={workers!r} must be an integer >= 1")
         try:
             import ray
             from ray.util import ActorPool
@@ -229,8 +230,8 @@ def make_executor(backend: str, job: RolloutJob, workers: int, pool: ProcessPool
     the Ray backend (address)."""
     if backend == "process":
         if options:
-            raise ValueError(f"executor options {sorted(options)} apply only to executor.name=ray")
+            raise ConfigError(f"executor options {sorted(options)} apply only to executor.name=ray")
         return (pool or ProcessPool(workers)).executor(job, owns_pool=pool is None)
     if backend == "ray":
         return RayExecutor(job, workers, **options)
-    raise ValueError(f"executor.name={backend!r} is not a known backend; choose one of {list(BACKENDS)}")
+    raise ConfigError(f"executor.name={backend!r} is not a known backend; choose one of {list(BACKENDS)}")

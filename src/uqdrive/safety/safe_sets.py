@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uqdrive.checks import ConfigError
 from uqdrive.sim import ScenarioGeometry
 
 HANDOVER = "handover"  # termination of a run whose warning system braked to a stop and handed over
@@ -94,7 +95,7 @@ def check_half_width(half_width: float | None, key: str = "safety.half_width") -
         return None
     if isinstance(half_width, bool) or not isinstance(half_width, (int, float)) or not (
             math.isfinite(half_width) and half_width > 0):
-        raise ValueError(f"{key}={half_width!r} must be null (the lane) or a number of metres > 0")
+        raise ConfigError(f"{key}={half_width!r} must be null (the lane) or a number of metres > 0")
     return float(half_width)
 
 

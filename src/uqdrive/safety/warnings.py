@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from uqdrive.checks import finite_number
+from uqdrive.checks import ConfigError, finite_number
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Command, Controller
@@ -39,15 +39,15 @@ class WarningAction:
 
 def _check_action(key: str, action: object) -> WarningAction:
     if not isinstance(action, WarningAction):
-        raise ValueError(f"{key}={action!r} must be an action with speed, alert, handover")
+        raise ConfigError(f"{key}={action!r} must be an action with speed, alert, handover")
     speed = finite_number(f"{key}.speed", action.speed)
     if not 0 <= speed <= 1:
-        raise ValueError(f"{key}.speed={action.speed!r} must be in [0, 1] (a fraction of the cruise speed)")
+        raise ConfigError(f"{key}.speed={action.speed!r} must be in [0, 1] (a fraction of the cruise speed)")
     for name in ("alert", "handover"):
         if not isinstance(getattr(action, name), bool):
-            raise ValueError(f"{key}.{name}={getattr(action, name)!r} must be true or false")
+            raise ConfigError(f"{key}.{name}={getattr(action, name)!r} must be true or false")
     if action.handover and speed != 0:
-        raise ValueError(f"{key}.speed={action.speed!r} must be 0 when {key}.handover is true "
+        raise ConfigError(f"{key}.speed={action.speed!r} must be 0 when {key}.handover is true "
                          "(a hand-over brakes to a stop)")
     return WarningAction(speed, action.alert, action.handover)
 
@@ -78,20 +78,20 @@ class WarningConfig:
         for name in ("delta1", "delta2"):
             value = finite_number(f"warning.{name}", getattr(self, name))
             if not 0 <= value <= 1:
-                raise ValueError(f"warning.{name}={getattr(self, name)!r} must be in [0, 1] (a threshold on η2)")
+                raise ConfigError(f"warning.{name}={getattr(self, name)!r} must be in [0, 1] (a threshold on η2)")
         if self.delta2 > self.delta1:
-            raise ValueError(f"warning.delta2={self.delta2!r} must be <= warning.delta1={self.delta1!r} "
+            raise ConfigError(f"warning.delta2={self.delta2!r} must be <= warning.delta1={self.delta1!r} "
                              "(warning 2, η2 < δ2, is the severe one)")
         if not finite_number("warning.tau", self.tau) >= 0:
-            raise ValueError(f"warning.tau={self.tau!r} must be >= 0 (a threshold on mutual information, nats)")
+            raise ConfigError(f"warning.tau={self.tau!r} must be >= 0 (a threshold on mutual information, nats)")
         for name in ("theta", "gamma"):
             value = finite_number(f"warning.{name}", getattr(self, name))
             if not 0 < value < 1:
-                raise ValueError(f"warning.{name}={getattr(self, name)!r} must be in the open interval (0, 1)")
+                raise ConfigError(f"warning.{name}={getattr(self, name)!r} must be in the open interval (0, 1)")
         if not finite_number("warning.hold_s", self.hold_s) >= 0:
-            raise ValueError(f"warning.hold_s={self.hold_s!r} must be a number of seconds >= 0")
+            raise ConfigError(f"warning.hold_s={self.hold_s!r} must be a number of seconds >= 0")
         if isinstance(self.actions, (str, bytes)) or len(self.actions) != len(LEVELS):
-            raise ValueError(f"warning.actions={self.actions!r} must hold one action per level {list(LEVELS)}")
+            raise ConfigError(f"warning.actions={self.actions!r} must hold one action per level {list(LEVELS)}")
         object.__setattr__(self, "actions", tuple(
             _check_action(f"warning.actions.warning{level}", a) for level, a in zip(LEVELS, self.actions)))
         for name in ("delta1", "delta2", "tau", "theta", "gamma", "hold_s"):
@@ -104,18 +104,18 @@ class WarningConfig:
         fields = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - fields)
         if unknown:
-            raise ValueError(f"warning: unknown key(s) {unknown}; allowed keys are {sorted(fields)}")
+            raise ConfigError(f"warning: unknown key(s) {unknown}; allowed keys are {sorted(fields)}")
         if "actions" in data:
             actions = dict(data["actions"])
             names = [f"warning{level}" for level in LEVELS]
             if sorted(actions) != names:
-                raise ValueError(f"warning.actions has keys {sorted(actions)}; it needs exactly {names}")
+                raise ConfigError(f"warning.actions has keys {sorted(actions)}; it needs exactly {names}")
             built = []
             for name in names:
                 spec = dict(actions[name])
                 allowed = {"speed", "alert", "handover"}
                 if set(spec) - allowed or "speed" not in spec:
-                    raise ValueError(f"warning.actions.{name}={spec!r} needs 'speed' and may have 'alert', "
+                    raise ConfigError(f"warning.actions.{name}={spec!r} needs 'speed' and may have 'alert', "
                                      "'handover'")
                 built.append(WarningAction(**spec))
             data["actions"] = tuple(built)

@@ -13,7 +13,7 @@ import math
 
 import cv2
 import numpy as np
-import pybullet as p
+from .bullet import pybullet as p
 
 from .config import CameraConfig, WeatherConfig
 

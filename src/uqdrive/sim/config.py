@@ -12,6 +12,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
+from uqdrive.checks import ConfigError
+
 SCENARIO_KINDS = ("straight", "obstacle", "roundabout")
 
 T = TypeVar("T", bound="_Config")
@@ -42,7 +44,7 @@ class _Config:
         names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
         unknown = sorted(set(data) - names)
         if unknown:
-            raise ValueError(f"{cls._section}: unknown key(s) {unknown}; allowed keys are {sorted(names)}")
+            raise ConfigError(f"{cls._section}: unknown key(s) {unknown}; allowed keys are {sorted(names)}")
         return cls(**data)
 
     @classmethod
@@ -62,35 +64,35 @@ class _Config:
                 lt: float | None = None) -> None:
         value = getattr(self, name)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{self._key(name)}={value!r} must be a number")
+            raise ConfigError(f"{self._key(name)}={value!r} must be a number")
         for bound, op, ok in ((ge, ">=", lambda b: value >= b), (gt, ">", lambda b: value > b),
                               (le, "<=", lambda b: value <= b), (lt, "<", lambda b: value < b)):
             if bound is not None and not ok(bound):
-                raise ValueError(f"{self._key(name)}={value!r} must be {op} {bound}")
+                raise ConfigError(f"{self._key(name)}={value!r} must be {op} {bound}")
 
     def _integer(self, name: str, *, ge: int) -> None:
         value = getattr(self, name)
         if isinstance(value, bool) or not isinstance(value, int) or value < ge:
-            raise ValueError(f"{self._key(name)}={value!r} must be an integer >= {ge}")
+            raise ConfigError(f"{self._key(name)}={value!r} must be an integer >= {ge}")
 
     def _color(self, name: str) -> None:
         value = getattr(self, name)
         ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == 3 and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in value)
         if not ok:
-            raise ValueError(f"{self._key(name)}={value!r} must be an RGB triple with components in [0, 1]")
+            raise ConfigError(f"{self._key(name)}={value!r} must be an RGB triple with components in [0, 1]")
         setattr(self, name, tuple(float(v) for v in value))
 
     def _colors(self, name: str) -> None:
         value = getattr(self, name)
         if isinstance(value, str) or not isinstance(value, Sequence) or len(value) == 0:
-            raise ValueError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
+            raise ConfigError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
         out = []
         for item in value:
             ok = isinstance(item, Sequence) and not isinstance(item, str) and len(item) == 3 and all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in item)
             if not ok:
-                raise ValueError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
+                raise ConfigError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
             out.append(tuple(float(v) for v in item))
         setattr(self, name, tuple(out))
 
@@ -100,7 +102,7 @@ class _Config:
             isinstance(v, (int, float)) and not isinstance(v, bool) and (v > 0 or not positive) for v in value)
         if not ok:
             what = "positive numbers" if positive else "numbers"
-            raise ValueError(f"{self._key(name)}={value!r} must be a list of {n} {what}")
+            raise ConfigError(f"{self._key(name)}={value!r} must be a list of {n} {what}")
         setattr(self, name, tuple(float(v) for v in value))
 
 
@@ -160,9 +162,9 @@ class ScenarioConfig(_Config):
 
     def __post_init__(self) -> None:
         if self.kind not in SCENARIO_KINDS:
-            raise ValueError(f"scenario.kind={self.kind!r} is not one of {list(SCENARIO_KINDS)}")
+            raise ConfigError(f"scenario.kind={self.kind!r} is not one of {list(SCENARIO_KINDS)}")
         if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"scenario.name={self.name!r} must be a non-empty string")
+            raise ConfigError(f"scenario.name={self.name!r} must be a non-empty string")
         for name in ("road_length", "lane_width", "ring_radius", "ring_width", "arm_length", "junction_fillet",
                      "route_fillet", "island_height", "marking_width", "dash_length", "lane_change_length",
                      "obstacle_distance", "scenery_extent"):
@@ -180,14 +182,14 @@ class ScenarioConfig(_Config):
         self._colors("crown_colors")
         self._colors("building_colors")
         if self.kind == "obstacle" and self.num_lanes < 2:
-            raise ValueError(f"scenario.num_lanes={self.num_lanes} must be >= 2 for kind 'obstacle' (it passes on the left)")
+            raise ConfigError(f"scenario.num_lanes={self.num_lanes} must be >= 2 for kind 'obstacle' (it passes on the left)")
         if self.kind != "roundabout" and self.start_distance + self.finish_margin >= self.road_length:
-            raise ValueError(f"scenario.start_distance={self.start_distance} leaves no route on a road of length "
+            raise ConfigError(f"scenario.start_distance={self.start_distance} leaves no route on a road of length "
                              f"{self.road_length}")
         if self.kind == "roundabout" and self.ring_width / 2 >= self.ring_radius:
-            raise ValueError(f"scenario.ring_width={self.ring_width} must be < 2 * ring_radius ({2 * self.ring_radius})")
+            raise ConfigError(f"scenario.ring_width={self.ring_width} must be < 2 * ring_radius ({2 * self.ring_radius})")
         if self.kind == "roundabout" and self.start_distance >= self.arm_length:
-            raise ValueError(f"scenario.start_distance={self.start_distance} must be < arm_length ({self.arm_length})")
+            raise ConfigError(f"scenario.start_distance={self.start_distance} must be < arm_length ({self.arm_length})")
 
 
 @dataclasses.dataclass
@@ -220,13 +222,13 @@ class WeatherConfig(_Config):
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"weather.name={self.name!r} must be a non-empty string")
+            raise ConfigError(f"weather.name={self.name!r} must be a non-empty string")
         for name in ("sky_top", "sky_horizon", "light_color", "fog_color"):
             self._color(name)
         self._vector("tint", 3, positive=True)
         self._vector("light_direction", 3)
         if not any(self.light_direction):
-            raise ValueError(f"weather.light_direction={self.light_direction!r} must not be the zero vector")
+            raise ConfigError(f"weather.light_direction={self.light_direction!r} must not be the zero vector")
         for name in ("ambient", "diffuse", "specular", "blur", "fog_density", "rain_length", "road_sheen"):
             self._number(name, ge=0)
         for name in ("brightness", "contrast", "road_darkening"):
@@ -235,7 +237,7 @@ class WeatherConfig(_Config):
         self._number("rain_angle_deg", ge=-80, le=80)
         self._integer("rain_streaks", ge=0)
         if not isinstance(self.shadow, bool):
-            raise ValueError(f"weather.shadow={self.shadow!r} must be true or false")
+            raise ConfigError(f"weather.shadow={self.shadow!r} must be true or false")
 
 
 @dataclasses.dataclass
@@ -288,7 +290,7 @@ class VehicleConfig(_Config):
         self._number("steer_time_constant", ge=0)
         self._color("color")
         if self.wheelbase >= self.length:
-            raise ValueError(f"vehicle.wheelbase={self.wheelbase} must be < vehicle.length ({self.length})")
+            raise ConfigError(f"vehicle.wheelbase={self.wheelbase} must be < vehicle.length ({self.length})")
 
 
 @dataclasses.dataclass
@@ -318,7 +320,7 @@ class AutopilotConfig(_Config):
 def check_noise(noise: float) -> float:
     """Sensor noise sigma in units of full intensity (0.05 = 5 % of 255)."""
     if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not noise >= 0:
-        raise ValueError(f"noise={noise!r} must be >= 0")
+        raise ConfigError(f"noise={noise!r} must be >= 0")
     return float(noise)
 
 

@@ -6,9 +6,10 @@ import dataclasses
 import math
 
 import numpy as np
-import pybullet as p
-from pybullet_utils.bullet_client import BulletClient
 
+from uqdrive.checks import ConfigError
+
+from .bullet import connect_direct
 from .camera import Camera
 from .config import CameraConfig, ScenarioConfig, VehicleConfig, WeatherConfig, check_noise
 from .geometry import Route, ScenarioGeometry, build_geometry
@@ -31,15 +32,15 @@ class DrivingEnv:
     def __init__(self, camera: CameraConfig | None = None, vehicle: VehicleConfig | None = None,
                  control_hz: float = 15.0, horizon_s: float = 40.0):
         if not control_hz > 0:
-            raise ValueError(f"control_hz={control_hz!r} must be > 0")
+            raise ConfigError(f"control_hz={control_hz!r} must be > 0")
         if not horizon_s > 0:
-            raise ValueError(f"horizon_s={horizon_s!r} must be > 0")
+            raise ConfigError(f"horizon_s={horizon_s!r} must be > 0")
         self.camera_config = camera or CameraConfig()
         self.vehicle_config = vehicle or VehicleConfig()
         self.control_hz = float(control_hz)
         self.dt = 1.0 / self.control_hz
         self.horizon_s = float(horizon_s)
-        self.client = BulletClient(connection_mode=p.DIRECT)
+        self.client = connect_direct()
         self.camera = Camera(self.client, self.camera_config)
         self.model = KinematicBicycle(self.vehicle_config)
         self._scenario: ScenarioConfig | None = None

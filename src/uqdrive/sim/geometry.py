@@ -13,6 +13,8 @@ import math
 import cv2
 import numpy as np
 
+from uqdrive.checks import ConfigError
+
 from .config import ScenarioConfig
 
 _STEP = 0.2  # route / polyline sampling, metres
@@ -293,7 +295,7 @@ def _straight(cfg: ScenarioConfig):
         t_back = np.clip((x - x1) / cfg.lane_change_length, 0, 1)
         y = y + lw * (0.5 - 0.5 * np.cos(np.pi * t_out)) - lw * (0.5 - 0.5 * np.cos(np.pi * t_back))
         if x0 < cfg.start_distance or x1 + cfg.lane_change_length > L - cfg.finish_margin:
-            raise ValueError(f"scenario.obstacle_distance={cfg.obstacle_distance} leaves no room to change lanes "
+            raise ConfigError(f"scenario.obstacle_distance={cfg.obstacle_distance} leaves no room to change lanes "
                              f"on a road of length {L} starting at {cfg.start_distance}")
     route = Route.from_points(np.stack([x, y], axis=1))
     start = (cfg.start_distance, right, 0.0)
@@ -315,7 +317,7 @@ def _roundabout(cfg: ScenarioConfig):
     reach = r_out + cfg.arm_length
     fj = cfg.junction_fillet
     if h >= r_out * math.sin(math.pi / 4) - fj:
-        raise ValueError(f"scenario.ring_radius={rc} is too small for {n} lanes of {lw} m with fillets of {fj} m")
+        raise ConfigError(f"scenario.ring_radius={rc} is too small for {n} lanes of {lw} m with fillets of {fj} m")
     mw = cfg.marking_width
     edge = 0.15 + mw / 2
 
@@ -360,7 +362,7 @@ def _roundabout(cfg: ScenarioConfig):
     c1 = np.array([a + rf, -math.sqrt((rc + rf) ** 2 - (a + rf) ** 2)])
     theta_in = math.atan2(c1[1], c1[0])
     if theta_in >= -math.pi / 4:
-        raise ValueError(f"scenario.route_fillet={rf} is too large for ring_radius={rc}: the entry and exit "
+        raise ConfigError(f"scenario.route_fillet={rf} is too large for ring_radius={rc}: the entry and exit "
                          f"curves overlap")
     half_route = _join(_line([a, -reach], [a, c1[1]]), _arc(c1, rf, math.pi, math.atan2(-c1[1], -c1[0])),
                        _arc(np.zeros(2), rc, theta_in, -math.pi / 4))

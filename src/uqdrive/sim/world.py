@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pybullet as p
+from .bullet import pybullet as p
 
 from .config import VehicleConfig
 from .geometry import ScenarioGeometry

@@ -1,0 +1,45 @@
+"""A bad config value ends a stage with one line (key, value, what is allowed), exit code 2, and no output."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from uqdrive.checks import ConfigError
+from uqdrive.stage import stage_main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize(("stage", "overrides", "message"), [
+    ("safety", ["safety.theta=2"], "error: safety.theta=2 must be in the open interval (0, 1)"),
+    ("collect", ["scenario=straight", "noise=-0.1"], "error: noise=-0.1 must be >= 0"),
+    ("collect", ["scenario=straight", "outputs=x"], "error: outputs='x' is not known; choose one of ['auto', 'pipeline']"),
+])
+def test_a_bad_value_prints_one_line_and_writes_nothing(tmp_path, stage, overrides, message):
+    result = subprocess.run([sys.executable, str(ROOT / "stages" / f"{stage}.py"), "profile=tiny", *overrides],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                            env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert result.returncode == 2
+    assert result.stderr.splitlines() == [message]
+    assert result.stdout == ""
+    assert [p.name for p in tmp_path.iterdir()] == ["outputs"]  # Hydra's own run log; no stage output, no store
+    assert not any(p.suffix not in {".yaml", ".log"} for p in (tmp_path / "outputs").rglob("*") if p.is_file())
+
+
+def test_only_config_errors_become_one_line():
+    @stage_main
+    def bad_value(_cfg: object) -> None:
+        raise ConfigError("x=1 must be 2")
+
+    @stage_main
+    def bug(_cfg: object) -> None:
+        raise KeyError("a bug keeps its traceback")
+
+    with pytest.raises(SystemExit) as stopped:
+        bad_value(None)
+    assert stopped.value.code == 2
+    with pytest.raises(KeyError):
+        bug(None)

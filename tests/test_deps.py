@@ -1,0 +1,61 @@
+"""DVC deps that cannot go stale: every project file a stage's script imports is covered by the stage's deps."""
+
+import shlex
+from pathlib import Path
+
+
+from uqdrive.deps import SRC, files_digest, import_closure, stage_closure
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def test_closure_follows_lazy_relative_and_submodule_imports_and_skips_third_party(tmp_path):
+    src = tmp_path / "src"
+    for name in ("uqdrive/__init__.py", "uqdrive/unused.py", "uqdrive/sub/leaf.py", "uqdrive/sub/sibling.py"):
+        write(src / name, "")
+    write(src / "uqdrive/sub/__init__.py", "from .leaf import x\n")
+    write(src / "uqdrive/sub/mid.py", "import numpy\nfrom . import sibling\n")
+    write(src / "uqdrive/top.py", "def later():\n    from uqdrive.sub import mid\n")
+    script = write(tmp_path / "stages/run.py", "import os\nimport uqdrive.top\n")
+    closure = {p.relative_to(tmp_path).as_posix() for p in import_closure(script, src=src)}
+    assert closure == {"stages/run.py", "src/uqdrive/__init__.py", "src/uqdrive/top.py", "src/uqdrive/sub/__init__.py",
+                       "src/uqdrive/sub/leaf.py", "src/uqdrive/sub/mid.py", "src/uqdrive/sub/sibling.py"}
+
+
+def test_hydra_targets_in_the_configs_are_part_of_every_stage():
+    assert SRC / "uqdrive/tracking.py" in stage_closure(ROOT / "stages/report.py", ROOT / "conf")
+
+
+def test_the_cell_digest_covers_the_safety_stage_closure():
+    from uqdrive.pipeline.safety import code_digest
+
+    closure = import_closure(SRC / "uqdrive/pipeline/safety.py")
+    assert SRC / "uqdrive/plots.py" in closure and SRC / "uqdrive/sim/world.py" in closure
+    assert code_digest() == files_digest(closure, SRC)
+
+
+def missing_deps() -> dict[str, list[str]]:
+    """Stage → project files its script imports that none of its deps covers (a folder covers what is under it)."""
+    from dvc.repo import Repo
+
+    missing: dict[str, list[str]] = {}
+    with Repo(str(ROOT)) as repo:
+        for stage in repo.index.stages:
+            script = next(arg for arg in shlex.split(stage.cmd) if arg.endswith(".py"))
+            deps = [Path(d.def_path) for d in stage.deps]
+            files = [p.relative_to(ROOT) for p in stage_closure(ROOT / script, ROOT / "conf")]
+            uncovered = sorted(f.as_posix() for f in files if not any(f == d or d in f.parents for d in deps))
+            if uncovered:
+                missing[stage.addressing] = uncovered
+    return missing
+
+
+def test_every_stage_depends_on_every_project_file_it_imports():
+    missing = missing_deps()
+    assert not missing, "\n".join(f"{stage}: {', '.join(files)}" for stage, files in missing.items())
