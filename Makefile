@@ -29,10 +29,12 @@ test: $(TEST_STAMP)
 	pytest -q
 
 ui: $(STAMP)
-	mlflow ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port 5000
+	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000  (Ctrl-C stops it)"
+	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port 5000
 
 frames: $(STAMP)
 	uqdrive frames --out docs/frames
+	uqdrive frames --compare-render 160x120 --out docs/frames
 
 clean-venv:
 	rm -rf $(VENV)

@@ -16,6 +16,25 @@ from uqdrive.pipeline.report_document import fmt
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _git(project: Path, *args: str) -> None:
+    subprocess.run(["git", "-c", "user.name=test", "-c", "user.email=test@localhost", *args], cwd=project, check=True,
+                   capture_output=True, timeout=120)
+
+
+def _metrics_of_experiments(shown: object) -> list[dict]:
+    """The `metrics/summary.json` data of every experiment in `dvc exp show --json` (found wherever it nests)."""
+    found = []
+    if isinstance(shown, dict):
+        if "metrics/summary.json" in shown and isinstance(shown["metrics/summary.json"], dict):
+            found.append(shown["metrics/summary.json"].get("data", {}))
+        for value in shown.values():
+            found += _metrics_of_experiments(value)
+    elif isinstance(shown, list):
+        for value in shown:
+            found += _metrics_of_experiments(value)
+    return found
+
+
 def _dvc(project: Path, *args: str) -> str:
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
     result = subprocess.run([sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True,
@@ -28,7 +47,7 @@ def _dvc(project: Path, *args: str) -> str:
 def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     project = tmp_path / "project"
     project.mkdir()
-    for name in ("dvc.yaml", "params.yaml"):
+    for name in ("dvc.yaml", "params.yaml", ".gitignore", ".dvcignore"):
         shutil.copy(ROOT / name, project / name)
     for name in ("conf", "stages", "src"):
         shutil.copytree(ROOT / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
@@ -36,7 +55,8 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     params.update(profile="tiny", methods=["mcd", "vi", "hmc"], weathers=["rain"], noises=[0.0],
                   locations=["roundabout"])
     (project / "params.yaml").write_text(yaml.safe_dump(params))
-    _dvc(project, "init", "--no-scm", "-q")
+    _git(project, "init", "-q")
+    _dvc(project, "init", "-q")
 
     _dvc(project, "repro")
     for scenario in ("obstacle", "roundabout"):
@@ -82,9 +102,14 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert "Running stage" not in again, again
     assert (project / "data/raw/obstacle.parquet").stat().st_mtime_ns == stamp
 
-    # a new weather in params.yaml runs its cells (safety, held-out frames) and what aggregates them, nothing upstream
-    params["weathers"] = ["rain", "afternoon"]
-    (project / "params.yaml").write_text(yaml.safe_dump(params))
-    ran = sorted(line.split("'")[1] for line in _dvc(project, "repro").splitlines() if line.startswith("Running stage"))
+    # an experiment with a new weather runs its cells (safety, held-out frames) and what aggregates them, nothing
+    # upstream; git holds the metrics files, so `dvc exp show` compares the experiment's numbers with the baseline's
+    _git(project, "add", "-A")
+    _git(project, "commit", "-qm", "tiny run")
+    ran = sorted(line.split("'")[1] for line in _dvc(project, "exp", "run", "-S", "weathers=[rain,afternoon]")
+                 .splitlines() if line.startswith("Running stage"))
     assert ran == ["evaluate", "heldout@afternoon-0.0", "report", "safety@hmc-afternoon-0.0-roundabout",
                    "safety@mcd-afternoon-0.0-roundabout", "safety@vi-afternoon-0.0-roundabout", "safety_summary"]
+    summaries = _metrics_of_experiments(json.loads(_dvc(project, "exp", "show", "--json")))
+    assert len(summaries) >= 2  # the baseline and the experiment
+    assert all(isinstance(m["offline_safety"]["vi"]["eta1_pooled"], float) for m in summaries)

@@ -104,7 +104,7 @@ def test_a_multirun_writes_under_its_sweep_folder_unless_asked(stage_config, tmp
     sweep = tmp_path / "multirun/2026-01-01/00-00-00"
     assert (swept.safety.out, swept.safety.positions, swept.safety.model_path) == (
         f"{sweep}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
-        f"{sweep}/data/safety/mcd-roundabout-clear_noon-noise0.0.npz", f"{tmp_path}/models/mcd.pt")
+        f"{sweep}/data/safety/mcd-roundabout-clear_noon-noise0.0.npz", f"{tmp_path}/models/offline/mcd.pt")
     assert stage_config("safety", "outputs=pipeline").safety.out == f"{tmp_path}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json"
     with pytest.raises(Exception) as bad:
         stage_config("safety", "outputs=somewhere").safety.out
@@ -112,8 +112,9 @@ def test_a_multirun_writes_under_its_sweep_folder_unless_asked(stage_config, tmp
 
 
 def test_a_single_run_writes_the_pipeline_outputs(stage_config, tmp_path):
-    expected = {("collect", "collect.out"): "data/raw/straight.parquet", ("preprocess", "paths.processed"): "data/processed",
-                ("train", "paths.models"): "models", ("safety", "safety.out"): "metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
+    expected = {("collect", "collect.out"): "data/raw/straight.parquet",
+                ("preprocess", "paths.processed"): "data/processed/offline", ("train", "paths.models"): "models/offline",
+                ("safety", "safety.out"): "metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
                 ("avoid", "avoid.out"): "metrics/avoid/mcd.json", ("report", "report.out_dir"): "reports"}
     for (stage, key), path in expected.items():
         assert OmegaConf.select(stage_config(stage), key) == f"{tmp_path}/{path}"

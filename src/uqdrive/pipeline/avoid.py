@@ -22,6 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from uqdrive import checks
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.pipeline.avoid_cells import Cell, traces_of
@@ -29,13 +30,28 @@ from uqdrive.pipeline.avoid_outputs import write_outputs
 from uqdrive.pipeline.safety import code_digest
 from uqdrive.safety.calibration import calibrate, min_known_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest
-from uqdrive.safety.executors import BACKENDS, Executor, PolicySpec, ProcessPool, RolloutJob, executor_options, make_executor
+from uqdrive.safety.executors import (
+    BACKENDS,
+    Executor,
+    PolicySpec,
+    ProcessPool,
+    RolloutJob,
+    executor_options,
+    make_executor,
+)
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig, classify
-from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
-                         check_noise)
+from uqdrive.sim import (
+    CameraConfig,
+    ScenarioConfig,
+    ScenarioGeometry,
+    VehicleConfig,
+    WeatherConfig,
+    build_geometry,
+    check_noise,
+)
 
 KNOWN = "known"
 MODES = ("off", "on", "calibrated")
@@ -56,15 +72,15 @@ class CalibrationSettings:
     def __post_init__(self) -> None:
         for name in ("autonomy_target", "gamma"):
             if not 0 < checks.finite_number(f"avoid.calibration.{name}", getattr(self, name)) < 1:
-                raise ValueError(f"avoid.calibration.{name}={getattr(self, name)!r} must be in the open "
+                raise ConfigError(f"avoid.calibration.{name}={getattr(self, name)!r} must be in the open "
                                  "interval (0, 1)")
         if not checks.finite_number("avoid.calibration.margin_m", self.margin_m) >= 0:
-            raise ValueError(f"avoid.calibration.margin_m={self.margin_m!r} must be a number of metres >= 0")
+            raise ConfigError(f"avoid.calibration.margin_m={self.margin_m!r} must be a number of metres >= 0")
         for name, ok, allowed in (("deltas", lambda v: 0 <= v <= 1, "in [0, 1]"), ("taus", lambda v: v >= 0, ">= 0")):
             values = getattr(self, name)
             if isinstance(values, (str, bytes)) or not values or not all(
                     ok(checks.finite_number(f"avoid.calibration.{name}", v)) for v in values):
-                raise ValueError(f"avoid.calibration.{name}={values!r} must be a non-empty list of numbers {allowed}")
+                raise ConfigError(f"avoid.calibration.{name}={values!r} must be a non-empty list of numbers {allowed}")
             object.__setattr__(self, name, tuple(sorted({float(v) for v in values})))
 
 
@@ -114,32 +130,32 @@ class AvoidSettings:
 def _unknown_conditions(cfg: DictConfig, scenario: ScenarioConfig) -> tuple[Condition, ...]:
     items = OmegaConf.to_container(cfg.avoid.unknown, resolve=True)
     if not isinstance(items, list) or not items:
-        raise ValueError(f"avoid.unknown={items!r} must be a non-empty list of conditions "
+        raise ConfigError(f"avoid.unknown={items!r} must be a non-empty list of conditions "
                          f"(each with keys {list(UNKNOWN_KEYS)})")
     weathers = {cfg.weather.name: cfg.weather, **dict(cfg.get("weathers") or {})}
     out = []
     for i, item in enumerate(items):
         key = f"avoid.unknown[{i}]"
         if not isinstance(item, dict) or set(item) - set(UNKNOWN_KEYS) or not item.get("name"):
-            raise ValueError(f"{key}={item!r} must be a mapping with a name and keys among {list(UNKNOWN_KEYS)}")
+            raise ConfigError(f"{key}={item!r} must be a mapping with a name and keys among {list(UNKNOWN_KEYS)}")
         if item["name"] == KNOWN:
-            raise ValueError(f"{key}.name={KNOWN!r} is the training condition's name; choose another")
+            raise ConfigError(f"{key}.name={KNOWN!r} is the training condition's name; choose another")
         name = item.get("weather", cfg.weather.name)
         if name not in weathers:
-            raise ValueError(f"{key}.weather={name!r} is not loaded; choose one of {sorted(weathers)} or add "
+            raise ConfigError(f"{key}.weather={name!r} is not loaded; choose one of {sorted(weathers)} or add "
                              f"+weather@weathers.{name}={name}")
         overrides = item.get("scenario") or {}
         if not isinstance(overrides, dict):
-            raise ValueError(f"{key}.scenario={overrides!r} must be a mapping of scenario fields")
+            raise ConfigError(f"{key}.scenario={overrides!r} must be a mapping of scenario fields")
         try:
             condition_scenario = ScenarioConfig.from_config({**scenario.to_dict(), **overrides})
             noise = check_noise(item.get("noise", 0.0))
         except ValueError as err:
-            raise ValueError(f"{key}: {err}") from err
+            raise ConfigError(f"{key}: {err}") from err
         out.append(Condition(str(item["name"]), condition_scenario, WeatherConfig.from_config(weathers[name]), noise))
     names = [c.name for c in out]
     if len(set(names)) != len(names):
-        raise ValueError(f"avoid.unknown names {names} must be unique")
+        raise ConfigError(f"avoid.unknown names {names} must be unique")
     return tuple(out)
 
 
@@ -150,12 +166,12 @@ def check_horizon(horizon: float, warning: WarningConfig, speed: float, scenario
     slowest = min(a.speed for a in warning.actions if not a.handover) if any(
         not a.handover for a in warning.actions) else 1.0
     if slowest <= 0:
-        raise ValueError("warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
+        raise ConfigError("warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
                          "give it a speed > 0 or handover: true")
     distance = obstacle_pass_progress(build_geometry(scenario), vehicle.length) - scenario.start_distance
     needed = distance / (slowest * speed) + 1.0  # + 1 s for the start jitter and speed changes
     if horizon < needed:
-        raise ValueError(f"avoid.horizon_s={horizon:g} is too short: a run slowed to {slowest * speed:g} m/s needs "
+        raise ConfigError(f"avoid.horizon_s={horizon:g} is too short: a run slowed to {slowest * speed:g} m/s needs "
                          f"{needed:.1f} s to pass the obstacle ({distance:.0f} m); set at least {np.ceil(needed):g}")
     return horizon
 
@@ -164,7 +180,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
     method = posterior_from_config(cfg.model).method
     if cfg.executor.name not in BACKENDS:
-        raise ValueError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
+        raise ConfigError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
     checks.integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
     estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
@@ -174,20 +190,20 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)
     scenario = ScenarioConfig.from_config(cfg.scenario)
     if scenario.kind != "obstacle":
-        raise ValueError(f"scenario.kind={scenario.kind!r}: the avoid stage needs an 'obstacle' scenario")
+        raise ConfigError(f"scenario.kind={scenario.kind!r}: the avoid stage needs an 'obstacle' scenario")
     horizon = check_horizon(checks.seconds("avoid.horizon_s", cfg.avoid.horizon_s), warning, speed, scenario, vehicle)
     known = Condition(KNOWN, scenario, WeatherConfig.from_config(cfg.weather), check_noise(cfg.avoid.known_noise))
     calibration = CalibrationSettings(**OmegaConf.to_container(cfg.avoid.calibration, resolve=True))
     needed = min_known_runs(calibration.autonomy_target, calibration.gamma)
     if estimator.scheme != "sequential" and estimator.planned_rollouts() < needed:
-        raise ValueError(f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be shown with "
+        raise ConfigError(f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be shown with "
                          f"{estimator.planned_rollouts()} known-condition runs (it needs {needed}); lower it or "
                          "tighten avoid.theta")
     bins = SteeringBins(**cfg.experiment.bins)
     model_path = Path(cfg.avoid.model_path)
     cell_posterior("avoid.model_path", model_path, method, bins)
     if not checks.finite_number("avoid.eps", cfg.avoid.eps) > 0:
-        raise ValueError(f"avoid.eps={cfg.avoid.eps!r} must be a number > 0 (steering units)")
+        raise ConfigError(f"avoid.eps={cfg.avoid.eps!r} must be a number > 0 (steering units)")
     spec = PolicySpec("bnn", speed, str(model_path), method, bins, warning.samples, float(cfg.avoid.eps))
     return AvoidSettings(method, spec, file_digest(model_path), warning, estimator, validation_seed, known,
                          _unknown_conditions(cfg, scenario), calibration, CameraConfig.from_config(cfg.camera),

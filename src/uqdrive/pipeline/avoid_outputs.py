@@ -15,10 +15,23 @@ import numpy as np
 from omegaconf import DictConfig
 
 from uqdrive.files import write_json
-from uqdrive.pipeline.avoid_cells import (Cell, cell_metrics, distances, panel, write_cell_data, write_cell_table,
-                                          write_signals, write_tradeoff)
-from uqdrive.plots import (avoid_signals_figure, avoid_trajectories, avoid_trajectories_figure, avoid_tradeoff_figure,
-                           save_figure)
+from uqdrive.pipeline.avoid_cells import (
+    Cell,
+    cell_metrics,
+    distances,
+    panel,
+    write_cell_data,
+    write_cell_table,
+    write_signals,
+    write_tradeoff,
+)
+from uqdrive.plots import (
+    avoid_signals_figure,
+    avoid_tradeoff_figure,
+    avoid_trajectories,
+    avoid_trajectories_figure,
+    save_figure,
+)
 from uqdrive.safety.calibration import Calibration, Traces, replay
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.tracking import stage_run

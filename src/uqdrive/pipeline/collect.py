@@ -12,13 +12,22 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.frames import encode_png
 from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
 from uqdrive.files import atomic_path, write_json
 from uqdrive.parallel import map_ordered
 from uqdrive.plots import mosaic
-from uqdrive.sim import (Autopilot, AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig,
-                         WeatherConfig, check_noise)
+from uqdrive.sim import (
+    Autopilot,
+    AutopilotConfig,
+    CameraConfig,
+    DrivingEnv,
+    ScenarioConfig,
+    VehicleConfig,
+    WeatherConfig,
+    check_noise,
+)
 from uqdrive.tracking import stage_run
 
 
@@ -92,7 +101,7 @@ def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.nda
 def check_name(name: object) -> str:
     """`collect.name` becomes file names, so it must be a plain one: no folders, nothing a shell would mangle."""
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name.startswith("."):
-        raise ValueError(f"collect.name={name!r} must be a plain file name: letters, digits, '_', '-', '.' "
+        raise ConfigError(f"collect.name={name!r} must be a plain file name: letters, digits, '_', '-', '.' "
                          f"(not starting with '.')")
     return name
 
@@ -103,7 +112,7 @@ def run_collect(cfg: DictConfig) -> dict:
     WeatherConfig.from_config(cfg.weather)
     check_noise(cfg.noise)
     if cfg.collect.episodes < 1:
-        raise ValueError(f"collect.episodes={cfg.collect.episodes} must be >= 1")
+        raise ConfigError(f"collect.episodes={cfg.collect.episodes} must be >= 1")
     out = Path(cfg.collect.out)
     outcomes: Counter = Counter()
     mosaic_frames: list[np.ndarray] = []

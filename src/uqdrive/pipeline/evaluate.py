@@ -22,6 +22,7 @@ import torch
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from uqdrive.checks import ConfigError
 from uqdrive.config import noise_label
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet, frames_from_table
@@ -54,10 +55,10 @@ class EvaluateSettings:
     def __post_init__(self) -> None:
         for key, value in (("samples", self.samples), ("batch_size", self.batch_size)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"evaluate.{key}={value!r} must be an integer >= 1")
+                raise ConfigError(f"evaluate.{key}={value!r} must be an integer >= 1")
         if isinstance(self.eps, bool) or not isinstance(self.eps, (int, float)) or not (
                 math.isfinite(self.eps) and self.eps > 0):
-            raise ValueError(f"evaluate.eps={self.eps!r} must be a number > 0 (steering units)")
+            raise ConfigError(f"evaluate.eps={self.eps!r} must be a number > 0 (steering units)")
 
 
 @dataclass(frozen=True)
@@ -84,9 +85,9 @@ def conditions_from(cfg: DictConfig) -> list[Condition]:
     """weathers × noises, checked: non-empty lists of names and of numbers >= 0."""
     weathers, noises = list(cfg.weathers), list(cfg.noises)
     if not weathers or not all(isinstance(w, str) and w for w in weathers):
-        raise ValueError(f"weathers={weathers!r} must be a non-empty list of weather names (conf/weather/)")
+        raise ConfigError(f"weathers={weathers!r} must be a non-empty list of weather names (conf/weather/)")
     if not noises or not all(isinstance(n, (int, float)) and not isinstance(n, bool) and n >= 0 for n in noises):
-        raise ValueError(f"noises={noises!r} must be a non-empty list of numbers >= 0 (pixel-noise sigma)")
+        raise ConfigError(f"noises={noises!r} must be a non-empty list of numbers >= 0 (pixel-noise sigma)")
     return [Condition(w, n) for w in weathers for n in noises]
 
 
@@ -206,7 +207,7 @@ def run_evaluate(cfg: DictConfig) -> dict:
     bins = SteeringBins(**cfg.experiment.bins)
     methods = list(cfg.methods)
     if not methods or not all(is_method_name(m) for m in methods):
-        raise ValueError(f"methods={methods!r} must be a non-empty list of method names (conf/model/<name>.yaml: "
+        raise ConfigError(f"methods={methods!r} must be a non-empty list of method names (conf/model/<name>.yaml: "
                          f"lower-case letters, digits and _)")
     conditions = conditions_from(cfg)
     model_paths = check_inputs(cfg, methods, conditions)

@@ -10,6 +10,7 @@ import pyarrow as pa
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.preprocess import Split, class_histogram, preprocess_raw
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, read_table, write_table_batches
@@ -24,7 +25,7 @@ def run_preprocess(cfg: DictConfig) -> dict:
     raw_dir, out_dir = Path(cfg.paths.raw), Path(cfg.paths.processed)
     scenarios = list(cfg.experiment.scenarios)
     if not scenarios:
-        raise ValueError(f"experiment.scenarios={scenarios} is empty: name at least one collected scenario")
+        raise ConfigError(f"experiment.scenarios={scenarios} is empty: name at least one collected scenario")
 
     parts: dict[str, list[pa.Table]] = {"train": [], "val": []}
     steering = []

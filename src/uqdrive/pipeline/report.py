@@ -19,8 +19,13 @@ from omegaconf import DictConfig
 
 from uqdrive.files import atomic_path, write_json
 from uqdrive.pipeline.report_document import Report, fmt, read_json, table
-from uqdrive.pipeline.report_experiments import (avoid_section, fidelity_section, pooled_cells, safety_section,
-                                                  training_section)
+from uqdrive.pipeline.report_experiments import (
+    avoid_section,
+    fidelity_section,
+    pooled_cells,
+    safety_section,
+    training_section,
+)
 from uqdrive.tracking import stage_run
 from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_scheme
 

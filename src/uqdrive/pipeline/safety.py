@@ -27,15 +27,29 @@ from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
-from uqdrive.safety.cells import (EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest, rates,
-                                  reusable_result)
+from uqdrive.safety.cells import (
+    EstimatorSettings,
+    cell_hash,
+    cell_posterior,
+    estimate_safety,
+    file_digest,
+    rates,
+    reusable_result,
+)
 from uqdrive.safety.controller import Controller
 from uqdrive.safety.executors import PolicySpec, RolloutJob, executor_options, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.safe_sets import SafeSet, check_half_width, safe_set_for
-from uqdrive.sim import (CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry,
-                         check_noise)
+from uqdrive.sim import (
+    CameraConfig,
+    ScenarioConfig,
+    ScenarioGeometry,
+    VehicleConfig,
+    WeatherConfig,
+    build_geometry,
+    check_noise,
+)
 from uqdrive.tracking import stage_run
 
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures

@@ -15,6 +15,7 @@ import mlflow
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import load_frames
 from uqdrive.files import write_csv, write_json
@@ -39,7 +40,7 @@ def run_train(cfg: DictConfig) -> dict:
     method = cls.method
     eval_samples = int(cfg.train.eval_samples)
     if eval_samples < 1:
-        raise ValueError(f"train.eval_samples={eval_samples} must be ≥ 1")
+        raise ConfigError(f"train.eval_samples={eval_samples} must be ≥ 1")
     bins = SteeringBins(**cfg.experiment.bins)
     processed = Path(cfg.paths.processed)
     train = load_frames(processed / "train.parquet", bins.num_classes)
@@ -47,7 +48,7 @@ def run_train(cfg: DictConfig) -> dict:
     generator = torch.Generator().manual_seed(int(cfg.seed))
     threads = int(cfg.train.threads)
     if threads < 1:
-        raise ValueError(f"train.threads={threads} must be ≥ 1")
+        raise ConfigError(f"train.threads={threads} must be ≥ 1")
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
     data = TrainingData(train, val, bins, Architecture(**OmegaConf.to_container(cfg.arch, resolve=True)),
