@@ -17,8 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _git(project: Path, *args: str) -> None:
-    subprocess.run(["git", "-c", "user.name=test", "-c", "user.email=test@localhost", *args], cwd=project, check=True,
-                   capture_output=True, timeout=120)
+    subprocess.run(["git", *args], cwd=project, check=True, capture_output=True, timeout=120)
 
 
 def _metrics_of_experiments(shown: object) -> list[dict]:
@@ -56,6 +55,8 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
                   locations=["roundabout"])
     (project / "params.yaml").write_text(yaml.safe_dump(params))
     _git(project, "init", "-q")
+    for key, value in (("user.name", "uqdrive test"), ("user.email", "test@localhost")):  # dvc exp commits need one
+        _git(project, "config", key, value)
     _dvc(project, "init", "-q")
 
     _dvc(project, "repro")
