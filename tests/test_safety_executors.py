@@ -19,7 +19,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.safety import EstimatorSettings, PolicySpec, RolloutJob, estimate_safety, make_executor
 from uqdrive.sim import ScenarioConfig, WeatherConfig
 
-from conftest import CONF
+from conftest import ALL_TENTHS, CONF
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -126,7 +126,7 @@ def test_the_readme_ray_path_on_a_ray_cluster_agrees_with_the_process_backend(ra
     """`python stages/safety.py executor=ray executor.address=auto` joins the cluster (RAY_ADDRESS) and gives the
     same cell, rollout by rollout, as the process pool."""
     cell = ["profile=tiny", "progress=false", "model=vi", "weather=rain", "noise=0.05",
-            f"paths.models={random_models['vi'].parent}"]
+            f"safety.model_path={random_models['vi'].parent}/${{model.name}}.pt", *ALL_TENTHS]
     env, cluster_dir = ray_cluster
     on_ray = tmp_path / "ray"
     on_ray.mkdir()

@@ -36,7 +36,7 @@ def run_avoid_summary(cfg: DictConfig) -> dict:
             "cells": {c: {m: {k: v for k, v in cell.items() if k in SUMMARY_KEYS} for m, cell in modes.items()}
                       for c, modes in result["cells"].items()},
             "unknown": result["unknown"],
-            "calibration": {k: v for k, v in result["calibration"].items() if k != "replayed"},
+            "calibration": result["calibration"],
             "samples_per_frame": result["samples_per_frame"]}
         unknown = result["conditions"][1:]
         for condition, mode in COLUMNS:
