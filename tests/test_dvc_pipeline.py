@@ -51,7 +51,8 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     for name in ("conf", "stages", "src"):
         shutil.copytree(ROOT / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
     params = yaml.safe_load((project / "params.yaml").read_text())
-    params.update(profile="tiny", methods=["mcd", "vi", "hmc"], weathers=["rain"], noises=[0.0],
+    params.update(profile="tiny", posteriors=["mcd", "vi", "hmc"], methods=["mcd", "vi", "hmc"], weathers=["rain"],
+                  noises=[0.0],
                   locations=["roundabout"])
     (project / "params.yaml").write_text(yaml.safe_dump(params))
     _git(project, "init", "-q")
