@@ -10,9 +10,12 @@ from uqdrive.stage import stage_main
 @stage_main
 def main(cfg: DictConfig) -> None:
     from uqdrive.pipeline.collect import run_collect  # not at the top: spawned workers re-import this script
+
     result = run_collect(cfg)
-    print(f"collect: {result['frames']} frames from {result['episodes']} episodes "
-          f"(route completed in {result['route_complete_fraction']:.0%}) -> {result['path']}")
+    print(
+        f"collect: {result['frames']} frames from {result['episodes']} episodes "
+        f"(route completed in {result['route_complete_fraction']:.0%}) -> {result['path']}"
+    )
 
 
 if __name__ == "__main__":

@@ -3,8 +3,8 @@
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.stage import stage_main
 from uqdrive.pipeline.evaluate import run_evaluate
+from uqdrive.stage import stage_main
 
 
 def _fmt(value: float | None) -> str:
@@ -18,9 +18,11 @@ def main(cfg: DictConfig) -> None:
     for method, by_weather in result["table"].items():
         for weather, by_noise in by_weather.items():
             for noise, m in by_noise.items():
-                print(f"evaluate {method} {weather} {noise}: accuracy {m['accuracy']:.3f}, NLL {m['nll']:.3f}, "
-                      f"ECE {m['ece']:.3f}, mean MI {m['mean_mutual_information']:.3f}, mean η2 {m['mean_eta2']:.3f}, "
-                      f"AUROC MI {_fmt(m['auroc_mi'])}, 1-η2 {_fmt(m['auroc_one_minus_eta2'])} ({m['frames']} frames)")
+                print(
+                    f"evaluate {method} {weather} {noise}: accuracy {m['accuracy']:.3f}, NLL {m['nll']:.3f}, "
+                    f"ECE {m['ece']:.3f}, mean MI {m['mean_mutual_information']:.3f}, mean η2 {m['mean_eta2']:.3f}, "
+                    f"AUROC MI {_fmt(m['auroc_mi'])}, 1-η2 {_fmt(m['auroc_one_minus_eta2'])} ({m['frames']} frames)"
+                )
     print(f"evaluate -> {cfg.evaluate.out}")
 
 

@@ -3,16 +3,18 @@
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.stage import stage_main
 from uqdrive.pipeline.preprocess import run_preprocess
+from uqdrive.stage import stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="preprocess")
 @stage_main
 def main(cfg: DictConfig) -> None:
     metrics = run_preprocess(cfg)
-    print(f"preprocess: {metrics['train_frames']} train / {metrics['val_frames']} val frames, "
-          f"{metrics['num_classes']} classes -> {cfg.paths.processed}")
+    print(
+        f"preprocess: {metrics['train_frames']} train / {metrics['val_frames']} val frames, "
+        f"{metrics['num_classes']} classes -> {cfg.paths.processed}"
+    )
 
 
 if __name__ == "__main__":

@@ -3,8 +3,8 @@
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.stage import stage_main
 from uqdrive.pipeline.report import run_report
+from uqdrive.stage import stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="report")

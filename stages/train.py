@@ -3,17 +3,19 @@
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.stage import stage_main
 from uqdrive.pipeline.train import run_train
+from uqdrive.stage import stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @stage_main
 def main(cfg: DictConfig) -> None:
     m = run_train(cfg)
-    print(f"train {m['method']}: val accuracy {m['val_accuracy']:.3f} (majority baseline "
-          f"{m['majority_baseline_accuracy']:.3f}), NLL {m['val_nll']:.3f}, ECE {m['val_ece']:.3f} "
-          f"in {m['train_seconds']:.0f} s -> {cfg.paths.models}/{m['method']}.pt")
+    print(
+        f"train {m['method']}: val accuracy {m['val_accuracy']:.3f} (majority baseline "
+        f"{m['majority_baseline_accuracy']:.3f}), NLL {m['val_nll']:.3f}, ECE {m['val_ece']:.3f} "
+        f"in {m['train_seconds']:.0f} s -> {cfg.paths.models}/{m['method']}.pt"
+    )
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ summary, clear errors."""
 import json
 
 import pytest
+from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 import uqdrive.pipeline.avoid as avoid_stage
@@ -12,20 +13,20 @@ from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
 
-from conftest import ALL_TENTHS
-
 
 @pytest.fixture
 def avoid_config(stage_config, random_models):
     def make(*overrides: str):
         folder = random_models["mcd"].parent
         return stage_config("avoid", *ALL_TENTHS, f"avoid.model_path={folder}/${{model.name}}.pt", *overrides)
+
     return make
 
 
 @pytest.mark.slow
-def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summarises(avoid_config, stage_config,
-                                                                                  tmp_path):
+def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summarises(
+    avoid_config, stage_config, tmp_path
+):
     result = run_avoid(avoid_config("model=mcd"))
     saved = json.loads((tmp_path / "metrics/avoid/mcd.json").read_text())
     assert saved == result and saved["samples_per_frame"] == 21  # chernoff_n(0.3, 0.05), the tiny profile
@@ -47,8 +48,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
         assert saved["unknown"][mode]["eta1"] == saved["cells"]["fog"][mode]["eta1"]
     assert saved["cells"][KNOWN]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
     calibration = saved["calibration"]
-    assert saved["cells"][KNOWN]["calibrated"]["thresholds"] == {k: calibration[k] for k in ("delta1", "delta2",
-                                                                                              "tau")}
+    assert saved["cells"][KNOWN]["calibrated"]["thresholds"] == {k: calibration[k] for k in ("delta1", "delta2", "tau")}
     assert calibration["feasible"] and calibration["replayed"]["autonomy_low"] >= calibration["autonomy_target"]
     assert calibration["candidates"] > 100 and set(calibration["replay_check"]) == {KNOWN, "fog"}
     rows = (tmp_path / "plots/avoid/mcd/tradeoff.csv").read_text().splitlines()
@@ -62,14 +62,21 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     assert set(by_name) == {f"mcd-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-calibration"}
     run = by_name["mcd-fog-on"]
     assert {k: run.data.params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n")} == {
-        "method": "mcd", "condition": "fog", "warnings": "on", "delta1": "0.7", "samples_per_frame": "21", "n": "4"}
+        "method": "mcd",
+        "condition": "fog",
+        "warnings": "on",
+        "delta1": "0.7",
+        "samples_per_frame": "21",
+        "n": "4",
+    }
     assert run.data.metrics["eta1"] == pytest.approx(saved["cells"]["fog"]["on"]["eta1"])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"mcd-fog-on.csv", "mcd-fog-on.png"}
 
     again = run_avoid(avoid_config("model=mcd"))  # every cell is reused, with the same numbers
     assert all(again["cells"][c][m]["reused"] for c in again["conditions"] for m in MODES)
     assert {c: {m: again["cells"][c][m]["eta1"] for m in MODES} for c in again["conditions"]} == {
-        c: {m: saved["cells"][c][m]["eta1"] for m in MODES} for c in saved["conditions"]}
+        c: {m: saved["cells"][c][m]["eta1"] for m in MODES} for c in saved["conditions"]
+    }
 
     summary = run_avoid_summary(stage_config("avoid_summary", "methods=[mcd]"))
     table = json.loads((tmp_path / "metrics/avoid.json").read_text())
@@ -82,9 +89,16 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
 
 
 def test_thresholds_actions_and_samples_come_from_config(avoid_config):
-    settings = build_settings(avoid_config("model=vi", "warning.delta1=0.8", "warning.tau=0.3",
-                                           "warning.actions.warning0.speed=0.25", "warning.theta=0.2",
-                                           "avoid.horizon_s=10"))
+    settings = build_settings(
+        avoid_config(
+            "model=vi",
+            "warning.delta1=0.8",
+            "warning.tau=0.3",
+            "warning.actions.warning0.speed=0.25",
+            "warning.theta=0.2",
+            "avoid.horizon_s=10",
+        )
+    )
     w = settings.warning
     assert (w.delta1, w.delta2, w.tau, w.actions[0].speed, w.samples) == (0.8, 0.6, 0.3, 0.25, 47)
     policy = settings.job(settings.known, w, 0).policy.build(15.0)
@@ -92,36 +106,55 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
     assert settings.job(settings.known, None, 0).policy.build(15.0).n_samples == 47  # warnings off: same draws
 
 
-@pytest.mark.parametrize(("overrides", "error", "match"), [
-    (("warning.delta2=0.8",), ValueError, r"warning.delta2=0.8 must be <= warning.delta1=0.7"),
-    (("warning.delta1=1.5",), ValueError, r"warning.delta1=1.5 must be in \[0, 1\]"),
-    (("warning.delta2=-0.2",), ValueError, r"warning.delta2=-0.2 must be in \[0, 1\]"),
-    (("warning.tau=-1",), ValueError, r"warning.tau=-1 must be >= 0"),
-    (("warning.actions.warning2.speed=0.5",), ValueError, r"warning.actions.warning2.speed=0.5 must be 0 when"),
-    (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
-    (("avoid.model_path=/nonexistent/vi.pt",), FileNotFoundError, r"avoid.model_path=/nonexistent/vi.pt does not"),
-    (("avoid.theta=0",), ValueError, r"avoid.theta=0 must be in the open interval"),
-    (("avoid.scheme=bootstrap",), ValueError, r"avoid.scheme='bootstrap' is not known"),
-    (("avoid.speed=0",), ValueError, r"avoid.speed=0 must be in \(0, vehicle.max_speed=20.0\] m/s"),
-    (("avoid.eps=0",), ValueError, r"avoid.eps=0 must be a number > 0"),
-    (("avoid.horizon_s=-1",), ValueError, r"avoid.horizon_s=-1 must be a number of seconds > 0"),
-    (("avoid.horizon_s=2",), ValueError, r"avoid.horizon_s=2 is too short: a run slowed to 8 m/s needs 3\.\d s to pass the obstacle \(\d+ m\); set at least 4"),
-    (("warning.actions.warning1.speed=0",), ValueError, r"a slow-down to speed 0 without a hand-over never passes"),
-    (("avoid.unknown=[]",), ValueError, r"avoid.unknown=\[\] must be a non-empty list of conditions"),
-    (("avoid.unknown=[{name:known}]",), ValueError, r"avoid.unknown\[0\].name='known' is the training condition"),
-    (("avoid.unknown=[{name:snow,weather:snow}]",), ValueError,
-     r"avoid.unknown\[0\].weather='snow' is not loaded; .* add \+weather@weathers.snow=snow"),
-    (("avoid.unknown=[{name:x,noise:-1}]",), ValueError, r"avoid.unknown\[0\]: noise=-1 must be >= 0"),
-    (("avoid.unknown=[{name:x,scenario:{obstacle_colour:[1,1,1]}}]",), ValueError,
-     r"avoid.unknown\[0\]: scenario: unknown key\(s\) \['obstacle_colour'\]"),
-    (("avoid.calibration.autonomy_target=1",), ValueError,
-     r"avoid.calibration.autonomy_target=1 must be in the open interval"),
-    (("avoid.calibration.autonomy_target=0.5",), ValueError,
-     r"autonomy_target=0.5 cannot be shown with 4 known-condition runs \(it needs 6\)"),
-    (("avoid.calibration.deltas=[0.5,1.5]",), ValueError, r"avoid.calibration.deltas=\[0.5, 1.5\] must be"),
-    (("executor.workers=0",), ValueError, r"executor.workers=0 must be an integer >= 1"),
-    (("scenario=roundabout",), ValueError, r"scenario.kind='roundabout': the avoid stage needs an 'obstacle'"),
-])
+@pytest.mark.parametrize(
+    ("overrides", "error", "match"),
+    [
+        (("warning.delta2=0.8",), ValueError, r"warning.delta2=0.8 must be <= warning.delta1=0.7"),
+        (("warning.delta1=1.5",), ValueError, r"warning.delta1=1.5 must be in \[0, 1\]"),
+        (("warning.delta2=-0.2",), ValueError, r"warning.delta2=-0.2 must be in \[0, 1\]"),
+        (("warning.tau=-1",), ValueError, r"warning.tau=-1 must be >= 0"),
+        (("warning.actions.warning2.speed=0.5",), ValueError, r"warning.actions.warning2.speed=0.5 must be 0 when"),
+        (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
+        (("avoid.model_path=/nonexistent/vi.pt",), FileNotFoundError, r"avoid.model_path=/nonexistent/vi.pt does not"),
+        (("avoid.theta=0",), ValueError, r"avoid.theta=0 must be in the open interval"),
+        (("avoid.scheme=bootstrap",), ValueError, r"avoid.scheme='bootstrap' is not known"),
+        (("avoid.speed=0",), ValueError, r"avoid.speed=0 must be in \(0, vehicle.max_speed=20.0\] m/s"),
+        (("avoid.eps=0",), ValueError, r"avoid.eps=0 must be a number > 0"),
+        (("avoid.horizon_s=-1",), ValueError, r"avoid.horizon_s=-1 must be a number of seconds > 0"),
+        (
+            ("avoid.horizon_s=2",),
+            ValueError,
+            r"avoid.horizon_s=2 is too short: a run slowed to 8 m/s needs 3\.\d s to pass the obstacle \(\d+ m\); set at least 4",
+        ),
+        (("warning.actions.warning1.speed=0",), ValueError, r"a slow-down to speed 0 without a hand-over never passes"),
+        (("avoid.unknown=[]",), ValueError, r"avoid.unknown=\[\] must be a non-empty list of conditions"),
+        (("avoid.unknown=[{name:known}]",), ValueError, r"avoid.unknown\[0\].name='known' is the training condition"),
+        (
+            ("avoid.unknown=[{name:snow,weather:snow}]",),
+            ValueError,
+            r"avoid.unknown\[0\].weather='snow' is not loaded; .* add \+weather@weathers.snow=snow",
+        ),
+        (("avoid.unknown=[{name:x,noise:-1}]",), ValueError, r"avoid.unknown\[0\]: noise=-1 must be >= 0"),
+        (
+            ("avoid.unknown=[{name:x,scenario:{obstacle_colour:[1,1,1]}}]",),
+            ValueError,
+            r"avoid.unknown\[0\]: scenario: unknown key\(s\) \['obstacle_colour'\]",
+        ),
+        (
+            ("avoid.calibration.autonomy_target=1",),
+            ValueError,
+            r"avoid.calibration.autonomy_target=1 must be in the open interval",
+        ),
+        (
+            ("avoid.calibration.autonomy_target=0.5",),
+            ValueError,
+            r"autonomy_target=0.5 cannot be shown with 4 known-condition runs \(it needs 6\)",
+        ),
+        (("avoid.calibration.deltas=[0.5,1.5]",), ValueError, r"avoid.calibration.deltas=\[0.5, 1.5\] must be"),
+        (("executor.workers=0",), ValueError, r"executor.workers=0 must be an integer >= 1"),
+        (("scenario=roundabout",), ValueError, r"scenario.kind='roundabout': the avoid stage needs an 'obstacle'"),
+    ],
+)
 def test_bad_input_fails_before_any_rollout(avoid_config, tmp_path, monkeypatch, overrides, error, match):
     def no_rollouts(*args, **kwargs):
         raise AssertionError("rollouts started")

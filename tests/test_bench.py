@@ -13,10 +13,13 @@ import pytest
 from uqdrive.cli import main
 
 
-@pytest.mark.parametrize(("argv", "pattern"), [
-    (["sim", "--steps", "30", "--repeats", "1"], r"RESULT sim step_over_render=[\d.]+"),
-    (["posterior", "--samples", "50", "--repeats", "2"], r"RESULT posterior worst_ms=[\d.]+ min_speedup=[\d.]+"),
-])
+@pytest.mark.parametrize(
+    ("argv", "pattern"),
+    [
+        (["sim", "--steps", "30", "--repeats", "1"], r"RESULT sim step_over_render=[\d.]+"),
+        (["posterior", "--samples", "50", "--repeats", "2"], r"RESULT posterior worst_ms=[\d.]+ min_speedup=[\d.]+"),
+    ],
+)
 def test_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str], argv: list[str], pattern: str) -> None:
     assert main(["bench", *argv]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]

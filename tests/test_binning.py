@@ -24,8 +24,10 @@ def test_steering_to_class_to_steering_is_within_half_a_tenth():
     assert np.max(np.abs(decoded - steering)) <= 0.05 + 1e-12
 
 
-@pytest.mark.parametrize(("steer", "cls"), [(0.0, 10), (0.04, 10), (0.06, 11), (-0.06, 9), (1.0, 20), (-1.0, 0),
-                                            (0.55, 16), (1.7, 20), (-3.0, 0)])
+@pytest.mark.parametrize(
+    ("steer", "cls"),
+    [(0.0, 10), (0.04, 10), (0.06, 11), (-0.06, 9), (1.0, 20), (-1.0, 0), (0.55, 16), (1.7, 20), (-3.0, 0)],
+)
 def test_nearest_centre_and_saturation(steer, cls):
     assert SteeringBins().to_class(steer) == cls
 
@@ -52,8 +54,15 @@ def test_an_experiments_class_set_round_trips_through_the_binning(low, high):
     np.testing.assert_array_equal(bins.to_class(beyond), [0, bins.num_classes - 1])
 
 
-@pytest.mark.parametrize(("kwargs", "key"), [({"per_unit": 0}, "per_unit"), ({"low": -1.5}, "low"),
-                                             ({"high": 0.95}, "high"), ({"low": 0.5, "high": 0.5}, "low")])
+@pytest.mark.parametrize(
+    ("kwargs", "key"),
+    [
+        ({"per_unit": 0}, "per_unit"),
+        ({"low": -1.5}, "low"),
+        ({"high": 0.95}, "high"),
+        ({"low": 0.5, "high": 0.5}, "low"),
+    ],
+)
 def test_bad_bins_name_the_key(kwargs, key):
     with pytest.raises(ValueError, match=key):
         SteeringBins(**kwargs)

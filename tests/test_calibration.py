@@ -23,8 +23,11 @@ def traces() -> Traces:
     wavers[12] = 0.9
     dips = np.ones(30)
     dips[9] = 0.5
-    runs = [(wavers, np.zeros(30), s, 29.0, True, 0), (dips, np.zeros(30), s, 29.0, False, 1),
-            (calm, np.zeros(30), s, 29.0, False, 1)]
+    runs = [
+        (wavers, np.zeros(30), s, 29.0, True, 0),
+        (dips, np.zeros(30), s, 29.0, False, 1),
+        (calm, np.zeros(30), s, 29.0, False, 1),
+    ]
     return Traces.from_runs(runs)
 
 
@@ -62,13 +65,14 @@ def test_calibration_never_returns_thresholds_below_the_autonomy_target(target, 
     calib = calibrate(t, ["known", "unknown"], FAST, deltas, taus, target=target, gamma=0.05, **ARGS)
     table, chosen = calib.table, calib.chosen
     # the bound is recomputed here from the replayed hand-overs, independently of the table's own column
-    handovers = replay(t, table["delta1"][[chosen]], table["delta2"][[chosen]], table["tau"][[chosen]], FAST,
-                       **ARGS).handover[0, t.group == 0]
+    handovers = replay(
+        t, table["delta1"][[chosen]], table["delta2"][[chosen]], table["tau"][[chosen]], FAST, **ARGS
+    ).handover[0, t.group == 0]
     low, _ = clopper_pearson_interval(int((~handovers).sum()), len(handovers), 0.05)
     assert calib.feasible and low >= target
     # and among the candidates that meet the target, no other is safer in the unknown condition
     assert table["eta1_unknown"][chosen] == table["eta1_unknown"][table["feasible"]].max()
-    always = np.flatnonzero((table["delta2"] == 1.0))  # hand over at the first frame with any disagreement
+    always = np.flatnonzero(table["delta2"] == 1.0)  # hand over at the first frame with any disagreement
     assert not table["feasible"][always].any() and table["autonomy"][always].max() < 0.5
 
 
@@ -77,12 +81,15 @@ def test_the_never_firing_candidate_is_on_every_grid_and_too_few_known_runs_are_
     assert NEVER_FIRES in list(zip(d1, d2, t))
     for target in (0.3, 0.8, 0.95):  # n/n has exact lower bound (γ/2)^(1/n): the fewest n reaching the target
         assert min_known_runs(target, 0.05) == math.ceil(math.log(0.025) / math.log(target))
-    with pytest.raises(ValueError, match="target=0.8 needs at least 17 known-condition runs at gamma=0.05; there are 1"):
+    with pytest.raises(
+        ValueError, match="target=0.8 needs at least 17 known-condition runs at gamma=0.05; there are 1"
+    ):
         calibrate(traces(), ["known", "unknown"], FAST, [0.7], [0.45], target=0.8, gamma=0.05, **ARGS)
 
 
 def test_a_silent_failure_is_never_saved_by_any_threshold():
-    calib = calibrate(traces(), ["known", "unknown"], FAST, [0.5, 0.6, 0.7, 0.9, 0.95, 1.0], [0.45], target=0.02,
-                      gamma=0.05, **ARGS)
+    calib = calibrate(
+        traces(), ["known", "unknown"], FAST, [0.5, 0.6, 0.7, 0.9, 0.95, 1.0], [0.45], target=0.02, gamma=0.05, **ARGS
+    )
     # the dipping collision can be saved, the silent one never: unknown η̂1 tops out at 1/2
     assert calib.table["eta1_unknown"].max() == 0.5 and calib.table["eta1_unknown"][calib.chosen] == 0.5

@@ -13,15 +13,27 @@ from uqdrive.stage import stage_main
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize(("stage", "overrides", "message"), [
-    ("safety", ["safety.theta=2"], "error: safety.theta=2 must be in the open interval (0, 1)"),
-    ("collect", ["scenario=straight", "noise=-0.1"], "error: noise=-0.1 must be >= 0"),
-    ("collect", ["scenario=straight", "outputs=x"], "error: outputs='x' is not known; choose one of ['auto', 'pipeline']"),
-])
+@pytest.mark.parametrize(
+    ("stage", "overrides", "message"),
+    [
+        ("safety", ["safety.theta=2"], "error: safety.theta=2 must be in the open interval (0, 1)"),
+        ("collect", ["scenario=straight", "noise=-0.1"], "error: noise=-0.1 must be >= 0"),
+        (
+            "collect",
+            ["scenario=straight", "outputs=x"],
+            "error: outputs='x' is not known; choose one of ['auto', 'pipeline']",
+        ),
+    ],
+)
 def test_a_bad_value_prints_one_line_and_writes_nothing(tmp_path, stage, overrides, message):
-    result = subprocess.run([sys.executable, str(ROOT / "stages" / f"{stage}.py"), "profile=tiny", *overrides],
-                            cwd=tmp_path, capture_output=True, text=True, timeout=120,
-                            env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "stages" / f"{stage}.py"), "profile=tiny", *overrides],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+    )
     assert result.returncode == 2
     assert result.stderr.splitlines() == [message]
     assert result.stdout == ""

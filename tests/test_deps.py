@@ -3,7 +3,6 @@
 import shlex
 from pathlib import Path
 
-
 from uqdrive.deps import SRC, files_digest, import_closure, stage_closure
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,8 +23,15 @@ def test_closure_follows_lazy_relative_and_submodule_imports_and_skips_third_par
     write(src / "uqdrive/top.py", "def later():\n    from uqdrive.sub import mid\n")
     script = write(tmp_path / "stages/run.py", "import os\nimport uqdrive.top\n")
     closure = {p.relative_to(tmp_path).as_posix() for p in import_closure(script, src=src)}
-    assert closure == {"stages/run.py", "src/uqdrive/__init__.py", "src/uqdrive/top.py", "src/uqdrive/sub/__init__.py",
-                       "src/uqdrive/sub/leaf.py", "src/uqdrive/sub/mid.py", "src/uqdrive/sub/sibling.py"}
+    assert closure == {
+        "stages/run.py",
+        "src/uqdrive/__init__.py",
+        "src/uqdrive/top.py",
+        "src/uqdrive/sub/__init__.py",
+        "src/uqdrive/sub/leaf.py",
+        "src/uqdrive/sub/mid.py",
+        "src/uqdrive/sub/sibling.py",
+    }
 
 
 def test_hydra_targets_in_the_configs_are_part_of_every_stage():

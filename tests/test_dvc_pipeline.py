@@ -36,8 +36,9 @@ def _metrics_of_experiments(shown: object) -> list[dict]:
 
 def _dvc(project: Path, *args: str) -> str:
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
-    result = subprocess.run([sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True,
-                            text=True, timeout=900)
+    result = subprocess.run(
+        [sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True, text=True, timeout=900
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     return result.stdout
 
@@ -51,9 +52,14 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     for name in ("conf", "stages", "src"):
         shutil.copytree(ROOT / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
     params = yaml.safe_load((project / "params.yaml").read_text())
-    params.update(profile="tiny", posteriors=["mcd", "vi", "hmc"], methods=["mcd", "vi", "hmc"], weathers=["rain"],
-                  noises=[0.0],
-                  locations=["roundabout"])
+    params.update(
+        profile="tiny",
+        posteriors=["mcd", "vi", "hmc"],
+        methods=["mcd", "vi", "hmc"],
+        weathers=["rain"],
+        noises=[0.0],
+        locations=["roundabout"],
+    )
     (project / "params.yaml").write_text(yaml.safe_dump(params))
     _git(project, "init", "-q")
     for key, value in (("user.name", "uqdrive test"), ("user.email", "test@localhost")):  # dvc exp commits need one
@@ -67,7 +73,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     for experiment in ("avoid", "offline"):  # one controller per experiment × method, each on its own class set
         metrics = json.loads((project / f"metrics/{experiment}/preprocess.json").read_text())
         classes = yaml.safe_load((project / f"conf/experiment/{experiment}.yaml").read_text())["bins"]
-        assert metrics["train_frames"] > 0 and metrics["num_classes"] == round((classes["high"] - classes["low"]) * 10) + 1
+        assert (
+            metrics["train_frames"] > 0 and metrics["num_classes"] == round((classes["high"] - classes["low"]) * 10) + 1
+        )
         for method in ("mcd", "vi", "hmc"):
             assert (project / f"models/{experiment}/{method}.pt").exists()
             trained = json.loads((project / f"metrics/{experiment}/train/{method}.json").read_text())
@@ -75,8 +83,11 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     safety = json.loads((project / "metrics/safety.json").read_text())
     assert set(safety) == {"mcd", "vi", "hmc"} and set(safety["vi"]) == {"roundabout"}
     cell = safety["vi"]["roundabout"]["rain"]["noise0.0"]
-    assert cell == {k: v for k, v in json.loads((project / "metrics/safety/vi-roundabout-rain-noise0.0.json")
-                                                .read_text()).items() if k in cell}
+    assert cell == {
+        k: v
+        for k, v in json.loads((project / "metrics/safety/vi-roundabout-rain-noise0.0.json").read_text()).items()
+        if k in cell
+    }
     assert (project / "plots/safety/summary/hexbin_roundabout_noise0.0.png").exists()
     assert (project / "data/heldout/roundabout-rain-noise0.0.parquet").exists()
     evaluated = json.loads((project / "metrics/evaluate.json").read_text())
@@ -108,10 +119,20 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     # upstream; git holds the metrics files, so `dvc exp show` compares the experiment's numbers with the baseline's
     _git(project, "add", "-A")
     _git(project, "commit", "-qm", "tiny run")
-    ran = sorted(line.split("'")[1] for line in _dvc(project, "exp", "run", "-S", "weathers=[rain,afternoon]")
-                 .splitlines() if line.startswith("Running stage"))
-    assert ran == ["evaluate", "heldout@afternoon-0.0", "report", "safety@hmc-afternoon-0.0-roundabout",
-                   "safety@mcd-afternoon-0.0-roundabout", "safety@vi-afternoon-0.0-roundabout", "safety_summary"]
+    ran = sorted(
+        line.split("'")[1]
+        for line in _dvc(project, "exp", "run", "-S", "weathers=[rain,afternoon]").splitlines()
+        if line.startswith("Running stage")
+    )
+    assert ran == [
+        "evaluate",
+        "heldout@afternoon-0.0",
+        "report",
+        "safety@hmc-afternoon-0.0-roundabout",
+        "safety@mcd-afternoon-0.0-roundabout",
+        "safety@vi-afternoon-0.0-roundabout",
+        "safety_summary",
+    ]
     summaries = _metrics_of_experiments(json.loads(_dvc(project, "exp", "show", "--json")))
     assert len(summaries) >= 2  # the baseline and the experiment
     assert all(isinstance(m["offline_safety"]["vi"]["eta1_pooled"], float) for m in summaries)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 from uqdrive.data.frames import encode_png
@@ -14,24 +15,47 @@ from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
 from uqdrive.pipeline.evaluate import Condition, cell_metrics, run_evaluate
 from uqdrive.tracking import store_uris
 
-from conftest import ALL_TENTHS
-
-METRIC_KEYS = {"accuracy", "nll", "ece", "brier", "mean_mutual_information", "mean_eta2", "auroc_mi",
-               "auroc_one_minus_eta2", "auroc_note", "frames", "mistakes"}
+METRIC_KEYS = {
+    "accuracy",
+    "nll",
+    "ece",
+    "brier",
+    "mean_mutual_information",
+    "mean_eta2",
+    "auroc_mi",
+    "auroc_one_minus_eta2",
+    "auroc_note",
+    "frames",
+    "mistakes",
+}
 AGREEMENT_KEYS = {"hmc_tv_distance", "hmc_tv_distance_max", "hmc_argmax_agreement", "hmc_mi_spearman"}
 
 
-def write_heldout(root, weather: str, noise: float, frames: int = 24, seed: int = 0, scenario: str = "roundabout",
-                  name: str | None = None):
+def write_heldout(
+    root,
+    weather: str,
+    noise: float,
+    frames: int = 24,
+    seed: int = 0,
+    scenario: str = "roundabout",
+    name: str | None = None,
+):
     """A raw held-out file as the heldout stage names it, with random camera frames: evaluate's plumbing
     needs frames and labels, not a drive."""
     rng = np.random.default_rng(seed)
     steering = rng.uniform(-0.3, 0.3, frames)
-    columns = {"scenario": [scenario] * frames, "weather": [weather] * frames, "noise": [noise] * frames,
-               "episode": [0] * frames, "seed": [200000] * frames, "step": list(range(frames)),
-               "image": [encode_png(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)) for _ in range(frames)],
-               "steering": steering, "applied_steering": steering,
-               **{k: [0.0] * frames for k in ("t", "x", "y", "yaw", "speed", "lateral_deviation")}}
+    columns = {
+        "scenario": [scenario] * frames,
+        "weather": [weather] * frames,
+        "noise": [noise] * frames,
+        "episode": [0] * frames,
+        "seed": [200000] * frames,
+        "step": list(range(frames)),
+        "image": [encode_png(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)) for _ in range(frames)],
+        "steering": steering,
+        "applied_steering": steering,
+        **{k: [0.0] * frames for k in ("t", "x", "y", "yaw", "speed", "lateral_deviation")},
+    }
     path = root / "data/heldout" / (name or f"{scenario}-{weather}-noise{noise}.parquet")
     write_table_batches(path, RAW_SCHEMA, [columns])
     return path
@@ -46,9 +70,16 @@ def store_root(tmp_path_factory):
 def evaluate_config(stage_config, random_models, store_root, out, *overrides: str):
     """The evaluate config on the random models, inputs and outputs under `out`, MLflow runs in `store_root`."""
     models = next(iter(random_models.values())).parent
-    return stage_config("evaluate", f"paths.root={store_root}", f"paths.models={models}", *ALL_TENTHS,
-                        f"paths.metrics={out}/metrics", f"paths.plots={out}/plots",
-                        f"evaluate.heldout_dir={out}/data/heldout", *overrides)
+    return stage_config(
+        "evaluate",
+        f"paths.root={store_root}",
+        f"paths.models={models}",
+        *ALL_TENTHS,
+        f"paths.metrics={out}/metrics",
+        f"paths.plots={out}/plots",
+        f"evaluate.heldout_dir={out}/data/heldout",
+        *overrides,
+    )
 
 
 def test_heldout_config_writes_what_evaluate_reads(stage_config, tmp_path):
@@ -68,19 +99,30 @@ def test_heldout_episodes_are_new_seeds_in_every_profile(stage_config):
         train = stage_config("collect", f"profile={profile}").collect
         heldout = stage_config("heldout", f"profile={profile}").collect
         assert heldout.episodes >= 1
-        assert (set(range(train.base_seed, train.base_seed + train.episodes))
-                .isdisjoint(range(heldout.base_seed, heldout.base_seed + heldout.episodes)))
+        assert set(range(train.base_seed, train.base_seed + train.episodes)).isdisjoint(
+            range(heldout.base_seed, heldout.base_seed + heldout.episodes)
+        )
 
 
 def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path, random_models, store_root):
     for i, (weather, noise) in enumerate([(w, n) for w in ("clear_noon", "rain") for n in (0.0, 0.05)]):
         write_heldout(tmp_path, weather, noise, seed=i)
-    result = run_evaluate(evaluate_config(stage_config, random_models, store_root, tmp_path, "methods=[mcd,hmc]",
-                                          "weathers=[clear_noon,rain]", "noises=[0.0,0.05]"))
+    result = run_evaluate(
+        evaluate_config(
+            stage_config,
+            random_models,
+            store_root,
+            tmp_path,
+            "methods=[mcd,hmc]",
+            "weathers=[clear_noon,rain]",
+            "noises=[0.0,0.05]",
+        )
+    )
     table = json.loads((tmp_path / "metrics/evaluate.json").read_text())
     assert table == result["table"]
     assert {m: {w: sorted(c) for w, c in t.items()} for m, t in table.items()} == {
-        m: {"clear_noon": ["noise0.0", "noise0.05"], "rain": ["noise0.0", "noise0.05"]} for m in ("mcd", "hmc")}
+        m: {"clear_noon": ["noise0.0", "noise0.05"], "rain": ["noise0.0", "noise0.05"]} for m in ("mcd", "hmc")
+    }
     cell = table["hmc"]["rain"]["noise0.05"]
     assert set(cell) == METRIC_KEYS | AGREEMENT_KEYS and cell["frames"] == 24
     mcd = table["mcd"]["rain"]["noise0.05"]
@@ -98,8 +140,12 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     reliability = (plots / "reliability.csv").read_text().splitlines()
     assert reliability[0] == "series,method,weather,noise,bin,bin_low,bin_high,confidence,accuracy,frames"
     assert sum(int(line.split(",")[-1]) for line in reliability[1:] if line.startswith("mcd rain noise0.05,")) == 24
-    assert sorted(p.name for p in (plots / "figures").iterdir()) == ["agreement_hmc.png", "conditions.png",
-                                                                     "reliability_hmc.png", "reliability_mcd.png"]
+    assert sorted(p.name for p in (plots / "figures").iterdir()) == [
+        "agreement_hmc.png",
+        "conditions.png",
+        "reliability_hmc.png",
+        "reliability_mcd.png",
+    ]
 
     client = MlflowClient(store_uris(store_root)[0])
     runs = {m: client.get_run(run_id) for m, run_id in result["mlflow_runs"].items()}
@@ -110,15 +156,28 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     assert hmc.data.metrics["rain/noise0.05/accuracy"] == pytest.approx(cell["accuracy"])
     assert len([k for k in hmc.data.metrics if k.endswith("/ece")]) == 4
     artifacts = {a.path for a in client.list_artifacts(hmc.info.run_id)}
-    assert {"reliability_hmc.png", "conditions.png", "agreement_hmc.png", "evaluate.json", "conditions.csv",
-            "reliability.csv"} <= artifacts
+    assert {
+        "reliability_hmc.png",
+        "conditions.png",
+        "agreement_hmc.png",
+        "evaluate.json",
+        "conditions.csv",
+        "reliability.csv",
+    } <= artifacts
 
 
 def test_a_cell_does_not_change_when_another_condition_is_added(stage_config, tmp_path, random_models, store_root):
     write_heldout(tmp_path, "rain", 0.0, seed=1)
     write_heldout(tmp_path, "afternoon", 0.0, seed=2)
-    config = lambda weathers: evaluate_config(stage_config, random_models, store_root, tmp_path,  # noqa: E731
-                                              "methods=[vi]", f"weathers={weathers}", "noises=[0.0]")
+    config = lambda weathers: evaluate_config(
+        stage_config,
+        random_models,
+        store_root,
+        tmp_path,  # noqa: E731
+        "methods=[vi]",
+        f"weathers={weathers}",
+        "noises=[0.0]",
+    )
     alone = run_evaluate(config("[rain]"))["table"]
     both = run_evaluate(config("[afternoon,rain]"))["table"]
     assert both["vi"]["rain"] == alone["vi"]["rain"]
@@ -133,17 +192,24 @@ def test_auroc_without_mistakes_is_null_with_the_reason():
     assert "no frame of 3 has a wrong class" in m["auroc_note"]
     json.dumps(m, allow_nan=False)  # valid JSON: null, not NaN
 
-    wrong = cell_metrics(probs, torch.tensor([0, 1, 0]), eta2=torch.tensor([1.0, 1.0, 0.5]),
-                         mi=torch.tensor([0.1, 0.2, 0.3]))
+    wrong = cell_metrics(
+        probs, torch.tensor([0, 1, 0]), eta2=torch.tensor([1.0, 1.0, 0.5]), mi=torch.tensor([0.1, 0.2, 0.3])
+    )
     assert wrong["auroc_mi"] == pytest.approx(1.0) and wrong["auroc_one_minus_eta2"] == pytest.approx(1.0)
     assert wrong["auroc_note"] is None and wrong["mean_eta2"] == pytest.approx(2.5 / 3)
 
 
 def test_missing_inputs_name_the_file_and_how_to_make_it(stage_config, tmp_path, random_models):
-    with pytest.raises(FileNotFoundError, match=r"roundabout-rain-noise0.0.parquet: collect it first "
-                                                r"\(`python stages/collect.py --config-name heldout"):
-        run_evaluate(evaluate_config(stage_config, random_models, tmp_path, tmp_path, "methods=[mcd]",
-                                     "weathers=[rain]", "noises=[0.0]"))
+    with pytest.raises(
+        FileNotFoundError,
+        match=r"roundabout-rain-noise0.0.parquet: collect it first "
+        r"\(`python stages/collect.py --config-name heldout",
+    ):
+        run_evaluate(
+            evaluate_config(
+                stage_config, random_models, tmp_path, tmp_path, "methods=[mcd]", "weathers=[rain]", "noises=[0.0]"
+            )
+        )
     write_heldout(tmp_path, "rain", 0.0)
     with pytest.raises(FileNotFoundError, match=r"vi.pt: train it first \(`python stages/train.py model=vi`"):
         run_evaluate(stage_config("evaluate", "methods=[vi]", "weathers=[rain]", "noises=[0.0]"))
@@ -153,21 +219,27 @@ def test_missing_inputs_name_the_file_and_how_to_make_it(stage_config, tmp_path,
 def test_a_file_of_another_condition_is_refused(stage_config, tmp_path, random_models):
     write_heldout(tmp_path, "clear_noon", 0.0, name="roundabout-rain-noise0.0.parquet")
     with pytest.raises(ValueError, match=r"rain-noise0.0.parquet holds frames of .*weather \['clear_noon'\]"):
-        run_evaluate(evaluate_config(stage_config, random_models, tmp_path, tmp_path, "methods=[mcd]",
-                                     "weathers=[rain]", "noises=[0.0]"))
+        run_evaluate(
+            evaluate_config(
+                stage_config, random_models, tmp_path, tmp_path, "methods=[mcd]", "weathers=[rain]", "noises=[0.0]"
+            )
+        )
 
 
-@pytest.mark.parametrize(("override", "message"), [
-    ("evaluate.eps=0", "evaluate.eps=0 must be a number > 0"),
-    ("evaluate.eps=-0.1", "evaluate.eps=-0.1 must be a number > 0"),
-    ("evaluate.samples=0", "evaluate.samples=0 must be an integer >= 1"),
-    ("evaluate.samples=2.5", "evaluate.samples=2.5 must be an integer >= 1"),
-    ("evaluate.batch_size=0", "evaluate.batch_size=0 must be an integer >= 1"),
-    ("methods=[mcd,Bnn]", r"methods=\['mcd', 'Bnn'\] must be a non-empty list of method names"),
-    ("methods=[]", r"methods=\[\] must be a non-empty list"),
-    ("noises=[-0.1]", r"noises=\[-0.1\] must be a non-empty list of numbers >= 0"),
-    ("weathers=[]", r"weathers=\[\] must be a non-empty list"),
-])
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("evaluate.eps=0", "evaluate.eps=0 must be a number > 0"),
+        ("evaluate.eps=-0.1", "evaluate.eps=-0.1 must be a number > 0"),
+        ("evaluate.samples=0", "evaluate.samples=0 must be an integer >= 1"),
+        ("evaluate.samples=2.5", "evaluate.samples=2.5 must be an integer >= 1"),
+        ("evaluate.batch_size=0", "evaluate.batch_size=0 must be an integer >= 1"),
+        ("methods=[mcd,Bnn]", r"methods=\['mcd', 'Bnn'\] must be a non-empty list of method names"),
+        ("methods=[]", r"methods=\[\] must be a non-empty list"),
+        ("noises=[-0.1]", r"noises=\[-0.1\] must be a non-empty list of numbers >= 0"),
+        ("weathers=[]", r"weathers=\[\] must be a non-empty list"),
+    ],
+)
 def test_bad_config_values_fail_before_any_work(stage_config, tmp_path, override, message):
     cfg = stage_config("evaluate", "methods=[mcd]", "weathers=[rain]", "noises=[0.0]", override)
     with pytest.raises(ValueError, match=message):

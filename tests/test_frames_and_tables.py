@@ -5,8 +5,7 @@ import pytest
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import decode_png, encode_png, preprocess_frame
 from uqdrive.data.preprocess import Split, class_histogram, preprocess_raw
-from uqdrive.data.tables import (PROCESSED_SCHEMA, RAW_SCHEMA, images_to_array, read_table,
-                                 write_table_batches)
+from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, images_to_array, read_table, write_table_batches
 
 
 def _rgb(seed: int, height: int = 120, width: int = 160) -> np.ndarray:
@@ -40,10 +39,23 @@ def _raw_table(episodes: int, steps: int) -> pa.Table:
     rng = np.random.default_rng(0)
     for e in range(episodes):
         for s in range(steps):
-            for name, value in dict(scenario="straight", weather="clear_noon", noise=0.0, episode=e, seed=100 + e,
-                                    step=s, t=s / 15, x=float(s), y=0.0, yaw=0.0, speed=8.0,
-                                    steering=float(rng.uniform(-0.3, 0.3)), applied_steering=0.0,
-                                    lateral_deviation=0.0, image=encode_png(_rgb(e * steps + s, 60, 80))).items():
+            for name, value in dict(
+                scenario="straight",
+                weather="clear_noon",
+                noise=0.0,
+                episode=e,
+                seed=100 + e,
+                step=s,
+                t=s / 15,
+                x=float(s),
+                y=0.0,
+                yaw=0.0,
+                speed=8.0,
+                steering=float(rng.uniform(-0.3, 0.3)),
+                applied_steering=0.0,
+                lateral_deviation=0.0,
+                image=encode_png(_rgb(e * steps + s, 60, 80)),
+            ).items():
                 rows[name].append(value)
     return pa.Table.from_pydict(rows, schema=RAW_SCHEMA)
 
@@ -55,8 +67,7 @@ def test_preprocess_splits_whole_episodes_and_labels_by_binning():
     assert train.num_rows + val.num_rows == raw.num_rows
     train_eps, val_eps = set(train.column("episode").to_pylist()), set(val.column("episode").to_pylist())
     assert len(val_eps) == 2 and not train_eps & val_eps
-    np.testing.assert_array_equal(train.column("label").to_numpy(),
-                                  bins.to_class(train.column("steering").to_numpy()))
+    np.testing.assert_array_equal(train.column("label").to_numpy(), bins.to_class(train.column("steering").to_numpy()))
     frames = images_to_array(train.column("image"))
     assert frames.shape == (train.num_rows, 48, 64)
     first = raw.filter(pa.compute.equal(raw.column("episode"), train.column("episode")[0]))

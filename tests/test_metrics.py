@@ -10,11 +10,9 @@ from uqdrive.models.metrics import ECE_BINS, PROB_FLOOR, classification_metrics,
 # Five frames, three classes. Predicted classes 0, 1, 2, 0, 0 against labels 0, 2, 2, 1, 0: frames 1, 3, 5 right.
 # Confidences 0.7, 0.5, 0.85, 0.68, 0.9 sit inside the 15 bins (x15: 10.5, 7.5, 12.75, 10.2, 13.5), and
 # frames 1 and 4 share bin 10, so the ECE differs from the mean per-frame gap.
-PROBS = torch.tensor([[0.70, 0.20, 0.10],
-                      [0.20, 0.50, 0.30],
-                      [0.10, 0.05, 0.85],
-                      [0.68, 0.22, 0.10],
-                      [0.90, 0.05, 0.05]])
+PROBS = torch.tensor(
+    [[0.70, 0.20, 0.10], [0.20, 0.50, 0.30], [0.10, 0.05, 0.85], [0.68, 0.22, 0.10], [0.90, 0.05, 0.05]]
+)
 LABELS = torch.tensor([0, 2, 2, 1, 0])
 
 

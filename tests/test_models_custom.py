@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
-from torch import nn
-
 from test_evaluate import write_heldout
 from test_train import CONF, write_processed
+from torch import nn
+
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
@@ -82,8 +82,17 @@ def test_a_user_posterior_trains_and_evaluates_through_the_pipeline(tmp_path):
 
     def config(stage: str, *overrides: str):
         with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-            return compose(stage, overrides=[f"paths.root={tmp_path}", "profile=tiny", "progress=false", "experiment=joint",
-                                             f"hydra.searchpath=[file://{user_conf}]", *overrides])
+            return compose(
+                stage,
+                overrides=[
+                    f"paths.root={tmp_path}",
+                    "profile=tiny",
+                    "progress=false",
+                    "experiment=joint",
+                    f"hydra.searchpath=[file://{user_conf}]",
+                    *overrides,
+                ],
+            )
 
     run_train(config("train", "model=mcd"))
     metrics = run_train(config("train", "model=noisy_head", "model.scale=0.3"))

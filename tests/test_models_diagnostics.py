@@ -6,7 +6,9 @@ import torch
 from uqdrive.models.diagnostics import between_chain_mi_share, function_space_diagnostics, per_draw_mutual_information
 
 
-def chain_probs(logit_means: torch.Tensor, draws: int, frames: int = 30, classes: int = 5, seed: int = 0) -> torch.Tensor:
+def chain_probs(
+    logit_means: torch.Tensor, draws: int, frames: int = 30, classes: int = 5, seed: int = 0
+) -> torch.Tensor:
     """Independent draws [chains, draws, frames, classes]: softmax of N(frame logits + chain offset, 1)."""
     g = torch.Generator().manual_seed(seed)
     base = 2 * torch.randn((1, 1, frames, classes), generator=g)

@@ -15,7 +15,6 @@ SMALL = Architecture(conv=(2, 2, 2, 2, 2), features=6, hidden=(5, 4, 4))
 THREE = SteeringBins(per_unit=1)  # 3 classes
 
 
-
 def test_concrete_dropout_rate_is_learned_and_stays_a_probability():
     g = torch.Generator().manual_seed(0)
     x = torch.randn((512, 20), generator=g)
@@ -56,8 +55,10 @@ def vi_head(generator):
 def test_vi_kl_is_the_closed_form_gaussian_kl():
     vi = vi_head(torch.Generator().manual_seed(0))
     prior = Normal(0.0, 0.7)
-    expected = sum(kl_divergence(Normal(mu, softplus(rho)), prior).sum()
-                   for mu, rho in zip([*vi.w_mu, *vi.b_mu], [*vi.w_rho, *vi.b_rho]))
+    expected = sum(
+        kl_divergence(Normal(mu, softplus(rho)), prior).sum()
+        for mu, rho in zip([*vi.w_mu, *vi.b_mu], [*vi.w_rho, *vi.b_rho])
+    )
     torch.testing.assert_close(vi.kl(), expected)
 
 

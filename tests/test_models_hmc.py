@@ -6,7 +6,6 @@ import torch
 from uqdrive.models.mcmc import hmc, split_rhat
 
 
-
 def linear_regression(n: int = 40, noise: float = 0.5, prior: float = 2.0):
     """Data, log-density/gradient and exact Gaussian posterior (mean, covariance) of y = Xβ + ε."""
     g = torch.Generator().manual_seed(0)
@@ -31,8 +30,17 @@ def linear_regression(n: int = 40, noise: float = 0.5, prior: float = 2.0):
 def test_hmc_matches_the_analytic_posterior_of_bayesian_linear_regression(adapt_mass):
     log_prob_grad, mean, cov = linear_regression()
     init = torch.zeros(4, 3)
-    result = hmc(log_prob_grad, init, num_samples=1000, warmup=300, leapfrog_steps=10, step_size=0.5,
-                 target_accept=0.75, adapt_mass=adapt_mass, generator=torch.Generator().manual_seed(1))
+    result = hmc(
+        log_prob_grad,
+        init,
+        num_samples=1000,
+        warmup=300,
+        leapfrog_steps=10,
+        step_size=0.5,
+        target_accept=0.75,
+        adapt_mass=adapt_mass,
+        generator=torch.Generator().manual_seed(1),
+    )
     samples = result.samples  # [4, 1000, 3]
     assert samples.shape == (4, 1000, 3)
     assert 0.6 < float(result.accept_rate.mean()) < 0.95  # adapted to the 0.75 target
@@ -51,8 +59,14 @@ def test_hmc_matches_the_analytic_posterior_of_bayesian_linear_regression(adapt_
 
 def test_hmc_is_reproducible_and_thins():
     log_prob_grad, _, _ = linear_regression()
-    run = lambda: hmc(log_prob_grad, torch.zeros(2, 3), num_samples=5, warmup=10, thin=3,  # noqa: E731
-                      generator=torch.Generator().manual_seed(5))
+    run = lambda: hmc(
+        log_prob_grad,
+        torch.zeros(2, 3),
+        num_samples=5,
+        warmup=10,
+        thin=3,  # noqa: E731
+        generator=torch.Generator().manual_seed(5),
+    )
     a, b = run(), run()
     assert a.samples.shape == (2, 5, 3) and torch.equal(a.samples, b.samples)
     assert a.log_prob.shape == (2, 5)
@@ -83,7 +97,9 @@ def test_settled_iteration_is_where_loss_and_nll_come_within_three_sd_of_their_k
     from uqdrive.models.hmc import settled_iteration
 
     losses = [5.0, 3.0, 1.2, 1.0, 1.1, 0.9, 1.05, 1.0, 0.95, 1.1]  # kept: mean 1.0, sd 0.079 → band [0.76, 1.24]
-    curve = [{"step": 10 * (i + 1), "train_loss": v, "val_nll": 2.0, "warmup": int(i < 5)} for i, v in enumerate(losses)]
+    curve = [
+        {"step": 10 * (i + 1), "train_loss": v, "val_nll": 2.0, "warmup": int(i < 5)} for i, v in enumerate(losses)
+    ]
     assert settled_iteration(curve) == 30  # 3.0 at step 20 is the last value outside the band
     curve[3]["val_nll"] = 9.0  # the predictive still drifting at step 40
     assert settled_iteration(curve) == 50

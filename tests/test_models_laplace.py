@@ -41,8 +41,9 @@ def test_hessian_is_the_exact_hessian_of_the_last_layer_nll():
     x, y = separable_problem(30)
     psi = with_bias_input(x)
     w = 0.3 * torch.randn((3, 2), generator=torch.Generator().manual_seed(1), dtype=torch.float64)
-    exact = torch.autograd.functional.hessian(lambda v: cross_entropy(psi @ v.view(3, 2), y, reduction="sum"),
-                                              w.flatten())
+    exact = torch.autograd.functional.hessian(
+        lambda v: cross_entropy(psi @ v.view(3, 2), y, reduction="sum"), w.flatten()
+    )
     torch.testing.assert_close(last_layer_hessian(psi, torch.softmax(psi @ w, -1), chunk=7), exact)
 
 

@@ -53,7 +53,9 @@ def test_per_frame_draws_match_in_distribution_across_batch_positions(posteriors
 
 def test_hmc_indexes_stored_samples_with_replacement_only_beyond_the_store(posteriors, frames):
     mcd = posteriors["mcd"]
-    samples = flatten_mcd_head(mcd) + 0.5 * torch.randn((6, len(flatten_mcd_head(mcd))), generator=torch.Generator().manual_seed(0))
+    samples = flatten_mcd_head(mcd) + 0.5 * torch.randn(
+        (6, len(flatten_mcd_head(mcd))), generator=torch.Generator().manual_seed(0)
+    )
     hmc = HMCPosterior.from_heads(mcd, samples)
     features = hmc.features(frames[:1])
     each = hmc.head_probs(features, 6, torch.Generator().manual_seed(0))[:, 0]

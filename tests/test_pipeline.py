@@ -49,7 +49,9 @@ def test_collect_and_preprocess_log_config_and_metrics_to_mlflow(collected, stag
 
 
 def test_preprocess_outputs_frames_labels_and_histogram(collected, stage_config):
-    metrics = run_preprocess(stage_config("preprocess", "experiment=joint", "experiment.scenarios=[straight,roundabout]"))
+    metrics = run_preprocess(
+        stage_config("preprocess", "experiment=joint", "experiment.scenarios=[straight,roundabout]")
+    )
     train = pq.read_table(collected / "data/processed/joint/train.parquet")
     val = pq.read_table(collected / "data/processed/joint/val.parquet")
     assert train.schema.equals(PROCESSED_SCHEMA)
@@ -60,8 +62,9 @@ def test_preprocess_outputs_frames_labels_and_histogram(collected, stage_config)
     assert not keys(train) & keys(val)
     frames = images_to_array(train.column("image"))
     assert frames.shape[1:] == (48, 64) and frames.std() > 10  # a picture, not a blank
-    np.testing.assert_array_equal(train.column("label").to_numpy(),
-                                  SteeringBins().to_class(train.column("steering").to_numpy()))
+    np.testing.assert_array_equal(
+        train.column("label").to_numpy(), SteeringBins().to_class(train.column("steering").to_numpy())
+    )
     histogram = (collected / "plots/joint/class_histogram.csv").read_text().splitlines()
     assert histogram[0] == "class,steering,split,frames" and len(histogram) == 1 + 2 * 21
     assert json.loads((collected / "metrics/joint/preprocess.json").read_text()) == metrics
@@ -69,8 +72,15 @@ def test_preprocess_outputs_frames_labels_and_histogram(collected, stage_config)
 
 
 def test_an_experiment_keeps_only_its_class_set_and_reports_what_it_clips(collected, stage_config):
-    metrics = run_preprocess(stage_config("preprocess", "experiment=offline", "experiment.scenarios=[roundabout]",
-                                          "experiment.bins.low=-0.2", "experiment.bins.high=0.2"))
+    metrics = run_preprocess(
+        stage_config(
+            "preprocess",
+            "experiment=offline",
+            "experiment.scenarios=[roundabout]",
+            "experiment.bins.low=-0.2",
+            "experiment.bins.high=0.2",
+        )
+    )
     train = pq.read_table(collected / "data/processed/offline/train.parquet")
     labels, steering = train.column("label").to_numpy(), train.column("steering").to_numpy()
     assert metrics["num_classes"] == 5 and labels.min() >= 0 and labels.max() <= 4
@@ -106,7 +116,10 @@ def test_corrupt_raw_file_fails_naming_it_and_writes_nothing(stage_config, tmp_p
 def test_worker_count_does_not_change_the_data(stage_config, tmp_path):
     tables = []
     for workers in (1, 2):
-        run_collect(stage_config("collect", "scenario=obstacle", f"collect.workers={workers}",
-                                 f"paths.raw={tmp_path}/w{workers}"))
+        run_collect(
+            stage_config(
+                "collect", "scenario=obstacle", f"collect.workers={workers}", f"paths.raw={tmp_path}/w{workers}"
+            )
+        )
         tables.append(pq.read_table(tmp_path / f"w{workers}/obstacle.parquet"))
     assert tables[0].num_rows > 0 and tables[0].equals(tables[1])

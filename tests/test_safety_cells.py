@@ -21,14 +21,26 @@ def fake_rollout(seed: int) -> RolloutResult:
     rng = np.random.default_rng(seed)
     steps = int(rng.integers(3, 9))
     safe = bool(rng.random() < 0.93)
-    return RolloutResult(seed=seed, safe=safe, termination="" if safe else "collision", collision=not safe,
-                         off_road=False, left_corridor=not safe, reached_goal=safe,
-                         corridor_use=float(rng.random()) * (2 if not safe else 1),
-                         mean_abs_lateral_deviation=float(rng.random()), mean_eta2=float(rng.random()),
-                         mean_mutual_information=float("nan"), steps=steps, x=rng.normal(size=steps + 1),
-                         y=rng.normal(size=steps + 1).astype(np.float32),
-                         eta2=rng.random(steps), mutual_information=np.full(steps, np.nan),
-                         warning=rng.integers(-1, 3, steps).astype(np.int8), command_speed=rng.random(steps))
+    return RolloutResult(
+        seed=seed,
+        safe=safe,
+        termination="" if safe else "collision",
+        collision=not safe,
+        off_road=False,
+        left_corridor=not safe,
+        reached_goal=safe,
+        corridor_use=float(rng.random()) * (2 if not safe else 1),
+        mean_abs_lateral_deviation=float(rng.random()),
+        mean_eta2=float(rng.random()),
+        mean_mutual_information=float("nan"),
+        steps=steps,
+        x=rng.normal(size=steps + 1),
+        y=rng.normal(size=steps + 1).astype(np.float32),
+        eta2=rng.random(steps),
+        mutual_information=np.full(steps, np.nan),
+        warning=rng.integers(-1, 3, steps).astype(np.int8),
+        command_speed=rng.random(steps),
+    )
 
 
 class FakeExecutor:
@@ -60,7 +72,9 @@ def same(a: RolloutResult, b: RolloutResult) -> bool:
 
 
 @pytest.mark.parametrize(("scheme", "interrupt_after"), [("sequential", 13), ("sequential", 30), ("chernoff", 7)])
-def test_interrupted_cell_resumes_to_the_uninterrupted_result(tmp_path: Path, scheme: str, interrupt_after: int) -> None:
+def test_interrupted_cell_resumes_to_the_uninterrupted_result(
+    tmp_path: Path, scheme: str, interrupt_after: int
+) -> None:
     settings = EstimatorSettings(scheme, 0.1, 0.05, BASE_SEED, look_size=4)
     reference, ref_results = estimate_safety(FakeExecutor(), settings)
     assert len(ref_results) > interrupt_after

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import torch
+from conftest import CONF
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import preprocess_frame
@@ -11,14 +12,16 @@ from uqdrive.safety import Controller
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.uq import decision_confidence, frame_measures
 
-from conftest import CONF
-
 
 @pytest.fixture(scope="module")
 def frame():
     with DrivingEnv() as env:
-        return env.reset(3, ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
-                         WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"), 0.05)
+        return env.reset(
+            3,
+            ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
+            WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"),
+            0.05,
+        )
 
 
 def test_command_is_the_predictive_mode_with_its_uncertainty(random_models, frame):
@@ -45,8 +48,11 @@ def test_command_is_the_predictive_mode_with_its_uncertainty(random_models, fram
 
 def test_bad_settings_name_the_key(random_models):
     posterior = load_posterior(random_models["mcd"])
-    for kwargs, match in (({"n_samples": 0}, "safety.samples=0"), ({"eps": 0.0}, "safety.eps=0.0"),
-                          ({"speed": -1.0}, "safety.speed=-1.0")):
+    for kwargs, match in (
+        ({"n_samples": 0}, "safety.samples=0"),
+        ({"eps": 0.0}, "safety.eps=0.0"),
+        ({"speed": -1.0}, "safety.speed=-1.0"),
+    ):
         args = {"n_samples": 10, "eps": 0.1, "speed": 5.0, **kwargs}
         with pytest.raises(ValueError, match=match):
             Controller(posterior, SteeringBins(), **args)

@@ -14,12 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import ALL_TENTHS, CONF
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.safety import EstimatorSettings, PolicySpec, RolloutJob, estimate_safety, make_executor
 from uqdrive.sim import ScenarioConfig, WeatherConfig
-
-from conftest import ALL_TENTHS, CONF
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,8 +28,13 @@ SETTINGS = EstimatorSettings("chernoff", 0.6, 0.05, 500)  # 6 rollouts, seeds 50
 def job(model_path) -> RolloutJob:
     """The BNN controller in rain with sensor noise: every seeded source of randomness is in play."""
     spec = PolicySpec("bnn", 6.0, str(model_path), "vi", SteeringBins(), samples=20, eps=0.1)
-    return RolloutJob(spec, ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
-                      WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"), 0.05, base_seed=SETTINGS.base_seed)
+    return RolloutJob(
+        spec,
+        ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
+        WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"),
+        0.05,
+        base_seed=SETTINGS.base_seed,
+    )
 
 
 def outcomes(backend: str, workers: int, model_path) -> tuple[float, list]:
@@ -63,7 +67,9 @@ def test_ray_backend_agrees_with_the_process_pool(one_worker, random_models):
 
 
 def test_unknown_backend_and_bad_worker_count_fail_before_any_rollout(random_models):
-    with pytest.raises(ValueError, match=r"executor.name='dask' is not a known backend; choose one of \['process', 'ray'\]"):
+    with pytest.raises(
+        ValueError, match=r"executor.name='dask' is not a known backend; choose one of \['process', 'ray'\]"
+    ):
         make_executor("dask", job(random_models["vi"]), 2)
     with pytest.raises(ValueError, match="executor.workers=0 must be an integer >= 1"):
         make_executor("process", job(random_models["vi"]), 0)
@@ -78,6 +84,7 @@ def _free_port() -> int:
 def _end_processes_of(session_dir: str) -> None:
     """End this cluster's processes (every one names its temp dir on its command line), by pid: `ray stop`
     would end every Ray process of the user on this machine, other people's clusters too."""
+
     def ours() -> list[int]:
         pids = []
         for proc in Path("/proc").iterdir():
@@ -106,14 +113,32 @@ def ray_cluster():
     # RAY_ADDRESS: `address=auto` reads it first (else the shared /tmp/ray/ray_current_cluster, maybe someone else's).
     # RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0: a driver keeps 127.0.0.1 as is; Ray otherwise swaps a loopback
     # address for the machine's outward IP, where a loopback-only cluster does not listen.
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")])),
-           "RAY_ADDRESS": address, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
-           "RAY_AUTH_MODE": "disabled"}  # loopback only; else a token in ~/.ray turns auth on for the head alone
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")])),
+        "RAY_ADDRESS": address,
+        "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
+        "RAY_AUTH_MODE": "disabled",
+    }  # loopback only; else a token in ~/.ray turns auth on for the head alone
     try:
-        subprocess.run([str(Path(sys.executable).parent / "ray"), "start", "--head", "--node-ip-address=127.0.0.1",
-                        f"--port={address.rsplit(':', 1)[1]}", "--num-cpus=2", "--include-dashboard=false",
-                        "--disable-usage-stats", f"--temp-dir={temp_dir}"],
-                       env=env, check=True, capture_output=True, text=True, timeout=180)
+        subprocess.run(
+            [
+                str(Path(sys.executable).parent / "ray"),
+                "start",
+                "--head",
+                "--node-ip-address=127.0.0.1",
+                f"--port={address.rsplit(':', 1)[1]}",
+                "--num-cpus=2",
+                "--include-dashboard=false",
+                "--disable-usage-stats",
+                f"--temp-dir={temp_dir}",
+            ],
+            env=env,
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
         yield env, Path(temp_dir)
     finally:
         _end_processes_of(temp_dir)
@@ -121,25 +146,41 @@ def ray_cluster():
 
 
 @pytest.mark.slow
-def test_the_readme_ray_path_on_a_ray_cluster_agrees_with_the_process_backend(ray_cluster, stage_config, random_models,
-                                                                              tmp_path):
+def test_the_readme_ray_path_on_a_ray_cluster_agrees_with_the_process_backend(
+    ray_cluster, stage_config, random_models, tmp_path
+):
     """`python stages/safety.py executor=ray executor.address=auto` joins the cluster (RAY_ADDRESS) and gives the
     same cell, rollout by rollout, as the process pool."""
-    cell = ["profile=tiny", "progress=false", "model=vi", "weather=rain", "noise=0.05",
-            f"safety.model_path={random_models['vi'].parent}/${{model.name}}.pt", *ALL_TENTHS]
+    cell = [
+        "profile=tiny",
+        "progress=false",
+        "model=vi",
+        "weather=rain",
+        "noise=0.05",
+        f"safety.model_path={random_models['vi'].parent}/${{model.name}}.pt",
+        *ALL_TENTHS,
+    ]
     env, cluster_dir = ray_cluster
     on_ray = tmp_path / "ray"
     on_ray.mkdir()
-    run = subprocess.run([sys.executable, str(ROOT / "stages/safety.py"), *cell, "executor=ray", "executor.address=auto"],
-                         cwd=on_ray, env={**env, "PYTHONWARNINGS": "ignore"}, capture_output=True, text=True,
-                         timeout=600)
+    run = subprocess.run(
+        [sys.executable, str(ROOT / "stages/safety.py"), *cell, "executor=ray", "executor.address=auto"],
+        cwd=on_ray,
+        env={**env, "PYTHONWARNINGS": "ignore"},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     name = "vi-roundabout-rain-noise0.05"
     from uqdrive.pipeline.safety import run_safety
 
     local = run_safety(stage_config("safety", *cell[2:], "executor=process", "executor.workers=2"))
     remote = json.loads((on_ray / f"metrics/safety/{name}.json").read_text())
-    assert {k: v for k, v in remote.items() if k != "seconds"} == {k: v for k, v in local.items()
-                                                                   if k not in ("seconds", "reused")}
-    assert (on_ray / f"plots/safety/cells/{name}.csv").read_text() == (tmp_path / f"plots/safety/cells/{name}.csv").read_text()
+    assert {k: v for k, v in remote.items() if k != "seconds"} == {
+        k: v for k, v in local.items() if k not in ("seconds", "reused")
+    }
+    assert (on_ray / f"plots/safety/cells/{name}.csv").read_text() == (
+        tmp_path / f"plots/safety/cells/{name}.csv"
+    ).read_text()
     assert list(cluster_dir.glob("session_*/logs/python-core-driver-*"))  # the stage was a driver of this cluster

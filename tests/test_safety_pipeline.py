@@ -3,13 +3,12 @@
 import json
 
 import pytest
+from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 import uqdrive.pipeline.safety as safety_stage
 from uqdrive.pipeline.safety import run_safety, run_safety_summary
 from uqdrive.tracking import store_uris
-
-from conftest import ALL_TENTHS
 
 
 @pytest.fixture
@@ -17,6 +16,7 @@ def safety_config(stage_config, random_models):
     def make(*overrides: str):
         folder = random_models["mcd"].parent
         return stage_config("safety", f"safety.model_path={folder}/${{model.name}}.pt", *ALL_TENTHS, *overrides)
+
     return make
 
 
@@ -41,14 +41,25 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     client, logged = runs(tmp_path)
     (run,) = logged
     params = run.data.params
-    assert {k: params[k] for k in ("method", "experiment", "location", "weather", "noise", "theta", "gamma", "scheme",
-                                   "n")} == {
-        "method": "hmc", "experiment": "offline", "location": "roundabout", "weather": "afternoon", "noise": "0.05",
-        "theta": "0.7", "gamma": "0.05", "scheme": "chernoff", "n": "4"}
+    assert {
+        k: params[k] for k in ("method", "experiment", "location", "weather", "noise", "theta", "gamma", "scheme", "n")
+    } == {
+        "method": "hmc",
+        "experiment": "offline",
+        "location": "roundabout",
+        "weather": "afternoon",
+        "noise": "0.05",
+        "theta": "0.7",
+        "gamma": "0.05",
+        "scheme": "chernoff",
+        "n": "4",
+    }
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
         assert run.data.metrics[key] == pytest.approx(result[key])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
-        "hmc-roundabout-afternoon-noise0.05.png", "hmc-roundabout-afternoon-noise0.05.csv"}
+        "hmc-roundabout-afternoon-noise0.05.png",
+        "hmc-roundabout-afternoon-noise0.05.csv",
+    }
 
     # same config, other worker count: reused, nothing rerun; a run tagged reused lists the cell
     stamp = out.stat().st_mtime_ns
@@ -126,19 +137,26 @@ def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
     assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(100000, 100000 + result["n"]))
 
 
-@pytest.mark.parametrize(("overrides", "error", "match"), [
-    (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
-    (("safety.model_path=/nonexistent/vi.pt",), FileNotFoundError, r"safety.model_path=/nonexistent/vi.pt does not exist"),
-    (("safety.theta=1.5",), ValueError, r"safety.theta=1.5 must be in the open interval \(0, 1\)"),
-    (("safety.gamma=0",), ValueError, r"safety.gamma=0 must be in the open interval \(0, 1\)"),
-    (("safety.scheme=bootstrap",), ValueError, r"safety.scheme='bootstrap' is not known"),
-    (("safety.speed=50",), ValueError, r"safety.speed=50 must be in \(0, vehicle.max_speed=20.0\]"),
-    (("safety.samples=0",), ValueError, r"safety.samples=0 must be an integer >= 1"),
-    (("safety.half_width=0",), ValueError, r"safety.half_width=0 must be null"),
-    (("executor.workers=0",), ValueError, r"executor.workers=0 must be an integer >= 1"),
-    (("noise=-0.1",), ValueError, r"noise=-0.1 must be >= 0"),
-    (("safety.horizon_s=0",), ValueError, r"safety.horizon_s=0 must be a number of seconds > 0"),
-])
+@pytest.mark.parametrize(
+    ("overrides", "error", "match"),
+    [
+        (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
+        (
+            ("safety.model_path=/nonexistent/vi.pt",),
+            FileNotFoundError,
+            r"safety.model_path=/nonexistent/vi.pt does not exist",
+        ),
+        (("safety.theta=1.5",), ValueError, r"safety.theta=1.5 must be in the open interval \(0, 1\)"),
+        (("safety.gamma=0",), ValueError, r"safety.gamma=0 must be in the open interval \(0, 1\)"),
+        (("safety.scheme=bootstrap",), ValueError, r"safety.scheme='bootstrap' is not known"),
+        (("safety.speed=50",), ValueError, r"safety.speed=50 must be in \(0, vehicle.max_speed=20.0\]"),
+        (("safety.samples=0",), ValueError, r"safety.samples=0 must be an integer >= 1"),
+        (("safety.half_width=0",), ValueError, r"safety.half_width=0 must be null"),
+        (("executor.workers=0",), ValueError, r"executor.workers=0 must be an integer >= 1"),
+        (("noise=-0.1",), ValueError, r"noise=-0.1 must be >= 0"),
+        (("safety.horizon_s=0",), ValueError, r"safety.horizon_s=0 must be a number of seconds > 0"),
+    ],
+)
 def test_bad_input_fails_before_any_rollout(safety_config, tmp_path, monkeypatch, overrides, error, match):
     def no_rollouts(*args, **kwargs):
         raise AssertionError("rollouts started")
@@ -158,8 +176,15 @@ def test_summary_tabulates_cells_and_draws_one_grid_per_location_and_noise(safet
     for method in ("mcd", "vi"):
         for location in ("roundabout", "roundabout_town"):
             run_safety(safety_config(f"model={method}", "noise=0", f"scenario={location}"))
-    summary = run_safety_summary(stage_config("safety_summary", "methods=[mcd,vi]", "weathers=[clear_noon]",
-                                              "noises=[0]", "locations=[roundabout,roundabout_town]"))
+    summary = run_safety_summary(
+        stage_config(
+            "safety_summary",
+            "methods=[mcd,vi]",
+            "weathers=[clear_noon]",
+            "noises=[0]",
+            "locations=[roundabout,roundabout_town]",
+        )
+    )
     table = json.loads((tmp_path / "metrics/safety.json").read_text())
     assert table == summary["table"] and set(table) == {"mcd", "vi"}
     cell = table["vi"]["roundabout_town"]["clear_noon"]["noise0.0"]  # noise=0 and 0.0 are one cell
@@ -168,5 +193,8 @@ def test_summary_tabulates_cells_and_draws_one_grid_per_location_and_noise(safet
     for location in ("roundabout", "roundabout_town"):
         assert (tmp_path / f"plots/safety/summary/hexbin_{location}_noise0.0.png").stat().st_size > 5000
     with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.0.json is missing"):
-        run_safety_summary(stage_config("safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]",
-                                        "locations=[roundabout]"))
+        run_safety_summary(
+            stage_config(
+                "safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]", "locations=[roundabout]"
+            )
+        )

@@ -2,12 +2,11 @@
 
 import numpy as np
 import pytest
+from conftest import CONF
 
 from uqdrive.safety import EstimatorSettings, PolicySpec, RolloutJob, estimate_safety, make_executor, safe_set_for
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.sim import ScenarioConfig, WeatherConfig, build_geometry
-
-from conftest import CONF
 
 
 def scenario(name: str) -> ScenarioConfig:

@@ -75,8 +75,7 @@ def test_perturbations_are_seeded_and_labels_stay_unperturbed(env):
 
 
 def test_pure_pursuit_steers_back_towards_the_route(env):
-    scenario = dataclasses.replace(ScenarioConfig(kind="straight"), start_jitter_lateral=0.0,
-                                   start_jitter_yaw_deg=0.0)
+    scenario = dataclasses.replace(ScenarioConfig(kind="straight"), start_jitter_lateral=0.0, start_jitter_yaw_deg=0.0)
     env.reset(0, scenario, render=False)
     pilot = Autopilot(env.route, env.vehicle_config)
     left_of_route = dict(env.last_info, y=env.last_info["y"] + 1.0)

@@ -9,8 +9,11 @@ from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfi
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
-@pytest.mark.parametrize("group,name", [("scenario", n) for n in ("straight", "obstacle", "roundabout")]
-                         + [("weather", n) for n in ("clear_noon", "afternoon", "rain", "fog")])
+@pytest.mark.parametrize(
+    "group,name",
+    [("scenario", n) for n in ("straight", "obstacle", "roundabout")]
+    + [("weather", n) for n in ("clear_noon", "afternoon", "rain", "fog")],
+)
 def test_yaml_groups_compose_through_hydra_and_validate(group, name):
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
         cfg = compose(overrides=[f"+{group}={name}"])
@@ -20,17 +23,20 @@ def test_yaml_groups_compose_through_hydra_and_validate(group, name):
     assert set(cfg[group]) == set(obj.to_dict()), "yaml lists every field so CLI overrides work"
 
 
-@pytest.mark.parametrize("cls,key,value,fragment", [
-    (ScenarioConfig, "kind", "loop", "scenario.kind='loop' is not one of ['straight', 'obstacle', 'roundabout']"),
-    (ScenarioConfig, "lane_width", -3.5, "scenario.lane_width=-3.5 must be > 0"),
-    (ScenarioConfig, "num_lanes", 1.5, "scenario.num_lanes=1.5"),
-    (ScenarioConfig, "obstacle_color", [1.2, 0, 0], "scenario.obstacle_color=[1.2, 0, 0]"),
-    (WeatherConfig, "fog_density", -0.1, "weather.fog_density=-0.1 must be >= 0"),
-    (WeatherConfig, "shadow", "yes", "weather.shadow='yes'"),
-    (CameraConfig, "width", 0, "camera.width=0"),
-    (VehicleConfig, "max_steer_deg", 95, "vehicle.max_steer_deg=95 must be < 90"),
-    (AutopilotConfig, "perturb_prob", 1.5, "autopilot.perturb_prob=1.5 must be <= 1"),
-])
+@pytest.mark.parametrize(
+    "cls,key,value,fragment",
+    [
+        (ScenarioConfig, "kind", "loop", "scenario.kind='loop' is not one of ['straight', 'obstacle', 'roundabout']"),
+        (ScenarioConfig, "lane_width", -3.5, "scenario.lane_width=-3.5 must be > 0"),
+        (ScenarioConfig, "num_lanes", 1.5, "scenario.num_lanes=1.5"),
+        (ScenarioConfig, "obstacle_color", [1.2, 0, 0], "scenario.obstacle_color=[1.2, 0, 0]"),
+        (WeatherConfig, "fog_density", -0.1, "weather.fog_density=-0.1 must be >= 0"),
+        (WeatherConfig, "shadow", "yes", "weather.shadow='yes'"),
+        (CameraConfig, "width", 0, "camera.width=0"),
+        (VehicleConfig, "max_steer_deg", 95, "vehicle.max_steer_deg=95 must be < 90"),
+        (AutopilotConfig, "perturb_prob", 1.5, "autopilot.perturb_prob=1.5 must be <= 1"),
+    ],
+)
 def test_bad_values_name_key_and_value(cls, key, value, fragment):
     with pytest.raises(ValueError) as err:
         cls.from_config({key: value})

@@ -13,7 +13,9 @@ from uqdrive.sim.camera import _rain_cover
 from uqdrive.sim.world import World
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
-WEATHERS = {n: WeatherConfig.from_yaml(CONF / "weather" / f"{n}.yaml") for n in ("clear_noon", "afternoon", "rain", "fog")}
+WEATHERS = {
+    n: WeatherConfig.from_yaml(CONF / "weather" / f"{n}.yaml") for n in ("clear_noon", "afternoon", "rain", "fog")
+}
 OBSTACLE = ScenarioConfig(kind="obstacle", name="obstacle")
 
 
@@ -57,12 +59,14 @@ def test_same_path_in_a_fresh_process_and_with_render_off(env, tmp_path):
     _, here = run(env, 5, WEATHERS["clear_noon"], render=False)
     _, rendered = run(env, 5, WEATHERS["rain"], noise=0.05, render=True)
     out = tmp_path / "trajectory.json"  # a file, not stdout: the child's output is not ours to parse
-    code = ("import json, sys, numpy as np\nfrom uqdrive.sim import DrivingEnv, ScenarioConfig\n"
-            "print('before', flush=True)\n"
-            "with DrivingEnv() as env:\n    env.reset(5, ScenarioConfig(kind='obstacle', name='obstacle'), render=False)\n"
-            "    for k in range(4): env.step(0.1 * np.sin(k), 8.0)\n"
-            "    open(sys.argv[1], 'w').write(json.dumps({k: v.tolist() for k, v in env.trajectory.items()}))\n"
-            "print('after')\n")
+    code = (
+        "import json, sys, numpy as np\nfrom uqdrive.sim import DrivingEnv, ScenarioConfig\n"
+        "print('before', flush=True)\n"
+        "with DrivingEnv() as env:\n    env.reset(5, ScenarioConfig(kind='obstacle', name='obstacle'), render=False)\n"
+        "    for k in range(4): env.step(0.1 * np.sin(k), 8.0)\n"
+        "    open(sys.argv[1], 'w').write(json.dumps({k: v.tolist() for k, v in env.trajectory.items()}))\n"
+        "print('after')\n"
+    )
     child = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True, text=True, check=True)
     other = json.loads(out.read_text())
     for key in here:
@@ -159,7 +163,9 @@ def test_culling_hides_bodies_but_never_changes_the_image(env, scenario):
 def test_rain_covers_the_same_share_of_the_image_at_every_resolution():
     rain = WEATHERS["rain"]
     rng = np.random.default_rng(0)
-    share = {size: np.mean([_rain_cover(size, rain, rng)[1].mean() for _ in range(200)]) for size in ((48, 64), (120, 160))}
+    share = {
+        size: np.mean([_rain_cover(size, rain, rng)[1].mean() for _ in range(200)]) for size in ((48, 64), (120, 160))
+    }
     assert share[(120, 160)] > 0.005 and abs(share[(48, 64)] / share[(120, 160)] - 1) < 0.05
 
 
@@ -177,8 +183,9 @@ def test_paved_area_and_route_geometry(env):
     geo = env.geometry
     cfg = geo.config
     r_in, r_out = cfg.ring_radius - cfg.ring_width / 2, cfg.ring_radius + cfg.ring_width / 2
-    pts = np.array([[0, 0], [cfg.ring_radius, 0], [0, -r_out - 5], [r_out + 10, r_out + 10], [3.8, -17.2],
-                    [0, -r_in + 0.5]])
+    pts = np.array(
+        [[0, 0], [cfg.ring_radius, 0], [0, -r_out - 5], [r_out + 10, r_out + 10], [3.8, -17.2], [0, -r_in + 0.5]]
+    )
     assert geo.is_paved(pts).tolist() == [False, True, True, False, True, False]  # island, ring, arm, grass, fillet
     s, lat = geo.route.project(geo.route.points[::50] + [0.0, 0.0])
     assert np.allclose(s, geo.route.s[::50], atol=1e-6) and np.allclose(lat, 0, atol=1e-6)

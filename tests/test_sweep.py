@@ -14,8 +14,8 @@ from hydra.types import RunMode
 from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
-from uqdrive.pipeline.collect import run_collect
 from uqdrive.checks import config_error
+from uqdrive.pipeline.collect import run_collect
 from uqdrive.tracking import store_lock, store_uris
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,16 +24,40 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.slow
 def test_joblib_multirun_of_4_jobs_on_2_workers_logs_4_runs(stage_config, tmp_path):
     raw = tmp_path / "raw"
-    run_collect(stage_config("collect", "scenario=straight", "collect.episodes=1", "collect.workers=1",
-                             f"paths.raw={raw}", f"paths.root={tmp_path / 'collect-root'}"))
+    run_collect(
+        stage_config(
+            "collect",
+            "scenario=straight",
+            "collect.episodes=1",
+            "collect.workers=1",
+            f"paths.raw={raw}",
+            f"paths.root={tmp_path / 'collect-root'}",
+        )
+    )
     project = tmp_path / "sweep-root"
     project.mkdir()
     result = subprocess.run(
-        [sys.executable, str(ROOT / "stages/preprocess.py"), "-m", "profile=tiny", "progress=false",
-         f"paths.root={project}", f"paths.raw={raw}", "experiment=joint", "experiment.scenarios=[straight]",
-         "preprocess.split_seed=0,1,2,3",
-         "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 'multirun'}"],
-        cwd=ROOT, capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONWARNINGS": "ignore"})
+        [
+            sys.executable,
+            str(ROOT / "stages/preprocess.py"),
+            "-m",
+            "profile=tiny",
+            "progress=false",
+            f"paths.root={project}",
+            f"paths.raw={raw}",
+            "experiment=joint",
+            "experiment.scenarios=[straight]",
+            "preprocess.split_seed=0,1,2,3",
+            "hydra/launcher=joblib",
+            "hydra.launcher.n_jobs=2",
+            f"hydra.sweep.dir={tmp_path / 'multirun'}",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "PYTHONWARNINGS": "ignore"},
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     client = MlflowClient(store_uris(project)[0])
     runs = client.search_runs([client.get_experiment_by_name("preprocess").experiment_id])
@@ -42,10 +66,23 @@ def test_joblib_multirun_of_4_jobs_on_2_workers_logs_4_runs(stage_config, tmp_pa
 
 def _sweep(project: Path, *overrides: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, str(ROOT / "stages/collect.py"), "-m", "profile=tiny", "progress=false", "scenario=straight",
-         "collect.workers=1", "+tracking.parent_run=true", *overrides],
-        cwd=project, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "PYTHONWARNINGS": "ignore"})
+        [
+            sys.executable,
+            str(ROOT / "stages/collect.py"),
+            "-m",
+            "profile=tiny",
+            "progress=false",
+            "scenario=straight",
+            "collect.workers=1",
+            "+tracking.parent_run=true",
+            *overrides,
+        ],
+        cwd=project,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "PYTHONWARNINGS": "ignore"},
+    )
 
 
 def _runs(project: Path) -> list:
@@ -108,17 +145,26 @@ def test_a_multirun_writes_under_its_sweep_folder_unless_asked(stage_config, tmp
     sweep = tmp_path / "multirun/2026-01-01/00-00-00"
     assert (swept.safety.out, swept.safety.positions, swept.safety.model_path) == (
         f"{sweep}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
-        f"{sweep}/data/safety/mcd-roundabout-clear_noon-noise0.0.npz", f"{tmp_path}/models/offline/mcd.pt")
-    assert stage_config("safety", "outputs=pipeline").safety.out == f"{tmp_path}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json"
+        f"{sweep}/data/safety/mcd-roundabout-clear_noon-noise0.0.npz",
+        f"{tmp_path}/models/offline/mcd.pt",
+    )
+    assert (
+        stage_config("safety", "outputs=pipeline").safety.out
+        == f"{tmp_path}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json"
+    )
     with pytest.raises(Exception) as bad:
         stage_config("safety", "outputs=somewhere").safety.out
     assert str(config_error(bad.value)) == "outputs='somewhere' is not known; choose one of ['auto', 'pipeline']"
 
 
 def test_a_single_run_writes_the_pipeline_outputs(stage_config, tmp_path):
-    expected = {("collect", "collect.out"): "data/raw/straight.parquet",
-                ("preprocess", "paths.processed"): "data/processed/offline", ("train", "paths.models"): "models/offline",
-                ("safety", "safety.out"): "metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
-                ("avoid", "avoid.out"): "metrics/avoid/mcd.json", ("report", "report.out_dir"): "reports"}
+    expected = {
+        ("collect", "collect.out"): "data/raw/straight.parquet",
+        ("preprocess", "paths.processed"): "data/processed/offline",
+        ("train", "paths.models"): "models/offline",
+        ("safety", "safety.out"): "metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
+        ("avoid", "avoid.out"): "metrics/avoid/mcd.json",
+        ("report", "report.out_dir"): "reports",
+    }
     for (stage, key), path in expected.items():
         assert OmegaConf.select(stage_config(stage), key) == f"{tmp_path}/{path}"

@@ -18,13 +18,30 @@ def test_flatten_nested_config_to_dotted_params():
 
 
 def test_params_are_the_stage_section_and_the_compared_keys_with_project_paths_relative(tmp_path):
-    cfg = OmegaConf.create({"safety": {"theta": 0.25, "out": f"{tmp_path}/metrics/safety/a.json"},
-                            "avoid": {"theta": 0.05}, "paths": {"root": str(tmp_path)}, "model": {"name": "vi"},
-                            "weather": {"name": "rain", "fog": 0.1}, "noise": 0.05, "scenario": {"name": "roundabout"},
-                            "profile_name": "tiny", "seed": 0, "camera": {"width": 160}})
+    cfg = OmegaConf.create(
+        {
+            "safety": {"theta": 0.25, "out": f"{tmp_path}/metrics/safety/a.json"},
+            "avoid": {"theta": 0.05},
+            "paths": {"root": str(tmp_path)},
+            "model": {"name": "vi"},
+            "weather": {"name": "rain", "fog": 0.1},
+            "noise": 0.05,
+            "scenario": {"name": "roundabout"},
+            "profile_name": "tiny",
+            "seed": 0,
+            "camera": {"width": 160},
+        }
+    )
     assert run_params(cfg, "safety", tmp_path) == {
-        "safety.theta": "0.25", "safety.out": "metrics/safety/a.json", "method": "vi", "weather": "rain",
-        "noise": "0.05", "location": "roundabout", "profile": "tiny", "seed": "0"}
+        "safety.theta": "0.25",
+        "safety.out": "metrics/safety/a.json",
+        "method": "vi",
+        "weather": "rain",
+        "noise": "0.05",
+        "location": "roundabout",
+        "profile": "tiny",
+        "seed": "0",
+    }
 
 
 def test_stage_run_creates_store_at_root_and_starts_when_the_job_started(tmp_path, monkeypatch):
@@ -94,8 +111,16 @@ def test_two_processes_creating_the_store_at_once_both_log(tmp_path):
     for attempt in range(5):
         root = tmp_path / f"attempt{attempt}"
         root.mkdir()
-        children = [subprocess.Popen([sys.executable, "-c", CHILD, str(root), name], env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True) for name in ("a", "b")]
+        children = [
+            subprocess.Popen(
+                [sys.executable, "-c", CHILD, str(root), name],
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for name in ("a", "b")
+        ]
         outputs = [child.communicate(timeout=300) for child in children]
         for child, (_, err) in zip(children, outputs):
             assert child.returncode == 0 and "MLflow:" not in err, err[-3000:]

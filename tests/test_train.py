@@ -18,8 +18,8 @@ from mlflow.tracking import MlflowClient
 
 import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
 from uqdrive.data.binning import SteeringBins
-from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
 from uqdrive.data.datasets import load_frames
+from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.laplace import PRIOR_GRID
 from uqdrive.models.training import compute_features, evaluate
@@ -28,7 +28,6 @@ from uqdrive.tracking import store_uris
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
-
 
 
 def synthetic_frames(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -46,16 +45,24 @@ def synthetic_frames(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.n
 
 def write_processed(path: Path, n: int, seed: int) -> None:
     images, steer = synthetic_frames(n, np.random.default_rng(seed))
-    columns = {"scenario": ["synthetic"] * n, "weather": ["clear_noon"] * n, "noise": [0.0] * n,
-               "episode": [seed] * n, "step": list(range(n)), "steering": steer.tolist(),
-               "label": SteeringBins().to_class(steer).tolist(), "image": [im.tobytes() for im in images]}
+    columns = {
+        "scenario": ["synthetic"] * n,
+        "weather": ["clear_noon"] * n,
+        "noise": [0.0] * n,
+        "episode": [seed] * n,
+        "step": list(range(n)),
+        "steering": steer.tolist(),
+        "label": SteeringBins().to_class(steer).tolist(),
+        "image": [im.tobytes() for im in images],
+    }
     write_table_batches(path, PROCESSED_SCHEMA, [columns])
 
 
 def compose_train(root: Path, *overrides: str):
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose("train", overrides=[f"paths.root={root}", "profile=tiny", "progress=false", "experiment=joint",
-                                           *overrides])
+        return compose(
+            "train", overrides=[f"paths.root={root}", "profile=tiny", "progress=false", "experiment=joint", *overrides]
+        )
 
 
 @pytest.fixture(scope="module")
@@ -70,12 +77,22 @@ def trained(tmp_path_factory):
     return root, metrics
 
 
-@pytest.mark.parametrize("method", [
-    *[m for m in METHODS if m != "laplace"],
-    pytest.param("laplace", marks=pytest.mark.xfail(strict=True, reason=(
-        "known defect: on this trunk (MAP head accuracy 1.0) the evidence-chosen prior precision (~1.3) leaves "
-        "a logit std of ~18 against a logit spread of ~7, so the sampled GLM predictive falls to 0.29-0.50"))),
-])
+@pytest.mark.parametrize(
+    "method",
+    [
+        *[m for m in METHODS if m != "laplace"],
+        pytest.param(
+            "laplace",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason=(
+                    "known defect: on this trunk (MAP head accuracy 1.0) the evidence-chosen prior precision (~1.3) leaves "
+                    "a logit std of ~18 against a logit spread of ~7, so the sampled GLM predictive falls to 0.29-0.50"
+                ),
+            ),
+        ),
+    ],
+)
 def test_each_method_beats_the_majority_class_on_validation(trained, method):
     m = trained[1][method]
     assert m["val_accuracy"] > m["majority_baseline_accuracy"] + 0.05, (method, m)

@@ -82,6 +82,7 @@ def _sequence(rng: np.random.Generator, rate: float, sizes: list[int]):
     def draw(k: int) -> np.ndarray:
         sizes.append(k)
         return (rng.random(k) < rate).astype(int)
+
     return draw
 
 

@@ -69,7 +69,7 @@ def sequential_error(tables: dict[int, np.ndarray], theta: float, etas: np.ndarr
             alive = np.flatnonzero(~stop)
             if alive.size == 0:
                 return error, mean_n
-            dist, lo = dist[alive[0]:alive[-1] + 1] * ~stop[alive[0]:alive[-1] + 1, None], lo + alive[0]
+            dist, lo = dist[alive[0] : alive[-1] + 1] * ~stop[alive[0] : alive[-1] + 1, None], lo + alive[0]
     raise AssertionError("the last look must stop every run")
 
 
@@ -149,9 +149,12 @@ def test_the_fixed_n_check_sees_a_too_small_n() -> None:
     assert not clopper_pearson(0, 380, 0.05, 0.05).guaranteed
 
 
-@pytest.mark.parametrize(("theta", "gamma", "look_size"), [
-    *[(theta, gamma, size) for theta, gamma in SETTINGS for size in (1, 4, 10)],
-])
+@pytest.mark.parametrize(
+    ("theta", "gamma", "look_size"),
+    [
+        *[(theta, gamma, size) for theta, gamma in SETTINGS for size in (1, 4, 10)],
+    ],
+)
 def test_sequential_has_exact_error_at_most_gamma(theta: float, gamma: float, look_size: int) -> None:
     scheme = sequential_scheme(theta, gamma, look_size)
     tables = _tables_of(scheme)

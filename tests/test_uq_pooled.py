@@ -24,8 +24,9 @@ def exact_miss_probability(rates: tuple[float, ...], runs: tuple[int, ...], gamm
 
 
 @pytest.mark.parametrize("runs", [(19, 19, 19), (8, 13, 21)])
-@pytest.mark.parametrize("rates", [(1.0, 1.0, 1.0), (1.0, 0.9, 0.5), (0.99, 0.6, 0.05), (0.5, 0.5, 0.5),
-                                   (0.8, 0.3, 0.95)])
+@pytest.mark.parametrize(
+    "rates", [(1.0, 1.0, 1.0), (1.0, 0.9, 0.5), (0.99, 0.6, 0.05), (0.5, 0.5, 0.5), (0.8, 0.3, 0.95)]
+)
 def test_mixture_interval_error_is_at_most_gamma_exactly(rates, runs):
     assert exact_miss_probability(rates, runs, 0.05) <= 0.05
 

@@ -1,20 +1,26 @@
 """The three-tier warning system: levels from η2 and MI, the actions (warning 2 stops the car and hands
 over), its config."""
 
-
 import numpy as np
 import pytest
 import torch
+from conftest import CONF
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
-from uqdrive.safety import (HANDOVER, NO_WARNING, Controller, WarningAction, WarningConfig, WarningController,
-                            classify, run_rollout)
+from uqdrive.safety import (
+    HANDOVER,
+    NO_WARNING,
+    Controller,
+    WarningAction,
+    WarningConfig,
+    WarningController,
+    classify,
+    run_rollout,
+)
 from uqdrive.safety.warnings import WarningActions
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.uq import chernoff_n
-
-from conftest import CONF
 
 BINS = SteeringBins()
 FAST = WarningConfig(theta=0.3)  # 21 draws per frame; the paper's thresholds and actions
@@ -49,7 +55,8 @@ DISAGREEING = samples([0] * 11 + [20] * 10)  # full right against full left: η2
 @pytest.fixture(scope="module")
 def obstacle():
     return ScenarioConfig.from_yaml(CONF / "scenario" / "obstacle.yaml"), WeatherConfig.from_yaml(
-        CONF / "weather" / "clear_noon.yaml")
+        CONF / "weather" / "clear_noon.yaml"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -135,33 +142,50 @@ def test_warnings_that_never_fire_leave_the_rollout_unchanged(random_models, obs
 def test_defaults_are_the_papers_and_samples_come_from_chernoff():
     cfg = WarningConfig()
     assert (cfg.delta1, cfg.delta2, cfg.tau, cfg.samples) == (0.7, 0.6, 0.45, 738)
-    assert [(a.speed, a.alert, a.handover) for a in cfg.actions] == [(0.5, False, False), (0.5, True, False),
-                                                                      (0.0, True, True)]
+    assert [(a.speed, a.alert, a.handover) for a in cfg.actions] == [
+        (0.5, False, False),
+        (0.5, True, False),
+        (0.0, True, True),
+    ]
     assert WarningConfig(theta=0.1, gamma=0.01).samples == chernoff_n(0.1, 0.01)
 
 
-@pytest.mark.parametrize(("kwargs", "match"), [
-    ({"delta1": 0.6, "delta2": 0.7}, r"warning.delta2=0.7 must be <= warning.delta1=0.6"),
-    ({"delta1": 1.2}, r"warning.delta1=1.2 must be in \[0, 1\]"),
-    ({"delta2": -0.1}, r"warning.delta2=-0.1 must be in \[0, 1\]"),
-    ({"tau": -0.5}, r"warning.tau=-0.5 must be >= 0"),
-    ({"tau": float("nan")}, r"warning.tau=nan must be a finite number"),
-    ({"theta": 0.0}, r"warning.theta=0.0 must be in the open interval \(0, 1\)"),
-    ({"hold_s": -1}, r"warning.hold_s=-1 must be a number of seconds >= 0"),
-    ({"actions": (WarningAction(1.5), WarningAction(0.5), WarningAction(0.0, True, True))},
-     r"warning.actions.warning0.speed=1.5 must be in \[0, 1\]"),
-    ({"actions": (WarningAction(0.5), WarningAction(0.5), WarningAction(0.2, True, True))},
-     r"warning.actions.warning2.speed=0.2 must be 0 when warning.actions.warning2.handover is true"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"delta1": 0.6, "delta2": 0.7}, r"warning.delta2=0.7 must be <= warning.delta1=0.6"),
+        ({"delta1": 1.2}, r"warning.delta1=1.2 must be in \[0, 1\]"),
+        ({"delta2": -0.1}, r"warning.delta2=-0.1 must be in \[0, 1\]"),
+        ({"tau": -0.5}, r"warning.tau=-0.5 must be >= 0"),
+        ({"tau": float("nan")}, r"warning.tau=nan must be a finite number"),
+        ({"theta": 0.0}, r"warning.theta=0.0 must be in the open interval \(0, 1\)"),
+        ({"hold_s": -1}, r"warning.hold_s=-1 must be a number of seconds >= 0"),
+        (
+            {"actions": (WarningAction(1.5), WarningAction(0.5), WarningAction(0.0, True, True))},
+            r"warning.actions.warning0.speed=1.5 must be in \[0, 1\]",
+        ),
+        (
+            {"actions": (WarningAction(0.5), WarningAction(0.5), WarningAction(0.2, True, True))},
+            r"warning.actions.warning2.speed=0.2 must be 0 when warning.actions.warning2.handover is true",
+        ),
+    ],
+)
 def test_bad_warning_config_names_key_value_and_what_is_allowed(kwargs, match):
     with pytest.raises(ValueError, match=match):
         WarningConfig(**kwargs)
 
 
 def test_from_config_reads_actions_and_refuses_unknown_keys():
-    cfg = WarningConfig.from_config({"delta1": 0.8, "actions": {
-        "warning0": {"speed": 0.25}, "warning1": {"speed": 0.5, "alert": True},
-        "warning2": {"speed": 0.0, "alert": True, "handover": True}}})
+    cfg = WarningConfig.from_config(
+        {
+            "delta1": 0.8,
+            "actions": {
+                "warning0": {"speed": 0.25},
+                "warning1": {"speed": 0.5, "alert": True},
+                "warning2": {"speed": 0.0, "alert": True, "handover": True},
+            },
+        }
+    )
     assert cfg.delta1 == 0.8 and cfg.actions[0] == WarningAction(0.25)
     with pytest.raises(ValueError, match=r"warning: unknown key\(s\) \['delta3'\]"):
         WarningConfig.from_config({"delta3": 0.5})

@@ -20,7 +20,10 @@ from omegaconf import OmegaConf
 
 from uqdrive.checks import ConfigError
 
-OUTPUTS = ("auto", "pipeline")  # the `outputs` key: auto = the sweep's folder in a multirun; pipeline = always the project
+OUTPUTS = (
+    "auto",
+    "pipeline",
+)  # the `outputs` key: auto = the sweep's folder in a multirun; pipeline = always the project
 
 
 def read_param(key: str, root: str) -> object:

@@ -24,9 +24,21 @@ WARNING_THRESHOLDS = {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
 
 def to_dict() -> dict:
     """Everything above as one JSON-able mapping (metrics/avoid.json carries it beside our numbers)."""
-    return {"theta": THETA, "gamma": GAMMA, "dropout_rates": list(DROPOUT_RATES),
-            "offline": {"all_weathers": OFFLINE_ALL_WEATHERS, "without_rain": OFFLINE_WITHOUT_RAIN,
-                        "training_weather": OFFLINE_TRAINING_WEATHER},
-            "avoid": {"method": AVOID_METHOD, "unknown_off": AVOID_UNKNOWN_OFF, "unknown_on": AVOID_UNKNOWN_ON,
-                      "known_on": AVOID_KNOWN_ON, "known_autonomy": AVOID_KNOWN_AUTONOMY,
-                      "thresholds": WARNING_THRESHOLDS}}
+    return {
+        "theta": THETA,
+        "gamma": GAMMA,
+        "dropout_rates": list(DROPOUT_RATES),
+        "offline": {
+            "all_weathers": OFFLINE_ALL_WEATHERS,
+            "without_rain": OFFLINE_WITHOUT_RAIN,
+            "training_weather": OFFLINE_TRAINING_WEATHER,
+        },
+        "avoid": {
+            "method": AVOID_METHOD,
+            "unknown_off": AVOID_UNKNOWN_OFF,
+            "unknown_on": AVOID_UNKNOWN_ON,
+            "known_on": AVOID_KNOWN_ON,
+            "known_autonomy": AVOID_KNOWN_AUTONOMY,
+            "thresholds": WARNING_THRESHOLDS,
+        },
+    }

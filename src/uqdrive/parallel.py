@@ -17,8 +17,13 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
-def map_ordered(fn: Callable[[T], R], items: Iterable[T], workers: int,
-                initializer: Callable[..., None] | None = None, initargs: tuple[Any, ...] = ()) -> Iterator[R]:
+def map_ordered(
+    fn: Callable[[T], R],
+    items: Iterable[T],
+    workers: int,
+    initializer: Callable[..., None] | None = None,
+    initargs: tuple[Any, ...] = (),
+) -> Iterator[R]:
     """Like `map(fn, items)`; with workers > 1, runs in `spawn`ed processes set up by `initializer`.
 
     `fn` and `initializer` must be importable module-level functions. Lazily yields results

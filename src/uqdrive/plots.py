@@ -28,7 +28,7 @@ def mosaic(images: list[np.ndarray], columns: int = 4) -> np.ndarray:
     rows = -(-len(images) // columns)
     blank = np.zeros_like(images[0])
     tiles = list(images) + [blank] * (rows * columns - len(images))
-    return np.vstack([np.hstack(tiles[r * columns:(r + 1) * columns]) for r in range(rows)])
+    return np.vstack([np.hstack(tiles[r * columns : (r + 1) * columns]) for r in range(rows)])
 
 
 def class_histogram_figure(centres: np.ndarray, counts: dict[str, np.ndarray], title: str) -> plt.Figure:
@@ -46,9 +46,16 @@ def class_histogram_figure(centres: np.ndarray, counts: dict[str, np.ndarray], t
     return fig
 
 
-def safety_hexbin(ax: plt.Axes, x: np.ndarray, y: np.ndarray, route: np.ndarray,
-                  boundaries: tuple[np.ndarray, np.ndarray] | None, extent: tuple[float, float, float, float],
-                  title: str, road: np.ndarray | None = None) -> None:
+def safety_hexbin(
+    ax: plt.Axes,
+    x: np.ndarray,
+    y: np.ndarray,
+    route: np.ndarray,
+    boundaries: tuple[np.ndarray, np.ndarray] | None,
+    extent: tuple[float, float, float, float],
+    title: str,
+    road: np.ndarray | None = None,
+) -> None:
     """The paper's offline-safety panel: where the rollouts drove (log counts) on the road map, the
     reference trajectory and the safe set's edges, so unsafe paths show as mass outside the edges."""
     if road is not None:
@@ -79,16 +86,25 @@ def _panels(axes: np.ndarray, panels: dict[tuple[str, str], dict], rows: list[st
                 yield axes[i, j], row, column, panel
 
 
-def safety_hexbin_grid(panels: dict[tuple[str, str], dict[str, np.ndarray]], rows: list[str], columns: list[str],
-                       title: str) -> plt.Figure:
+def safety_hexbin_grid(
+    panels: dict[tuple[str, str], dict[str, np.ndarray]], rows: list[str], columns: list[str], title: str
+) -> plt.Figure:
     """Method × weather grid of `safety_hexbin` panels; ``panels[(row, column)]`` holds x, y, route,
     left, right (empty left/right: road-only safe set) and eta1; missing cells stay blank."""
     fig, axes = plt.subplots(len(rows), len(columns), figsize=(3.2 * len(columns), 3.2 * len(rows)), squeeze=False)
     for ax, row, column, panel in _panels(axes, panels, rows, columns):
         boundaries = (panel["left"], panel["right"]) if len(panel["left"]) else None
         extent = tuple(float(v) for v in panel["extent"])
-        safety_hexbin(ax, panel["x"], panel["y"], panel["route"], boundaries, extent,
-                      f"{row} · {column}: η̂1 = {float(panel['eta1']):.2f}", panel.get("road"))
+        safety_hexbin(
+            ax,
+            panel["x"],
+            panel["y"],
+            panel["route"],
+            boundaries,
+            extent,
+            f"{row} · {column}: η̂1 = {float(panel['eta1']):.2f}",
+            panel.get("road"),
+        )
     axes[0, 0].legend(loc="lower left", fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
@@ -102,18 +118,35 @@ def reliability_diagram(ax: plt.Axes, panel: dict[str, np.ndarray], title: str) 
     low, width = panel["low"][filled], (panel["high"] - panel["low"])[filled]
     accuracy, confidence = panel["accuracy"][filled], panel["confidence"][filled]
     ax.bar(low, accuracy, width, align="edge", color="tab:blue", edgecolor="k", lw=0.4, label="accuracy")
-    ax.bar(low, confidence - accuracy, width, bottom=accuracy, align="edge", fill=False, hatch="///",
-           edgecolor="tab:red", lw=0.4, label="gap to mean confidence")
-    ax.plot(low + width / 2, panel["frames"][filled] / panel["frames"].sum(), "k:", marker=".", lw=0.8,
-            label="share of frames")
+    ax.bar(
+        low,
+        confidence - accuracy,
+        width,
+        bottom=accuracy,
+        align="edge",
+        fill=False,
+        hatch="///",
+        edgecolor="tab:red",
+        lw=0.4,
+        label="gap to mean confidence",
+    )
+    ax.plot(
+        low + width / 2,
+        panel["frames"][filled] / panel["frames"].sum(),
+        "k:",
+        marker=".",
+        lw=0.8,
+        label="share of frames",
+    )
     ax.plot([0, 1], [0, 1], "k--", lw=0.8)
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1)
     ax.set_title(title, fontsize=9)
 
 
-def reliability_grid(panels: dict[tuple[str, str], dict[str, np.ndarray]], rows: list[str], columns: list[str],
-                     title: str) -> plt.Figure:
+def reliability_grid(
+    panels: dict[tuple[str, str], dict[str, np.ndarray]], rows: list[str], columns: list[str], title: str
+) -> plt.Figure:
     """Grid of `reliability_diagram` panels; ``panels[(row, column)]`` holds low, high, frames,
     confidence, accuracy (per bin) and ece."""
     fig, axes = plt.subplots(len(rows), len(columns), figsize=(3 * len(columns), 3 * len(rows)), squeeze=False)
@@ -129,8 +162,9 @@ def reliability_grid(panels: dict[tuple[str, str], dict[str, np.ndarray]], rows:
     return fig
 
 
-def condition_lines_figure(values: dict[str, dict[str, list[float | None]]], conditions: list[str],
-                           metrics: list[tuple[str, str]], title: str) -> plt.Figure:
+def condition_lines_figure(
+    values: dict[str, dict[str, list[float | None]]], conditions: list[str], metrics: list[tuple[str, str]], title: str
+) -> plt.Figure:
     """One panel per metric, conditions along x, one line per method (``values[method][metric]``, None
     where undefined): how each method's accuracy and uncertainty move away from the training condition."""
     columns = min(3, len(metrics))
@@ -142,7 +176,7 @@ def condition_lines_figure(values: dict[str, dict[str, list[float | None]]], con
             ax.plot(x, [np.nan if v is None else v for v in by_metric[metric]], marker="o", label=method)
         ax.set_xticks(x, conditions, rotation=30, ha="right", fontsize=8)
         ax.set_title(label, fontsize=9)
-    for ax in axes.flat[len(metrics):]:
+    for ax in axes.flat[len(metrics) :]:
         ax.axis("off")
     axes[0, 0].legend(fontsize=8)
     fig.suptitle(title)
@@ -182,24 +216,28 @@ def avoid_trajectories(ax: plt.Axes, panel: dict, title: str, vmax: float = 1.0)
     return plt.cm.ScalarMappable(norm=norm, cmap="plasma")
 
 
-def avoid_trajectories_figure(panels: dict[tuple[str, str], dict], rows: list[str], columns: list[str],
-                              title: str) -> plt.Figure:
+def avoid_trajectories_figure(
+    panels: dict[tuple[str, str], dict], rows: list[str], columns: list[str], title: str
+) -> plt.Figure:
     """Grid of `avoid_trajectories` panels with one colour bar (mutual information, nats)."""
-    fig, axes = plt.subplots(len(rows), len(columns), figsize=(4.2 * len(columns), 1.9 * len(rows) + 0.8),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(rows), len(columns), figsize=(4.2 * len(columns), 1.9 * len(rows) + 0.8), squeeze=False
+    )
     mappable = None
     for ax, row, column, panel in _panels(axes, panels, rows, columns):
         mappable = avoid_trajectories(ax, panel, f"{row} · {column}: {panel['title']}")
     fig.suptitle(title)
     fig.tight_layout()
     if mappable is not None:
-        fig.colorbar(mappable, ax=axes.ravel().tolist(), label="mutual information (nats)", extend="max",
-                     fraction=0.02, pad=0.01)
+        fig.colorbar(
+            mappable, ax=axes.ravel().tolist(), label="mutual information (nats)", extend="max", fraction=0.02, pad=0.01
+        )
     return fig
 
 
-def avoid_signals_figure(runs: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]], configured,
-                         calibrated, title: str) -> plt.Figure:
+def avoid_signals_figure(
+    runs: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]], configured, calibrated, title: str
+) -> plt.Figure:
     """The paper's Figure "warnings": η2 (top) and mutual information (bottom) against the distance to
     the obstacle, one line per rollout (red: it collided), with the thresholds δ1, δ2 and τ of the
     configured (dashed) and calibrated (dotted) warning systems. ``runs[condition]``: (distance,
@@ -230,25 +268,46 @@ def avoid_signals_figure(runs: dict[str, list[tuple[np.ndarray, np.ndarray, np.n
     return fig
 
 
-def avoid_tradeoff_figure(table: dict[str, np.ndarray], chosen: int, default: int | None, target: float,
-                          title: str) -> plt.Figure:
+def avoid_tradeoff_figure(
+    table: dict[str, np.ndarray], chosen: int, default: int | None, target: float, title: str
+) -> plt.Figure:
     """The paper's joint claim as a front: replayed unknown-condition η̂1 against known-condition autonomy
     for every candidate (δ1, δ2, τ); candidates whose autonomy bound misses ``target`` are hollow; the
     Pareto front, the chosen and the configured thresholds."""
     fig, ax = plt.subplots(figsize=(5.5, 4))
     autonomy, safety, feasible = table["autonomy"], table["eta1_unknown"], table["feasible"].astype(bool)
-    ax.scatter(autonomy[~feasible], safety[~feasible], s=10, facecolors="none", edgecolors="0.6",
-               label=f"autonomy bound < {target:g}")
+    ax.scatter(
+        autonomy[~feasible],
+        safety[~feasible],
+        s=10,
+        facecolors="none",
+        edgecolors="0.6",
+        label=f"autonomy bound < {target:g}",
+    )
     ax.scatter(autonomy[feasible], safety[feasible], s=10, color="tab:blue", label=f"autonomy bound ≥ {target:g}")
     front = np.flatnonzero(table["pareto"])
     front = front[np.argsort(autonomy[front])]
     ax.plot(autonomy[front], safety[front], "-", color="tab:blue", lw=1, label="Pareto front")
     if default is not None:
-        ax.plot(autonomy[default], safety[default], "D", color="k", ms=7, mfc="none",
-                label=f"configured δ1={table['delta1'][default]:g} δ2={table['delta2'][default]:g} "
-                      f"τ={table['tau'][default]:g}")
-    ax.plot(autonomy[chosen], safety[chosen], "*", color="gold", mec="k", ms=14,
-            label=f"chosen δ1={table['delta1'][chosen]:g} δ2={table['delta2'][chosen]:g} τ={table['tau'][chosen]:g}")
+        ax.plot(
+            autonomy[default],
+            safety[default],
+            "D",
+            color="k",
+            ms=7,
+            mfc="none",
+            label=f"configured δ1={table['delta1'][default]:g} δ2={table['delta2'][default]:g} "
+            f"τ={table['tau'][default]:g}",
+        )
+    ax.plot(
+        autonomy[chosen],
+        safety[chosen],
+        "*",
+        color="gold",
+        mec="k",
+        ms=14,
+        label=f"chosen δ1={table['delta1'][chosen]:g} δ2={table['delta2'][chosen]:g} τ={table['tau'][chosen]:g}",
+    )
     ax.set_xlabel("known-condition autonomy (runs with no hand-over)")
     ax.set_ylabel("unknown-condition η̂1 (replayed)")
     ax.set_xlim(-0.03, 1.03)

@@ -39,13 +39,25 @@ LOCK_TIMEOUT_S = 600.0  # a migration takes seconds; a lock held this long is a 
 PARENT_RUN_ENV = "UQDRIVE_MLFLOW_PARENT_RUN"  # "<experiment id>:<run id>" of the sweep's parent run
 JOB_START_ENV = "UQDRIVE_JOB_START_MS"  # set at Hydra's job start: the run's start time
 # The keys runs are compared by, logged under these short names (config key; absent keys are skipped).
-COMPARED_BY = {"method": "model.name", "experiment": "experiment.name", "weather": "weather.name", "noise": "noise",
-               "location": "scenario.name", "profile": "profile_name", "seed": "seed"}
+COMPARED_BY = {
+    "method": "model.name",
+    "experiment": "experiment.name",
+    "weather": "weather.name",
+    "noise": "noise",
+    "location": "scenario.name",
+    "profile": "profile_name",
+    "seed": "seed",
+}
 SECTIONS = {"train": ("train", "model", "arch")}  # a stage's own config sections, when not just its name
 # The number each experiment is judged by. MLflow 3.17's runs table shows no metric column until a user
 # picks one (its default columns are Source, Models, Dataset), so the run's name carries it too.
-KEY_METRICS = {"safety": "eta1", "avoid": "eta1", "train": "val_accuracy", "collect": "route_complete_fraction",
-               "preprocess": "train_frames"}
+KEY_METRICS = {
+    "safety": "eta1",
+    "avoid": "eta1",
+    "train": "val_accuracy",
+    "collect": "route_complete_fraction",
+    "preprocess": "train_frames",
+}
 # Where the block's logging calls go when the store could not be opened: nowhere (every call fails and is
 # skipped), rather than a fresh store made outside the lock.
 UNTRACKED_URI = "file:///dev/null/uqdrive-untracked"
@@ -120,8 +132,13 @@ class UntrackedRun:
 
 
 @contextmanager
-def stage_run(root: str | Path, stage: str, config: DictConfig | Mapping[str, Any], run_name: str | None = None,
-              tags: Mapping[str, str] | None = None) -> Iterator[mlflow.ActiveRun | UntrackedRun]:
+def stage_run(
+    root: str | Path,
+    stage: str,
+    config: DictConfig | Mapping[str, Any],
+    run_name: str | None = None,
+    tags: Mapping[str, str] | None = None,
+) -> Iterator[mlflow.ActiveRun | UntrackedRun]:
     """An MLflow run in experiment `stage`, started when the job started, with the stage's params.
 
     Enter it after the stage's outputs are on disk. A tracking failure (store, lock, artefact copy)
@@ -135,11 +152,14 @@ def stage_run(root: str | Path, stage: str, config: DictConfig | Mapping[str, An
         parent = os.environ.get(PARENT_RUN_ENV, "")
         if parent.startswith(f"{experiment_id}:"):  # a job of a sweep of this stage: nest it under the sweep's run
             tags.setdefault("mlflow.parentRunId", parent.split(":", 1)[1])
-        created = MlflowClient(store_uris(root)[0]).create_run(experiment_id, start_time=started, tags=tags,
-                                                               run_name=run_name)
+        created = MlflowClient(store_uris(root)[0]).create_run(
+            experiment_id, start_time=started, tags=tags, run_name=run_name
+        )
     except LOGGING_ERRORS as err:
-        warnings.warn(f"MLflow: no run logged for {stage} {run_name or ''} ({err}); the outputs on disk are complete",
-                      stacklevel=3)
+        warnings.warn(
+            f"MLflow: no run logged for {stage} {run_name or ''} ({err}); the outputs on disk are complete",
+            stacklevel=3,
+        )
     if created is None:
         mlflow.set_tracking_uri(UNTRACKED_URI)
         try:
@@ -155,8 +175,9 @@ def stage_run(root: str | Path, stage: str, config: DictConfig | Mapping[str, An
             _name_with_key_metric(run.info.run_id, stage, run_name)
     except LOGGING_ERRORS as err:
         _terminate(root, created.info.run_id, "FAILED")
-        warnings.warn(f"MLflow: logging {stage} {run_name or ''} failed ({err}); the outputs on disk are complete",
-                      stacklevel=3)
+        warnings.warn(
+            f"MLflow: logging {stage} {run_name or ''} failed ({err}); the outputs on disk are complete", stacklevel=3
+        )
 
 
 def _name_with_key_metric(run_id: str, stage: str, run_name: str | None) -> None:
@@ -202,8 +223,11 @@ class CreateStoreCallback(Callback):
             return
         client = MlflowClient(store_uris(root)[0])
         overrides = " ".join(config.hydra.overrides.task)
-        run = client.create_run(experiment_id, run_name=f"sweep {config.hydra.job.name}",
-                                tags={"uqdrive.sweep_dir": str(config.hydra.sweep.dir), "uqdrive.overrides": overrides})
+        run = client.create_run(
+            experiment_id,
+            run_name=f"sweep {config.hydra.job.name}",
+            tags={"uqdrive.sweep_dir": str(config.hydra.sweep.dir), "uqdrive.overrides": overrides},
+        )
         self._parent = (root, run.info.run_id)
         os.environ[PARENT_RUN_ENV] = f"{experiment_id}:{run.info.run_id}"
         atexit.register(self._end_parent, "FAILED")

@@ -60,17 +60,24 @@ def main(argv: list[str]) -> int:
     else:
         posteriors = {m: load_posterior(args.models / f"{m}.pt", expected_method=m) for m in ("mcd", "vi", "hmc")}
     with DrivingEnv() as env:
-        frame = env.reset(args.seed, ScenarioConfig.from_yaml(CONF / "scenario" / "obstacle.yaml"),
-                          WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"))
+        frame = env.reset(
+            args.seed,
+            ScenarioConfig.from_yaml(CONF / "scenario" / "obstacle.yaml"),
+            WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"),
+        )
         info = env.last_info
     centres = torch.as_tensor(bins.centres, dtype=torch.float32)
     x = to_inputs(preprocess_frame(frame)[None])
     n = 2 * config.samples
     source = f"trained models from {args.models}" if args.models else "random weights"
-    print(f"{n} draws per frame (2 x chernoff_n({args.theta:g}, {args.gamma:g}): pi(o) and eta2 draw separately), "
-          f"frame {frame.shape[1]}x{frame.shape[0]}, 1 thread, {args.frames} frames, {source}")
-    print(f"{'method':>6} {'median_ms':>9} {'p95_ms':>7} {'max_ms':>7} | {'preproc':>7} {'posterior':>9} "
-          f"{'measures':>8} {'warning':>7}  (medians, ms)")
+    print(
+        f"{n} draws per frame (2 x chernoff_n({args.theta:g}, {args.gamma:g}): pi(o) and eta2 draw separately), "
+        f"frame {frame.shape[1]}x{frame.shape[0]}, 1 thread, {args.frames} frames, {source}"
+    )
+    print(
+        f"{'method':>6} {'median_ms':>9} {'p95_ms':>7} {'max_ms':>7} | {'preproc':>7} {'posterior':>9} "
+        f"{'measures':>8} {'warning':>7}  (medians, ms)"
+    )
     worst, worst_p95 = 0.0, 0.0
     with torch.no_grad():
         for method, posterior in posteriors.items():
@@ -80,15 +87,21 @@ def main(argv: list[str]) -> int:
             probs = posterior.sample_probs(x, n, generator)
             measures = frame_measures(probs, centres, 0.1)
             e2, mi = float(measures.eta2[0]), float(measures.mutual_information[0])
-            parts = [statistics.median(_times_ms(fn, max(20, args.frames // 4))) for fn in (
-                lambda: to_inputs(preprocess_frame(frame)[None]),
-                lambda: posterior.sample_probs(x, n, generator),
-                lambda: frame_measures(probs, centres, 0.1),
-                lambda: controller.actions.step(classify(e2, mi, config.delta1, config.delta2, config.tau)))]
+            parts = [
+                statistics.median(_times_ms(fn, max(20, args.frames // 4)))
+                for fn in (
+                    lambda: to_inputs(preprocess_frame(frame)[None]),
+                    lambda: posterior.sample_probs(x, n, generator),
+                    lambda: frame_measures(probs, centres, 0.1),
+                    lambda: controller.actions.step(classify(e2, mi, config.delta1, config.delta2, config.tau)),
+                )
+            ]
             median, p95 = float(np.median(full)), float(np.percentile(full, 95))
             worst, worst_p95 = max(worst, median), max(worst_p95, p95)
-            print(f"{method:>6} {median:>9.3f} {p95:>7.3f} {full.max():>7.3f} | {parts[0]:>7.3f} {parts[1]:>9.3f} "
-                  f"{parts[2]:>8.3f} {parts[3]:>7.3f}")
+            print(
+                f"{method:>6} {median:>9.3f} {p95:>7.3f} {full.max():>7.3f} | {parts[0]:>7.3f} {parts[1]:>9.3f} "
+                f"{parts[2]:>8.3f} {parts[3]:>7.3f}"
+            )
     print(f"target <= {TARGET_MS:g} ms per frame: {'met' if worst_p95 <= TARGET_MS else 'NOT met'} (95th percentile)")
     print(f"RESULT controller worst_ms={worst:.3f} worst_p95_ms={worst_p95:.3f}")
     return 0

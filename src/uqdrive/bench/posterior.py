@@ -43,10 +43,16 @@ def random_posteriors(generator: torch.Generator) -> dict[str, Posterior]:
     laplace.trunk.load_state_dict(mcd.trunk.state_dict())
     laplace.head.copy_(start)
     factor = torch.randn(laplace.covariance.shape, generator=generator, dtype=torch.float64)
-    laplace.covariance.copy_(0.05 * factor @ factor.T / len(factor) + 1e-3 * torch.eye(len(factor), dtype=torch.float64))
-    return {"mcd": mcd, "vi": vi, "hmc": HMCPosterior.from_heads(mcd, samples, start[:lower], len(shapes) - 1).eval(),
-            "ensemble": EnsemblePosterior.from_heads(mcd, he_init_heads(ENSEMBLE_MEMBERS, shapes, generator)).eval(),
-            "laplace": laplace.eval()}
+    laplace.covariance.copy_(
+        0.05 * factor @ factor.T / len(factor) + 1e-3 * torch.eye(len(factor), dtype=torch.float64)
+    )
+    return {
+        "mcd": mcd,
+        "vi": vi,
+        "hmc": HMCPosterior.from_heads(mcd, samples, start[:lower], len(shapes) - 1).eval(),
+        "ensemble": EnsemblePosterior.from_heads(mcd, he_init_heads(ENSEMBLE_MEMBERS, shapes, generator)).eval(),
+        "laplace": laplace.eval(),
+    }
 
 
 def _median_ms(fn: Callable[[], torch.Tensor], repeats: int) -> float:
@@ -77,8 +83,10 @@ def main(argv: list[str]) -> int:
         posteriors = {m: load_posterior(args.models / f"{m}.pt", expected_method=m) for m in methods}
     x = torch.rand((args.batch, 1, 48, 64), generator=generator)
     n = args.samples
-    print(f"n={n} draws, batch={args.batch} frame(s), 1 thread, median of {args.repeats}, "
-          f"{'trained models from ' + str(args.models) if args.models else 'random weights'}")
+    print(
+        f"n={n} draws, batch={args.batch} frame(s), 1 thread, median of {args.repeats}, "
+        f"{'trained models from ' + str(args.models) if args.models else 'random weights'}"
+    )
     print(f"{'method':>8} {'vector_ms/frame':>15} {'loop_ms/frame':>13} {'speedup':>7}")
     worst, min_speedup = 0.0, float("inf")
     with torch.no_grad():

@@ -80,7 +80,9 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench rollout", description=__doc__)
     ap.add_argument("--samples", type=int, default=738, help="posterior draws per frame")
     ap.add_argument("--method", default="vi", choices=["mcd", "vi", "hmc"])
-    ap.add_argument("--models", type=Path, help="drive trained models/<method>.pt from this folder (default: random weights)")
+    ap.add_argument(
+        "--models", type=Path, help="drive trained models/<method>.pt from this folder (default: random weights)"
+    )
     ap.add_argument("--steps", type=int, default=300, help="steps per timing (env-only, closed loop, each chunk)")
     ap.add_argument("--repeats", type=int, default=3, help="alternating timings of each setting; medians are reported")
     ap.add_argument("--chunks", type=int, default=8, help="chunks per worker comparison (> 2)")
@@ -93,8 +95,9 @@ def main(argv: list[str]) -> int:
     baseline = dataclasses.replace(camera, width=BASELINE_CAMERA[0], height=BASELINE_CAMERA[1])
     with tempfile.TemporaryDirectory() as tmp:
         if args.models is None:
-            model = save_posterior(random_posteriors(torch.Generator().manual_seed(0))[args.method],
-                                   Path(tmp) / f"{args.method}.pt")
+            model = save_posterior(
+                random_posteriors(torch.Generator().manual_seed(0))[args.method], Path(tmp) / f"{args.method}.pt"
+            )
         else:
             model = args.models / f"{args.method}.pt"
         spec = PolicySpec("bnn", 6.0, str(model), args.method, samples=args.samples, eps=0.1)
@@ -113,16 +116,24 @@ def main(argv: list[str]) -> int:
         overhead = statistics.median(loop / env for loop, env in zip(loop_s, env_s))
         render_speedup = statistics.median(base / loop for base, loop in zip(base_s, loop_s))
         env_speedup = statistics.median(base / env for base, env in zip(base_env_s, env_s))
-        print(f"{args.method} controller, n={args.samples} draws, roundabout, {weather.name}, "
-              f"{'trained model ' + str(model) if args.models else 'random weights'}, 1 torch thread per process, "
-              f"{args.steps} steps x {args.repeats}")
+        print(
+            f"{args.method} controller, n={args.samples} draws, roundabout, {weather.name}, "
+            f"{'trained model ' + str(model) if args.models else 'random weights'}, 1 torch thread per process, "
+            f"{args.steps} steps x {args.repeats}"
+        )
         print(f"env only, {camera.width}x{camera.height}:      {args.steps / statistics.median(env_s):8.1f} steps/s")
-        print(f"closed loop, {camera.width}x{camera.height}:   {args.steps / statistics.median(loop_s):8.1f} steps/s   "
-              f"overhead {overhead:.2f}x (target <= 2)")
-        print(f"env only, {baseline.width}x{baseline.height}:    {args.steps / statistics.median(base_env_s):8.1f} steps/s   "
-              f"env speed-up {env_speedup:.2f}x")
-        print(f"closed loop, {baseline.width}x{baseline.height}: {args.steps / statistics.median(base_s):8.1f} steps/s   "
-              f"render speed-up {render_speedup:.2f}x (target >= 2)")
+        print(
+            f"closed loop, {camera.width}x{camera.height}:   {args.steps / statistics.median(loop_s):8.1f} steps/s   "
+            f"overhead {overhead:.2f}x (target <= 2)"
+        )
+        print(
+            f"env only, {baseline.width}x{baseline.height}:    {args.steps / statistics.median(base_env_s):8.1f} steps/s   "
+            f"env speed-up {env_speedup:.2f}x"
+        )
+        print(
+            f"closed loop, {baseline.width}x{baseline.height}: {args.steps / statistics.median(base_s):8.1f} steps/s   "
+            f"render speed-up {render_speedup:.2f}x (target >= 2)"
+        )
         one = throughput(job, 1, args.chunks, args.steps)
         two = throughput(job, 2, args.chunks, args.steps)
     print(f"1 worker:    {one:8.1f} steps/s")

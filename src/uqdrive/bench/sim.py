@@ -25,8 +25,9 @@ from uqdrive.sim.bullet import pybullet as p
 CONF = Path(__file__).resolve().parents[3] / "conf"
 
 
-def autopilot_commands(env: DrivingEnv, scenario: ScenarioConfig, weather: WeatherConfig, noise: float,
-                       steps: int, seed: int) -> list[tuple[float, float, float, float, float]]:
+def autopilot_commands(
+    env: DrivingEnv, scenario: ScenarioConfig, weather: WeatherConfig, noise: float, steps: int, seed: int
+) -> list[tuple[float, float, float, float, float]]:
     """(steer, speed, x, y, yaw) of ``steps`` autopilot steps; episodes restart with seed + 1, … when they end."""
     out: list[tuple[float, float, float, float, float]] = []
     episode = 0
@@ -70,10 +71,19 @@ def time_bare_renders(env: DrivingEnv, poses, weather: WeatherConfig, cull: bool
         world.cull(*(cam.view_wedge(x, y, yaw) if cull else (x, y, yaw, math.pi)))
         view = cam.view_matrix(x, y, yaw)
         start = time.process_time()
-        client.getCameraImage(cfg.width, cfg.height, view, cam.projection,
-                              renderer=p.ER_TINY_RENDERER, lightDirection=light, lightColor=list(weather.light_color),
-                              lightAmbientCoeff=weather.ambient, lightDiffuseCoeff=weather.diffuse,
-                              lightSpecularCoeff=weather.specular, shadow=int(weather.shadow))
+        client.getCameraImage(
+            cfg.width,
+            cfg.height,
+            view,
+            cam.projection,
+            renderer=p.ER_TINY_RENDERER,
+            lightDirection=light,
+            lightColor=list(weather.light_color),
+            lightAmbientCoeff=weather.ambient,
+            lightDiffuseCoeff=weather.diffuse,
+            lightSpecularCoeff=weather.specular,
+            shadow=int(weather.shadow),
+        )
         seconds += time.process_time() - start
     return seconds
 
@@ -101,11 +111,15 @@ def main(argv: list[str]) -> int:
     ratios = sorted(s / r for s, r in zip(step_s, render_s))
     ratio = ratios[len(ratios) // 2]
     cfg = env.camera_config
-    print(f"{args.scenario}, {weather.name}, noise {args.noise:g}, {cfg.width}x{cfg.height} TinyRenderer, "
-          f"{args.steps} steps x {args.repeats}")
+    print(
+        f"{args.scenario}, {weather.name}, noise {args.noise:g}, {cfg.width}x{cfg.height} TinyRenderer, "
+        f"{args.steps} steps x {args.repeats}"
+    )
     print(f"bare getCameraImage, every body: {args.steps / float(np.median(full_s)):7.1f} frames/s")
     print(f"bare getCameraImage, culled:     {args.steps / float(np.median(render_s)):7.1f} frames/s")
-    print(f"DrivingEnv.step:                 {args.steps / float(np.median(step_s)):7.1f} frames/s   "
-          f"step/render {ratio:.2f}x (target <= 1.5)")
+    print(
+        f"DrivingEnv.step:                 {args.steps / float(np.median(step_s)):7.1f} frames/s   "
+        f"step/render {ratio:.2f}x (target <= 1.5)"
+    )
     print(f"RESULT sim step_over_render={ratio:.2f}")
     return 0

@@ -34,8 +34,10 @@ class FrameSet(Dataset):
         if len(images) != len(labels):
             raise ValueError(f"{name}: {len(images)} frames but {len(labels)} labels")
         if labels.min() < 0 or labels.max() >= num_classes:
-            raise ValueError(f"{name}: labels span {int(labels.min())}..{int(labels.max())}, "
-                             f"outside the {num_classes} classes of this configuration (bins changed? rerun preprocess)")
+            raise ValueError(
+                f"{name}: labels span {int(labels.min())}..{int(labels.max())}, "
+                f"outside the {num_classes} classes of this configuration (bins changed? rerun preprocess)"
+            )
         self.images = images
         self.labels = labels.to(torch.int64)
         self.num_classes = num_classes
@@ -45,13 +47,15 @@ class FrameSet(Dataset):
         return len(self.labels)
 
     def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
-        return to_inputs(self.images[index:index + 1])[0], self.labels[index]
+        return to_inputs(self.images[index : index + 1])[0], self.labels[index]
 
-    def batches(self, batch_size: int, generator: torch.Generator | None = None) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+    def batches(
+        self, batch_size: int, generator: torch.Generator | None = None
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
         """(inputs, labels) batches; shuffled with `generator` when one is given, in order otherwise."""
         order = torch.randperm(len(self), generator=generator) if generator is not None else torch.arange(len(self))
         for start in range(0, len(self), batch_size):
-            index = order[start:start + batch_size]
+            index = order[start : start + batch_size]
             yield to_inputs(self.images[index]), self.labels[index]
 
     def class_counts(self) -> torch.Tensor:

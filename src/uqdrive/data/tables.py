@@ -77,6 +77,7 @@ def read_table(path: str | Path, schema: pa.Schema, columns: list[str] | None = 
 def images_to_array(column: pa.ChunkedArray | pa.Array) -> np.ndarray:
     """Fixed-size binary frames → uint8 array [N, 48, 64] without a Python loop."""
     array = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
-    flat = np.frombuffer(array.buffers()[1], dtype=np.uint8, count=len(array) * FRAME_BYTES,
-                         offset=array.offset * FRAME_BYTES)
+    flat = np.frombuffer(
+        array.buffers()[1], dtype=np.uint8, count=len(array) * FRAME_BYTES, offset=array.offset * FRAME_BYTES
+    )
     return flat.reshape(len(array), INPUT_HEIGHT, INPUT_WIDTH)

@@ -53,12 +53,15 @@ def read_checkpoint(path: str | Path) -> dict:
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ValueError(f"{path} is not a uqdrive model file (no '{FORMAT}' format tag)")
     if payload.get("version") != VERSION:
-        raise ValueError(f"{path} has model format version {payload.get('version')}, this code reads {VERSION}; retrain it")
+        raise ValueError(
+            f"{path} has model format version {payload.get('version')}, this code reads {VERSION}; retrain it"
+        )
     return payload
 
 
-def load_posterior(path: str | Path, expected_method: str | None = None,
-                   expected_classes: int | SteeringBins | None = None) -> Posterior:
+def load_posterior(
+    path: str | Path, expected_method: str | None = None, expected_classes: int | SteeringBins | None = None
+) -> Posterior:
     """Rebuild a saved posterior (eval mode), failing clearly on another method or class mapping."""
     payload = read_checkpoint(path)
     method = payload["method"]
@@ -66,8 +69,10 @@ def load_posterior(path: str | Path, expected_method: str | None = None,
         raise ValueError(f"{path} holds a {method!r} model, expected {expected_method!r}")
     bins = SteeringBins.from_dict(payload["classes"])
     if isinstance(expected_classes, SteeringBins) and expected_classes != bins:
-        raise ValueError(f"{path} was trained on classes {bins.to_dict()}, expected {expected_classes.to_dict()}; "
-                         f"retrain it with the current bins")
+        raise ValueError(
+            f"{path} was trained on classes {bins.to_dict()}, expected {expected_classes.to_dict()}; "
+            f"retrain it with the current bins"
+        )
     if isinstance(expected_classes, int) and expected_classes != bins.num_classes:
         raise ValueError(f"{path} predicts {bins.num_classes} classes, expected {expected_classes}")
     if tuple(payload["input_shape"]) != INPUT_SHAPE:

@@ -39,8 +39,9 @@ class ConcreteDropout(nn.Module):
         """Training pass: x times a concrete mask drawn per element, rescaled by 1/(1 - p)."""
         p = self.p
         u = torch.rand(x.shape, generator=generator, dtype=x.dtype)
-        drop = torch.sigmoid((torch.log(p + EPS) - torch.log1p(-p + EPS)
-                              + torch.log(u + EPS) - torch.log1p(-u + EPS)) / self.temperature)
+        drop = torch.sigmoid(
+            (torch.log(p + EPS) - torch.log1p(-p + EPS) + torch.log(u + EPS) - torch.log1p(-u + EPS)) / self.temperature
+        )
         return x * (1.0 - drop) / (1.0 - p)
 
     def sample_masks(self, n: int, generator: torch.Generator | None) -> torch.Tensor:

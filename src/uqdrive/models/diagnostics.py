@@ -26,8 +26,11 @@ def _arviz_diagnostics(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
         warnings.simplefilter("ignore")  # arviz announces its refactor on import
         import arviz as az
     data = az.convert_to_dataset(np.ascontiguousarray(draws, dtype=np.float64))
-    return (az.rhat(data, method="rank")["x"].values, az.ess(data, method="bulk")["x"].values,
-            az.ess(data, method="tail")["x"].values)
+    return (
+        az.rhat(data, method="rank")["x"].values,
+        az.ess(data, method="bulk")["x"].values,
+        az.ess(data, method="tail")["x"].values,
+    )
 
 
 def per_draw_mutual_information(probs: torch.Tensor) -> torch.Tensor:
@@ -41,8 +44,9 @@ def function_space_diagnostics(probs: torch.Tensor, min_prob: float = 0.01) -> d
     """R̂ and ESS of probs [chains, S, B, C] over the (frame, class) pairs with mean probability > min_prob,
     and of each frame's mutual information; shares are of pairs (frames) with R̂ ≤ 1.1."""
     if probs.ndim != 4 or probs.shape[0] < 2 or probs.shape[1] < 4:
-        raise ValueError(f"function_space_diagnostics needs probs [chains ≥ 2, draws ≥ 4, frames, classes], "
-                         f"got {list(probs.shape)}")
+        raise ValueError(
+            f"function_space_diagnostics needs probs [chains ≥ 2, draws ≥ 4, frames, classes], got {list(probs.shape)}"
+        )
     chains, draws = probs.shape[:2]
     flat = probs.reshape(chains, draws, -1)
     used = flat.mean((0, 1)) > min_prob

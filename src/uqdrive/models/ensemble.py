@@ -44,16 +44,35 @@ class EnsemblePosterior(StoredHeadPosterior):
         return torch.randperm(members, generator=generator)[torch.arange(n) % members]
 
     @classmethod
-    def fit(cls, settings: EnsembleSettings, data: TrainingData, generator: torch.Generator,
-            progress: bool = False) -> Fitted:
+    def fit(
+        cls, settings: EnsembleSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
+    ) -> Fitted:
         base = data.base
         shapes = base.arch.head_shapes(base.num_classes)
         ensemble = cls.from_heads(base, he_init_heads(settings.members, shapes, generator))
-        members, curve = train_heads(ensemble.samples, shapes, data.train_features, data.train.labels,
-                                     data.val_features, data.val.labels, epochs=settings.epochs,
-                                     batch_size=settings.batch_size, lr=settings.lr,
-                                     prior_sigma=settings.prior_sigma, generator=generator, progress=progress,
-                                     desc="ensemble", scored=ensemble, eval_samples=settings.members)
+        members, curve = train_heads(
+            ensemble.samples,
+            shapes,
+            data.train_features,
+            data.train.labels,
+            data.val_features,
+            data.val.labels,
+            epochs=settings.epochs,
+            batch_size=settings.batch_size,
+            lr=settings.lr,
+            prior_sigma=settings.prior_sigma,
+            generator=generator,
+            progress=progress,
+            desc="ensemble",
+            scored=ensemble,
+            eval_samples=settings.members,
+        )
         ensemble.load_heads(members)
-        return Fitted(ensemble, curve, {"members": settings.members,
-                                        "diagnostics": f"{settings.members} members from independent initialisations"})
+        return Fitted(
+            ensemble,
+            curve,
+            {
+                "members": settings.members,
+                "diagnostics": f"{settings.members} members from independent initialisations",
+            },
+        )

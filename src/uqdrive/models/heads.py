@@ -30,9 +30,9 @@ def unflatten(theta: torch.Tensor, shapes: Shapes) -> list[tuple[torch.Tensor, t
     """Flat head weights [k, D] → [(W [k, in, out], b [k, out])] as views (no copy)."""
     layers, start = [], 0
     for i, o in shapes:
-        w = theta[:, start:start + i * o].view(-1, i, o)
+        w = theta[:, start : start + i * o].view(-1, i, o)
         start += i * o
-        layers.append((w, theta[:, start:start + o]))
+        layers.append((w, theta[:, start : start + o]))
         start += o
     return layers
 
@@ -42,8 +42,9 @@ def flatten_mcd_head(mcd: Posterior) -> torch.Tensor:
     return torch.cat([t for layer in mcd.head for t in (layer.weight.T.flatten(), layer.bias)]).detach()
 
 
-def fixed_layer_features(features: torch.Tensor, head: torch.Tensor, shapes: list[tuple[int, int]],
-                         fixed: int) -> torch.Tensor:
+def fixed_layer_features(
+    features: torch.Tensor, head: torch.Tensor, shapes: list[tuple[int, int]], fixed: int
+) -> torch.Tensor:
     """Inputs [N, F_k] of the first sampled layer: features through the `fixed` lowest layers of `head` [D]."""
     h = features
     for w, b in unflatten(head.unsqueeze(0), shapes[:fixed]):
@@ -63,15 +64,30 @@ def he_init_heads(count: int, shapes: Shapes, generator: torch.Generator) -> tor
 def head_nll(features: torch.Tensor, labels: torch.Tensor, theta: torch.Tensor, shapes: Shapes) -> torch.Tensor:
     """Summed softmax negative log-likelihood [k] of each of k heads θ [k, D] on features [N, F] (or [k, N, F])."""
     logits = sampled_mlp_logits(features, unflatten(theta, shapes))  # [k, N, C]
-    nll = cross_entropy(logits.flatten(0, 1), labels.repeat(len(theta)) if labels.ndim == 1 else labels.flatten(),
-                        reduction="none")
+    nll = cross_entropy(
+        logits.flatten(0, 1), labels.repeat(len(theta)) if labels.ndim == 1 else labels.flatten(), reduction="none"
+    )
     return nll.view(len(theta), -1).sum(1)
 
 
-def train_heads(theta: torch.Tensor, shapes: Shapes, features: torch.Tensor, labels: torch.Tensor,
-                val_features: torch.Tensor, val_labels: torch.Tensor, *, epochs: int, batch_size: int, lr: float,
-                prior_sigma: float, generator: torch.Generator, progress: bool, desc: str,
-                scored: Posterior | None = None, eval_samples: int = 1) -> tuple[torch.Tensor, list[dict]]:
+def train_heads(
+    theta: torch.Tensor,
+    shapes: Shapes,
+    features: torch.Tensor,
+    labels: torch.Tensor,
+    val_features: torch.Tensor,
+    val_labels: torch.Tensor,
+    *,
+    epochs: int,
+    batch_size: int,
+    lr: float,
+    prior_sigma: float,
+    generator: torch.Generator,
+    progress: bool,
+    desc: str,
+    scored: Posterior | None = None,
+    eval_samples: int = 1,
+) -> tuple[torch.Tensor, list[dict]]:
     """MAP training of k heads θ [k, D] side by side (Adam; each head its own minibatch order).
 
     Loss per frame: cross-entropy + ‖θ‖²/(2σ²N), the MAP of the same N(0, σ²) prior as VI and HMC.
@@ -110,16 +126,18 @@ class StoredHeadPosterior(Posterior):
         super().__init__(arch, bins)
         head_shapes = arch.head_shapes(bins.num_classes)
         if not 0 <= fixed_layers < len(head_shapes):
-            raise ValueError(f"fixed_layers={fixed_layers} must leave at least one of the {len(head_shapes)} head "
-                             f"layers to sample")
+            raise ValueError(
+                f"fixed_layers={fixed_layers} must leave at least one of the {len(head_shapes)} head layers to sample"
+            )
         self.fixed_layers = fixed_layers
         self.fixed_shapes, self.shapes = head_shapes[:fixed_layers], head_shapes[fixed_layers:]
         self.register_buffer("fixed_head", torch.zeros(head_size(self.fixed_shapes)))
         self.register_buffer("samples", torch.zeros(num_samples, head_size(self.shapes)))
 
     @classmethod
-    def from_heads(cls, base: Posterior, heads: torch.Tensor, fixed_head: torch.Tensor | None = None,
-                   fixed_layers: int = 0) -> StoredHeadPosterior:
+    def from_heads(
+        cls, base: Posterior, heads: torch.Tensor, fixed_head: torch.Tensor | None = None, fixed_layers: int = 0
+    ) -> StoredHeadPosterior:
         """Keep the base model's trunk (frozen), the shared lowest layers (flat) and the heads [S, D] above them."""
         post = cls(base.arch, base.bins, len(heads), fixed_layers)
         post.trunk.load_state_dict(base.trunk.state_dict())
@@ -154,4 +172,6 @@ class StoredHeadPosterior(Posterior):
     @torch.no_grad()
     def stored_probs(self, features: torch.Tensor) -> torch.Tensor:
         """Probabilities [S, B, C] of every stored head, in storage order (diagnostics compare them by chain)."""
-        return torch.softmax(sampled_mlp_logits(self.sampled_inputs(features), unflatten(self.samples, self.shapes)), -1)
+        return torch.softmax(
+            sampled_mlp_logits(self.sampled_inputs(features), unflatten(self.samples, self.shapes)), -1
+        )

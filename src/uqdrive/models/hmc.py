@@ -71,8 +71,12 @@ class HMCSettings:
         require("target_accept", self.target_accept, 0 < self.target_accept < 1, "in (0, 1)")
         require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
         require("metric", self.metric, self.metric in ("laplace", "diagonal"), "laplace or diagonal")
-        require("metric", self.metric, self.metric != "laplace" or self.bayesian_layers == 1,
-                f"diagonal when bayesian_layers={self.bayesian_layers} (laplace whitens the last layer only)")
+        require(
+            "metric",
+            self.metric,
+            self.metric != "laplace" or self.bayesian_layers == 1,
+            f"diagonal when bayesian_layers={self.bayesian_layers} (laplace whitens the last layer only)",
+        )
         require("start_scale", self.start_scale, self.start_scale > 0, "> 0")
         require("map_epochs", self.map_epochs, self.map_epochs >= 0, "≥ 0")
         require("start_epochs", self.start_epochs, self.start_epochs >= 0, "≥ 0")
@@ -82,8 +86,9 @@ class HMCSettings:
         require("rhat_target_share", self.rhat_target_share, 0 < self.rhat_target_share <= 1, "in (0, 1]")
 
 
-def head_log_posterior(features: torch.Tensor, labels: torch.Tensor, shapes: list[tuple[int, int]],
-                       prior_sigma: float) -> LogProbGrad:
+def head_log_posterior(
+    features: torch.Tensor, labels: torch.Tensor, shapes: list[tuple[int, int]], prior_sigma: float
+) -> LogProbGrad:
     """Unnormalised log posterior of heads (softmax likelihood of every frame + N(0, σ²) prior) and its gradient."""
 
     def log_prob_grad(theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -127,8 +132,9 @@ class HMCPosterior(StoredHeadPosterior):
         return torch.randperm(stored, generator=generator)[:n]
 
     @classmethod
-    def fit(cls, settings: HMCSettings, data: TrainingData, generator: torch.Generator,
-            progress: bool = False) -> Fitted:
+    def fit(
+        cls, settings: HMCSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
+    ) -> Fitted:
         base = data.base
         shapes = base.arch.head_shapes(base.num_classes)
         fixed = len(shapes) - settings.bayesian_layers
@@ -136,29 +142,50 @@ class HMCPosterior(StoredHeadPosterior):
         train_labels, val_labels = data.train.labels, data.val.labels
         head = flatten_mcd_head(base)
         if fixed:
-            head = train_heads(head.unsqueeze(0), shapes, data.train_features, train_labels, data.val_features,
-                               val_labels, epochs=settings.map_epochs, batch_size=settings.map_batch_size,
-                               lr=settings.map_lr, prior_sigma=settings.prior_sigma, generator=generator,
-                               progress=progress, desc="hmc map")[0][0]
+            head = train_heads(
+                head.unsqueeze(0),
+                shapes,
+                data.train_features,
+                train_labels,
+                data.val_features,
+                val_labels,
+                epochs=settings.map_epochs,
+                batch_size=settings.map_batch_size,
+                lr=settings.map_lr,
+                prior_sigma=settings.prior_sigma,
+                generator=generator,
+                progress=progress,
+                desc="hmc map",
+            )[0][0]
         train_phi = fixed_layer_features(data.train_features, head, shapes, fixed)
         val_phi = fixed_layer_features(data.val_features, head, shapes, fixed)
         log_prob_grad = head_log_posterior(train_phi, train_labels, sampled_shapes, settings.prior_sigma)
         if settings.metric == "laplace":
-            centre = head[head_size(shapes[:fixed]):]  # the MAP's last layer, flat = W̃ [J, C] row-major
+            centre = head[head_size(shapes[:fixed]) :]  # the MAP's last layer, flat = W̃ [J, C] row-major
             psi = with_bias_input(train_phi).double()
             weights = centre.double().view(psi.shape[1], -1)
             hessian = last_layer_hessian(psi, torch.softmax(psi @ weights, -1))
-            scale = torch.linalg.cholesky(posterior_covariance(hessian, settings.prior_sigma ** -2)).float()
+            scale = torch.linalg.cholesky(posterior_covariance(hessian, settings.prior_sigma**-2)).float()
             to_theta = lambda u: centre + u @ scale.T  # noqa: E731
             log_prob_grad = whitened(log_prob_grad, centre, scale)
             starts = settings.start_scale * torch.randn((settings.chains, len(centre)), generator=generator)
         else:
             to_theta = lambda u: u  # noqa: E731
-            starts = train_heads(he_init_heads(settings.chains, sampled_shapes, generator), sampled_shapes, train_phi,
-                                 train_labels, val_phi, val_labels, epochs=settings.start_epochs,
-                                 batch_size=settings.map_batch_size, lr=settings.map_lr,
-                                 prior_sigma=settings.prior_sigma, generator=generator, progress=progress,
-                                 desc="hmc starts")[0]
+            starts = train_heads(
+                he_init_heads(settings.chains, sampled_shapes, generator),
+                sampled_shapes,
+                train_phi,
+                train_labels,
+                val_phi,
+                val_labels,
+                epochs=settings.start_epochs,
+                batch_size=settings.map_batch_size,
+                lr=settings.map_lr,
+                prior_sigma=settings.prior_sigma,
+                generator=generator,
+                progress=progress,
+                desc="hmc starts",
+            )[0]
         n_train = len(train_labels)
         total = settings.warmup + settings.samples * settings.thin
         every = max(1, total // 100)
@@ -169,15 +196,32 @@ class HMCPosterior(StoredHeadPosterior):
                 return
             probs = torch.softmax(sampled_mlp_logits(val_phi, unflatten(to_theta(theta), sampled_shapes)), -1).mean(0)
             scores = classification_metrics(probs, val_labels)
-            curve.append({"step": it + 1, "train_loss": float(-lp.mean()) / n_train,
-                          "val_accuracy": scores["accuracy"], "val_nll": scores["nll"],
-                          "accept_prob": float(accept_prob.mean()), "warmup": int(it < settings.warmup)})
+            curve.append(
+                {
+                    "step": it + 1,
+                    "train_loss": float(-lp.mean()) / n_train,
+                    "val_accuracy": scores["accuracy"],
+                    "val_nll": scores["nll"],
+                    "accept_prob": float(accept_prob.mean()),
+                    "warmup": int(it < settings.warmup),
+                }
+            )
 
-        result = hmc(log_prob_grad, starts,
-                     num_samples=settings.samples, warmup=settings.warmup, thin=settings.thin,
-                     leapfrog_steps=settings.leapfrog_steps, step_size=settings.step_size,
-                     target_accept=settings.target_accept, adapt_mass=settings.adapt_mass, generator=generator,
-                     callback=record, progress=progress, desc="hmc")
+        result = hmc(
+            log_prob_grad,
+            starts,
+            num_samples=settings.samples,
+            warmup=settings.warmup,
+            thin=settings.thin,
+            leapfrog_steps=settings.leapfrog_steps,
+            step_size=settings.step_size,
+            target_accept=settings.target_accept,
+            adapt_mass=settings.adapt_mass,
+            generator=generator,
+            callback=record,
+            progress=progress,
+            desc="hmc",
+        )
         chains, kept = result.samples.shape[:2]
         samples = to_theta(result.samples.flatten(0, 1))  # [chains·kept, D_k], chain-major
         frames = torch.linspace(0, len(val_labels) - 1, min(settings.diagnostic_frames, len(val_labels))).long()
@@ -211,5 +255,6 @@ class HMCPosterior(StoredHeadPosterior):
             f"min bulk/tail ESS {fs['fs_ess_bulk_min']:.0f}/{fs['fs_ess_tail_min']:.0f}; MI R̂ max "
             f"{fs['mi_rhat_max']:.2f}, min ESS {fs['mi_ess_bulk_min']:.0f}; loss and predictive settled by iteration "
             f"{extra['settled_iteration']} of {settings.warmup} warm-up; acceptance {extra['accept_rate']:.2f}; "
-            f"weight-space split-R̂ median {extra['rhat_median']:.2f} (secondary)")
-        return Fitted(cls.from_heads(base, samples, head[:head_size(shapes[:fixed])], fixed), curve, extra)
+            f"weight-space split-R̂ median {extra['rhat_median']:.2f} (secondary)"
+        )
+        return Fitted(cls.from_heads(base, samples, head[: head_size(shapes[:fixed])], fixed), curve, extra)

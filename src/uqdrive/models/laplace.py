@@ -64,13 +64,16 @@ def last_layer_hessian(psi: torch.Tensor, probs: torch.Tensor, chunk: int = 1024
     return hessian.reshape(j * c, j * c)
 
 
-def log_evidence(hessian: torch.Tensor, weights: torch.Tensor, nll: float,
-                 precisions: torch.Tensor) -> torch.Tensor:
+def log_evidence(hessian: torch.Tensor, weights: torch.Tensor, nll: float, precisions: torch.Tensor) -> torch.Tensor:
     """Laplace log evidence (up to a constant) at each prior precision λ, θ* and H held fixed."""
     eigenvalues = torch.linalg.eigvalsh(hessian.double()).clamp_min(0.0)
     size, squares = len(eigenvalues), float(weights.double().square().sum())
-    return (-nll - 0.5 * precisions * squares + 0.5 * size * precisions.log()
-            - 0.5 * (eigenvalues.unsqueeze(0) + precisions.unsqueeze(1)).log().sum(1))
+    return (
+        -nll
+        - 0.5 * precisions * squares
+        + 0.5 * size * precisions.log()
+        - 0.5 * (eigenvalues.unsqueeze(0) + precisions.unsqueeze(1)).log().sum(1)
+    )
 
 
 def posterior_covariance(hessian: torch.Tensor, precision: float) -> torch.Tensor:
@@ -121,16 +124,28 @@ class LaplacePosterior(Posterior):
         return sample_glm_probs(mean, cov, check_draws(n), generator)
 
     @classmethod
-    def fit(cls, settings: LaplaceSettings, data: TrainingData, generator: torch.Generator,
-            progress: bool = False) -> Fitted:
+    def fit(
+        cls, settings: LaplaceSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
+    ) -> Fitted:
         base = data.base
         laplace = cls(base.arch, base.bins)
         laplace.trunk.load_state_dict(base.trunk.state_dict())
         laplace.trunk.requires_grad_(False)
-        heads, _ = train_heads(flatten_mcd_head(base).unsqueeze(0), laplace.shapes, data.train_features,
-                               data.train.labels, data.val_features, data.val.labels, epochs=settings.epochs,
-                               batch_size=settings.batch_size, lr=settings.lr, prior_sigma=settings.prior_sigma,
-                               generator=generator, progress=progress, desc="laplace map")
+        heads, _ = train_heads(
+            flatten_mcd_head(base).unsqueeze(0),
+            laplace.shapes,
+            data.train_features,
+            data.train.labels,
+            data.val_features,
+            data.val.labels,
+            epochs=settings.epochs,
+            batch_size=settings.batch_size,
+            lr=settings.lr,
+            prior_sigma=settings.prior_sigma,
+            generator=generator,
+            progress=progress,
+            desc="laplace map",
+        )
         laplace.head.copy_(heads[0])
         psi = laplace.last_layer_inputs(data.train_features)
         weights = laplace.last_layer_weights()
@@ -139,13 +154,19 @@ class LaplacePosterior(Posterior):
             nll = float(head_nll(data.train_features, data.train.labels, heads, laplace.shapes)[0])
         hessian = last_layer_hessian(psi, probs)
         evidence = log_evidence(hessian, weights, nll, PRIOR_GRID)
-        precision = float(PRIOR_GRID[evidence.argmax()]) if settings.optimise_prior else settings.prior_sigma ** -2
+        precision = float(PRIOR_GRID[evidence.argmax()]) if settings.optimise_prior else settings.prior_sigma**-2
         laplace.covariance.copy_(posterior_covariance(hessian, precision))
         scores = evaluate(laplace, data.val_features, data.val.labels, data.eval_samples, generator)
         curve = [curve_row(1, nll / len(data.train.labels), scores)]
-        extra = {"prior_precision": precision, "log_evidence": float(evidence.max()) if settings.optimise_prior
-                 else float(log_evidence(hessian, weights, nll, torch.tensor([precision], dtype=torch.float64))[0]),
-                 "last_layer_weights": int(weights.numel())}
-        extra["diagnostics"] = (f"last layer ({extra['last_layer_weights']} weights), prior precision "
-                                f"{precision:.3g}{' by evidence' if settings.optimise_prior else ''}")
+        extra = {
+            "prior_precision": precision,
+            "log_evidence": float(evidence.max())
+            if settings.optimise_prior
+            else float(log_evidence(hessian, weights, nll, torch.tensor([precision], dtype=torch.float64))[0]),
+            "last_layer_weights": int(weights.numel()),
+        }
+        extra["diagnostics"] = (
+            f"last layer ({extra['last_layer_weights']} weights), prior precision "
+            f"{precision:.3g}{' by evidence' if settings.optimise_prior else ''}"
+        )
         return Fitted(laplace, curve, extra)

@@ -65,8 +65,10 @@ class MCDPosterior(Posterior):
 
     def regularizer(self, num_train: int, lengthscale: float) -> torch.Tensor:
         """Concrete dropout's KL term per training frame (weight decay l²/N, dropout term 2/N)."""
-        return sum(drop.regularizer(layer, lengthscale**2 / num_train, 2.0 / num_train)
-                   for drop, layer in zip(self.dropout, self.head[1:]))
+        return sum(
+            drop.regularizer(layer, lengthscale**2 / num_train, 2.0 / num_train)
+            for drop, layer in zip(self.dropout, self.head[1:])
+        )
 
     @torch.no_grad()
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -79,8 +81,9 @@ class MCDPosterior(Posterior):
         return torch.softmax(h, dim=-1)
 
     @classmethod
-    def fit(cls, settings: MCDSettings, data: TrainingData, generator: torch.Generator,
-            progress: bool = False) -> Fitted:
+    def fit(
+        cls, settings: MCDSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
+    ) -> Fitted:
         """Adam on cross-entropy + concrete dropout regulariser, end to end on the frames."""
         model = init_weights(cls(data.arch, data.bins, settings.init_p, settings.temperature), generator)
         optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
@@ -89,8 +92,9 @@ class MCDPosterior(Posterior):
             model.train()
             total = 0.0
             for x, y in data.train.batches(settings.batch_size, generator):
-                loss = (cross_entropy(model.train_logits(x, generator), y)
-                        + model.regularizer(len(data.train), settings.lengthscale))
+                loss = cross_entropy(model.train_logits(x, generator), y) + model.regularizer(
+                    len(data.train), settings.lengthscale
+                )
                 optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()
@@ -101,5 +105,11 @@ class MCDPosterior(Posterior):
             curve.append(curve_row(epoch, total / len(data.train), scores, **rates))
         model.requires_grad_(False)
         rates = model.dropout_rates()
-        return Fitted(model, curve, {**{f"dropout_p{k + 1}": p for k, p in enumerate(rates)},
-                                     "diagnostics": "learned dropout rates " + ", ".join(f"{p:.3f}" for p in rates)})
+        return Fitted(
+            model,
+            curve,
+            {
+                **{f"dropout_p{k + 1}": p for k, p in enumerate(rates)},
+                "diagnostics": "learned dropout rates " + ", ".join(f"{p:.3f}" for p in rates),
+            },
+        )

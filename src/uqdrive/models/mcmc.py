@@ -34,14 +34,28 @@ class HMCResult:
     step_size: torch.Tensor  # [chains], the adapted step size used after warm-up
 
 
-def hmc(log_prob_grad: LogProbGrad, init: torch.Tensor, *, num_samples: int, warmup: int, thin: int = 1,
-        leapfrog_steps: int = 10, step_size: float = 0.01, target_accept: float = 0.75,
-        adapt_mass: bool = False, generator: torch.Generator | None = None, callback: Callback | None = None,
-        progress: bool = False, desc: str = "hmc") -> HMCResult:
+def hmc(
+    log_prob_grad: LogProbGrad,
+    init: torch.Tensor,
+    *,
+    num_samples: int,
+    warmup: int,
+    thin: int = 1,
+    leapfrog_steps: int = 10,
+    step_size: float = 0.01,
+    target_accept: float = 0.75,
+    adapt_mass: bool = False,
+    generator: torch.Generator | None = None,
+    callback: Callback | None = None,
+    progress: bool = False,
+    desc: str = "hmc",
+) -> HMCResult:
     """Run len(init) chains for warmup + num_samples·thin iterations; keep every thin-th after warm-up."""
     if num_samples < 1 or warmup < 0 or thin < 1 or leapfrog_steps < 1 or not step_size > 0:
-        raise ValueError(f"hmc: num_samples={num_samples} ≥ 1, warmup={warmup} ≥ 0, thin={thin} ≥ 1, "
-                         f"leapfrog_steps={leapfrog_steps} ≥ 1 and step_size={step_size} > 0 required")
+        raise ValueError(
+            f"hmc: num_samples={num_samples} ≥ 1, warmup={warmup} ≥ 0, thin={thin} ≥ 1, "
+            f"leapfrog_steps={leapfrog_steps} ≥ 1 and step_size={step_size} > 0 required"
+        )
     if not 0 < target_accept < 1:
         raise ValueError(f"hmc: target_accept={target_accept} must lie in (0, 1)")
     theta = init.detach().clone()
@@ -105,7 +119,11 @@ class _Welford:
     """Running mean and variance per chain and coordinate."""
 
     def __init__(self, shape: torch.Size) -> None:
-        self.count, self.mean, self.m2 = 0, torch.zeros(shape, dtype=torch.float64), torch.zeros(shape, dtype=torch.float64)
+        self.count, self.mean, self.m2 = (
+            0,
+            torch.zeros(shape, dtype=torch.float64),
+            torch.zeros(shape, dtype=torch.float64),
+        )
 
     def add(self, x: torch.Tensor) -> None:
         self.count += 1
@@ -123,8 +141,9 @@ class _Welford:
 class _DualAveraging:
     """Nesterov dual averaging of log step size towards a target acceptance (Hoffman & Gelman, Alg. 5)."""
 
-    def __init__(self, step_size: torch.Tensor, target: float, gamma: float = 0.05, t0: float = 10.0,
-                 kappa: float = 0.75) -> None:
+    def __init__(
+        self, step_size: torch.Tensor, target: float, gamma: float = 0.05, t0: float = 10.0, kappa: float = 0.75
+    ) -> None:
         self.step_size, self.target, self.gamma, self.t0, self.kappa = step_size, target, gamma, t0, kappa
         self.mu = torch.log(10.0 * step_size)
         self.h_bar = torch.zeros_like(step_size)
@@ -136,7 +155,7 @@ class _DualAveraging:
         w = 1.0 / (self.m + self.t0)
         self.h_bar = (1 - w) * self.h_bar + w * (self.target - accept_prob)
         log_eps = self.mu - math.sqrt(self.m) / self.gamma * self.h_bar
-        eta = self.m ** -self.kappa
+        eta = self.m**-self.kappa
         self.log_bar = eta * log_eps + (1 - eta) * self.log_bar
         return log_eps.exp()
 

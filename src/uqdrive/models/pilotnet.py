@@ -31,10 +31,14 @@ class Architecture:
         object.__setattr__(self, "conv", tuple(int(c) for c in self.conv))
         object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
         if len(self.conv) != 5 or min(self.conv) < 1:
-            raise ConfigError(f"arch.conv={list(self.conv)} must be 5 positive channel counts (PilotNet's 5 convolutions)")
+            raise ConfigError(
+                f"arch.conv={list(self.conv)} must be 5 positive channel counts (PilotNet's 5 convolutions)"
+            )
         if len(self.hidden) != 3 or min(self.hidden) < 1 or self.features < 1:
-            raise ConfigError(f"arch.hidden={list(self.hidden)} must be 3 positive widths (4 head layers) "
-                             f"and arch.features={self.features} positive")
+            raise ConfigError(
+                f"arch.hidden={list(self.hidden)} must be 3 positive widths (4 head layers) "
+                f"and arch.features={self.features} positive"
+            )
 
     def head_shapes(self, num_classes: int) -> list[tuple[int, int]]:
         """(in, out) of the four head layers."""
@@ -52,11 +56,16 @@ class Trunk(nn.Module):
         super().__init__()
         c = (INPUT_SHAPE[0], *arch.conv)
         self.convs = nn.Sequential(
-            nn.Conv2d(c[0], c[1], 5, stride=2, padding=2), nn.ReLU(),  # 48x64 → 24x32
-            nn.Conv2d(c[1], c[2], 5, stride=2, padding=2), nn.ReLU(),  # → 12x16
-            nn.Conv2d(c[2], c[3], 5, stride=2, padding=2), nn.ReLU(),  # → 6x8
-            nn.Conv2d(c[3], c[4], 3), nn.ReLU(),  # → 4x6
-            nn.Conv2d(c[4], c[5], 3), nn.ReLU(),  # → 2x4
+            nn.Conv2d(c[0], c[1], 5, stride=2, padding=2),
+            nn.ReLU(),  # 48x64 → 24x32
+            nn.Conv2d(c[1], c[2], 5, stride=2, padding=2),
+            nn.ReLU(),  # → 12x16
+            nn.Conv2d(c[2], c[3], 5, stride=2, padding=2),
+            nn.ReLU(),  # → 6x8
+            nn.Conv2d(c[3], c[4], 3),
+            nn.ReLU(),  # → 4x6
+            nn.Conv2d(c[4], c[5], 3),
+            nn.ReLU(),  # → 2x4
             nn.Flatten(),
         )
         self.fc = nn.Linear(c[5] * 2 * 4, arch.features)

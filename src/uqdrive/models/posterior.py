@@ -99,8 +99,10 @@ def is_method_name(name: object) -> bool:
 def check_method(name: object) -> str:
     """A method name as used in file names (models/<method>.pt) and `methods` lists."""
     if not is_method_name(name):
-        raise ConfigError(f"model.name={name!r} is not a method name: lower-case letters, digits and _ "
-                         f"(the name of a conf/model/<name>.yaml)")
+        raise ConfigError(
+            f"model.name={name!r} is not a method name: lower-case letters, digits and _ "
+            f"(the name of a conf/model/<name>.yaml)"
+        )
     return name
 
 
@@ -110,8 +112,10 @@ def posterior_class(target: object) -> type[Posterior]:
     try:
         cls = getattr(importlib.import_module(module_name), class_name)
     except (ImportError, AttributeError, ValueError) as err:
-        raise ConfigError(f"model._target_={target!r} cannot be imported ({err}); it must be the dotted path "
-                         f"of a Posterior subclass, e.g. uqdrive.models.vi.VIPosterior") from None
+        raise ConfigError(
+            f"model._target_={target!r} cannot be imported ({err}); it must be the dotted path "
+            f"of a Posterior subclass, e.g. uqdrive.models.vi.VIPosterior"
+        ) from None
     if not (isinstance(cls, type) and issubclass(cls, Posterior)) or getattr(cls, "__abstractmethods__", None):
         raise ConfigError(f"model._target_={target!r} is not a concrete uqdrive.models.posterior.Posterior subclass")
     return cls
@@ -121,12 +125,15 @@ def posterior_from_config(model: Any) -> type[Posterior]:
     """The Posterior class a conf/model section (mapping with name and _target_) names, checked against its name."""
     method = check_method(model.get("name"))
     if "_target_" not in model:
-        raise ConfigError(f"model._target_ is missing in conf/model/{method}.yaml: it must name the Posterior "
-                         f"class, e.g. uqdrive.models.vi.VIPosterior")
+        raise ConfigError(
+            f"model._target_ is missing in conf/model/{method}.yaml: it must name the Posterior "
+            f"class, e.g. uqdrive.models.vi.VIPosterior"
+        )
     cls = posterior_class(model["_target_"])
     if cls.method != method:
-        raise ConfigError(f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is "
-                         f"{cls.method!r}")
+        raise ConfigError(
+            f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is {cls.method!r}"
+        )
     return cls
 
 

@@ -70,13 +70,19 @@ def compute_features(posterior: Posterior, frames: FrameSet, batch_size: int = 5
 
 
 @torch.no_grad()
-def evaluate(posterior: Posterior, features: torch.Tensor, labels: torch.Tensor, n: int,
-             generator: torch.Generator) -> dict[str, float]:
+def evaluate(
+    posterior: Posterior, features: torch.Tensor, labels: torch.Tensor, n: int, generator: torch.Generator
+) -> dict[str, float]:
     """Metrics of the posterior predictive (mean of n draws' probabilities) on cached features."""
     probs = torch.cat([posterior.head_probs(f, n, generator).mean(0) for f in features.split(EVAL_CHUNK)])
     return classification_metrics(probs, labels)
 
 
 def curve_row(step: int, train_loss: float, scores: dict[str, float], **extra: float) -> dict:
-    return {"step": step, "train_loss": train_loss, "val_accuracy": scores["accuracy"], "val_nll": scores["nll"],
-            **extra}
+    return {
+        "step": step,
+        "train_loss": train_loss,
+        "val_accuracy": scores["accuracy"],
+        "val_nll": scores["nll"],
+        **extra,
+    }

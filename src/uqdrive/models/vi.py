@@ -50,7 +50,9 @@ class VIPosterior(Posterior):
     method = "vi"
     Settings = VISettings
 
-    def __init__(self, arch: Architecture, bins: SteeringBins, prior_sigma: float = 1.0, init_sigma: float = 1e-3) -> None:
+    def __init__(
+        self, arch: Architecture, bins: SteeringBins, prior_sigma: float = 1.0, init_sigma: float = 1e-3
+    ) -> None:
         super().__init__(arch, bins)
         if not prior_sigma > 0:
             raise ConfigError(f"model.prior_sigma={prior_sigma} must be > 0")
@@ -59,7 +61,9 @@ class VIPosterior(Posterior):
         self.prior_sigma = float(prior_sigma)
         shapes = arch.head_shapes(bins.num_classes)
         rho = _inverse_softplus(init_sigma)
-        self.w_mu = nn.ParameterList(nn.Parameter(torch.zeros(i, o)) for i, o in shapes)  # set by from_mcd or a checkpoint
+        self.w_mu = nn.ParameterList(
+            nn.Parameter(torch.zeros(i, o)) for i, o in shapes
+        )  # set by from_mcd or a checkpoint
         self.b_mu = nn.ParameterList(nn.Parameter(torch.zeros(o)) for _, o in shapes)
         self.w_rho = nn.ParameterList(nn.Parameter(torch.full((i, o), rho)) for i, o in shapes)
         self.b_rho = nn.ParameterList(nn.Parameter(torch.full((o,), rho)) for _, o in shapes)
@@ -80,8 +84,9 @@ class VIPosterior(Posterior):
         return {"prior_sigma": self.prior_sigma}
 
     @classmethod
-    def fit(cls, settings: VISettings, data: TrainingData, generator: torch.Generator,
-            progress: bool = False) -> Fitted:
+    def fit(
+        cls, settings: VISettings, data: TrainingData, generator: torch.Generator, progress: bool = False
+    ) -> Fitted:
         """Maximise the ELBO (per frame: expected log-likelihood − KL/N) by Adam with one draw per step."""
         vi = cls.from_mcd(data.base, settings.prior_sigma, settings.init_sigma)
         features, labels = data.train_features, data.train.labels
@@ -126,8 +131,15 @@ class VIPosterior(Posterior):
         total = torch.zeros(())
         for mu, rho in zip([*self.w_mu, *self.b_mu], [*self.w_rho, *self.b_rho]):
             sigma = softplus(rho)
-            total = total + (math.log(self.prior_sigma) - torch.log(sigma)
-                             + (sigma.square() + mu.square()) / (2 * self.prior_sigma**2) - 0.5).sum()
+            total = (
+                total
+                + (
+                    math.log(self.prior_sigma)
+                    - torch.log(sigma)
+                    + (sigma.square() + mu.square()) / (2 * self.prior_sigma**2)
+                    - 0.5
+                ).sum()
+            )
         return total
 
     def posterior_sigma_mean(self) -> float:

@@ -72,14 +72,18 @@ class CalibrationSettings:
     def __post_init__(self) -> None:
         for name in ("autonomy_target", "gamma"):
             if not 0 < checks.finite_number(f"avoid.calibration.{name}", getattr(self, name)) < 1:
-                raise ConfigError(f"avoid.calibration.{name}={getattr(self, name)!r} must be in the open "
-                                 "interval (0, 1)")
+                raise ConfigError(
+                    f"avoid.calibration.{name}={getattr(self, name)!r} must be in the open interval (0, 1)"
+                )
         if not checks.finite_number("avoid.calibration.margin_m", self.margin_m) >= 0:
             raise ConfigError(f"avoid.calibration.margin_m={self.margin_m!r} must be a number of metres >= 0")
         for name, ok, allowed in (("deltas", lambda v: 0 <= v <= 1, "in [0, 1]"), ("taus", lambda v: v >= 0, ">= 0")):
             values = getattr(self, name)
-            if isinstance(values, (str, bytes)) or not values or not all(
-                    ok(checks.finite_number(f"avoid.calibration.{name}", v)) for v in values):
+            if (
+                isinstance(values, (str, bytes))
+                or not values
+                or not all(ok(checks.finite_number(f"avoid.calibration.{name}", v)) for v in values)
+            ):
                 raise ConfigError(f"avoid.calibration.{name}={values!r} must be a non-empty list of numbers {allowed}")
             object.__setattr__(self, name, tuple(sorted({float(v) for v in values})))
 
@@ -118,9 +122,17 @@ class AvoidSettings:
 
     def job(self, condition: Condition, warning: WarningConfig | None, base_seed: int) -> RolloutJob:
         """The rollouts of one cell: ``warning`` None drives without the warning system."""
-        return RolloutJob(policy=dataclasses.replace(self.spec, warnings=warning), scenario=condition.scenario,
-                          weather=condition.weather, noise=condition.noise, base_seed=base_seed, camera=self.camera,
-                          vehicle=self.vehicle, control_hz=self.control_hz, horizon_s=self.horizon_s)
+        return RolloutJob(
+            policy=dataclasses.replace(self.spec, warnings=warning),
+            scenario=condition.scenario,
+            weather=condition.weather,
+            noise=condition.noise,
+            base_seed=base_seed,
+            camera=self.camera,
+            vehicle=self.vehicle,
+            control_hz=self.control_hz,
+            horizon_s=self.horizon_s,
+        )
 
     def geometries(self) -> dict[str, ScenarioGeometry]:
         """Road geometry per condition name, for distances along the road."""
@@ -130,8 +142,9 @@ class AvoidSettings:
 def _unknown_conditions(cfg: DictConfig, scenario: ScenarioConfig) -> tuple[Condition, ...]:
     items = OmegaConf.to_container(cfg.avoid.unknown, resolve=True)
     if not isinstance(items, list) or not items:
-        raise ConfigError(f"avoid.unknown={items!r} must be a non-empty list of conditions "
-                         f"(each with keys {list(UNKNOWN_KEYS)})")
+        raise ConfigError(
+            f"avoid.unknown={items!r} must be a non-empty list of conditions (each with keys {list(UNKNOWN_KEYS)})"
+        )
     weathers = {cfg.weather.name: cfg.weather, **dict(cfg.get("weathers") or {})}
     out = []
     for i, item in enumerate(items):
@@ -142,8 +155,10 @@ def _unknown_conditions(cfg: DictConfig, scenario: ScenarioConfig) -> tuple[Cond
             raise ConfigError(f"{key}.name={KNOWN!r} is the training condition's name; choose another")
         name = item.get("weather", cfg.weather.name)
         if name not in weathers:
-            raise ConfigError(f"{key}.weather={name!r} is not loaded; choose one of {sorted(weathers)} or add "
-                             f"+weather@weathers.{name}={name}")
+            raise ConfigError(
+                f"{key}.weather={name!r} is not loaded; choose one of {sorted(weathers)} or add "
+                f"+weather@weathers.{name}={name}"
+            )
         overrides = item.get("scenario") or {}
         if not isinstance(overrides, dict):
             raise ConfigError(f"{key}.scenario={overrides!r} must be a mapping of scenario fields")
@@ -159,20 +174,26 @@ def _unknown_conditions(cfg: DictConfig, scenario: ScenarioConfig) -> tuple[Cond
     return tuple(out)
 
 
-def check_horizon(horizon: float, warning: WarningConfig, speed: float, scenario: ScenarioConfig,
-                  vehicle: VehicleConfig) -> float:
+def check_horizon(
+    horizon: float, warning: WarningConfig, speed: float, scenario: ScenarioConfig, vehicle: VehicleConfig
+) -> float:
     """The horizon must let a run that warnings slow down (but do not stop) pass the obstacle: a timeout
     before it would be a non-answer, neither safe nor a collision."""
-    slowest = min(a.speed for a in warning.actions if not a.handover) if any(
-        not a.handover for a in warning.actions) else 1.0
+    slowest = (
+        min(a.speed for a in warning.actions if not a.handover) if any(not a.handover for a in warning.actions) else 1.0
+    )
     if slowest <= 0:
-        raise ConfigError("warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
-                         "give it a speed > 0 or handover: true")
+        raise ConfigError(
+            "warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
+            "give it a speed > 0 or handover: true"
+        )
     distance = obstacle_pass_progress(build_geometry(scenario), vehicle.length) - scenario.start_distance
     needed = distance / (slowest * speed) + 1.0  # + 1 s for the start jitter and speed changes
     if horizon < needed:
-        raise ConfigError(f"avoid.horizon_s={horizon:g} is too short: a run slowed to {slowest * speed:g} m/s needs "
-                         f"{needed:.1f} s to pass the obstacle ({distance:.0f} m); set at least {np.ceil(needed):g}")
+        raise ConfigError(
+            f"avoid.horizon_s={horizon:g} is too short: a run slowed to {slowest * speed:g} m/s needs "
+            f"{needed:.1f} s to pass the obstacle ({distance:.0f} m); set at least {np.ceil(needed):g}"
+        )
     return horizon
 
 
@@ -183,8 +204,14 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ConfigError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
     checks.integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
-    estimator = EstimatorSettings(scheme=cfg.avoid.scheme, theta=cfg.avoid.theta, gamma=cfg.avoid.gamma,
-                                  base_seed=cfg.avoid.base_seed, look_size=cfg.avoid.look_size, section="avoid")
+    estimator = EstimatorSettings(
+        scheme=cfg.avoid.scheme,
+        theta=cfg.avoid.theta,
+        gamma=cfg.avoid.gamma,
+        base_seed=cfg.avoid.base_seed,
+        look_size=cfg.avoid.look_size,
+        section="avoid",
+    )
     validation_seed = checks.integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)
@@ -196,18 +223,32 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     calibration = CalibrationSettings(**OmegaConf.to_container(cfg.avoid.calibration, resolve=True))
     needed = min_known_runs(calibration.autonomy_target, calibration.gamma)
     if estimator.scheme != "sequential" and estimator.planned_rollouts() < needed:
-        raise ConfigError(f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be shown with "
-                         f"{estimator.planned_rollouts()} known-condition runs (it needs {needed}); lower it or "
-                         "tighten avoid.theta")
+        raise ConfigError(
+            f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be shown with "
+            f"{estimator.planned_rollouts()} known-condition runs (it needs {needed}); lower it or "
+            "tighten avoid.theta"
+        )
     bins = SteeringBins(**cfg.experiment.bins)
     model_path = Path(cfg.avoid.model_path)
     cell_posterior("avoid.model_path", model_path, method, bins)
     if not checks.finite_number("avoid.eps", cfg.avoid.eps) > 0:
         raise ConfigError(f"avoid.eps={cfg.avoid.eps!r} must be a number > 0 (steering units)")
     spec = PolicySpec("bnn", speed, str(model_path), method, bins, warning.samples, float(cfg.avoid.eps))
-    return AvoidSettings(method, spec, file_digest(model_path), warning, estimator, validation_seed, known,
-                         _unknown_conditions(cfg, scenario), calibration, CameraConfig.from_config(cfg.camera),
-                         vehicle, float(cfg.control_hz), horizon)
+    return AvoidSettings(
+        method,
+        spec,
+        file_digest(model_path),
+        warning,
+        estimator,
+        validation_seed,
+        known,
+        _unknown_conditions(cfg, scenario),
+        calibration,
+        CameraConfig.from_config(cfg.camera),
+        vehicle,
+        float(cfg.control_hz),
+        horizon,
+    )
 
 
 class ReusingExecutor:
@@ -228,12 +269,22 @@ class ReusingExecutor:
 def unchanged_by(warning: WarningConfig, off: Cell) -> dict[int, RolloutResult]:
     """Warnings-off rollouts in which ``warning`` never fires: with warnings on, the same seed gives the
     same frames, draws and measures, no action ever changes a command, so the rollout is identical."""
-    return {i: r for i, r in enumerate(off.results)
-            if not (classify(r.eta2, r.mutual_information, warning.delta1, warning.delta2, warning.tau) >= 0).any()}
+    return {
+        i: r
+        for i, r in enumerate(off.results)
+        if not (classify(r.eta2, r.mutual_information, warning.delta1, warning.delta2, warning.tau) >= 0).any()
+    }
 
 
-def run_cell(cfg: DictConfig, settings: AvoidSettings, condition: Condition, mode: str, warning: WarningConfig,
-             pool: ProcessPool | None, off: Cell | None = None) -> Cell:
+def run_cell(
+    cfg: DictConfig,
+    settings: AvoidSettings,
+    condition: Condition,
+    mode: str,
+    warning: WarningConfig,
+    pool: ProcessPool | None,
+    off: Cell | None = None,
+) -> Cell:
     """η̂1 of one cell; the rollouts its log already holds (same identity) are reused, not rerun, so a finished
     cell costs nothing on a rerun and an interrupted one resumes. ``mode`` off drives without warnings (its
     warnings are only counted). ``pool``: the stage's worker processes (process backend). ``off``: the
@@ -242,18 +293,33 @@ def run_cell(cfg: DictConfig, settings: AvoidSettings, condition: Condition, mod
     estimator = dataclasses.replace(settings.estimator, base_seed=base_seed)
     job = settings.job(condition, None if mode == "off" else warning, base_seed)
     name = f"{settings.method}-{condition.name}-{mode}"
-    identity = {"model_sha256": settings.model_sha256, "code": code_digest(), "estimator": estimator.__dict__,
-                "job": {**job.__dict__, "policy": {k: v for k, v in job.policy.__dict__.items() if k != "model_path"}}}
+    identity = {
+        "model_sha256": settings.model_sha256,
+        "code": code_digest(),
+        "estimator": estimator.__dict__,
+        "job": {**job.__dict__, "policy": {k: v for k, v in job.policy.__dict__.items() if k != "model_path"}},
+    }
     log = RolloutLog(Path(cfg.avoid.rollout_log) / f"{name}.jsonl", cell_hash(identity), base_seed)
-    executor: Executor = make_executor(cfg.executor.name, job, cfg.executor.workers, pool,
-                                       **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
+    executor: Executor = make_executor(
+        cfg.executor.name,
+        job,
+        cfg.executor.workers,
+        pool,
+        **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)),
+    )
     if off is not None:
         executor = ReusingExecutor(executor, unchanged_by(warning, off))
     ran: list[RolloutResult] = []
 
     def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
-        for result in tqdm(fresh, total=estimator.planned_rollouts(), desc=f"avoid {name}", unit="rollout",
-                           disable=not cfg.progress, leave=False):
+        for result in tqdm(
+            fresh,
+            total=estimator.planned_rollouts(),
+            desc=f"avoid {name}",
+            unit="rollout",
+            disable=not cfg.progress,
+            leave=False,
+        ):
             ran.append(result)
             yield result
 
@@ -278,20 +344,33 @@ def run_avoid(cfg: DictConfig) -> dict:
             cells[condition.name, "on"] = run_cell(cfg, settings, condition, "on", settings.warning, pool, off)
         c, names = settings.calibration, [k.name for k in settings.conditions]
         traces = traces_of([cells[name, "off"] for name in names], geometries)
-        calib = calibrate(traces, names, settings.warning, list(c.deltas), list(c.taus), c.autonomy_target, c.gamma,
-                          **replay_args(settings))
+        calib = calibrate(
+            traces,
+            names,
+            settings.warning,
+            list(c.deltas),
+            list(c.taus),
+            c.autonomy_target,
+            c.gamma,
+            **replay_args(settings),
+        )
         calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
         for condition in settings.conditions:
             cells[condition.name, "calibrated"] = run_cell(cfg, settings, condition, "calibrated", calibrated, pool)
     finally:
         if pool is not None:
             pool.close()
-    return write_outputs(cfg, settings, cells, calib, traces, replay_args(settings), geometries,
-                         time.perf_counter() - start)
+    return write_outputs(
+        cfg, settings, cells, calib, traces, replay_args(settings), geometries, time.perf_counter() - start
+    )
 
 
 def replay_args(settings: AvoidSettings) -> dict:
-    return {"control_hz": settings.control_hz, "cruise": settings.spec.speed,
-            "start_speed": min(settings.known.scenario.start_speed, settings.vehicle.max_speed),
-            "max_accel": settings.vehicle.max_accel, "max_brake": settings.vehicle.max_brake,
-            "margin_m": settings.calibration.margin_m}
+    return {
+        "control_hz": settings.control_hz,
+        "cruise": settings.spec.speed,
+        "start_speed": min(settings.known.scenario.start_speed, settings.vehicle.max_speed),
+        "max_accel": settings.vehicle.max_accel,
+        "max_brake": settings.vehicle.max_brake,
+        "margin_m": settings.calibration.margin_m,
+    }

@@ -81,25 +81,40 @@ def cell_metrics(cell: Cell, cruise: float, geometry: ScenarioGeometry) -> dict:
     steps = sum(r.steps for r in results)
     full = sum(int(np.sum(r.command_speed >= cruise - 1e-9)) for r in results)
     where = handover_distances(cell, geometry)
-    metrics = {"eta1": est.value, "eta1_low": est.low, "eta1_high": est.high, "n": est.n,
-               "handover_rate": float(np.mean(handed)), "autonomy": 1 - float(np.mean(handed)),
-               "full_speed_fraction": full / max(steps, 1),
-               "collision_rate": float(np.mean([r.collision for r in results])),
-               "off_road_rate": float(np.mean([r.off_road for r in results])),
-               "passed_rate": float(np.mean([r.reached_goal for r in results])),
-               # ran out of time before passing the obstacle without having stopped: no answer, never safe
-               "timeout_before_obstacle_rate": float(np.mean([r.termination == "timeout" and not r.reached_goal
-                                                              for r in results])),
-               "handover_distance_min": min(where, default=None),  # None (JSON null): no hand-over
-               "handover_distance_median": float(np.median(where)) if where else None,
-               "handover_distances": [round(d, 2) for d in where],
-               "mean_steps": steps / len(results), "seconds": cell.seconds, "reused": cell.reused}
+    metrics = {
+        "eta1": est.value,
+        "eta1_low": est.low,
+        "eta1_high": est.high,
+        "n": est.n,
+        "handover_rate": float(np.mean(handed)),
+        "autonomy": 1 - float(np.mean(handed)),
+        "full_speed_fraction": full / max(steps, 1),
+        "collision_rate": float(np.mean([r.collision for r in results])),
+        "off_road_rate": float(np.mean([r.off_road for r in results])),
+        "passed_rate": float(np.mean([r.reached_goal for r in results])),
+        # ran out of time before passing the obstacle without having stopped: no answer, never safe
+        "timeout_before_obstacle_rate": float(
+            np.mean([r.termination == "timeout" and not r.reached_goal for r in results])
+        ),
+        "handover_distance_min": min(where, default=None),  # None (JSON null): no hand-over
+        "handover_distance_median": float(np.median(where)) if where else None,
+        "handover_distances": [round(d, 2) for d in where],
+        "mean_steps": steps / len(results),
+        "seconds": cell.seconds,
+        "reused": cell.reused,
+    }
     for level in LEVELS:
         metrics[f"warning{level}_frames"] = int(sum(int(np.sum(lv == level)) for lv in per_run))
         metrics[f"warning{level}_runs"] = int(sum(bool(np.any(lv == level)) for lv in per_run))
-    return {**metrics, "terminations": dict(sorted(Counter(r.termination for r in results).items())),
-            "guaranteed": est.guaranteed, "scheme": est.method, "theta": est.theta, "gamma": est.gamma,
-            "thresholds": {"delta1": cell.warning.delta1, "delta2": cell.warning.delta2, "tau": cell.warning.tau}}
+    return {
+        **metrics,
+        "terminations": dict(sorted(Counter(r.termination for r in results).items())),
+        "guaranteed": est.guaranteed,
+        "scheme": est.method,
+        "theta": est.theta,
+        "gamma": est.gamma,
+        "thresholds": {"delta1": cell.warning.delta1, "delta2": cell.warning.delta2, "tau": cell.warning.tau},
+    }
 
 
 def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry]) -> Traces:
@@ -117,9 +132,14 @@ def write_cell_table(path: Path, cell: Cell) -> Path:
     rows = []
     for r in cell.results:
         lv = levels(cell, r)
-        rows.append({**r.summary(), "min_eta2": float(np.min(r.eta2)) if r.steps else math.nan,
-                     "max_mutual_information": float(np.max(r.mutual_information)) if r.steps else math.nan,
-                     **{f"warning{level}_frames": int(np.sum(lv == level)) for level in LEVELS}})
+        rows.append(
+            {
+                **r.summary(),
+                "min_eta2": float(np.min(r.eta2)) if r.steps else math.nan,
+                "max_mutual_information": float(np.max(r.mutual_information)) if r.steps else math.nan,
+                **{f"warning{level}_frames": int(np.sum(lv == level)) for level in LEVELS},
+            }
+        )
     return write_csv(path, rows)
 
 
@@ -138,25 +158,47 @@ def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry) -> Path:
     """Per-frame traces of a cell (npz) for the summary figure: positions, distance to the obstacle, η2, MI, level."""
     frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
     for i, r in enumerate(cell.results):
-        for key, value in (("rollout", np.full(r.steps, i)), ("x", r.x[:-1]), ("y", r.y[:-1]),
-                           ("distance", distances(r, geometry)), ("eta2", r.eta2),
-                           ("mi", r.mutual_information), ("level", levels(cell, r))):
+        for key, value in (
+            ("rollout", np.full(r.steps, i)),
+            ("x", r.x[:-1]),
+            ("y", r.y[:-1]),
+            ("distance", distances(r, geometry)),
+            ("eta2", r.eta2),
+            ("mi", r.mutual_information),
+            ("level", levels(cell, r)),
+        ):
             frames[key].append(value)
     with atomic_path(path) as tmp, tmp.open("wb") as f:
-        np.savez_compressed(f, **{k: np.concatenate(v) if v else np.zeros(0) for k, v in frames.items()},
-                            termination=np.array([r.termination for r in cell.results]),
-                            safe=np.array([r.safe for r in cell.results]), eta1=cell.estimate.value,
-                            obstacle=obstacle_box(geometry), road=road_box(geometry))
+        np.savez_compressed(
+            f,
+            **{k: np.concatenate(v) if v else np.zeros(0) for k, v in frames.items()},
+            termination=np.array([r.termination for r in cell.results]),
+            safe=np.array([r.safe for r in cell.results]),
+            eta1=cell.estimate.value,
+            obstacle=obstacle_box(geometry),
+            road=road_box(geometry),
+        )
     return path
 
 
 def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioGeometry]) -> Path:
     """η2 and MI per frame against the distance to the obstacle (a DVC plot)."""
-    return write_csv(path, [{"condition": cell.condition, "rollout": i, "distance": f"{d:.3f}", "eta2": f"{e:.4f}",
-                             "mutual_information": f"{m:.4f}", "outcome": r.termination}
-                            for cell in cells for i, r in enumerate(cell.results)
-                            for d, e, m in zip(distances(r, geometries[cell.condition]), r.eta2,
-                                               r.mutual_information)])
+    return write_csv(
+        path,
+        [
+            {
+                "condition": cell.condition,
+                "rollout": i,
+                "distance": f"{d:.3f}",
+                "eta2": f"{e:.4f}",
+                "mutual_information": f"{m:.4f}",
+                "outcome": r.termination,
+            }
+            for cell in cells
+            for i, r in enumerate(cell.results)
+            for d, e, m in zip(distances(r, geometries[cell.condition]), r.eta2, r.mutual_information)
+        ],
+    )
 
 
 def write_tradeoff(path: Path, calib: Calibration) -> Path:
@@ -171,7 +213,12 @@ def _fmt(value: object) -> str:
 
 def panel(cell: Cell, geometry: ScenarioGeometry) -> dict:
     """One figure panel: the cell's paths coloured by mutual information on the road."""
-    paths = [{"x": r.x[:-1], "y": r.y[:-1], "mi": r.mutual_information, "termination": r.termination}
-             for r in cell.results]
-    return {"paths": paths, "obstacle": obstacle_box(geometry), "road": road_box(geometry),
-            "title": f"η̂1 = {cell.estimate.value:.2f} [{cell.estimate.low:.2f}, {cell.estimate.high:.2f}]"}
+    paths = [
+        {"x": r.x[:-1], "y": r.y[:-1], "mi": r.mutual_information, "termination": r.termination} for r in cell.results
+    ]
+    return {
+        "paths": paths,
+        "obstacle": obstacle_box(geometry),
+        "road": road_box(geometry),
+        "title": f"η̂1 = {cell.estimate.value:.2f} [{cell.estimate.low:.2f}, {cell.estimate.high:.2f}]",
+    }

@@ -46,9 +46,16 @@ MODES = ("off", "on", "calibrated")
 def unknown_mixture(cells: list[Cell], metrics: list[dict], gamma: float) -> dict:
     """η̂1 of the unknown conditions as one uniform mixture of their cells (Hoeffding interval, fixed n)."""
     p = pooled([sum(r.safe for r in c.results) for c in cells], [len(c.results) for c in cells], gamma)
-    return {"eta1": p.value, "eta1_low": p.low, "eta1_high": p.high, "theta": p.theta, "gamma": gamma, "n": p.n,
-            "autonomy": float(np.mean([m["autonomy"] for m in metrics])),
-            "interval": "hoeffding (uniform mixture of the condition cells)"}
+    return {
+        "eta1": p.value,
+        "eta1_low": p.low,
+        "eta1_high": p.high,
+        "theta": p.theta,
+        "gamma": gamma,
+        "n": p.n,
+        "autonomy": float(np.mean([m["autonomy"] for m in metrics])),
+        "interval": "hoeffding (uniform mixture of the condition cells)",
+    }
 
 
 def uncaught_variants(calib: Calibration, cells: dict[tuple[str, str], Cell], names: list[str]) -> list[dict]:
@@ -60,15 +67,26 @@ def uncaught_variants(calib: Calibration, cells: dict[tuple[str, str], Cell], na
         observed = float(np.mean([r.safe for r in off.results]))
         best = float(np.max(calib.table[f"eta1_{name}"]))
         if observed < 1.0 and best <= observed:
-            out.append({"condition": name, "eta1_off": observed,
-                        "min_eta2_median": float(np.median([r.eta2.min() for r in off.results if r.steps])),
-                        "max_mutual_information_median": float(np.median(
-                            [r.mutual_information.max() for r in off.results if r.steps]))})
+            out.append(
+                {
+                    "condition": name,
+                    "eta1_off": observed,
+                    "min_eta2_median": float(np.median([r.eta2.min() for r in off.results if r.steps])),
+                    "max_mutual_information_median": float(
+                        np.median([r.mutual_information.max() for r in off.results if r.steps])
+                    ),
+                }
+            )
     return out
 
 
-def replay_check(cells: dict[tuple[str, str], Cell], calib_groups: list[str], settings: AvoidSettings,
-                 traces: Traces, replay_args: dict) -> dict:
+def replay_check(
+    cells: dict[tuple[str, str], Cell],
+    calib_groups: list[str],
+    settings: AvoidSettings,
+    traces: Traces,
+    replay_args: dict,
+) -> dict:
     """The replay at the configured thresholds against the warnings-on cells on the same seeds: how well
     the approximation predicts closed loop, run by run."""
     w = settings.warning
@@ -78,38 +96,74 @@ def replay_check(cells: dict[tuple[str, str], Cell], calib_groups: list[str], se
         members = traces.group == g
         safe = np.array([r.safe for r in cells[name, "on"].results])
         replayed = out.safe[0, members]
-        check[name] = {"replayed_eta1": float(replayed.mean()), "closed_loop_eta1": float(safe.mean()),
-                       "agreement": float(np.mean(replayed == safe)) if len(safe) == len(replayed) else math.nan}
+        check[name] = {
+            "replayed_eta1": float(replayed.mean()),
+            "closed_loop_eta1": float(safe.mean()),
+            "agreement": float(np.mean(replayed == safe)) if len(safe) == len(replayed) else math.nan,
+        }
     return check
 
 
 def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict) -> dict:
-    row = {k: (v[calib.chosen].item() if hasattr(v[calib.chosen], "item") else v[calib.chosen])
-           for k, v in calib.table.items()}
-    return {"delta1": calib.delta1, "delta2": calib.delta2, "tau": calib.tau, "feasible": calib.feasible,
-            "autonomy_target": calib.target, "gamma": calib.gamma, "candidates": len(calib.table["delta1"]),
-            "replayed": {k: v for k, v in row.items() if k not in ("delta1", "delta2", "tau")},
-            "uncaught_variants": uncaught, "replay_check": check}
+    row = {
+        k: (v[calib.chosen].item() if hasattr(v[calib.chosen], "item") else v[calib.chosen])
+        for k, v in calib.table.items()
+    }
+    return {
+        "delta1": calib.delta1,
+        "delta2": calib.delta2,
+        "tau": calib.tau,
+        "feasible": calib.feasible,
+        "autonomy_target": calib.target,
+        "gamma": calib.gamma,
+        "candidates": len(calib.table["delta1"]),
+        "replayed": {k: v for k, v in row.items() if k not in ("delta1", "delta2", "tau")},
+        "uncaught_variants": uncaught,
+        "replay_check": check,
+    }
 
 
 def _log_run(cfg: DictConfig, settings: AvoidSettings, cell: Cell, metrics: dict, artifacts: list[Path]) -> str:
-    params = {"method": settings.method, "experiment": cfg.experiment.name, "condition": cell.condition,
-              "warnings": cell.mode, "delta1": cell.warning.delta1, "delta2": cell.warning.delta2,
-              "tau": cell.warning.tau, "samples_per_frame": cell.warning.samples, "scheme": cell.estimate.method,
-              "theta": cell.estimate.theta, "gamma": cell.estimate.gamma, "n": cell.estimate.n,
-              "base_seed": settings.validation_seed if cell.mode == "calibrated" else settings.estimator.base_seed,
-              "reused": cell.reused}
+    params = {
+        "method": settings.method,
+        "experiment": cfg.experiment.name,
+        "condition": cell.condition,
+        "warnings": cell.mode,
+        "delta1": cell.warning.delta1,
+        "delta2": cell.warning.delta2,
+        "tau": cell.warning.tau,
+        "samples_per_frame": cell.warning.samples,
+        "scheme": cell.estimate.method,
+        "theta": cell.estimate.theta,
+        "gamma": cell.estimate.gamma,
+        "n": cell.estimate.n,
+        "base_seed": settings.validation_seed if cell.mode == "calibrated" else settings.estimator.base_seed,
+        "reused": cell.reused,
+    }
     with stage_run(cfg.paths.root, "avoid", cfg, run_name=cell.name) as run:
         mlflow.log_params(params)
-        mlflow.log_metrics({k: float(v) for k, v in metrics.items()
-                            if isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)})
+        mlflow.log_metrics(
+            {
+                k: float(v)
+                for k, v in metrics.items()
+                if isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+            }
+        )
         for path in artifacts:
             mlflow.log_artifact(str(path))
         return run.info.run_id
 
 
-def write_outputs(cfg: DictConfig, settings: AvoidSettings, cells: dict[tuple[str, str], Cell], calib: Calibration,
-                  traces: Traces, replay_args: dict, geometries: dict[str, ScenarioGeometry], seconds: float) -> dict:
+def write_outputs(
+    cfg: DictConfig,
+    settings: AvoidSettings,
+    cells: dict[tuple[str, str], Cell],
+    calib: Calibration,
+    traces: Traces,
+    replay_args: dict,
+    geometries: dict[str, ScenarioGeometry],
+    seconds: float,
+) -> dict:
     """Everything the stage writes, from its finished cells and calibration; returns metrics/avoid/<method>.json."""
     data_dir, plots_dir = Path(cfg.avoid.data_dir), Path(cfg.avoid.plots_dir)
     names = [c.name for c in settings.conditions]
@@ -123,45 +177,95 @@ def write_outputs(cfg: DictConfig, settings: AvoidSettings, cells: dict[tuple[st
         write_cell_data(data_dir / "traces" / f"{cell.name}.npz", cell, geometry)
         fig, ax = plt.subplots(figsize=(8, 2.6))
         p = panel(cell, geometry)
-        fig.colorbar(avoid_trajectories(ax, p, f"{settings.method} · {condition}, warnings {mode}: {p['title']}"),
-                     ax=ax, label="mutual information (nats)", extend="max")
+        fig.colorbar(
+            avoid_trajectories(ax, p, f"{settings.method} · {condition}, warnings {mode}: {p['title']}"),
+            ax=ax,
+            label="mutual information (nats)",
+            extend="max",
+        )
         png = save_figure(fig, plots_dir / "cells" / f"{cell.name}.png")
         run_ids[cell.name] = _log_run(cfg, settings, cell, metrics, [csv_path, png])
         table[condition][mode] = metrics
-    mixture = {mode: unknown_mixture([cells[name, mode] for name in unknown], [table[name][mode] for name in unknown],
-                                     settings.estimator.gamma) for mode in MODES}
+    mixture = {
+        mode: unknown_mixture(
+            [cells[name, mode] for name in unknown], [table[name][mode] for name in unknown], settings.estimator.gamma
+        )
+        for mode in MODES
+    }
     check = replay_check(cells, names, settings, traces, replay_args)
     calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check)
     calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
     configured = _configured_index(calib, settings)
     figures = [
-        save_figure(avoid_trajectories_figure(
-            {(c, m): panel(cells[c, m], geometries[c]) for c in names for m in MODES}, names, list(MODES),
-            f"{settings.method}: paths coloured by mutual information"), plots_dir / "trajectories.png"),
-        save_figure(avoid_signals_figure(
-            {c: [(distances(r, geometries[c]), r.eta2, r.mutual_information, r.termination)
-                 for r in cells[c, "off"].results] for c in names},
-            settings.warning, calibrated, f"{settings.method}, warnings off: uncertainty approaching the obstacle"),
-            plots_dir / "warnings.png"),
-        save_figure(avoid_tradeoff_figure(calib.table, calib.chosen, configured, calib.target,
-                                          f"{settings.method}: unknown-condition safety against known autonomy "
-                                          "(replayed)"), plots_dir / "tradeoff.png"),
+        save_figure(
+            avoid_trajectories_figure(
+                {(c, m): panel(cells[c, m], geometries[c]) for c in names for m in MODES},
+                names,
+                list(MODES),
+                f"{settings.method}: paths coloured by mutual information",
+            ),
+            plots_dir / "trajectories.png",
+        ),
+        save_figure(
+            avoid_signals_figure(
+                {
+                    c: [
+                        (distances(r, geometries[c]), r.eta2, r.mutual_information, r.termination)
+                        for r in cells[c, "off"].results
+                    ]
+                    for c in names
+                },
+                settings.warning,
+                calibrated,
+                f"{settings.method}, warnings off: uncertainty approaching the obstacle",
+            ),
+            plots_dir / "warnings.png",
+        ),
+        save_figure(
+            avoid_tradeoff_figure(
+                calib.table,
+                calib.chosen,
+                configured,
+                calib.target,
+                f"{settings.method}: unknown-condition safety against known autonomy (replayed)",
+            ),
+            plots_dir / "tradeoff.png",
+        ),
     ]
-    data_files = [write_tradeoff(plots_dir / "tradeoff.csv", calib),
-                  write_signals(plots_dir / "signals.csv", [cells[c, "off"] for c in names], geometries)]
+    data_files = [
+        write_tradeoff(plots_dir / "tradeoff.csv", calib),
+        write_signals(plots_dir / "signals.csv", [cells[c, "off"] for c in names], geometries),
+    ]
     with stage_run(cfg.paths.root, "avoid", cfg, run_name=f"{settings.method}-calibration") as run:
-        mlflow.log_params({"method": settings.method, "calibrated_delta1": calib.delta1,
-                           "calibrated_delta2": calib.delta2, "calibrated_tau": calib.tau,
-                           "autonomy_target": calib.target, "calibration_feasible": calib.feasible})
+        mlflow.log_params(
+            {
+                "method": settings.method,
+                "calibrated_delta1": calib.delta1,
+                "calibrated_delta2": calib.delta2,
+                "calibrated_tau": calib.tau,
+                "autonomy_target": calib.target,
+                "calibration_feasible": calib.feasible,
+            }
+        )
         mlflow.log_metrics({f"replayed_{k}": float(v) for k, v in calibration["replayed"].items()})
         mlflow.log_metrics({f"unknown_{mode}_eta1": m["eta1"] for mode, m in mixture.items()})
         for path in [*figures, *data_files]:
             mlflow.log_artifact(str(path))
         run_ids["calibration"] = run.info.run_id
-    result = {"method": settings.method, "experiment": cfg.experiment.name, "cells": table, "unknown": mixture,
-              "calibration": calibration, "warning": settings.warning.to_dict(),
-              "samples_per_frame": settings.warning.samples, "conditions": names, "horizon_s": settings.horizon_s,
-              "speed": settings.spec.speed, "seconds": seconds, "mlflow_run_ids": run_ids}
+    result = {
+        "method": settings.method,
+        "experiment": cfg.experiment.name,
+        "cells": table,
+        "unknown": mixture,
+        "calibration": calibration,
+        "warning": settings.warning.to_dict(),
+        "samples_per_frame": settings.warning.samples,
+        "conditions": names,
+        "horizon_s": settings.horizon_s,
+        "speed": settings.spec.speed,
+        "seconds": seconds,
+        "mlflow_run_ids": run_ids,
+    }
     write_json(cfg.avoid.out, result)
     return result
 
@@ -169,6 +273,7 @@ def write_outputs(cfg: DictConfig, settings: AvoidSettings, cells: dict[tuple[st
 def _configured_index(calib: Calibration, settings: AvoidSettings) -> int | None:
     """Row of the configured thresholds among the candidates (None if they are off the grids)."""
     t, w = calib.table, settings.warning
-    hit = np.flatnonzero(np.isclose(t["delta1"], w.delta1) & np.isclose(t["delta2"], w.delta2)
-                         & np.isclose(t["tau"], w.tau))
+    hit = np.flatnonzero(
+        np.isclose(t["delta1"], w.delta1) & np.isclose(t["delta2"], w.delta2) & np.isclose(t["tau"], w.tau)
+    )
     return int(hit[0]) if hit.size else None

@@ -32,15 +32,26 @@ from uqdrive.tracking import stage_run
 
 
 def make_env(cfg: DictConfig) -> DrivingEnv:
-    return DrivingEnv(camera=CameraConfig.from_config(cfg.camera), vehicle=VehicleConfig.from_config(cfg.vehicle),
-                      control_hz=cfg.control_hz, horizon_s=cfg.horizon_s)
+    return DrivingEnv(
+        camera=CameraConfig.from_config(cfg.camera),
+        vehicle=VehicleConfig.from_config(cfg.vehicle),
+        control_hz=cfg.control_hz,
+        horizon_s=cfg.horizon_s,
+    )
 
 
-def record_episode(env: DrivingEnv, autopilot_cfg: AutopilotConfig, seed: int, scenario: ScenarioConfig,
-                   weather: WeatherConfig, noise: float) -> tuple[dict[str, list], str, list[np.ndarray]]:
+def record_episode(
+    env: DrivingEnv,
+    autopilot_cfg: AutopilotConfig,
+    seed: int,
+    scenario: ScenarioConfig,
+    weather: WeatherConfig,
+    noise: float,
+) -> tuple[dict[str, list], str, list[np.ndarray]]:
     """Drive one episode; each row pairs the frame seen at step k with the autopilot's label for it."""
-    rows: dict[str, list] = {name: [] for name in RAW_SCHEMA.names if name not in {"scenario", "weather", "noise",
-                                                                                    "episode", "seed"}}
+    rows: dict[str, list] = {
+        name: [] for name in RAW_SCHEMA.names if name not in {"scenario", "weather", "noise", "episode", "seed"}
+    }
     frames: list[np.ndarray] = []
     obs = env.reset(seed, scenario, weather, noise)
     autopilot = Autopilot(env.route, env.vehicle_config, autopilot_cfg, env.control_hz, seed=seed)
@@ -66,15 +77,21 @@ _worker: dict = {}
 def _init_worker(cfg: dict) -> None:
     """Per-process state: one env (own pybullet client) reused for every episode of this worker."""
     plain = DictConfig(cfg)
-    _worker.update(cfg=plain, env=make_env(plain), autopilot=AutopilotConfig.from_config(plain.autopilot),
-                   scenario=ScenarioConfig.from_config(plain.scenario), weather=WeatherConfig.from_config(plain.weather))
+    _worker.update(
+        cfg=plain,
+        env=make_env(plain),
+        autopilot=AutopilotConfig.from_config(plain.autopilot),
+        scenario=ScenarioConfig.from_config(plain.scenario),
+        weather=WeatherConfig.from_config(plain.weather),
+    )
 
 
 def _collect_one(episode: int) -> tuple[int, dict[str, list], str, list[np.ndarray]]:
     cfg = _worker["cfg"]
     seed = cfg.collect.base_seed + episode
-    rows, termination, frames = record_episode(_worker["env"], _worker["autopilot"], seed, _worker["scenario"],
-                                               _worker["weather"], cfg.noise)
+    rows, termination, frames = record_episode(
+        _worker["env"], _worker["autopilot"], seed, _worker["scenario"], _worker["weather"], cfg.noise
+    )
     picks = np.linspace(0, len(frames) - 1, cfg.collect.mosaic_columns + 2)[1:-1].astype(int)
     return seed, rows, termination, [frames[i] for i in picks]
 
@@ -83,16 +100,27 @@ def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.nda
     """Yield one column batch per episode, in episode order whatever the worker count."""
     plain = OmegaConf.to_container(cfg, resolve=True)
     results = map_ordered(_collect_one, range(cfg.collect.episodes), cfg.collect.workers, _init_worker, (plain,))
-    progress = tqdm(results, total=cfg.collect.episodes, desc=f"collect {cfg.collect.name}", unit="episode",
-                    disable=not cfg.progress)
+    progress = tqdm(
+        results,
+        total=cfg.collect.episodes,
+        desc=f"collect {cfg.collect.name}",
+        unit="episode",
+        disable=not cfg.progress,
+    )
     try:
         for episode, (seed, rows, termination, picks) in enumerate(progress):
             outcomes[termination] += 1
             if episode < cfg.collect.mosaic_rows:
                 mosaic_frames.extend(picks)
             n = len(rows["step"])
-            yield {"scenario": [cfg.scenario.name] * n, "weather": [cfg.weather.name] * n, "noise": [cfg.noise] * n,
-                   "episode": [episode] * n, "seed": [seed] * n, **rows}
+            yield {
+                "scenario": [cfg.scenario.name] * n,
+                "weather": [cfg.weather.name] * n,
+                "noise": [cfg.noise] * n,
+                "episode": [episode] * n,
+                "seed": [seed] * n,
+                **rows,
+            }
     finally:
         if "env" in _worker:  # in-process run (workers=1): release the pybullet client
             _worker.pop("env").close()
@@ -101,8 +129,9 @@ def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.nda
 def check_name(name: object) -> str:
     """`collect.name` becomes file names, so it must be a plain one: no folders, nothing a shell would mangle."""
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name.startswith("."):
-        raise ConfigError(f"collect.name={name!r} must be a plain file name: letters, digits, '_', '-', '.' "
-                         f"(not starting with '.')")
+        raise ConfigError(
+            f"collect.name={name!r} must be a plain file name: letters, digits, '_', '-', '.' (not starting with '.')"
+        )
     return name
 
 
@@ -117,9 +146,12 @@ def run_collect(cfg: DictConfig) -> dict:
     outcomes: Counter = Counter()
     mosaic_frames: list[np.ndarray] = []
     frames = write_table_batches(out, RAW_SCHEMA, iter_episodes(cfg, outcomes, mosaic_frames))
-    metrics = {"episodes": cfg.collect.episodes, "frames": frames,
-               "route_complete_fraction": outcomes["route_complete"] / cfg.collect.episodes,
-               **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")}}
+    metrics = {
+        "episodes": cfg.collect.episodes,
+        "frames": frames,
+        "route_complete_fraction": outcomes["route_complete"] / cfg.collect.episodes,
+        **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")},
+    }
     write_json(Path(cfg.paths.metrics) / "collect" / f"{name}.json", metrics)
     mosaic_path = Path(cfg.paths.plots) / "collect" / f"{name}_mosaic.png"
     with atomic_path(mosaic_path) as tmp:

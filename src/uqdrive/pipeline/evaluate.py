@@ -37,13 +37,20 @@ from uqdrive.plots import condition_lines_figure, reliability_grid, save_figure
 from uqdrive.tracking import stage_run
 from uqdrive.uq import frame_measures
 
-PLOTTED = [("accuracy", "accuracy"), ("ece", "ECE"), ("mean_mutual_information", "mean MI (nats)"),
-           ("mean_eta2", "mean η2"), ("auroc_mi", "AUROC of MI for wrong class"),
-           ("auroc_one_minus_eta2", "AUROC of 1 − η2 for wrong class")]
+PLOTTED = [
+    ("accuracy", "accuracy"),
+    ("ece", "ECE"),
+    ("mean_mutual_information", "mean MI (nats)"),
+    ("mean_eta2", "mean η2"),
+    ("auroc_mi", "AUROC of MI for wrong class"),
+    ("auroc_one_minus_eta2", "AUROC of 1 − η2 for wrong class"),
+]
 REFERENCE = "hmc"  # the reference posterior every method is compared with, when it is evaluated
-AGREEMENT_PLOTTED = [(f"{REFERENCE}_tv_distance", "mean TV distance to HMC's predictive"),
-                     (f"{REFERENCE}_argmax_agreement", "decision (argmax) agreement with HMC"),
-                     (f"{REFERENCE}_mi_spearman", "Spearman ρ of MI with HMC's")]
+AGREEMENT_PLOTTED = [
+    (f"{REFERENCE}_tv_distance", "mean TV distance to HMC's predictive"),
+    (f"{REFERENCE}_argmax_agreement", "decision (argmax) agreement with HMC"),
+    (f"{REFERENCE}_mi_spearman", "Spearman ρ of MI with HMC's"),
+]
 
 
 @dataclass(frozen=True)
@@ -56,8 +63,11 @@ class EvaluateSettings:
         for key, value in (("samples", self.samples), ("batch_size", self.batch_size)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(f"evaluate.{key}={value!r} must be an integer >= 1")
-        if isinstance(self.eps, bool) or not isinstance(self.eps, (int, float)) or not (
-                math.isfinite(self.eps) and self.eps > 0):
+        if (
+            isinstance(self.eps, bool)
+            or not isinstance(self.eps, (int, float))
+            or not (math.isfinite(self.eps) and self.eps > 0)
+        ):
             raise ConfigError(f"evaluate.eps={self.eps!r} must be a number > 0 (steering units)")
 
 
@@ -94,12 +104,19 @@ def conditions_from(cfg: DictConfig) -> list[Condition]:
 def check_inputs(cfg: DictConfig, methods: list[str], conditions: list[Condition]) -> dict[str, Path]:
     """Model file of each method; raises before any work, naming every missing file and how to make it."""
     models = {m: Path(cfg.paths.models) / f"{m}.pt" for m in methods}
-    missing = [f"{path}: train it first (`python stages/train.py model={m}`, or dvc repro)"
-               for m, path in models.items() if not path.exists()]
+    missing = [
+        f"{path}: train it first (`python stages/train.py model={m}`, or dvc repro)"
+        for m, path in models.items()
+        if not path.exists()
+    ]
     folder = Path(cfg.evaluate.heldout_dir)
-    missing += [f"{c.heldout_path(folder, cfg.scenario.name)}: collect it first (`python stages/collect.py "
-                f"--config-name heldout scenario={cfg.scenario.name} weather={c.weather} noise={c.noise}`, "
-                f"or dvc repro heldout)" for c in conditions if not c.heldout_path(folder, cfg.scenario.name).exists()]
+    missing += [
+        f"{c.heldout_path(folder, cfg.scenario.name)}: collect it first (`python stages/collect.py "
+        f"--config-name heldout scenario={cfg.scenario.name} weather={c.weather} noise={c.noise}`, "
+        f"or dvc repro heldout)"
+        for c in conditions
+        if not c.heldout_path(folder, cfg.scenario.name).exists()
+    ]
     if missing:
         raise FileNotFoundError("evaluate is missing its inputs:\n  " + "\n  ".join(missing))
     return models
@@ -110,11 +127,16 @@ def load_heldout(path: Path, scenario: str, condition: Condition, bins: Steering
     refuses a file recorded in another scenario or condition than its name says."""
     raw = read_table(path, RAW_SCHEMA)
     recorded = {col: set(raw.column(col).to_pylist()) for col in ("scenario", "weather", "noise")}
-    if (recorded["scenario"] != {scenario} or recorded["weather"] != {condition.weather}
-            or not np.allclose(sorted(recorded["noise"]), [condition.noise], atol=1e-6)):
-        raise ValueError(f"{path} holds frames of scenario {sorted(recorded['scenario'])}, weather "
-                         f"{sorted(recorded['weather'])}, noise {sorted(recorded['noise'])}; expected {scenario}, "
-                         f"{condition.weather}, {condition.noise}: collect it again (dvc repro heldout)")
+    if (
+        recorded["scenario"] != {scenario}
+        or recorded["weather"] != {condition.weather}
+        or not np.allclose(sorted(recorded["noise"]), [condition.noise], atol=1e-6)
+    ):
+        raise ValueError(
+            f"{path} holds frames of scenario {sorted(recorded['scenario'])}, weather "
+            f"{sorted(recorded['weather'])}, noise {sorted(recorded['noise'])}; expected {scenario}, "
+            f"{condition.weather}, {condition.noise}: collect it again (dvc repro heldout)"
+        )
     table, _ = preprocess_raw(raw, bins, Split(val_fraction=0.0))
     return frames_from_table(table, bins.num_classes, str(path))
 
@@ -126,8 +148,9 @@ def cell_generator(seed: int, method: str, condition: Condition) -> torch.Genera
 
 
 @torch.no_grad()
-def predict(posterior: Posterior, frames: FrameSet, settings: EvaluateSettings, centres: np.ndarray,
-            generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def predict(
+    posterior: Posterior, frames: FrameSet, settings: EvaluateSettings, centres: np.ndarray, generator: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Predictive probabilities [B, C], η2 [B] and mutual information [B] of every frame, batch by batch
     (only one batch's [samples, batch, C] draws are held at a time)."""
     probs, eta2, mi = [], [], []
@@ -147,53 +170,98 @@ def cell_metrics(probs: torch.Tensor, labels: torch.Tensor, eta2: torch.Tensor, 
     aurocs = {"auroc_mi": mistake_auroc(mi, wrong), "auroc_one_minus_eta2": mistake_auroc(1 - eta2, wrong)}
     note = None
     if mistakes in (0, len(labels)):
-        note = (f"AUROC undefined: {'no' if mistakes == 0 else 'every'} frame of {len(labels)} has a wrong class, "
-                f"and ranking mistakes above right frames needs both")
-    return {**classification_metrics(probs, labels), "mean_mutual_information": float(mi.mean()),
-            "mean_eta2": float(eta2.mean()), **{k: None if math.isnan(v) else v for k, v in aurocs.items()},
-            "auroc_note": note, "frames": len(labels), "mistakes": mistakes}
+        note = (
+            f"AUROC undefined: {'no' if mistakes == 0 else 'every'} frame of {len(labels)} has a wrong class, "
+            f"and ranking mistakes above right frames needs both"
+        )
+    return {
+        **classification_metrics(probs, labels),
+        "mean_mutual_information": float(mi.mean()),
+        "mean_eta2": float(eta2.mean()),
+        **{k: None if math.isnan(v) else v for k, v in aurocs.items()},
+        "auroc_note": note,
+        "frames": len(labels),
+        "mistakes": mistakes,
+    }
 
 
 def _reliability_rows(series: str, method: str, condition: Condition, bins: dict[str, torch.Tensor]) -> list[dict]:
     """The non-empty bins of one cell's reliability diagram as CSV rows."""
-    return [{"series": series, "method": method, "weather": condition.weather, "noise": condition.noise, "bin": k,
-             "bin_low": float(bins["low"][k]), "bin_high": float(bins["high"][k]),
-             "confidence": float(bins["confidence"][k]), "accuracy": float(bins["accuracy"][k]),
-             "frames": int(bins["frames"][k])} for k in torch.nonzero(bins["frames"]).flatten().tolist()]
+    return [
+        {
+            "series": series,
+            "method": method,
+            "weather": condition.weather,
+            "noise": condition.noise,
+            "bin": k,
+            "bin_low": float(bins["low"][k]),
+            "bin_high": float(bins["high"][k]),
+            "confidence": float(bins["confidence"][k]),
+            "accuracy": float(bins["accuracy"][k]),
+            "frames": int(bins["frames"][k]),
+        }
+        for k in torch.nonzero(bins["frames"]).flatten().tolist()
+    ]
 
 
-def write_outputs(cfg: DictConfig, table: dict, reliability: dict, methods: list[str],
-                  conditions: list[Condition]) -> dict[str, Path]:
+def write_outputs(
+    cfg: DictConfig, table: dict, reliability: dict, methods: list[str], conditions: list[Condition]
+) -> dict[str, Path]:
     """DVC plot data (reliability.csv: x=confidence, y=accuracy; conditions.csv: one row per method ×
     condition), the figures (a reliability grid per method, metrics along the conditions) and, last, the
     metrics JSON."""
     plots = Path(cfg.evaluate.plots_dir)
     series = {(m, c): f"{m} {c.weather} {c.key}" for m in methods for c in conditions}
-    reliability_rows = [row for m in methods for c in conditions
-                        for row in _reliability_rows(series[m, c], m, c, reliability[m, c])]
-    condition_rows = [{"series": series[m, c], "method": m, "weather": c.weather, "noise": c.noise,
-                       **{k: v for k, v in table[m][c.weather][c.key].items() if k != "auroc_note"}}
-                      for m in methods for c in conditions]
-    outputs = {"reliability_csv": write_csv(plots / "reliability.csv", reliability_rows),
-               "conditions_csv": write_csv(plots / "conditions.csv", condition_rows)}
+    reliability_rows = [
+        row for m in methods for c in conditions for row in _reliability_rows(series[m, c], m, c, reliability[m, c])
+    ]
+    condition_rows = [
+        {
+            "series": series[m, c],
+            "method": m,
+            "weather": c.weather,
+            "noise": c.noise,
+            **{k: v for k, v in table[m][c.weather][c.key].items() if k != "auroc_note"},
+        }
+        for m in methods
+        for c in conditions
+    ]
+    outputs = {
+        "reliability_csv": write_csv(plots / "reliability.csv", reliability_rows),
+        "conditions_csv": write_csv(plots / "conditions.csv", condition_rows),
+    }
     weathers = list(dict.fromkeys(c.weather for c in conditions))
     noises = list(dict.fromkeys(c.key for c in conditions))
     for m in methods:
-        panels = {(c.key, c.weather): {**{k: v.numpy() for k, v in reliability[m, c].items()},
-                                       "ece": table[m][c.weather][c.key]["ece"]} for c in conditions}
-        fig = reliability_grid(panels, noises, weathers,
-                               f"{m}: reliability on held-out frames at the {cfg.scenario.name}")
+        panels = {
+            (c.key, c.weather): {
+                **{k: v.numpy() for k, v in reliability[m, c].items()},
+                "ece": table[m][c.weather][c.key]["ece"],
+            }
+            for c in conditions
+        }
+        fig = reliability_grid(
+            panels, noises, weathers, f"{m}: reliability on held-out frames at the {cfg.scenario.name}"
+        )
         outputs[f"reliability_{m}"] = save_figure(fig, plots / "figures" / f"reliability_{m}.png")
     lines = {m: {k: [table[m][c.weather][c.key][k] for c in conditions] for k, _ in PLOTTED} for m in methods}
-    fig = condition_lines_figure(lines, [c.label for c in conditions], PLOTTED,
-                                 f"Held-out frames at the {cfg.scenario.name}: methods across weather × sensor noise")
+    fig = condition_lines_figure(
+        lines,
+        [c.label for c in conditions],
+        PLOTTED,
+        f"Held-out frames at the {cfg.scenario.name}: methods across weather × sensor noise",
+    )
     outputs["conditions_png"] = save_figure(fig, plots / "figures" / "conditions.png")
     if REFERENCE in methods:
-        agreement = {m: {k: [table[m][c.weather][c.key][k] for c in conditions] for k, _ in AGREEMENT_PLOTTED}
-                     for m in methods}
-        fig = condition_lines_figure(agreement, [c.label for c in conditions], AGREEMENT_PLOTTED,
-                                     f"Agreement with HMC on held-out frames at the {cfg.scenario.name} "
-                                     f"(hmc: two independent draw sets)")
+        agreement = {
+            m: {k: [table[m][c.weather][c.key][k] for c in conditions] for k, _ in AGREEMENT_PLOTTED} for m in methods
+        }
+        fig = condition_lines_figure(
+            agreement,
+            [c.label for c in conditions],
+            AGREEMENT_PLOTTED,
+            f"Agreement with HMC on held-out frames at the {cfg.scenario.name} (hmc: two independent draw sets)",
+        )
         outputs["agreement_png"] = save_figure(fig, plots / "figures" / f"agreement_{REFERENCE}.png")
     write_json(cfg.evaluate.out, table)
     outputs["metrics"] = Path(cfg.evaluate.out)
@@ -207,15 +275,18 @@ def run_evaluate(cfg: DictConfig) -> dict:
     bins = SteeringBins(**cfg.experiment.bins)
     methods = list(cfg.methods)
     if not methods or not all(is_method_name(m) for m in methods):
-        raise ConfigError(f"methods={methods!r} must be a non-empty list of method names (conf/model/<name>.yaml: "
-                         f"lower-case letters, digits and _)")
+        raise ConfigError(
+            f"methods={methods!r} must be a non-empty list of method names (conf/model/<name>.yaml: "
+            f"lower-case letters, digits and _)"
+        )
     conditions = conditions_from(cfg)
     model_paths = check_inputs(cfg, methods, conditions)
-    posteriors = {m: load_posterior(path, expected_method=m, expected_classes=bins)
-                  for m, path in model_paths.items()}
+    posteriors = {m: load_posterior(path, expected_method=m, expected_classes=bins) for m, path in model_paths.items()}
     folder = Path(cfg.evaluate.heldout_dir)
-    frames = {c: load_heldout(c.heldout_path(folder, cfg.scenario.name), cfg.scenario.name, c, bins)
-              for c in tqdm(conditions, desc="evaluate: load frames", unit="condition", disable=not cfg.progress)}
+    frames = {
+        c: load_heldout(c.heldout_path(folder, cfg.scenario.name), cfg.scenario.name, c, bins)
+        for c in tqdm(conditions, desc="evaluate: load frames", unit="condition", disable=not cfg.progress)
+    }
 
     table: dict = {}
     reliability: dict = {}
@@ -230,21 +301,31 @@ def run_evaluate(cfg: DictConfig) -> dict:
         for m, c in cells:
             probs, mi = predictives[m, c]
             if m == REFERENCE:  # against a second, independent set of HMC draws: the noise floor
-                probs, _, mi = predict(posteriors[m], frames[c], settings, bins.centres,
-                                       cell_generator(int(cfg.seed), f"{m}-repeat", c))
+                probs, _, mi = predict(
+                    posteriors[m], frames[c], settings, bins.centres, cell_generator(int(cfg.seed), f"{m}-repeat", c)
+                )
             agreement = agreement_with_reference(probs, mi, *predictives[REFERENCE, c])
             table[m][c.weather][c.key].update({f"{REFERENCE}_{k}": v for k, v in agreement.items()})
     outputs = write_outputs(cfg, table, reliability, methods, conditions)
 
-    shared = [outputs[k] for k in ("metrics", "conditions_csv", "reliability_csv", "conditions_png", "agreement_png")
-              if k in outputs]
+    shared = [
+        outputs[k]
+        for k in ("metrics", "conditions_csv", "reliability_csv", "conditions_png", "agreement_png")
+        if k in outputs
+    ]
     runs = {}
     for m in methods:
         with stage_run(cfg.paths.root, "evaluate", cfg, run_name=m) as run:
             mlflow.log_param("method", m)
-            mlflow.log_metrics({f"{weather}/{key}/{name}": float(value)
-                                for weather, by_noise in table[m].items() for key, cell in by_noise.items()
-                                for name, value in cell.items() if isinstance(value, (int, float))})
+            mlflow.log_metrics(
+                {
+                    f"{weather}/{key}/{name}": float(value)
+                    for weather, by_noise in table[m].items()
+                    for key, cell in by_noise.items()
+                    for name, value in cell.items()
+                    if isinstance(value, (int, float))
+                }
+            )
             for path in (outputs[f"reliability_{m}"], *shared):
                 mlflow.log_artifact(str(path))
         runs[m] = run.info.run_id

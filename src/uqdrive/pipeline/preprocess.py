@@ -54,15 +54,22 @@ def run_preprocess(cfg: DictConfig) -> dict:
         "val_frames": int(counts["val"].sum()),
         "majority_class_fraction": float(counts["train"].max() / max(counts["train"].sum(), 1)),
     }
-    histogram_csv = write_csv(Path(cfg.paths.plots) / "class_histogram.csv", [
-        {"class": k, "steering": f"{centre:+.1f}", "split": name, "frames": int(n)}
-        for name, values in counts.items() for k, (centre, n) in enumerate(zip(bins.centres, values))])
+    histogram_csv = write_csv(
+        Path(cfg.paths.plots) / "class_histogram.csv",
+        [
+            {"class": k, "steering": f"{centre:+.1f}", "split": name, "frames": int(n)}
+            for name, values in counts.items()
+            for k, (centre, n) in enumerate(zip(bins.centres, values))
+        ],
+    )
     write_json(Path(cfg.paths.metrics) / "preprocess.json", metrics)
 
     with stage_run(cfg.paths.root, "preprocess", cfg, run_name=cfg.experiment.name):
         mlflow.log_metrics({k: v for k, v in metrics.items() if k != "experiment"})
-        figure = save_figure(class_histogram_figure(bins.centres, counts, "steering classes"),
-                             Path(cfg.paths.plots) / "class_histogram.png")
+        figure = save_figure(
+            class_histogram_figure(bins.centres, counts, "steering classes"),
+            Path(cfg.paths.plots) / "class_histogram.png",
+        )
         mlflow.log_artifact(str(figure))
         mlflow.log_artifact(str(histogram_csv))
     return metrics

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import platform
 import subprocess
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
@@ -29,12 +29,25 @@ from uqdrive.pipeline.report_experiments import (
 from uqdrive.tracking import stage_run
 from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_scheme
 
-PACKAGES = ("uqdrive", "torch", "pybullet", "opencv-python-headless", "hydra-core", "dvc", "mlflow", "pyarrow",
-            "numpy", "scipy")
+PACKAGES = (
+    "uqdrive",
+    "torch",
+    "pybullet",
+    "opencv-python-headless",
+    "hydra-core",
+    "dvc",
+    "mlflow",
+    "pyarrow",
+    "numpy",
+    "scipy",
+)
+
 
 def _git_commit(root: Path) -> str:
     try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10)
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
+        )
     except (OSError, subprocess.TimeoutExpired):
         return "unknown"
     return out.stdout.strip() if out.returncode == 0 else "unknown (not a git checkout)"
@@ -63,7 +76,7 @@ Built by `dvc repro` from this run's metrics files; every number below is read f
 | what was run | |
 |---|---|
 | profile | `{cfg.profile_name}` |
-| built | {datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}, commit {_git_commit(report.root)}, Python {platform.python_version()} |
+| built | {datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")}, commit {_git_commit(report.root)}, Python {platform.python_version()} |
 | versions | {_versions()} |
 | experiments | {", ".join(cfg.experiments)}: one controller per experiment × method, trained on its own scenario(s) collected in `{cfg.train_weather}` |
 | safety sweep | methods {", ".join(cfg.methods)} × weathers {", ".join(cfg.weathers)} × noise {", ".join(f"{x:g}" for x in cfg.noises)} × locations {", ".join(cfg.locations)} |
@@ -84,11 +97,41 @@ for training. AUROC: how well an uncertainty score ranks frames with a wrong cla
         for weather in cfg.weathers:
             for noise in cfg.noises:
                 c = evaluated[method][weather][f"noise{noise}"]
-                rows.append([method, weather, f"{noise:g}", str(c["frames"]), fmt(c["accuracy"]), fmt(c["nll"]),
-                             fmt(c["ece"]), fmt(c["brier"]), fmt(c["mean_mutual_information"]), fmt(c["mean_eta2"]),
-                             fmt(c["auroc_mi"]), fmt(c["auroc_one_minus_eta2"])])
-    report.add(table(["method", "weather", "noise", "frames", "accuracy", "NLL", "ECE", "Brier", "mean MI",
-                      "mean η2", "AUROC MI", "AUROC 1 − η2"], rows))
+                rows.append(
+                    [
+                        method,
+                        weather,
+                        f"{noise:g}",
+                        str(c["frames"]),
+                        fmt(c["accuracy"]),
+                        fmt(c["nll"]),
+                        fmt(c["ece"]),
+                        fmt(c["brier"]),
+                        fmt(c["mean_mutual_information"]),
+                        fmt(c["mean_eta2"]),
+                        fmt(c["auroc_mi"]),
+                        fmt(c["auroc_one_minus_eta2"]),
+                    ]
+                )
+    report.add(
+        table(
+            [
+                "method",
+                "weather",
+                "noise",
+                "frames",
+                "accuracy",
+                "NLL",
+                "ECE",
+                "Brier",
+                "mean MI",
+                "mean η2",
+                "AUROC MI",
+                "AUROC 1 − η2",
+            ],
+            rows,
+        )
+    )
     figures = report.root / "plots" / "evaluate" / "figures"
     report.figure(figures / "conditions.png", "Held-out metrics across conditions, one line per method")
     for method in cfg.posteriors:
@@ -109,11 +152,25 @@ HMC is the reference the other posteriors approximate. Per method, over the held
 mean total-variation distance between its predictive and HMC's (worst condition beside it), share of frames with
 the same decision (argmax), Spearman correlation of per-frame mutual information with HMC's. The hmc row compares
 two independent sets of HMC draws: the Monte-Carlo noise floor.""")
-    report.add(table(["method", "mean TV to HMC", "worst condition TV", "argmax agreement", "MI Spearman ρ"],
-                     [[m, mean("hmc_tv_distance", cs), fmt(max(c["hmc_tv_distance"] for c in cs)),
-                       mean("hmc_argmax_agreement", cs), mean("hmc_mi_spearman", cs)] for m, cs in cells.items()]))
-    report.figure(report.root / "plots" / "evaluate" / "figures" / "agreement_hmc.png",
-                  "Agreement with HMC across conditions, one line per method")
+    report.add(
+        table(
+            ["method", "mean TV to HMC", "worst condition TV", "argmax agreement", "MI Spearman ρ"],
+            [
+                [
+                    m,
+                    mean("hmc_tv_distance", cs),
+                    fmt(max(c["hmc_tv_distance"] for c in cs)),
+                    mean("hmc_argmax_agreement", cs),
+                    mean("hmc_mi_spearman", cs),
+                ]
+                for m, cs in cells.items()
+            ],
+        )
+    )
+    report.figure(
+        report.root / "plots" / "evaluate" / "figures" / "agreement_hmc.png",
+        "Agreement with HMC across conditions, one line per method",
+    )
 
 
 def sample_counts_section(report: Report, cells: list[dict], look_size: int = 4) -> None:
@@ -123,30 +180,56 @@ def sample_counts_section(report: Report, cells: list[dict], look_size: int = 4)
     for theta, gamma in settings:
         scheme = sequential_scheme(theta, gamma, look_size)
         mid, high = scheme.operating_characteristics([0.5, 0.99])[0]
-        rows.append([f"{theta:g}", f"{gamma:g}", str(chernoff_n(theta, gamma)), str(clopper_pearson_n(theta, gamma)),
-                     str(scheme.max_n), fmt(mid, 1), fmt(high, 1)])
-    report.add("## Samples per estimation scheme\n\nRollouts (or weight samples) for P(|η̂ − η| > θ) ≤ γ: Chernoff "
-               "(the paper, planned), exact Clopper–Pearson (planned) and the exactly calibrated sequential "
-               f"Clopper–Pearson scheme with a look every {look_size} rollouts (expected count at η = 0.5 and 0.99, "
-               "exact by dynamic programming). `uqdrive bound` prints more.")
-    report.add(table(["θ", "γ", "chernoff", "clopper_pearson", "sequential at most", "sequential E[n] at η=0.5",
-                      "at η=0.99"], rows))
+        rows.append(
+            [
+                f"{theta:g}",
+                f"{gamma:g}",
+                str(chernoff_n(theta, gamma)),
+                str(clopper_pearson_n(theta, gamma)),
+                str(scheme.max_n),
+                fmt(mid, 1),
+                fmt(high, 1),
+            ]
+        )
+    report.add(
+        "## Samples per estimation scheme\n\nRollouts (or weight samples) for P(|η̂ − η| > θ) ≤ γ: Chernoff "
+        "(the paper, planned), exact Clopper–Pearson (planned) and the exactly calibrated sequential "
+        f"Clopper–Pearson scheme with a look every {look_size} rollouts (expected count at η = 0.5 and 0.99, "
+        "exact by dynamic programming). `uqdrive bound` prints more."
+    )
+    report.add(
+        table(
+            ["θ", "γ", "chernoff", "clopper_pearson", "sequential at most", "sequential E[n] at η=0.5", "at η=0.99"],
+            rows,
+        )
+    )
 
 
 def headline_metrics(cfg: DictConfig, metrics_dir: Path, summary: dict, avoided: dict, gamma: float) -> dict:
     """metrics/summary.json: the few numbers an experiment is compared by (DVC's one metrics file), read from
     the stages' own files: validation accuracy per controller, η̂1 pooled over every offline-safety cell
     and its worst cell per method, and the avoid experiment's unknown mixture and known autonomy."""
-    controllers = {e: {m: read_json(metrics_dir / e / "train" / f"{m}.json")["val_accuracy"] for m in cfg.posteriors}
-                   for e in cfg.experiments}
+    controllers = {
+        e: {m: read_json(metrics_dir / e / "train" / f"{m}.json")["val_accuracy"] for m in cfg.posteriors}
+        for e in cfg.experiments
+    }
     offline = {}
     for method, locations in summary.items():
         cells = [c for loc in locations.values() for w in loc.values() for c in w.values()]
-        offline[method] = {"eta1_pooled": pooled_cells(cells, gamma).value, "eta1_worst_cell": min(c["eta1"] for c in cells)}
-    avoid = {m: {"unknown_off_eta1": r["unknown"]["off"]["eta1"], "unknown_on_eta1": r["unknown"]["on"]["eta1"],
-                 "unknown_calibrated_eta1": r["unknown"]["calibrated"]["eta1"],
-                 "known_calibrated_autonomy": r["cells"]["known"]["calibrated"]["autonomy"]}
-             for m, r in avoided.items() if m in cfg.methods}
+        offline[method] = {
+            "eta1_pooled": pooled_cells(cells, gamma).value,
+            "eta1_worst_cell": min(c["eta1"] for c in cells),
+        }
+    avoid = {
+        m: {
+            "unknown_off_eta1": r["unknown"]["off"]["eta1"],
+            "unknown_on_eta1": r["unknown"]["on"]["eta1"],
+            "unknown_calibrated_eta1": r["unknown"]["calibrated"]["eta1"],
+            "known_calibrated_autonomy": r["cells"]["known"]["calibrated"]["autonomy"],
+        }
+        for m, r in avoided.items()
+        if m in cfg.methods
+    }
     return {"val_accuracy": controllers, "offline_safety": offline, "avoid": avoid}
 
 
@@ -158,9 +241,12 @@ def run_report(cfg: DictConfig) -> dict:
     cells = [c for m in summary.values() for loc in m.values() for w in loc.values() for c in w.values()]
     gamma = max(c["gamma"] for c in cells)
     report = Report(root, out_dir)
-    seeds = {"train": [read_json(metrics_dir / e / "train" / f"{m}.json")["seed"] for e in cfg.experiments
-                       for m in cfg.posteriors],
-             "safety": [c["base_seed"] for c in cells]}
+    seeds = {
+        "train": [
+            read_json(metrics_dir / e / "train" / f"{m}.json")["seed"] for e in cfg.experiments for m in cfg.posteriors
+        ],
+        "safety": [c["base_seed"] for c in cells],
+    }
     avoided = read_json(metrics_dir / "avoid.json")
     evaluated = read_json(metrics_dir / "evaluate.json")
     run_section(report, cfg, cells, seeds)

@@ -66,8 +66,12 @@ class Report:
             return f'src="data:image/png;base64,{data}"'
 
         body = re.sub(r'src="([^"]+\.png)"', embed, body)
-        style = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;line-height:1.45}"
-                 "table{border-collapse:collapse;margin:1em 0;font-size:0.9em}td,th{border:1px solid #bbb;padding:3px 8px}"
-                 "th{background:#eee}img{max-width:100%}code{background:#f4f4f4}")
-        return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>uqdrive report</title>"
-                f"<style>{style}</style></head><body>\n{body}\n</body></html>\n")
+        style = (
+            "body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;line-height:1.45}"
+            "table{border-collapse:collapse;margin:1em 0;font-size:0.9em}td,th{border:1px solid #bbb;padding:3px 8px}"
+            "th{background:#eee}img{max-width:100%}code{background:#f4f4f4}"
+        )
+        return (
+            f'<!DOCTYPE html>\n<html><head><meta charset="utf-8"><title>uqdrive report</title>'
+            f"<style>{style}</style></head><body>\n{body}\n</body></html>\n"
+        )

@@ -69,8 +69,13 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     bad value (the message names the key, the value and what is allowed).
     """
     method = posterior_from_config(cfg.model).method
-    settings = EstimatorSettings(scheme=cfg.safety.scheme, theta=cfg.safety.theta, gamma=cfg.safety.gamma,
-                                 base_seed=cfg.safety.base_seed, look_size=cfg.safety.look_size)
+    settings = EstimatorSettings(
+        scheme=cfg.safety.scheme,
+        theta=cfg.safety.theta,
+        gamma=cfg.safety.gamma,
+        base_seed=cfg.safety.base_seed,
+        look_size=cfg.safety.look_size,
+    )
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     bins = SteeringBins(**cfg.experiment.bins)
     model_path = Path(cfg.safety.model_path)
@@ -78,13 +83,24 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     speed = checks.speed("safety.speed", cfg.safety.speed, vehicle.max_speed)
     Controller(posterior, bins, cfg.safety.samples, cfg.safety.eps, speed)  # checks samples and eps as workers will
     spec = PolicySpec("bnn", speed, str(model_path), method, bins, cfg.safety.samples, cfg.safety.eps)
-    job = RolloutJob(policy=spec, scenario=ScenarioConfig.from_config(cfg.scenario),
-                     weather=WeatherConfig.from_config(cfg.weather), noise=check_noise(cfg.noise),
-                     base_seed=settings.base_seed, camera=CameraConfig.from_config(cfg.camera), vehicle=vehicle,
-                     control_hz=cfg.control_hz, horizon_s=checks.seconds("safety.horizon_s", cfg.safety.horizon_s), half_width=check_half_width(
-                         cfg.safety.half_width))
-    identity = {"model_sha256": file_digest(model_path), "code": code_digest(), "job": {**job.__dict__, "policy": {
-        k: v for k, v in spec.__dict__.items() if k != "model_path"}}, "estimator": settings.__dict__}
+    job = RolloutJob(
+        policy=spec,
+        scenario=ScenarioConfig.from_config(cfg.scenario),
+        weather=WeatherConfig.from_config(cfg.weather),
+        noise=check_noise(cfg.noise),
+        base_seed=settings.base_seed,
+        camera=CameraConfig.from_config(cfg.camera),
+        vehicle=vehicle,
+        control_hz=cfg.control_hz,
+        horizon_s=checks.seconds("safety.horizon_s", cfg.safety.horizon_s),
+        half_width=check_half_width(cfg.safety.half_width),
+    )
+    identity = {
+        "model_sha256": file_digest(model_path),
+        "code": code_digest(),
+        "job": {**job.__dict__, "policy": {k: v for k, v in spec.__dict__.items() if k != "model_path"}},
+        "estimator": settings.__dict__,
+    }
     return job, settings, cell_hash(identity)
 
 
@@ -109,8 +125,14 @@ def road_raster(geometry: ScenarioGeometry, extent: np.ndarray, cell: float = 0.
     return geometry.is_paved(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape)
 
 
-def write_outputs(cfg: DictConfig, results: list[RolloutResult], geometry: ScenarioGeometry, safe_set: SafeSet,
-                  eta1: float, title: str) -> tuple[Path, Path, Path]:
+def write_outputs(
+    cfg: DictConfig,
+    results: list[RolloutResult],
+    geometry: ScenarioGeometry,
+    safe_set: SafeSet,
+    eta1: float,
+    title: str,
+) -> tuple[Path, Path, Path]:
     """Per-rollout table (CSV), visited positions with the road, route and safe-set edges (npz, for the
     summary figures) and the cell's hexbin figure."""
     plots = Path(cfg.safety.plots_dir)
@@ -124,8 +146,9 @@ def write_outputs(cfg: DictConfig, results: list[RolloutResult], geometry: Scena
     positions = Path(cfg.safety.positions)
     with atomic_path(positions) as tmp:
         with tmp.open("wb") as f:
-            np.savez_compressed(f, rollout=rollout, x=x, y=y, route=route, left=left, right=right,
-                                extent=extent, road=road, eta1=eta1)
+            np.savez_compressed(
+                f, rollout=rollout, x=x, y=y, route=route, left=left, right=right, extent=extent, road=road, eta1=eta1
+            )
     fig, ax = plt.subplots(figsize=(5, 5))
     safety_hexbin(ax, x, y, route, edges, tuple(extent), title, road)
     ax.legend(loc="lower left", fontsize=7)
@@ -142,12 +165,24 @@ def run_safety(cfg: DictConfig) -> dict:
     if previous is not None:
         log_cell(cfg, previous, [p for p in _cell_files(cfg) if p.exists()], reused=True)
         return {**previous, "reused": True}
-    executor = make_executor(cfg.executor.name, job, workers, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)))
+    executor = make_executor(
+        cfg.executor.name, job, workers, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True))
+    )
     start = time.perf_counter()
     try:
-        estimate, results = estimate_safety(executor, settings, lambda it: tqdm(
-            it, total=settings.planned_rollouts(), desc=f"safety {cfg.safety.cell}", unit="rollout",
-            disable=not cfg.progress, leave=False), RolloutLog(cfg.safety.rollout_log, key, settings.base_seed))
+        estimate, results = estimate_safety(
+            executor,
+            settings,
+            lambda it: tqdm(
+                it,
+                total=settings.planned_rollouts(),
+                desc=f"safety {cfg.safety.cell}",
+                unit="rollout",
+                disable=not cfg.progress,
+                leave=False,
+            ),
+            RolloutLog(cfg.safety.rollout_log, key, settings.base_seed),
+        )
     finally:
         executor.close()
     seconds = time.perf_counter() - start
@@ -155,22 +190,63 @@ def run_safety(cfg: DictConfig) -> dict:
     safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
     title = f"{cfg.model.name} · {job.scenario.name} · {job.weather.name} · noise {job.noise:g}: η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
     table, positions, figure = write_outputs(cfg, results, geometry, safe_set, estimate.value, title)
-    metrics = {"eta1": estimate.value, "eta1_low": estimate.low, "eta1_high": estimate.high,
-               "rollouts": estimate.n, "steps": int(sum(r.steps for r in results)), "seconds": seconds,
-               **rates(results)}
-    cell = {"method": cfg.model.name, "experiment": cfg.experiment.name, "location": job.scenario.name, "weather": job.weather.name, "noise": job.noise,
-            "theta": estimate.theta, "gamma": estimate.gamma, "scheme": estimate.method, "n": estimate.n,
-            "base_seed": settings.base_seed}
+    metrics = {
+        "eta1": estimate.value,
+        "eta1_low": estimate.low,
+        "eta1_high": estimate.high,
+        "rollouts": estimate.n,
+        "steps": int(sum(r.steps for r in results)),
+        "seconds": seconds,
+        **rates(results),
+    }
+    cell = {
+        "method": cfg.model.name,
+        "experiment": cfg.experiment.name,
+        "location": job.scenario.name,
+        "weather": job.weather.name,
+        "noise": job.noise,
+        "theta": estimate.theta,
+        "gamma": estimate.gamma,
+        "scheme": estimate.method,
+        "n": estimate.n,
+        "base_seed": settings.base_seed,
+    }
     result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key}
     write_json(out, result)  # before logging: a tracking failure never loses the cell; its presence marks it done
     log_cell(cfg, result, [figure, table])
     return {**result, "reused": False}
 
 
-SUMMARY_KEYS = ("eta1", "eta1_low", "eta1_high", "theta", "gamma", "n", "scheme", "base_seed", "collision_rate",
-                "off_road_rate", "left_corridor_rate", "reached_goal_rate", "max_corridor_use", "mean_corridor_use",
-                "mean_lateral_deviation", "mean_eta2", "mean_mutual_information")
-CELL_PARAMS = ("method", "experiment", "location", "weather", "theta", "gamma", "scheme", "n", "base_seed")  # noise: tracking's own
+SUMMARY_KEYS = (
+    "eta1",
+    "eta1_low",
+    "eta1_high",
+    "theta",
+    "gamma",
+    "n",
+    "scheme",
+    "base_seed",
+    "collision_rate",
+    "off_road_rate",
+    "left_corridor_rate",
+    "reached_goal_rate",
+    "max_corridor_use",
+    "mean_corridor_use",
+    "mean_lateral_deviation",
+    "mean_eta2",
+    "mean_mutual_information",
+)
+CELL_PARAMS = (
+    "method",
+    "experiment",
+    "location",
+    "weather",
+    "theta",
+    "gamma",
+    "scheme",
+    "n",
+    "base_seed",
+)  # noise: tracking's own
 
 
 def _cell_files(cfg: DictConfig) -> list[Path]:
@@ -180,10 +256,22 @@ def _cell_files(cfg: DictConfig) -> list[Path]:
 
 def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool = False) -> None:
     """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
-    metrics = {k: float(v) for k, v in result.items() if k not in CELL_PARAMS and k != "noise"
-               and isinstance(v, (int, float)) and not isinstance(v, bool) and not np.isnan(v)}
-    with stage_run(cfg.paths.root, "safety", cfg, run_name=cfg.safety.cell,
-                   tags={"reused": str(reused).lower(), "config_hash": result["config_hash"]}):
+    metrics = {
+        k: float(v)
+        for k, v in result.items()
+        if k not in CELL_PARAMS
+        and k != "noise"
+        and isinstance(v, (int, float))
+        and not isinstance(v, bool)
+        and not np.isnan(v)
+    }
+    with stage_run(
+        cfg.paths.root,
+        "safety",
+        cfg,
+        run_name=cfg.safety.cell,
+        tags={"reused": str(reused).lower(), "config_hash": result["config_hash"]},
+    ):
         mlflow.log_params({k: result[k] for k in CELL_PARAMS})
         mlflow.log_metrics(metrics)
         for path in artifacts:
@@ -204,16 +292,20 @@ def run_safety_summary(cfg: DictConfig) -> dict:
                     name = f"{method}-{location}-{weather}-noise{noise}"
                     path = cells / f"{name}.json"
                     if not path.exists():
-                        raise FileNotFoundError(f"{path} is missing; run `python stages/safety.py model={method} "
-                                                f"scenario={location} weather={weather} noise={noise}` (or dvc repro) "
-                                                "first")
+                        raise FileNotFoundError(
+                            f"{path} is missing; run `python stages/safety.py model={method} "
+                            f"scenario={location} weather={weather} noise={noise}` (or dvc repro) "
+                            "first"
+                        )
                     result = json.loads(path.read_text())
                     table.setdefault(method, {}).setdefault(location, {}).setdefault(weather, {})[f"noise{noise}"] = {
-                        k: result[k] for k in SUMMARY_KEYS}
+                        k: result[k] for k in SUMMARY_KEYS
+                    }
                     with np.load(Path(cfg.summary.positions_dir) / f"{name}.npz") as data:
                         panels[(method, weather)] = {k: data[k] for k in data.files}
-            fig = safety_hexbin_grid(panels, list(cfg.methods), list(cfg.weathers),
-                                     f"Closed-loop paths at {location}, sensor noise {noise}")
+            fig = safety_hexbin_grid(
+                panels, list(cfg.methods), list(cfg.weathers), f"Closed-loop paths at {location}, sensor noise {noise}"
+            )
             figures.append(save_figure(fig, Path(cfg.summary.figures_dir) / f"hexbin_{location}_noise{noise}.png"))
     write_json(cfg.summary.out, table)
     return {"table": table, "figures": [str(f) for f in figures]}

@@ -51,8 +51,14 @@ def run_train(cfg: DictConfig) -> dict:
         raise ConfigError(f"train.threads={threads} must be ≥ 1")
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
-    data = TrainingData(train, val, bins, Architecture(**OmegaConf.to_container(cfg.arch, resolve=True)),
-                        Path(cfg.train.base_model), eval_samples)
+    data = TrainingData(
+        train,
+        val,
+        bins,
+        Architecture(**OmegaConf.to_container(cfg.arch, resolve=True)),
+        Path(cfg.train.base_model),
+        eval_samples,
+    )
     try:
         started = time.perf_counter()
         fitted = cls.fit(settings, data, generator, bool(cfg.progress))

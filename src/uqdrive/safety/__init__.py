@@ -6,8 +6,17 @@ Composes `sim` (the world), `models` (the posteriors) and `uq` (measures and est
 
 from uqdrive.safety.cells import SCHEMES, EstimatorSettings, cell_hash, estimate_safety, reusable_result
 from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
-from uqdrive.safety.executors import (BACKENDS, Executor, PolicySpec, ProcessPool, RayExecutor, RolloutJob,
-                                      RolloutWorker, executor_options, make_executor)
+from uqdrive.safety.executors import (
+    BACKENDS,
+    Executor,
+    PolicySpec,
+    ProcessPool,
+    RayExecutor,
+    RolloutJob,
+    RolloutWorker,
+    executor_options,
+    make_executor,
+)
 from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, Verdict, safe_set_for
 from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify

@@ -19,6 +19,7 @@ from uqdrive.safety.controller import NO_WARNING
 from uqdrive.safety.warnings import WarningActions, WarningConfig, classify
 from uqdrive.uq import clopper_pearson_interval
 
+
 @dataclasses.dataclass(frozen=True)
 class Traces:
     """Warnings-off rollouts padded to F frames, for replaying warning thresholds over them.
@@ -43,11 +44,18 @@ class Traces:
         width = max(1, max(len(r[0]) for r in runs))
         eta2, mi, progress = np.ones((len(runs), width)), np.zeros((len(runs), width)), np.zeros((len(runs), width))
         for i, (e, m, s, end, _, _) in enumerate(runs):
-            eta2[i, :len(e)], mi[i, :len(m)] = e, m
+            eta2[i, : len(e)], mi[i, : len(m)] = e, m
             progress[i] = end
-            progress[i, :len(s)] = s
-        return cls(eta2, mi, progress, np.array([len(r[0]) for r in runs]), np.array([r[3] for r in runs], float),
-                   np.array([r[4] for r in runs], bool), np.array([r[5] for r in runs], np.int64))
+            progress[i, : len(s)] = s
+        return cls(
+            eta2,
+            mi,
+            progress,
+            np.array([len(r[0]) for r in runs]),
+            np.array([r[3] for r in runs], float),
+            np.array([r[4] for r in runs], bool),
+            np.array([r[5] for r in runs], np.int64),
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,9 +67,19 @@ class Replay:
     full_speed: np.ndarray  # [C, R]
 
 
-def replay(traces: Traces, delta1: np.ndarray, delta2: np.ndarray, tau: np.ndarray, config: WarningConfig,
-           control_hz: float, cruise: float, start_speed: float, max_accel: float, max_brake: float,
-           margin_m: float) -> Replay:
+def replay(
+    traces: Traces,
+    delta1: np.ndarray,
+    delta2: np.ndarray,
+    tau: np.ndarray,
+    config: WarningConfig,
+    control_hz: float,
+    cruise: float,
+    start_speed: float,
+    max_accel: float,
+    max_brake: float,
+    margin_m: float,
+) -> Replay:
     """What candidate thresholds (arrays [C]) would have done on recorded warnings-off runs.
 
     Approximation (the path is the recorded one; only the speed is replayed):
@@ -97,6 +115,7 @@ def replay(traces: Traces, delta1: np.ndarray, delta2: np.ndarray, tau: np.ndarr
     driven = np.where(stopped_at >= 0, stopped_at + 1, traces.frames[None])
     return Replay(traces.safe[None] | saved, stopped_at >= 0, full / np.maximum(driven, 1))
 
+
 @dataclasses.dataclass(frozen=True)
 class Calibration:
     """Chosen thresholds and every candidate's replayed outcome (the safety–autonomy front).
@@ -131,8 +150,11 @@ def candidates(deltas: list[float], taus: list[float]) -> tuple[np.ndarray, np.n
 
 def pareto(autonomy: np.ndarray, safety: np.ndarray) -> np.ndarray:
     """Candidates no other beats in both autonomy and safety (ties count as not beaten)."""
-    better = (autonomy[None] >= autonomy[:, None]) & (safety[None] >= safety[:, None]) & (
-        (autonomy[None] > autonomy[:, None]) | (safety[None] > safety[:, None]))
+    better = (
+        (autonomy[None] >= autonomy[:, None])
+        & (safety[None] >= safety[:, None])
+        & ((autonomy[None] > autonomy[:, None]) | (safety[None] > safety[:, None]))
+    )
     return ~better.any(1)
 
 
@@ -144,8 +166,16 @@ def min_known_runs(target: float, gamma: float) -> int:
     return n
 
 
-def calibrate(traces: Traces, groups: list[str], config: WarningConfig, deltas: list[float], taus: list[float],
-              target: float, gamma: float, **replay_args: float) -> Calibration:
+def calibrate(
+    traces: Traces,
+    groups: list[str],
+    config: WarningConfig,
+    deltas: list[float],
+    taus: list[float],
+    target: float,
+    gamma: float,
+    **replay_args: float,
+) -> Calibration:
     """Thresholds that maximise the replayed unknown-condition η̂1 subject to the exact (Clopper–Pearson,
     level 1 − ``gamma``) lower bound of known-condition autonomy being ≥ ``target``.
 
@@ -157,19 +187,26 @@ def calibrate(traces: Traces, groups: list[str], config: WarningConfig, deltas: 
     """
     counts = [int(np.sum(traces.group == g)) for g in range(len(groups))]
     if len(groups) < 2 or min(counts) == 0:
-        raise ValueError(f"calibration needs runs of the known and at least one unknown condition, got "
-                         f"{dict(zip(groups, counts))}")
+        raise ValueError(
+            f"calibration needs runs of the known and at least one unknown condition, got {dict(zip(groups, counts))}"
+        )
     if counts[0] < min_known_runs(target, gamma):
-        raise ValueError(f"calibration target={target} needs at least {min_known_runs(target, gamma)} known-condition "
-                         f"runs at gamma={gamma}; there are {counts[0]}")
+        raise ValueError(
+            f"calibration target={target} needs at least {min_known_runs(target, gamma)} known-condition "
+            f"runs at gamma={gamma}; there are {counts[0]}"
+        )
     d1, d2, t = candidates(deltas, taus)
     out = replay(traces, d1, d2, t, config, **replay_args)
     known = traces.group == 0
     autonomy = 1 - out.handover[:, known].mean(1)
     table: dict[str, np.ndarray] = {
-        "delta1": d1, "delta2": d2, "tau": t, "autonomy": autonomy,
+        "delta1": d1,
+        "delta2": d2,
+        "tau": t,
+        "autonomy": autonomy,
         "autonomy_low": clopper_pearson_interval(np.round(autonomy * counts[0]).astype(int), counts[0], gamma)[0],
-        "full_speed": out.full_speed[:, known].mean(1)}
+        "full_speed": out.full_speed[:, known].mean(1),
+    }
     for g, name in enumerate(groups):
         table[f"eta1_{name}"] = out.safe[:, traces.group == g].mean(1)
     table["eta1_unknown"] = out.safe[:, traces.group > 0].mean(1)
@@ -178,5 +215,13 @@ def calibrate(traces: Traces, groups: list[str], config: WarningConfig, deltas: 
     distance = np.abs(d1 - config.delta1) + np.abs(d2 - config.delta2) + np.abs(t - config.tau)
     order = np.lexsort((distance, -table["full_speed"], -autonomy, -table["eta1_unknown"], ~table["feasible"]))
     best = int(order[0])
-    return Calibration(float(d1[best]), float(d2[best]), float(t[best]), bool(table["feasible"][best]), float(target),
-                       float(gamma), table, best)
+    return Calibration(
+        float(d1[best]),
+        float(d2[best]),
+        float(t[best]),
+        bool(table["feasible"][best]),
+        float(target),
+        float(gamma),
+        table,
+        best,
+    )

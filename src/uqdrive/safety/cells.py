@@ -65,9 +65,12 @@ class EstimatorSettings:
         return _PLANNED[self.scheme][0](self.theta, self.gamma)
 
 
-def estimate_safety(executor: Executor, settings: EstimatorSettings,
-                    progress: Callable[[Iterator[RolloutResult]], Iterator[RolloutResult]] = iter,
-                    log: RolloutLog | None = None) -> tuple[Estimate, list[RolloutResult]]:
+def estimate_safety(
+    executor: Executor,
+    settings: EstimatorSettings,
+    progress: Callable[[Iterator[RolloutResult]], Iterator[RolloutResult]] = iter,
+    log: RolloutLog | None = None,
+) -> tuple[Estimate, list[RolloutResult]]:
     """Run rollouts 0, 1, … as the scheme asks for them and estimate η1 = P(path in the safe set).
 
     With ``log``, each finished rollout is kept as it finishes and the rollouts an interrupted
@@ -85,7 +88,7 @@ def estimate_safety(executor: Executor, settings: EstimatorSettings,
 
     def draw(count: int) -> np.ndarray:
         start = len(results)
-        reused = kept[start:start + count]
+        reused = kept[start : start + count]
         results.extend(reused)
         results.extend(fresh(range(start + len(reused), start + count)) if len(reused) < count else ())
         return np.array([r.safe for r in results[start:]], dtype=np.int64)
@@ -132,6 +135,7 @@ def reusable_result(path: str | Path, key: str) -> dict | None:
 
 def rates(results: Sequence[RolloutResult]) -> dict[str, float]:
     """Per-cell summaries beside η̂1: how paths failed and how well they tracked the route."""
+
     def mean(values: list[float]) -> float:
         finite = [v for v in values if not math.isnan(v)]
         return float(np.mean(finite)) if finite else float("nan")

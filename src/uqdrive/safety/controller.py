@@ -23,7 +23,6 @@ from uqdrive.models.posterior import Posterior
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
 from uqdrive.uq import decision_confidence, frame_measures
 
-
 NO_WARNING = -1
 """Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.safety.warnings`)."""
 
@@ -73,8 +72,15 @@ class Controller:
 
     needs_camera = True
 
-    def __init__(self, posterior: Posterior, bins: SteeringBins, n_samples: int, eps: float, speed: float,
-                 generator: torch.Generator | None = None):
+    def __init__(
+        self,
+        posterior: Posterior,
+        bins: SteeringBins,
+        n_samples: int,
+        eps: float,
+        speed: float,
+        generator: torch.Generator | None = None,
+    ):
         if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
             raise ConfigError(f"safety.samples={n_samples!r} must be an integer >= 1 (posterior draws per frame)")
         if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not (math.isfinite(eps) and eps > 0):
@@ -98,8 +104,9 @@ class Controller:
         probs = self.posterior.sample_probs(x, 2 * n, self.generator)
         m = frame_measures(probs[:n], self.centres, self.eps)
         eta2 = decision_confidence(probs[n:], self.centres, self.eps, m.decision)
-        return Command(float(m.decision[0]), self.speed, float(eta2[0]), float(m.mutual_information[0]),
-                       float(m.entropy[0]))
+        return Command(
+            float(m.decision[0]), self.speed, float(eta2[0]), float(m.mutual_information[0]), float(m.entropy[0])
+        )
 
 
 class AutopilotPolicy:

@@ -25,7 +25,7 @@ from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controlle
 from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningConfig, WarningController
-from uqdrive.sim import (AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig)
+from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig
 
 BACKENDS = ("process", "ray")
 POLICIES = ("bnn", "autopilot", "constant")
@@ -55,9 +55,11 @@ class PolicySpec:
         if self.kind not in POLICIES:
             raise ValueError(f"policy kind {self.kind!r} is not known; choose one of {list(POLICIES)}")
         if self.warnings is not None and (self.kind != "bnn" or self.samples != self.warnings.samples):
-            raise ValueError(f"a policy with warnings must be kind 'bnn' with samples={self.warnings.samples} "
-                             f"(chernoff_n of warning.theta, warning.gamma), got kind={self.kind!r}, "
-                             f"samples={self.samples}")
+            raise ValueError(
+                f"a policy with warnings must be kind 'bnn' with samples={self.warnings.samples} "
+                f"(chernoff_n of warning.theta, warning.gamma), got kind={self.kind!r}, "
+                f"samples={self.samples}"
+            )
 
     def build(self, control_hz: float) -> Policy:
         if self.kind == "bnn":
@@ -137,8 +139,9 @@ class ProcessPool:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ConfigError(f"executor.workers={workers!r} must be an integer >= 1")
         self.workers = workers
-        self._pool = None if workers == 1 else ProcessPoolExecutor(
-            workers, mp_context=multiprocessing.get_context("spawn"))
+        self._pool = (
+            None if workers == 1 else ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+        )
         self._keys: list[int] = []
 
     def executor(self, job: RolloutJob, owns_pool: bool = False) -> PooledExecutor:
@@ -202,8 +205,13 @@ class RayExecutor:
         self._ray = ray
         self._started = not ray.is_initialized()
         if self._started:
-            ray.init(address=address, num_cpus=None if address else workers,
-                     include_dashboard=False, log_to_driver=False, configure_logging=False)
+            ray.init(
+                address=address,
+                num_cpus=None if address else workers,
+                include_dashboard=False,
+                log_to_driver=False,
+                configure_logging=False,
+            )
         actor = ray.remote(num_cpus=1)(RolloutWorker)
         self._actors = [actor.remote(job) for _ in range(workers)]
         self._pool = ActorPool(self._actors)
@@ -224,8 +232,9 @@ def executor_options(section: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in section.items() if k not in ("name", "workers") and v is not None}
 
 
-def make_executor(backend: str, job: RolloutJob, workers: int, pool: ProcessPool | None = None,
-                  **options: Any) -> Executor:
+def make_executor(
+    backend: str, job: RolloutJob, workers: int, pool: ProcessPool | None = None, **options: Any
+) -> Executor:
     """``process`` (default; on ``pool`` if given, else on a pool of its own) or ``ray``; ``options`` go to
     the Ray backend (address)."""
     if backend == "process":

@@ -53,8 +53,16 @@ class RolloutResult:
         return {k: v for k, v in self.__dict__.items() if not isinstance(v, np.ndarray)}
 
 
-def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioConfig, weather: WeatherConfig,
-                noise: float, half_width: float | None = None, safe_set: SafeSet | None = None) -> RolloutResult:
+def run_rollout(
+    env: DrivingEnv,
+    policy: Policy,
+    seed: int,
+    scenario: ScenarioConfig,
+    weather: WeatherConfig,
+    noise: float,
+    half_width: float | None = None,
+    safe_set: SafeSet | None = None,
+) -> RolloutResult:
     """Drive one episode until the env ends it (collision, off road, route complete or horizon T)
     or the policy has handed over and the car has stopped.
 
@@ -80,13 +88,23 @@ def run_rollout(env: DrivingEnv, policy: Policy, seed: int, scenario: ScenarioCo
     log = env.trajectory
     verdict = safe_set.judge(env.geometry, log["x"], log["y"], log["yaw"], termination)
     lateral = env.geometry.lateral_deviation(np.stack([log["x"], log["y"]], axis=1))
-    return RolloutResult(seed=seed, safe=verdict.safe, termination=termination, collision=verdict.collision,
-                         off_road=verdict.off_road, left_corridor=verdict.left_corridor,
-                         reached_goal=verdict.reached_goal, corridor_use=verdict.corridor_use,
-                         mean_abs_lateral_deviation=float(np.mean(np.abs(lateral))),
-                         mean_eta2=float(np.mean(eta2)) if eta2 else float("nan"),
-                         mean_mutual_information=float(np.mean(mi)) if mi else float("nan"),
-                         steps=len(commands), x=log["x"], y=log["y"],
-                         eta2=np.array(eta2, dtype=float), mutual_information=np.array(mi, dtype=float),
-                         warning=np.array([c.warning for c in commands], dtype=np.int8),
-                         command_speed=np.array([c.speed for c in commands], dtype=float))
+    return RolloutResult(
+        seed=seed,
+        safe=verdict.safe,
+        termination=termination,
+        collision=verdict.collision,
+        off_road=verdict.off_road,
+        left_corridor=verdict.left_corridor,
+        reached_goal=verdict.reached_goal,
+        corridor_use=verdict.corridor_use,
+        mean_abs_lateral_deviation=float(np.mean(np.abs(lateral))),
+        mean_eta2=float(np.mean(eta2)) if eta2 else float("nan"),
+        mean_mutual_information=float(np.mean(mi)) if mi else float("nan"),
+        steps=len(commands),
+        x=log["x"],
+        y=log["y"],
+        eta2=np.array(eta2, dtype=float),
+        mutual_information=np.array(mi, dtype=float),
+        warning=np.array([c.warning for c in commands], dtype=np.int8),
+        command_speed=np.array([c.speed for c in commands], dtype=float),
+    )

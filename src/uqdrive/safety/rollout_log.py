@@ -33,8 +33,12 @@ def _encode(result: RolloutResult) -> str:
 
 def _decode(line: str) -> RolloutResult:
     row = json.loads(line)
-    return RolloutResult(**{k: np.array(v["data"], dtype=v[_ARRAY]) if isinstance(v, dict) and _ARRAY in v else v
-                            for k, v in row.items()})
+    return RolloutResult(
+        **{
+            k: np.array(v["data"], dtype=v[_ARRAY]) if isinstance(v, dict) and _ARRAY in v else v
+            for k, v in row.items()
+        }
+    )
 
 
 class RolloutLog:
@@ -61,8 +65,9 @@ class RolloutLog:
                 break
             kept.append(result)
         with atomic_path(self.path) as tmp:
-            tmp.write_text("".join(line + "\n" for line in [json.dumps({"config_hash": self.key}),
-                                                              *lines[1:1 + len(kept)]]))
+            tmp.write_text(
+                "".join(line + "\n" for line in [json.dumps({"config_hash": self.key}), *lines[1 : 1 + len(kept)]])
+            )
         return kept
 
     def append(self, result: RolloutResult) -> None:

@@ -55,16 +55,18 @@ class SafeSet:
     goal_progress: float | None
     car_size: tuple[float, float]
 
-    def judge(self, geometry: ScenarioGeometry, x: np.ndarray, y: np.ndarray, yaw: np.ndarray,
-              termination: str) -> Verdict:
+    def judge(
+        self, geometry: ScenarioGeometry, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, termination: str
+    ) -> Verdict:
         """Verdict for a path of body-centre poses ``x``, ``y``, ``yaw`` that ended with ``termination``."""
         collision, off_road = termination == "collision", termination == "off_road"
         s, _ = geometry.route.project(np.stack([x, y], axis=1))
         reached = self.goal_progress is None or bool(s.max() >= self.goal_progress)
         if self.half_width is None:
             stopped = termination == HANDOVER
-            return Verdict(not (collision or off_road) and (reached or stopped), collision, off_road, False,
-                           reached, math.nan)
+            return Verdict(
+                not (collision or off_road) and (reached or stopped), collision, off_road, False, reached, math.nan
+            )
         corners = body_corners(np.asarray(x), np.asarray(y), np.asarray(yaw), *self.car_size)
         corner_s, lateral = geometry.route.project(corners)
         use = float(np.max(np.abs(lateral) / np.interp(corner_s, geometry.route.s, self.half_width)))
@@ -84,17 +86,26 @@ class SafeSet:
 def body_corners(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
     """The four footprint corners of every pose, [4 N, 2] (as the vehicle model's own ``corners``)."""
     c, s = np.cos(yaw), np.sin(yaw)
-    out = [np.stack([x + c * u - s * v, y + s * u + c * v], axis=1)
-           for u, v in ((length / 2, width / 2), (length / 2, -width / 2), (-length / 2, -width / 2),
-                        (-length / 2, width / 2))]
+    out = [
+        np.stack([x + c * u - s * v, y + s * u + c * v], axis=1)
+        for u, v in (
+            (length / 2, width / 2),
+            (length / 2, -width / 2),
+            (-length / 2, -width / 2),
+            (-length / 2, width / 2),
+        )
+    ]
     return np.concatenate(out)
 
 
 def check_half_width(half_width: float | None, key: str = "safety.half_width") -> float | None:
     if half_width is None:
         return None
-    if isinstance(half_width, bool) or not isinstance(half_width, (int, float)) or not (
-            math.isfinite(half_width) and half_width > 0):
+    if (
+        isinstance(half_width, bool)
+        or not isinstance(half_width, (int, float))
+        or not (math.isfinite(half_width) and half_width > 0)
+    ):
         raise ConfigError(f"{key}={half_width!r} must be null (the lane) or a number of metres > 0")
     return float(half_width)
 
@@ -115,8 +126,9 @@ def obstacle_pass_progress(geometry: ScenarioGeometry, vehicle_length: float) ->
     return float(s[0]) + (obstacle.size[0] + vehicle_length) / 2
 
 
-def safe_set_for(geometry: ScenarioGeometry, vehicle_width: float, vehicle_length: float,
-                 half_width: float | None = None) -> SafeSet:
+def safe_set_for(
+    geometry: ScenarioGeometry, vehicle_width: float, vehicle_length: float, half_width: float | None = None
+) -> SafeSet:
     """The safe set of ``geometry``'s scenario for a car of the given size; ``half_width`` (m) replaces the
     lane's half-width at the roundabout."""
     half_width = check_half_width(half_width)

@@ -47,8 +47,9 @@ def _check_action(key: str, action: object) -> WarningAction:
         if not isinstance(getattr(action, name), bool):
             raise ConfigError(f"{key}.{name}={getattr(action, name)!r} must be true or false")
     if action.handover and speed != 0:
-        raise ConfigError(f"{key}.speed={action.speed!r} must be 0 when {key}.handover is true "
-                         "(a hand-over brakes to a stop)")
+        raise ConfigError(
+            f"{key}.speed={action.speed!r} must be 0 when {key}.handover is true (a hand-over brakes to a stop)"
+        )
     return WarningAction(speed, action.alert, action.handover)
 
 
@@ -80,8 +81,10 @@ class WarningConfig:
             if not 0 <= value <= 1:
                 raise ConfigError(f"warning.{name}={getattr(self, name)!r} must be in [0, 1] (a threshold on η2)")
         if self.delta2 > self.delta1:
-            raise ConfigError(f"warning.delta2={self.delta2!r} must be <= warning.delta1={self.delta1!r} "
-                             "(warning 2, η2 < δ2, is the severe one)")
+            raise ConfigError(
+                f"warning.delta2={self.delta2!r} must be <= warning.delta1={self.delta1!r} "
+                "(warning 2, η2 < δ2, is the severe one)"
+            )
         if not finite_number("warning.tau", self.tau) >= 0:
             raise ConfigError(f"warning.tau={self.tau!r} must be >= 0 (a threshold on mutual information, nats)")
         for name in ("theta", "gamma"):
@@ -92,8 +95,11 @@ class WarningConfig:
             raise ConfigError(f"warning.hold_s={self.hold_s!r} must be a number of seconds >= 0")
         if isinstance(self.actions, (str, bytes)) or len(self.actions) != len(LEVELS):
             raise ConfigError(f"warning.actions={self.actions!r} must hold one action per level {list(LEVELS)}")
-        object.__setattr__(self, "actions", tuple(
-            _check_action(f"warning.actions.warning{level}", a) for level, a in zip(LEVELS, self.actions)))
+        object.__setattr__(
+            self,
+            "actions",
+            tuple(_check_action(f"warning.actions.warning{level}", a) for level, a in zip(LEVELS, self.actions)),
+        )
         for name in ("delta1", "delta2", "tau", "theta", "gamma", "hold_s"):
             object.__setattr__(self, name, float(getattr(self, name)))
 
@@ -115,8 +121,7 @@ class WarningConfig:
                 spec = dict(actions[name])
                 allowed = {"speed", "alert", "handover"}
                 if set(spec) - allowed or "speed" not in spec:
-                    raise ConfigError(f"warning.actions.{name}={spec!r} needs 'speed' and may have 'alert', "
-                                     "'handover'")
+                    raise ConfigError(f"warning.actions.{name}={spec!r} needs 'speed' and may have 'alert', 'handover'")
                 built.append(WarningAction(**spec))
             data["actions"] = tuple(built)
         return cls(**data)
@@ -131,14 +136,28 @@ class WarningConfig:
 
     def to_dict(self) -> dict:
         """Plain values (for hashes, JSON and MLflow)."""
-        return {"delta1": self.delta1, "delta2": self.delta2, "tau": self.tau, "theta": self.theta,
-                "gamma": self.gamma, "hold_s": self.hold_s, "samples": self.samples,
-                "actions": {f"warning{level}": {"speed": a.speed, "alert": a.alert, "handover": a.handover}
-                            for level, a in zip(LEVELS, self.actions)}}
+        return {
+            "delta1": self.delta1,
+            "delta2": self.delta2,
+            "tau": self.tau,
+            "theta": self.theta,
+            "gamma": self.gamma,
+            "hold_s": self.hold_s,
+            "samples": self.samples,
+            "actions": {
+                f"warning{level}": {"speed": a.speed, "alert": a.alert, "handover": a.handover}
+                for level, a in zip(LEVELS, self.actions)
+            },
+        }
 
 
-def classify(eta2: np.ndarray | float, mutual_information: np.ndarray | float, delta1: np.ndarray | float,
-             delta2: np.ndarray | float, tau: np.ndarray | float) -> np.ndarray:
+def classify(
+    eta2: np.ndarray | float,
+    mutual_information: np.ndarray | float,
+    delta1: np.ndarray | float,
+    delta2: np.ndarray | float,
+    tau: np.ndarray | float,
+) -> np.ndarray:
     """Warning level per frame (NO_WARNING, 0, 1 or 2); every argument broadcasts against the others.
 
     η2 < δ2 → 2; δ2 ≤ η2 < δ1 → 1; η2 ≥ δ1 and MI > τ → 0; otherwise no warning.
@@ -183,8 +202,16 @@ class WarningController(Controller):
     not trusted any more), at speed 0 with ``handover`` set; the rollout ends once the car has stopped.
     """
 
-    def __init__(self, posterior: Posterior, bins: SteeringBins, config: WarningConfig, eps: float, speed: float,
-                 control_hz: float, generator: torch.Generator | None = None):
+    def __init__(
+        self,
+        posterior: Posterior,
+        bins: SteeringBins,
+        config: WarningConfig,
+        eps: float,
+        speed: float,
+        control_hz: float,
+        generator: torch.Generator | None = None,
+    ):
         super().__init__(posterior, bins, config.samples, eps, speed, generator)
         self.config = config
         self.hold_frames = round(config.hold_s * control_hz)
@@ -204,5 +231,11 @@ class WarningController(Controller):
         if handover and self.held_steer is None:
             self.held_steer = float((info or {}).get("steering", 0.0))
         steer = command.steer if self.held_steer is None else self.held_steer
-        return dataclasses.replace(command, steer=steer, speed=self.speed * float(factor), warning=int(level),
-                                   alert=bool(alert), handover=bool(handover))
+        return dataclasses.replace(
+            command,
+            steer=steer,
+            speed=self.speed * float(factor),
+            warning=int(level),
+            alert=bool(alert),
+            handover=bool(handover),
+        )

@@ -29,8 +29,14 @@ class AutopilotAction:
 class Autopilot:
     """Pure pursuit from the rear axle towards a speed-dependent lookahead point on the route."""
 
-    def __init__(self, route: Route, vehicle: VehicleConfig, config: AutopilotConfig | None = None,
-                 control_hz: float = 15.0, seed: int = 0):
+    def __init__(
+        self,
+        route: Route,
+        vehicle: VehicleConfig,
+        config: AutopilotConfig | None = None,
+        control_hz: float = 15.0,
+        seed: int = 0,
+    ):
         self.route = route
         self.vehicle = vehicle
         self.config = config or AutopilotConfig()

@@ -13,8 +13,8 @@ import math
 
 import cv2
 import numpy as np
-from .bullet import pybullet as p
 
+from .bullet import pybullet as p
 from .config import CameraConfig, WeatherConfig
 
 _REF_WIDTH, _REF_HEIGHT = 160, 120  # blur and rain sizes are given at this resolution
@@ -58,16 +58,34 @@ class Camera:
         fwd = [math.cos(pitch) * math.cos(yaw), math.cos(pitch) * math.sin(yaw), math.sin(pitch)]
         return self.client.computeViewMatrix(eye, [eye[i] + fwd[i] for i in range(3)], [0, 0, 1])
 
-    def render(self, x: float, y: float, yaw: float, weather: WeatherConfig, road_lookup: np.ndarray,
-               streak_rng: np.random.Generator, noise: float, noise_rng: np.random.Generator) -> np.ndarray:
+    def render(
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        weather: WeatherConfig,
+        road_lookup: np.ndarray,
+        streak_rng: np.random.Generator,
+        noise: float,
+        noise_rng: np.random.Generator,
+    ) -> np.ndarray:
         """RGB uint8 [H, W, 3] seen from the body-centre pose (x, y, yaw); ``road_lookup[body id + 1]``
         says which bodies are road (`World.road_lookup`)."""
         cfg = self.config
         look = self._look_of(weather)
         _, _, rgba, depth_buf, seg = self.client.getCameraImage(
-            cfg.width, cfg.height, self.view_matrix(x, y, yaw), self.projection, renderer=p.ER_TINY_RENDERER,
-            lightDirection=look.light_direction, lightColor=look.light_color, lightAmbientCoeff=weather.ambient,
-            lightDiffuseCoeff=weather.diffuse, lightSpecularCoeff=weather.specular, shadow=int(weather.shadow))
+            cfg.width,
+            cfg.height,
+            self.view_matrix(x, y, yaw),
+            self.projection,
+            renderer=p.ER_TINY_RENDERER,
+            lightDirection=look.light_direction,
+            lightColor=look.light_color,
+            lightAmbientCoeff=weather.ambient,
+            lightDiffuseCoeff=weather.diffuse,
+            lightSpecularCoeff=weather.specular,
+            shadow=int(weather.shadow),
+        )
         rgba = np.asarray(rgba, np.uint8).reshape(cfg.height, cfg.width, 4)
         depth_buf = np.asarray(depth_buf, np.float32).reshape(cfg.height, cfg.width)
         seg = np.asarray(seg, np.int32).reshape(cfg.height, cfg.width)
@@ -113,10 +131,18 @@ class Look:
             return np.ascontiguousarray(np.broadcast_to(np.asarray(rgb, np.float32), shape))
 
         top, horizon = np.asarray(weather.sky_top, np.float32), np.asarray(weather.sky_horizon, np.float32)
-        return cls(weather, (light / np.linalg.norm(light)).tolist(), list(weather.light_color),
-                   image(top * (1 - sky_t) + horizon * sky_t), image(weather.road_sheen * horizon),
-                   image(weather.fog_color), image((_RAIN_GREY,) * 3), image(np.asarray(weather.tint) * (weather.brightness * weather.contrast)),
-                   np.float32(0.5 * (1 - weather.contrast)), weather.blur * width / _REF_WIDTH)
+        return cls(
+            weather,
+            (light / np.linalg.norm(light)).tolist(),
+            list(weather.light_color),
+            image(top * (1 - sky_t) + horizon * sky_t),
+            image(weather.road_sheen * horizon),
+            image(weather.fog_color),
+            image((_RAIN_GREY,) * 3),
+            image(np.asarray(weather.tint) * (weather.brightness * weather.contrast)),
+            np.float32(0.5 * (1 - weather.contrast)),
+            weather.blur * width / _REF_WIDTH,
+        )
 
 
 def _planes3(plane: np.ndarray) -> np.ndarray:
@@ -124,8 +150,9 @@ def _planes3(plane: np.ndarray) -> np.ndarray:
     return cv2.merge((plane, plane, plane))
 
 
-def apply_weather(img: np.ndarray, depth: np.ndarray, sky: np.ndarray, road: np.ndarray, look: Look,
-                  streak_rng: np.random.Generator) -> np.ndarray:
+def apply_weather(
+    img: np.ndarray, depth: np.ndarray, sky: np.ndarray, road: np.ndarray, look: Look, streak_rng: np.random.Generator
+) -> np.ndarray:
     """Image-space weather on a float32 image in [0, 1] (modified in place); returns float32 in [0, 1]."""
     weather = look.weather
     cv2.copyTo(look.sky, sky.view(np.uint8), img)
@@ -148,7 +175,9 @@ def apply_weather(img: np.ndarray, depth: np.ndarray, sky: np.ndarray, road: np.
     return np.clip(img, 0.0, 1.0, out=img)
 
 
-def _rain_cover(shape: tuple[int, int], weather: WeatherConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def _rain_cover(
+    shape: tuple[int, int], weather: WeatherConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """Blend weights (of the image, of the rain) of seeded, slanted, semi-transparent streaks; a fresh
     pattern every frame.
 

@@ -60,13 +60,24 @@ class _Config:
     def _key(self, name: str) -> str:
         return f"{self._section}.{name}"
 
-    def _number(self, name: str, *, ge: float | None = None, gt: float | None = None, le: float | None = None,
-                lt: float | None = None) -> None:
+    def _number(
+        self,
+        name: str,
+        *,
+        ge: float | None = None,
+        gt: float | None = None,
+        le: float | None = None,
+        lt: float | None = None,
+    ) -> None:
         value = getattr(self, name)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{self._key(name)}={value!r} must be a number")
-        for bound, op, ok in ((ge, ">=", lambda b: value >= b), (gt, ">", lambda b: value > b),
-                              (le, "<=", lambda b: value <= b), (lt, "<", lambda b: value < b)):
+        for bound, op, ok in (
+            (ge, ">=", lambda b: value >= b),
+            (gt, ">", lambda b: value > b),
+            (le, "<=", lambda b: value <= b),
+            (lt, "<", lambda b: value < b),
+        ):
             if bound is not None and not ok(bound):
                 raise ConfigError(f"{self._key(name)}={value!r} must be {op} {bound}")
 
@@ -77,8 +88,12 @@ class _Config:
 
     def _color(self, name: str) -> None:
         value = getattr(self, name)
-        ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == 3 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in value)
+        ok = (
+            isinstance(value, Sequence)
+            and not isinstance(value, str)
+            and len(value) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in value)
+        )
         if not ok:
             raise ConfigError(f"{self._key(name)}={value!r} must be an RGB triple with components in [0, 1]")
         setattr(self, name, tuple(float(v) for v in value))
@@ -89,8 +104,12 @@ class _Config:
             raise ConfigError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
         out = []
         for item in value:
-            ok = isinstance(item, Sequence) and not isinstance(item, str) and len(item) == 3 and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in item)
+            ok = (
+                isinstance(item, Sequence)
+                and not isinstance(item, str)
+                and len(item) == 3
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in item)
+            )
             if not ok:
                 raise ConfigError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
             out.append(tuple(float(v) for v in item))
@@ -98,8 +117,12 @@ class _Config:
 
     def _vector(self, name: str, n: int, *, positive: bool = False) -> None:
         value = getattr(self, name)
-        ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == n and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and (v > 0 or not positive) for v in value)
+        ok = (
+            isinstance(value, Sequence)
+            and not isinstance(value, str)
+            and len(value) == n
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and (v > 0 or not positive) for v in value)
+        )
         if not ok:
             what = "positive numbers" if positive else "numbers"
             raise ConfigError(f"{self._key(name)}={value!r} must be a list of {n} {what}")
@@ -158,19 +181,44 @@ class ScenarioConfig(_Config):
     trunk_color: tuple[float, float, float] = (0.40, 0.27, 0.15)
     crown_colors: tuple[tuple[float, float, float], ...] = ((0.13, 0.40, 0.12), (0.20, 0.48, 0.16), (0.10, 0.33, 0.14))
     building_colors: tuple[tuple[float, float, float], ...] = (
-        (0.72, 0.66, 0.58), (0.58, 0.60, 0.66), (0.78, 0.52, 0.40), (0.85, 0.82, 0.72))
+        (0.72, 0.66, 0.58),
+        (0.58, 0.60, 0.66),
+        (0.78, 0.52, 0.40),
+        (0.85, 0.82, 0.72),
+    )
 
     def __post_init__(self) -> None:
         if self.kind not in SCENARIO_KINDS:
             raise ConfigError(f"scenario.kind={self.kind!r} is not one of {list(SCENARIO_KINDS)}")
         if not isinstance(self.name, str) or not self.name:
             raise ConfigError(f"scenario.name={self.name!r} must be a non-empty string")
-        for name in ("road_length", "lane_width", "ring_radius", "ring_width", "arm_length", "junction_fillet",
-                     "route_fillet", "island_height", "marking_width", "dash_length", "lane_change_length",
-                     "obstacle_distance", "scenery_extent"):
+        for name in (
+            "road_length",
+            "lane_width",
+            "ring_radius",
+            "ring_width",
+            "arm_length",
+            "junction_fillet",
+            "route_fillet",
+            "island_height",
+            "marking_width",
+            "dash_length",
+            "lane_change_length",
+            "obstacle_distance",
+            "scenery_extent",
+        ):
             self._number(name, gt=0)
-        for name in ("start_distance", "start_speed", "start_jitter_lateral", "start_jitter_longitudinal",
-                     "start_jitter_yaw_deg", "finish_margin", "dash_gap", "lane_change_gap", "scenery_margin"):
+        for name in (
+            "start_distance",
+            "start_speed",
+            "start_jitter_lateral",
+            "start_jitter_longitudinal",
+            "start_jitter_yaw_deg",
+            "finish_margin",
+            "dash_gap",
+            "lane_change_gap",
+            "scenery_margin",
+        ):
             self._number(name, ge=0)
         self._number("tree_fraction", ge=0, le=1)
         self._integer("num_lanes", ge=1)
@@ -182,12 +230,17 @@ class ScenarioConfig(_Config):
         self._colors("crown_colors")
         self._colors("building_colors")
         if self.kind == "obstacle" and self.num_lanes < 2:
-            raise ConfigError(f"scenario.num_lanes={self.num_lanes} must be >= 2 for kind 'obstacle' (it passes on the left)")
+            raise ConfigError(
+                f"scenario.num_lanes={self.num_lanes} must be >= 2 for kind 'obstacle' (it passes on the left)"
+            )
         if self.kind != "roundabout" and self.start_distance + self.finish_margin >= self.road_length:
-            raise ConfigError(f"scenario.start_distance={self.start_distance} leaves no route on a road of length "
-                             f"{self.road_length}")
+            raise ConfigError(
+                f"scenario.start_distance={self.start_distance} leaves no route on a road of length {self.road_length}"
+            )
         if self.kind == "roundabout" and self.ring_width / 2 >= self.ring_radius:
-            raise ConfigError(f"scenario.ring_width={self.ring_width} must be < 2 * ring_radius ({2 * self.ring_radius})")
+            raise ConfigError(
+                f"scenario.ring_width={self.ring_width} must be < 2 * ring_radius ({2 * self.ring_radius})"
+            )
         if self.kind == "roundabout" and self.start_distance >= self.arm_length:
             raise ConfigError(f"scenario.start_distance={self.start_distance} must be < arm_length ({self.arm_length})")
 
@@ -331,8 +384,7 @@ def _load_group_file(path: Path) -> Any:
     defaults = config.pop("defaults", None)
     if defaults is None:
         return config
-    parts = [config if entry == "_self_" else _load_group_file(path.with_name(f"{entry}.yaml"))
-             for entry in defaults]
+    parts = [config if entry == "_self_" else _load_group_file(path.with_name(f"{entry}.yaml")) for entry in defaults]
     if "_self_" not in defaults:
         parts.append(config)
     return OmegaConf.merge(*parts)

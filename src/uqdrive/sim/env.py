@@ -29,8 +29,13 @@ class DrivingEnv:
     and the same images.
     """
 
-    def __init__(self, camera: CameraConfig | None = None, vehicle: VehicleConfig | None = None,
-                 control_hz: float = 15.0, horizon_s: float = 40.0):
+    def __init__(
+        self,
+        camera: CameraConfig | None = None,
+        vehicle: VehicleConfig | None = None,
+        control_hz: float = 15.0,
+        horizon_s: float = 40.0,
+    ):
         if not control_hz > 0:
             raise ConfigError(f"control_hz={control_hz!r} must be > 0")
         if not horizon_s > 0:
@@ -51,8 +56,14 @@ class DrivingEnv:
         self._log: dict[str, list[float]] = {k: [] for k in _TRAJECTORY_KEYS}
 
     # -- lifecycle ------------------------------------------------------------------------
-    def reset(self, seed: int, scenario: ScenarioConfig, weather: WeatherConfig | None = None, noise: float = 0.0,
-              render: bool = True) -> np.ndarray | None:
+    def reset(
+        self,
+        seed: int,
+        scenario: ScenarioConfig,
+        weather: WeatherConfig | None = None,
+        noise: float = 0.0,
+        render: bool = True,
+    ) -> np.ndarray | None:
         """Start an episode; returns the first observation (None when ``render`` is False).
 
         ``noise`` is the Gaussian pixel-noise sigma in units of full intensity.
@@ -70,7 +81,10 @@ class DrivingEnv:
         self._streak_rng, self._noise_rng = streak_rng, noise_rng
         x0, y0, yaw0 = self._geometry.start
         d_long, d_lat, d_yaw = pose_rng.uniform(-1.0, 1.0, size=3) * [
-            scenario.start_jitter_longitudinal, scenario.start_jitter_lateral, math.radians(scenario.start_jitter_yaw_deg)]
+            scenario.start_jitter_longitudinal,
+            scenario.start_jitter_lateral,
+            math.radians(scenario.start_jitter_yaw_deg),
+        ]
         x = x0 + d_long * math.cos(yaw0) - d_lat * math.sin(yaw0)
         y = y0 + d_long * math.sin(yaw0) + d_lat * math.cos(yaw0)
         self._state = VehicleState(x, y, yaw0 + d_yaw, min(scenario.start_speed, self.vehicle_config.max_speed))
@@ -116,18 +130,30 @@ class DrivingEnv:
         self._done = termination != ""
         for key, value in zip(_TRAJECTORY_KEYS, (self._t, st.x, st.y, st.yaw, st.speed, self._applied)):
             self._log[key].append(value)
-        return {"t": self._t, "x": st.x, "y": st.y, "yaw": st.yaw, "speed": st.speed, "steering": self._applied,
-                "steer_angle": st.steer_angle, "collision": collision, "off_road": off_road,
-                "lateral_deviation": float(lateral[0]), "progress": progress, "done": self._done,
-                "termination": termination}
+        return {
+            "t": self._t,
+            "x": st.x,
+            "y": st.y,
+            "yaw": st.yaw,
+            "speed": st.speed,
+            "steering": self._applied,
+            "steer_angle": st.steer_angle,
+            "collision": collision,
+            "off_road": off_road,
+            "lateral_deviation": float(lateral[0]),
+            "progress": progress,
+            "done": self._done,
+            "termination": termination,
+        }
 
     def _observe(self) -> np.ndarray | None:
         if not self.render_enabled:
             return None
         st = self._state
         self._world.cull(*self.camera.view_wedge(st.x, st.y, st.yaw))
-        return self.camera.render(st.x, st.y, st.yaw, self.weather, self._world.road_lookup, self._streak_rng,
-                                  self.noise, self._noise_rng)
+        return self.camera.render(
+            st.x, st.y, st.yaw, self.weather, self._world.road_lookup, self._streak_rng, self.noise, self._noise_rng
+        )
 
     # -- accessors ------------------------------------------------------------------------
     @property

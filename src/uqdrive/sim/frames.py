@@ -50,22 +50,39 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--time", type=float, default=2.0, help="seconds of autopilot driving before the snapshot")
     parser.add_argument("--noise", type=float, default=0.0, help="pixel noise sigma (fraction of full intensity)")
     parser.add_argument("--conf", type=Path, default=None, help="Hydra conf/ folder (default: found from the repo)")
-    parser.add_argument("--compare-render", metavar="WxH", type=_size, default=None,
-                        help="compare the network's input rendered at WxH (then reduced) with the configured size")
+    parser.add_argument(
+        "--compare-render",
+        metavar="WxH",
+        type=_size,
+        default=None,
+        help="compare the network's input rendered at WxH (then reduced) with the configured size",
+    )
     parser.add_argument("--episodes", type=int, default=4, help="--compare-render: autopilot episodes per scenario")
     parser.add_argument("--every", type=int, default=5, help="--compare-render: every n-th step of an episode")
-    parser.add_argument("--sigma", type=float, default=0.05,
-                        help="--compare-render: sensor noise whose standard deviation on the network's input is reported")
+    parser.add_argument(
+        "--sigma",
+        type=float,
+        default=0.05,
+        help="--compare-render: sensor noise whose standard deviation on the network's input is reported",
+    )
     args = parser.parse_args(argv)
 
     conf = args.conf or find_conf()
     if args.compare_render:
         from .resolution import write
 
-        result = write(Path(args.out), conf, args.compare_render, range(args.seed, args.seed + args.episodes),
-                       args.every, args.sigma)
-        print(f"wrote resolution.png and resolution.json to {args.out} ({result['configured']} against "
-              f"{result['reference']})")
+        result = write(
+            Path(args.out),
+            conf,
+            args.compare_render,
+            range(args.seed, args.seed + args.episodes),
+            args.every,
+            args.sigma,
+        )
+        print(
+            f"wrote resolution.png and resolution.json to {args.out} ({result['configured']} against "
+            f"{result['reference']})"
+        )
         return 0
     scenario = ScenarioConfig.from_yaml(conf / "scenario" / f"{args.scenario}.yaml")
     out = Path(args.out)
@@ -84,8 +101,9 @@ def main(argv: list[str] | None = None) -> int:
             cv2.imwrite(str(out / f"{name}.png"), bgr)
             h, w = 120, 160  # shown at least this large
             grey = cv2.resize(preprocess_frame(obs), (w, h), interpolation=cv2.INTER_NEAREST)
-            tile = np.vstack([cv2.resize(bgr, (w, h), interpolation=cv2.INTER_NEAREST),
-                              cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)])
+            tile = np.vstack(
+                [cv2.resize(bgr, (w, h), interpolation=cv2.INTER_NEAREST), cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)]
+            )
             cv2.putText(tile, name, (3, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
             tiles.append(tile)
     cv2.imwrite(str(out / "weathers.png"), np.hstack(tiles))

@@ -216,6 +216,7 @@ class ScenarioGeometry:
 
 # -- polygons -> triangles / markings ------------------------------------------------------
 
+
 def _fan(polygon: np.ndarray) -> np.ndarray:
     """Triangle fan from the first vertex (polygon star-shaped from it)."""
     p = np.asarray(polygon, float)
@@ -259,7 +260,9 @@ def _rasterise(polygons_on, polygons_off, bounds) -> PavedArea:
     shift = 4
 
     def pix(poly):
-        return np.round((np.asarray(poly) - [xmin, ymin]) / _PAVED_RES * (1 << shift) - 0.5 * (1 << shift)).astype(np.int32)
+        return np.round((np.asarray(poly) - [xmin, ymin]) / _PAVED_RES * (1 << shift) - 0.5 * (1 << shift)).astype(
+            np.int32
+        )
 
     for poly in polygons_on:
         cv2.fillPoly(mask, [pix(poly)], 1, lineType=cv2.LINE_8, shift=shift)
@@ -270,6 +273,7 @@ def _rasterise(polygons_on, polygons_off, bounds) -> PavedArea:
 
 # -- scenarios --------------------------------------------------------------------------------
 
+
 def _straight(cfg: ScenarioConfig):
     L, lw, n = cfg.road_length, cfg.lane_width, cfg.num_lanes
     half = n * lw / 2
@@ -277,8 +281,10 @@ def _straight(cfg: ScenarioConfig):
     road = np.array([[0, -half], [L, -half], [L, half], [0, half]], float)
     mw = cfg.marking_width
     edge = 0.15 + mw / 2
-    marks = [_band(_line([0, -half + edge], [L, -half + edge], L), mw),
-             _band(_line([0, half - edge], [L, half - edge], L), mw)]
+    marks = [
+        _band(_line([0, -half + edge], [L, -half + edge], L), mw),
+        _band(_line([0, half - edge], [L, half - edge], L), mw),
+    ]
     for k in range(1, n):
         for dash in _dashes(_line([0, -half + k * lw], [L, -half + k * lw]), cfg.dash_length, cfg.dash_gap, L):
             marks.append(_band(dash, mw))
@@ -295,8 +301,10 @@ def _straight(cfg: ScenarioConfig):
         t_back = np.clip((x - x1) / cfg.lane_change_length, 0, 1)
         y = y + lw * (0.5 - 0.5 * np.cos(np.pi * t_out)) - lw * (0.5 - 0.5 * np.cos(np.pi * t_back))
         if x0 < cfg.start_distance or x1 + cfg.lane_change_length > L - cfg.finish_margin:
-            raise ConfigError(f"scenario.obstacle_distance={cfg.obstacle_distance} leaves no room to change lanes "
-                             f"on a road of length {L} starting at {cfg.start_distance}")
+            raise ConfigError(
+                f"scenario.obstacle_distance={cfg.obstacle_distance} leaves no room to change lanes "
+                f"on a road of length {L} starting at {cfg.start_distance}"
+            )
     route = Route.from_points(np.stack([x, y], axis=1))
     start = (cfg.start_distance, right, 0.0)
     bounds = (-1.0, -half - 1.0, L + 1.0, half + 1.0)
@@ -325,7 +333,7 @@ def _roundabout(cfg: ScenarioConfig):
     on, marks = [_circle(r_out)], []
     # fillet between the arm edge (local v = side * h) and the ring's outer circle
     fu = math.sqrt((r_out + fj) ** 2 - (h + fj) ** 2)
-    corner_u = math.sqrt(r_out ** 2 - h ** 2)
+    corner_u = math.sqrt(r_out**2 - h**2)
     openings = []
     for k in range(4):
         phi = -math.pi / 2 + k * math.pi / 2  # arms: south, east, north, west
@@ -362,10 +370,14 @@ def _roundabout(cfg: ScenarioConfig):
     c1 = np.array([a + rf, -math.sqrt((rc + rf) ** 2 - (a + rf) ** 2)])
     theta_in = math.atan2(c1[1], c1[0])
     if theta_in >= -math.pi / 4:
-        raise ConfigError(f"scenario.route_fillet={rf} is too large for ring_radius={rc}: the entry and exit "
-                         f"curves overlap")
-    half_route = _join(_line([a, -reach], [a, c1[1]]), _arc(c1, rf, math.pi, math.atan2(-c1[1], -c1[0])),
-                       _arc(np.zeros(2), rc, theta_in, -math.pi / 4))
+        raise ConfigError(
+            f"scenario.route_fillet={rf} is too large for ring_radius={rc}: the entry and exit curves overlap"
+        )
+    half_route = _join(
+        _line([a, -reach], [a, c1[1]]),
+        _arc(c1, rf, math.pi, math.atan2(-c1[1], -c1[0])),
+        _arc(np.zeros(2), rc, theta_in, -math.pi / 4),
+    )
     mirrored = np.stack([-half_route[:, 1], -half_route[:, 0]], axis=1)[::-1]
     route = Route.from_points(_join(half_route, mirrored))
     start = (a, -(r_out + cfg.start_distance), math.pi / 2)
@@ -399,8 +411,11 @@ def _place_scenery(cfg: ScenarioConfig, paved: PavedArea, bounds, island) -> lis
             continue
         if island is not None and math.hypot(x - island[0], y - island[1]) < island[2] + radius + cfg.ring_width:
             continue
-        if any(math.hypot(x - o.x, y - o.y) < radius + 1.0 + (o.size[1] if o.kind == "tree" else 0.5 * math.hypot(*o.size[:2]))
-               for o in items):
+        if any(
+            math.hypot(x - o.x, y - o.y)
+            < radius + 1.0 + (o.size[1] if o.kind == "tree" else 0.5 * math.hypot(*o.size[:2]))
+            for o in items
+        ):
             continue
         items.append(Scenery("tree" if tree else "building", x, y, yaw, size, color))
     return items

@@ -39,8 +39,9 @@ DISTANCES = (20.0, 40.0)
 _ZOOM = 4
 
 
-def render_at(env: DrivingEnv, pose: tuple[float, float, float], weather: WeatherConfig, noise: float,
-              seed: int) -> np.ndarray:
+def render_at(
+    env: DrivingEnv, pose: tuple[float, float, float], weather: WeatherConfig, noise: float, seed: int
+) -> np.ndarray:
     """Network input (grey 64x48) of ``env``'s camera at ``pose``; rain and noise drawn from ``seed``."""
     x, y, yaw = pose
     env.world.cull(*env.camera.view_wedge(x, y, yaw))
@@ -49,7 +50,9 @@ def render_at(env: DrivingEnv, pose: tuple[float, float, float], weather: Weathe
     return preprocess_frame(rgb)
 
 
-def autopilot_poses(env: DrivingEnv, scenario: ScenarioConfig, seeds: range, every: int) -> list[tuple[float, float, float]]:
+def autopilot_poses(
+    env: DrivingEnv, scenario: ScenarioConfig, seeds: range, every: int
+) -> list[tuple[float, float, float]]:
     """Every ``every``-th pose of unperturbed autopilot episodes, one per seed."""
     poses = []
     for seed in seeds:
@@ -88,7 +91,9 @@ def marking_contrast(frames: list[np.ndarray], env: DrivingEnv, poses, lines: di
         eye_x = env.camera.eye(*pose)[0]
         for name, lateral in lines.items():
             lane = lateral - math.copysign(1.75 / 2, lateral) if lateral else 1.75 / 2
-            line_px = project(env, pose, np.column_stack([eye_x + ahead, np.full_like(ahead, lateral), 0 * ahead]), (w, h))
+            line_px = project(
+                env, pose, np.column_stack([eye_x + ahead, np.full_like(ahead, lateral), 0 * ahead]), (w, h)
+            )
             lane_px = project(env, pose, np.column_stack([eye_x + ahead, np.full_like(ahead, lane), 0 * ahead]), (w, h))
             for d in DISTANCES:
                 r = int(line_px[np.argmin(np.abs(ahead - d)), 1])
@@ -96,15 +101,19 @@ def marking_contrast(frames: list[np.ndarray], env: DrivingEnv, poses, lines: di
                 c, ca = int(line_px[k, 0]), int(lane_px[k, 0])
                 if not (0 <= r < h and 1 <= c < w - 1 and 0 <= ca < w):
                     continue
-                marking = frame[r, c - 1:c + 2].max()
+                marking = frame[r, c - 1 : c + 2].max()
                 out.setdefault(name, {}).setdefault(f"{d:g}m", []).append(float(marking) - float(frame[r, ca]))
     return out
 
 
 def _summary(values: list[float], reference_mean: float) -> dict:
     v = np.asarray(values)
-    return {"mean": round(float(v.mean()), 2), "std": round(float(v.std()), 2),
-            "lost_fraction": round(float((v < 0.25 * reference_mean).mean()), 3), "frames": len(v)}
+    return {
+        "mean": round(float(v.mean()), 2),
+        "std": round(float(v.std()), 2),
+        "lost_fraction": round(float((v < 0.25 * reference_mean).mean()), 3),
+        "frames": len(v),
+    }
 
 
 def compare(conf: Path, reference: tuple[int, int], seeds: range, every: int, noise: float) -> tuple[dict, list]:
@@ -112,8 +121,13 @@ def compare(conf: Path, reference: tuple[int, int], seeds: range, every: int, no
     camera = CameraConfig()
     sizes = {"reference": reference, "configured": (camera.width, camera.height)}
     envs = {k: DrivingEnv(dataclasses.replace(camera, width=w, height=h)) for k, (w, h) in sizes.items()}
-    result: dict = {"reference": "x".join(map(str, reference)), "configured": f"{camera.width}x{camera.height}",
-                    "seeds": [seeds.start, seeds.stop], "every_nth_step": every, "difference": {}}
+    result: dict = {
+        "reference": "x".join(map(str, reference)),
+        "configured": f"{camera.width}x{camera.height}",
+        "seeds": [seeds.start, seeds.stop],
+        "every_nth_step": every,
+        "difference": {},
+    }
     rows = []
     try:
         for scenario_name in SCENARIOS:
@@ -123,15 +137,19 @@ def compare(conf: Path, reference: tuple[int, int], seeds: range, every: int, no
                 env.reset(seeds.start, scenario, render=False)
             for weather_name in WEATHERS:
                 weather = WeatherConfig.from_yaml(conf / "weather" / f"{weather_name}.yaml")
-                pairs = [[render_at(env, pose, weather, 0.0, k) for env in envs.values()] for k, pose in enumerate(poses)]
+                pairs = [
+                    [render_at(env, pose, weather, 0.0, k) for env in envs.values()] for k, pose in enumerate(poses)
+                ]
                 ref = np.asarray([p[0] for p in pairs], float)
                 diff = np.abs(np.asarray([p[1] for p in pairs], float) - ref)
                 per_frame = diff.mean(axis=(1, 2))
                 result["difference"][f"{scenario_name}/{weather_name}"] = {
-                    "mean_abs": round(float(per_frame.mean()), 2), "p95_abs": round(float(np.percentile(per_frame, 95)), 2),
+                    "mean_abs": round(float(per_frame.mean()), 2),
+                    "p95_abs": round(float(np.percentile(per_frame, 95)), 2),
                     "pixels_off_by_16": round(float((diff > 16).mean()), 4),
                     "consecutive_reference_frames": round(float(np.abs(np.diff(ref, axis=0)).mean()), 2),
-                    "frames": len(pairs)}
+                    "frames": len(pairs),
+                }
                 rows.append((f"{scenario_name} {weather_name}", *pairs[len(pairs) // 3]))
         straight = ScenarioConfig.from_yaml(conf / "scenario" / "straight.yaml")
         poses = autopilot_poses(envs["reference"], straight, seeds, 1)
@@ -146,16 +164,25 @@ def compare(conf: Path, reference: tuple[int, int], seeds: range, every: int, no
                 frames = [render_at(env, pose, weather, 0.0, k) for k, pose in enumerate(poses)]
                 contrast[key] = marking_contrast(frames, envs["reference"], poses, lines)
             result["markings"][weather_name] = {
-                line: {d: {key: _summary(contrast[key][line][d], float(np.mean(contrast["reference"][line][d])))
-                           for key in envs} for d in contrast["reference"][line]} for line in lines}
+                line: {
+                    d: {
+                        key: _summary(contrast[key][line][d], float(np.mean(contrast["reference"][line][d])))
+                        for key in envs
+                    }
+                    for d in contrast["reference"][line]
+                }
+                for line in lines
+            }
         result["sigma_seen"] = {}
         scenario = ScenarioConfig.from_yaml(conf / "scenario" / "roundabout.yaml")
         rain = WeatherConfig.from_yaml(conf / "weather" / "rain.yaml")
         poses = autopilot_poses(envs["reference"], scenario, range(seeds.start, seeds.start + 1), every)
         for key, env in envs.items():
             env.reset(seeds.start, scenario, render=False)
-            seen = [render_at(env, p, rain, noise, k).astype(float) - render_at(env, p, rain, 0.0, k)
-                    for k, p in enumerate(poses)]
+            seen = [
+                render_at(env, p, rain, noise, k).astype(float) - render_at(env, p, rain, 0.0, k)
+                for k, p in enumerate(poses)
+            ]
             result["sigma_seen"][key] = round(float(np.std(seen)) / 255, 4)
         result["sigma_seen"]["configured_noise"] = noise
     finally:

@@ -44,7 +44,9 @@ class KinematicBicycle:
         """Footprint corners (front-left, front-right, rear-right, rear-left)."""
         c, s = math.cos(state.yaw), math.sin(state.yaw)
         hl, hw = self.config.length / 2, self.config.width / 2
-        return [(state.x + c * u - s * v, state.y + s * u + c * v) for u, v in ((hl, hw), (hl, -hw), (-hl, -hw), (-hl, hw))]
+        return [
+            (state.x + c * u - s * v, state.y + s * u + c * v) for u, v in ((hl, hw), (hl, -hw), (-hl, -hw), (-hl, hw))
+        ]
 
     def step(self, state: VehicleState, steer: float, speed: float, dt: float) -> VehicleState:
         cfg = self.config

@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .bullet import pybullet as p
 
+from .bullet import pybullet as p
 from .config import VehicleConfig
 from .geometry import ScenarioGeometry
 
@@ -43,7 +43,9 @@ class World:
         client.resetSimulation()
         self.road_ids: list[int] = []
         self._collidable: list[tuple[int, float, float, float]] = []  # id, x, y, bounding radius
-        self._cullable: list[tuple[int, float, float, float, list[list[float]]]] = []  # id, x, y, radius, rgba per shape
+        self._cullable: list[
+            tuple[int, float, float, float, list[list[float]]]
+        ] = []  # id, x, y, radius, rgba per shape
 
         xmin, ymin, xmax, ymax = geometry.bounds
         cx, cy = (xmin + xmax) / 2, (ymin + ymax) / 2
@@ -66,8 +68,9 @@ class World:
             ix, iy, r = geometry.island
             kerb_rgba = [0.75, 0.75, 0.72, 1.0]
             kerb = client.createVisualShape(p.GEOM_CYLINDER, radius=r + 0.3, length=0.2, rgbaColor=kerb_rgba)
-            self._cullable.append((client.createMultiBody(0, -1, kerb, basePosition=[ix, iy, 0.1]), ix, iy, r + 0.3,
-                                   [kerb_rgba]))
+            self._cullable.append(
+                (client.createMultiBody(0, -1, kerb, basePosition=[ix, iy, 0.1]), ix, iy, r + 0.3, [kerb_rgba])
+            )
             col = client.createCollisionShape(p.GEOM_CYLINDER, radius=r, height=cfg.island_height)
             island_rgba = _rgba(np.clip(np.asarray(cfg.ground_color) * 1.15, 0, 1))
             vis = client.createVisualShape(p.GEOM_CYLINDER, radius=r, length=cfg.island_height, rgbaColor=island_rgba)
@@ -86,8 +89,9 @@ class World:
         self._shown = np.ones(len(self._cullable), bool)
 
         self.vehicle = vehicle
-        self.ego_id = self.car_body(client, (vehicle.length, vehicle.width, vehicle.height), vehicle.color,
-                                    vehicle.wheelbase, visible=False)
+        self.ego_id = self.car_body(
+            client, (vehicle.length, vehicle.width, vehicle.height), vehicle.color, vehicle.wheelbase, visible=False
+        )
         # road mask of a segmentation image in one lookup: road_lookup[seg + 1] (seg is -1 on the sky)
         self.road_lookup = np.zeros(client.getNumBodies() + 1, bool)
         self.road_lookup[np.asarray(self.road_ids, int) + 1] = True
@@ -101,10 +105,15 @@ class World:
         tris = np.where((area < 0)[:, None, None], tris[:, ::-1], tris)
         ids = []
         for start in range(0, len(tris), _MAX_TRIANGLES):
-            chunk = tris[start:start + _MAX_TRIANGLES].reshape(-1, 2)
+            chunk = tris[start : start + _MAX_TRIANGLES].reshape(-1, 2)
             verts = np.column_stack([chunk, np.full(len(chunk), z)])
-            vis = self.client.createVisualShape(p.GEOM_MESH, vertices=verts.tolist(), indices=list(range(len(verts))),
-                                                normals=[[0.0, 0.0, 1.0]] * len(verts), rgbaColor=_rgba(color))
+            vis = self.client.createVisualShape(
+                p.GEOM_MESH,
+                vertices=verts.tolist(),
+                indices=list(range(len(verts))),
+                normals=[[0.0, 0.0, 1.0]] * len(verts),
+                rgbaColor=_rgba(color),
+            )
             ids.append(self.client.createMultiBody(0, -1, vis))
             lo, hi = chunk.min(axis=0), chunk.max(axis=0)
             centre = (lo + hi) / 2
@@ -118,17 +127,24 @@ class World:
         if item.kind == "tree":
             trunk_r, crown_r, height = item.size
             trunk_h = height - crown_r
-            col = c.createCollisionShape(p.GEOM_CYLINDER, radius=trunk_r, height=trunk_h,
-                                         collisionFramePosition=[0, 0, trunk_h / 2])
+            col = c.createCollisionShape(
+                p.GEOM_CYLINDER, radius=trunk_r, height=trunk_h, collisionFramePosition=[0, 0, trunk_h / 2]
+            )
             colors = [_rgba(self.geometry.config.trunk_color), _rgba(item.color)]
             vis = c.createVisualShapeArray(
-                shapeTypes=[p.GEOM_CYLINDER, p.GEOM_SPHERE], radii=[trunk_r, crown_r], lengths=[trunk_h, 0],
-                rgbaColors=colors, visualFramePositions=[[0, 0, trunk_h / 2], [0, 0, trunk_h]])
+                shapeTypes=[p.GEOM_CYLINDER, p.GEOM_SPHERE],
+                radii=[trunk_r, crown_r],
+                lengths=[trunk_h, 0],
+                rgbaColors=colors,
+                visualFramePositions=[[0, 0, trunk_h / 2], [0, 0, trunk_h]],
+            )
         else:
             he = [item.size[0] / 2, item.size[1] / 2, item.size[2] / 2]
             col = c.createCollisionShape(p.GEOM_BOX, halfExtents=he, collisionFramePosition=[0, 0, he[2]])
             colors = [_rgba(item.color)]
-            vis = c.createVisualShape(p.GEOM_BOX, halfExtents=he, rgbaColor=colors[0], visualFramePosition=[0, 0, he[2]])
+            vis = c.createVisualShape(
+                p.GEOM_BOX, halfExtents=he, rgbaColor=colors[0], visualFramePosition=[0, 0, he[2]]
+            )
         body = c.createMultiBody(0, col, vis, basePosition=[item.x, item.y, 0.0], baseOrientation=_yaw_quat(item.yaw))
         return body, colors
 
@@ -149,8 +165,11 @@ class World:
         pybullet would draw the collision box instead.)
         """
         col_h = size[2] - _CHASSIS_CLEARANCE
-        col = client.createCollisionShape(p.GEOM_BOX, halfExtents=[size[0] / 2, size[1] / 2, col_h / 2],
-                                          collisionFramePosition=[0, 0, _CHASSIS_CLEARANCE + col_h / 2])
+        col = client.createCollisionShape(
+            p.GEOM_BOX,
+            halfExtents=[size[0] / 2, size[1] / 2, col_h / 2],
+            collisionFramePosition=[0, 0, _CHASSIS_CLEARANCE + col_h / 2],
+        )
         length, width, height = size
         body_h = 0.55 * height
         base_z = 0.3
@@ -164,9 +183,14 @@ class World:
         colors = [[*rgba[:3], 1.0 if visible else 0.0] for rgba in World.car_colors(color)]
         wheel_q = p.getQuaternionFromEuler([math.pi / 2, 0, 0])
         vis = client.createVisualShapeArray(
-            shapeTypes=shapes, halfExtents=half, radii=[0, 0] + [wheel_r] * 4, lengths=[0, 0] + [0.25] * 4,
-            rgbaColors=colors, visualFramePositions=positions,
-            visualFrameOrientations=[[0, 0, 0, 1]] * 2 + [wheel_q] * 4)
+            shapeTypes=shapes,
+            halfExtents=half,
+            radii=[0, 0] + [wheel_r] * 4,
+            lengths=[0, 0] + [0.25] * 4,
+            rgbaColors=colors,
+            visualFramePositions=positions,
+            visualFrameOrientations=[[0, 0, 0, 1]] * 2 + [wheel_q] * 4,
+        )
         return client.createMultiBody(0, col, vis)
 
     def set_ego_pose(self, x: float, y: float, yaw: float) -> None:
@@ -189,8 +213,9 @@ class World:
         for k in np.flatnonzero(visible != self._shown):
             body, *_, colors = self._cullable[k]
             for shape, rgba in enumerate(colors):
-                self.client.changeVisualShape(body, -1, shapeIndex=shape,
-                                              rgbaColor=rgba if visible[k] else [*rgba[:3], 0.0])
+                self.client.changeVisualShape(
+                    body, -1, shapeIndex=shape, rgbaColor=rgba if visible[k] else [*rgba[:3], 0.0]
+                )
         self._shown = visible
 
     def in_collision(self, x: float, y: float) -> bool:

@@ -74,9 +74,7 @@ def massart_n(theta: float, gamma: float, rate_bound: float = 0.5) -> int:
     except (TypeError, ValueError):
         b = math.nan
     if not 0.0 <= b <= 0.5:
-        raise ValueError(
-            f"rate_bound must be in [0, 0.5] (a bound on min(eta, 1 - eta)), got {rate_bound!r}"
-        )
+        raise ValueError(f"rate_bound must be in [0, 0.5] (a bound on min(eta, 1 - eta)), got {rate_bound!r}")
     p = min(b, 0.5 - theta / 3)
     return math.ceil(math.log(2 / gamma) / (theta**2 * massart_h(p, theta)))
 
@@ -105,8 +103,12 @@ def fit_levels(n: int, theta: float) -> np.ndarray:
     """
     k = np.arange(n + 1)
     p = k / n
-    upper = np.where((k > 0) & (p - theta > 0), special.betainc(np.maximum(k, 1), n - k + 1, np.clip(p - theta, 0, 1)), 0.0)
-    lower = np.where((k < n) & (p + theta < 1), special.betainc(np.maximum(n - k, 1), k + 1, np.clip(1 - p - theta, 0, 1)), 0.0)
+    upper = np.where(
+        (k > 0) & (p - theta > 0), special.betainc(np.maximum(k, 1), n - k + 1, np.clip(p - theta, 0, 1)), 0.0
+    )
+    lower = np.where(
+        (k < n) & (p + theta < 1), special.betainc(np.maximum(n - k, 1), k + 1, np.clip(1 - p - theta, 0, 1)), 0.0
+    )
     levels = 2 * np.maximum(upper, lower)
     levels.setflags(write=False)
     return levels

@@ -20,12 +20,22 @@ def table(theta: float, gamma: float, rate_bounds: list[float], delta: float, lo
         ("clopper_pearson (exact, fixed n)", clopper_pearson_n(theta, gamma), "planned", "yes"),
     ]
     rows += [
-        (f"massart, a priori min(eta,1-eta) <= {b:g}", massart_n(theta, gamma, b), "planned",
-         "yes" if b >= 0.5 else "yes, if the bound holds")
+        (
+            f"massart, a priori min(eta,1-eta) <= {b:g}",
+            massart_n(theta, gamma, b),
+            "planned",
+            "yes" if b >= 0.5 else "yes, if the bound holds",
+        )
         for b in rate_bounds
     ]
-    rows.append((f"sequential (calibrated Clopper-Pearson), a look every {scheme.look_size}", scheme.max_n,
-                 "worst case", "yes (exact error computed)"))
+    rows.append(
+        (
+            f"sequential (calibrated Clopper-Pearson), a look every {scheme.look_size}",
+            scheme.max_n,
+            "worst case",
+            "yes (exact error computed)",
+        )
+    )
     sprt_name = f"sprt eta >= {delta:g} +- {theta:g} (cap)"
     if 0 < delta - theta and delta + theta < 1:
         rows.append((sprt_name, sprt_cap(delta, theta, gamma, gamma), "worst case", "no (decision only)"))
@@ -39,8 +49,10 @@ def table(theta: float, gamma: float, rate_bounds: list[float], delta: float, lo
     out += [f"{name:<{width}}  {n:>7}  {kind:<10}  {g}" for name, n, kind, g in rows]
     mean_n, _ = scheme.operating_characteristics(RATES)
     expected = ", ".join(f"{m:.0f} at eta={r:g}" for r, m in zip(RATES, mean_n))
-    out.append(f"sequential: stops when the exact interval at level {1 - scheme.level:.5f} fits in +-theta; "
-               f"expected samples {expected}")
+    out.append(
+        f"sequential: stops when the exact interval at level {1 - scheme.level:.5f} fits in +-theta; "
+        f"expected samples {expected}"
+    )
     return out
 
 
@@ -49,7 +61,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--theta", type=float, default=0.05, help="absolute error bound, in (0, 1)")
     ap.add_argument("--gamma", type=float, default=0.05, help="allowed failure probability, in (0, 1)")
     ap.add_argument(
-        "--rate-bounds", type=float, nargs="+", default=[0.5, 0.2, 0.1, 0.05, 0.01],
+        "--rate-bounds",
+        type=float,
+        nargs="+",
+        default=[0.5, 0.2, 0.1, 0.05, 0.01],
         help="a-priori bounds on min(eta, 1 - eta) for the Massart rows, in [0, 0.5]",
     )
     ap.add_argument("--delta", type=float, default=0.7, help="SPRT decision threshold (paper: delta_1 = 0.7)")

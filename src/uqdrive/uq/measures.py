@@ -110,9 +110,7 @@ def sample_decisions(probs: ArrayLike, centres: ArrayLike) -> torch.Tensor:
     return c[p.argmax(-1)]
 
 
-def decision_confidence(
-    probs: ArrayLike, centres: ArrayLike, eps: float, pi: ArrayLike | None = None
-) -> torch.Tensor:
+def decision_confidence(probs: ArrayLike, centres: ArrayLike, eps: float, pi: ArrayLike | None = None) -> torch.Tensor:
     """Real-time decision confidence η2 per frame ``[B]`` (the paper's Definition 2).
 
     η2 = fraction of weight samples whose decision lies within ``eps`` (steering units, closed
