@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 export PATH := $(BIN):$(PATH)
 
-.PHONY: install repro test ui frames clean-venv
+.PHONY: install repro test lint ui frames clean-venv
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -25,8 +25,12 @@ repro: $(STAMP)
 	@echo "Report: reports/report.html (and report.md). Metrics: metrics/, figures: plots/, data: data/, models: models/."
 	@echo "Runs in MLflow: make ui"
 
-test: $(TEST_STAMP)
+test: lint
 	pytest -q
+
+lint: $(TEST_STAMP)
+	ruff check src stages tests
+	ruff format --check src stages tests
 
 ui: $(STAMP)
 	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000  (Ctrl-C stops it)"

@@ -1,4 +1,5 @@
-"""DVC stage `train@<method>`: fit the posterior conf/model/<method>.yaml names (`model=mcd|vi|hmc|ensemble|laplace|…`); all but MCD need models/mcd.pt."""
+"""DVC stage `train@<method>`: fit the posterior conf/model/<method>.yaml names
+(`model=mcd|vi|hmc|ensemble|laplace|…`); all but MCD need models/mcd.pt."""
 
 import hydra
 from omegaconf import DictConfig

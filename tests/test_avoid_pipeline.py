@@ -124,7 +124,8 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
         (
             ("avoid.horizon_s=2",),
             ValueError,
-            r"avoid.horizon_s=2 is too short: a run slowed to 8 m/s needs 3\.\d s to pass the obstacle \(\d+ m\); set at least 4",
+            r"avoid.horizon_s=2 is too short: a run slowed to 8 m/s needs 3\.\d s to pass the obstacle \(\d+ m\); "
+            r"set at least 4",
         ),
         (("warning.actions.warning1.speed=0",), ValueError, r"a slow-down to speed 0 without a hand-over never passes"),
         (("avoid.unknown=[]",), ValueError, r"avoid.unknown=\[\] must be a non-empty list of conditions"),

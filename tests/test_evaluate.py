@@ -169,15 +169,11 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
 def test_a_cell_does_not_change_when_another_condition_is_added(stage_config, tmp_path, random_models, store_root):
     write_heldout(tmp_path, "rain", 0.0, seed=1)
     write_heldout(tmp_path, "afternoon", 0.0, seed=2)
-    config = lambda weathers: evaluate_config(
-        stage_config,
-        random_models,
-        store_root,
-        tmp_path,  # noqa: E731
-        "methods=[vi]",
-        f"weathers={weathers}",
-        "noises=[0.0]",
-    )
+
+    def config(weathers: str):
+        overrides = ("methods=[vi]", f"weathers={weathers}", "noises=[0.0]")
+        return evaluate_config(stage_config, random_models, store_root, tmp_path, *overrides)
+
     alone = run_evaluate(config("[rain]"))["table"]
     both = run_evaluate(config("[afternoon,rain]"))["table"]
     assert both["vi"]["rain"] == alone["vi"]["rain"]

@@ -59,14 +59,17 @@ def test_hmc_matches_the_analytic_posterior_of_bayesian_linear_regression(adapt_
 
 def test_hmc_is_reproducible_and_thins():
     log_prob_grad, _, _ = linear_regression()
-    run = lambda: hmc(
-        log_prob_grad,
-        torch.zeros(2, 3),
-        num_samples=5,
-        warmup=10,
-        thin=3,  # noqa: E731
-        generator=torch.Generator().manual_seed(5),
-    )
+
+    def run():
+        return hmc(
+            log_prob_grad,
+            torch.zeros(2, 3),
+            num_samples=5,
+            warmup=10,
+            thin=3,
+            generator=torch.Generator().manual_seed(5),
+        )
+
     a, b = run(), run()
     assert a.samples.shape == (2, 5, 3) and torch.equal(a.samples, b.samples)
     assert a.log_prob.shape == (2, 5)

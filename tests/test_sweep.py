@@ -153,7 +153,7 @@ def test_a_multirun_writes_under_its_sweep_folder_unless_asked(stage_config, tmp
         == f"{tmp_path}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json"
     )
     with pytest.raises(Exception) as bad:
-        stage_config("safety", "outputs=somewhere").safety.out
+        _ = stage_config("safety", "outputs=somewhere").safety.out
     assert str(config_error(bad.value)) == "outputs='somewhere' is not known; choose one of ['auto', 'pipeline']"
 
 

@@ -31,7 +31,8 @@ METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
 
 
 def synthetic_frames(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """uint8 frames [n, 48, 64] and steering [n] (positive = left: the road bends, and its vanishing point moves, left)."""
+    """uint8 frames [n, 48, 64] and steering [n] (positive = left: the road bends, and its vanishing point
+    moves, left)."""
     steer = np.where(rng.random(n) < 0.45, 0.0, rng.choice(np.arange(-6, 7) / 10, n))
     yy, xx = np.mgrid[0:48, 0:64].astype(np.float32)
     horizon = 16 + rng.integers(-2, 3, n)[:, None, None]
@@ -86,8 +87,9 @@ def trained(tmp_path_factory):
             marks=pytest.mark.xfail(
                 strict=True,
                 reason=(
-                    "known defect: on this trunk (MAP head accuracy 1.0) the evidence-chosen prior precision (~1.3) leaves "
-                    "a logit std of ~18 against a logit spread of ~7, so the sampled GLM predictive falls to 0.29-0.50"
+                    "known defect: on this trunk (MAP head accuracy 1.0) the evidence-chosen prior precision "
+                    "(~1.3) leaves a logit std of ~18 against a logit spread of ~7, so the sampled GLM predictive "
+                    "falls to 0.29-0.50"
                 ),
             ),
         ),

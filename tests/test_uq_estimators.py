@@ -96,7 +96,7 @@ def test_sequential_follows_its_stopping_rule(look_size: int) -> None:
         sizes: list[int] = []
         outcomes: list[np.ndarray] = []
         draw = _sequence(rng, rate, sizes)
-        est = sequential(lambda k: outcomes.append(draw(k)) or outcomes[-1], THETA, GAMMA, look_size)
+        est = sequential(lambda k: outcomes.append(draw(k)) or outcomes[-1], THETA, GAMMA, look_size)  # noqa: B023
         x = np.concatenate(outcomes)
         assert set(sizes) == {look_size} and est.n == x.size <= scheme.max_n
         counts = np.cumsum(x)

@@ -127,7 +127,8 @@ def main(argv: list[str]) -> int:
             f"overhead {overhead:.2f}x (target <= 2)"
         )
         print(
-            f"env only, {baseline.width}x{baseline.height}:    {args.steps / statistics.median(base_env_s):8.1f} steps/s   "
+            f"env only, {baseline.width}x{baseline.height}:    "
+            f"{args.steps / statistics.median(base_env_s):8.1f} steps/s   "
             f"env speed-up {env_speedup:.2f}x"
         )
         print(

@@ -4,9 +4,9 @@
 The bare render is the floor: TinyRenderer rasterising the scene the env renders (bodies out
 of view hidden, as `World.cull` leaves them; the render of every body is printed too). An env
 step adds the culling, the car model, the pybullet collision query, the paved-area and route
-checks, the image-space weather and sensor noise. Both are timed from the same poses (those the autopilot drives), on one
-pybullet client. Times are CPU seconds of this process (`time.process_time`): the cost per core,
-and far steadier than the wall clock on a machine shared with other work.
+checks, the image-space weather and sensor noise. Both are timed from the same poses (those the
+autopilot drives), on one pybullet client. Times are CPU seconds of this process
+(`time.process_time`): the cost per core, and far steadier than the wall clock on a machine shared with other work.
 Target: an env step costs at most 1.5x the bare render.
 """
 

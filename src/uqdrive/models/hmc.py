@@ -248,7 +248,8 @@ class HMCPosterior(StoredHeadPosterior):
             "kept_samples": int(chains * kept),
         }
         extra["diagnostics"] = (
-            f"{chains} chains × {kept} samples ({settings.metric} metric) over the last {settings.bayesian_layers} layer(s) "
+            f"{chains} chains × {kept} samples ({settings.metric} metric) "
+            f"over the last {settings.bayesian_layers} layer(s) "
             f"({extra['bayesian_weights']} weights); function-space R̂ ≤ {RHAT_OK} for "
             f"{100 * fs['fs_rhat_share_ok']:.0f}% of {fs['fs_pairs']} (frame, class) pairs "
             f"(target {100 * settings.rhat_target_share:.0f}%), median {fs['fs_rhat_median']:.3f}, "

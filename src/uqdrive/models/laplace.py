@@ -13,8 +13,8 @@ is a few closed forms:
 - the predictive of frame x is the GLM one: logits ~ N(W̃ᵀψ, (ψᵀ ⊗ I) Σ (ψ ⊗ I)), Σ = (H + λI)⁻¹.
   As the network is linear in the last layer, this is also the exact weight-space predictive.
 Checked once against laplace-torch 0.3 (last_layer, full Hessian) on a toy network: Hessian and GLM logit
-covariance agree to 1e-6 (its float32). Draws are drawn per frame from its C×C logit Gaussian (as VI's local reparameterisation does):
-exact per frame, and n·C normals instead of n·P.
+covariance agree to 1e-6 (its float32). Draws are drawn per frame from its C×C logit Gaussian (as VI's
+local reparameterisation does): exact per frame, and n·C normals instead of n·P.
 """
 
 from __future__ import annotations

@@ -66,6 +66,11 @@ def _versions() -> str:
 def run_section(report: Report, cfg: DictConfig, safety_cells: list[dict], seeds: dict[str, list[int]]) -> None:
     thetas = sorted({(c["scheme"], c["theta"], c["gamma"], c["n"]) for c in safety_cells})
     estimation = "; ".join(f"{s} θ = {t:g}, γ = {g:g} → n = {n} rollouts per cell" for s, t, g, n in thetas)
+    built = f"{datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}, commit {_git_commit(report.root)}"
+    noises = ", ".join(f"{x:g}" for x in cfg.noises)
+    sweep = f"methods {', '.join(cfg.methods)} × weathers {', '.join(cfg.weathers)} × noise {noises}"
+    train_seeds = ", ".join(sorted({str(s) for s in seeds["train"]}))
+    safety_seeds = ", ".join(sorted({str(s) for s in seeds["safety"]}))
     report.add(f"""
 # uqdrive report
 
@@ -76,12 +81,13 @@ Built by `dvc repro` from this run's metrics files; every number below is read f
 | what was run | |
 |---|---|
 | profile | `{cfg.profile_name}` |
-| built | {datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")}, commit {_git_commit(report.root)}, Python {platform.python_version()} |
+| built | {built}, Python {platform.python_version()} |
 | versions | {_versions()} |
-| experiments | {", ".join(cfg.experiments)}: one controller per experiment × method, trained on its own scenario(s) collected in `{cfg.train_weather}` |
-| safety sweep | methods {", ".join(cfg.methods)} × weathers {", ".join(cfg.weathers)} × noise {", ".join(f"{x:g}" for x in cfg.noises)} × locations {", ".join(cfg.locations)} |
+| experiments | {", ".join(cfg.experiments)}: one controller per experiment × method, trained on its own \
+scenario(s) collected in `{cfg.train_weather}` |
+| safety sweep | {sweep} × locations {", ".join(cfg.locations)} |
 | η1 estimation | {estimation or "–"} |
-| seeds | training {", ".join(sorted({str(s) for s in seeds["train"]}))}; safety rollouts {", ".join(sorted({str(s) for s in seeds["safety"]}))} + i for rollout i of a cell |
+| seeds | training {train_seeds}; safety rollouts {safety_seeds} + i for rollout i of a cell |
 """)
 
 

@@ -188,7 +188,10 @@ def run_safety(cfg: DictConfig) -> dict:
     seconds = time.perf_counter() - start
     geometry = build_geometry(job.scenario)
     safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
-    title = f"{cfg.model.name} · {job.scenario.name} · {job.weather.name} · noise {job.noise:g}: η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
+    title = (
+        f"{cfg.model.name} · {job.scenario.name} · {job.weather.name} · noise {job.noise:g}: "
+        f"η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
+    )
     table, positions, figure = write_outputs(cfg, results, geometry, safe_set, estimate.value, title)
     metrics = {
         "eta1": estimate.value,
