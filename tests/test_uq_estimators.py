@@ -103,7 +103,7 @@ def test_sequential_follows_its_stopping_rule(look_size: int) -> None:
         looks = np.arange(look_size, x.size + 1, look_size)
         stops = [bool(scheme.stop_tables[n // look_size - 1][counts[n - 1]]) or n == scheme.max_n for n in looks]
         assert stops[-1] and not any(stops[:-1])
-        assert est.value == counts[-1] / x.size and est.guaranteed and est.method == "sequential"
+        assert est.value == counts[-1] / x.size and est.guaranteed and est.scheme == "sequential"
         assert (est.low, est.high) == (max(0.0, est.value - THETA), min(1.0, est.value + THETA))
 
 
@@ -121,10 +121,10 @@ def test_schemes_without_the_guarantee_say_so() -> None:
     assert not wilson(380, 400, THETA, GAMMA).guaranteed
     assert not chernoff(90, 100, THETA, GAMMA).guaranteed
     assert not massart(90, 100, THETA, GAMMA, rate_bound=0.5).guaranteed
-    assert massart(90, 100, THETA, GAMMA, rate_bound=0.01).method == "massart(rate_bound=0.01)"
+    assert massart(90, 100, THETA, GAMMA, rate_bound=0.01).scheme == "massart(rate_bound=0.01)"
     assert massart(0, 738, THETA, GAMMA).guaranteed and massart(0, 738, THETA, GAMMA).condition == ""
     res = sprt(lambda k: np.ones(k, dtype=int), delta=0.7, half_width=THETA)
-    assert res.accept and not res.truncated and not res.estimate.guaranteed and res.estimate.method == "sprt"
+    assert res.accept and not res.truncated and not res.estimate.guaranteed and res.estimate.scheme == "sprt"
 
 
 def test_massart_states_its_condition_and_checks_it_against_the_data() -> None:

@@ -12,7 +12,7 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("uqdrive.bench", "speed benchmarks; `uqdrive bench --help` lists them"),
     "bound": ("uqdrive.uq.cli", "sample counts of each estimation scheme for (theta, gamma)"),
-    "frames": ("uqdrive.sim.frames", "write one example camera frame per weather to docs/"),
+    "frames": ("uqdrive.frames", "write one example camera frame per weather to docs/"),
 }
 
 

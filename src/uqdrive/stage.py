@@ -8,7 +8,7 @@ from collections.abc import Callable
 from typing import TypeVar
 
 from uqdrive.checks import config_error
-from uqdrive.config import register_resolvers
+from uqdrive.resolvers import register_resolvers
 
 R = TypeVar("R")
 

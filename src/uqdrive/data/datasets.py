@@ -58,9 +58,6 @@ class FrameSet(Dataset):
             index = order[start : start + batch_size]
             yield to_inputs(self.images[index]), self.labels[index]
 
-    def class_counts(self) -> torch.Tensor:
-        return torch.bincount(self.labels, minlength=self.num_classes)
-
 
 def frames_from_table(table: pa.Table, num_classes: int, name: str) -> FrameSet:
     """A table in the processed schema (at least its label and image columns) as a `FrameSet`."""

@@ -4,6 +4,6 @@
 composed config and a temporary project root.
 """
 
-from uqdrive.config import register_resolvers
+from uqdrive.resolvers import register_resolvers
 
 register_resolvers()

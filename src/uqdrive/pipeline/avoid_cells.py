@@ -110,7 +110,7 @@ def cell_metrics(cell: Cell, cruise: float, geometry: ScenarioGeometry) -> dict:
         **metrics,
         "terminations": dict(sorted(Counter(r.termination for r in results).items())),
         "guaranteed": est.guaranteed,
-        "scheme": est.method,
+        "scheme": est.scheme,
         "theta": est.theta,
         "gamma": est.gamma,
         "thresholds": {"delta1": cell.warning.delta1, "delta2": cell.warning.delta2, "tau": cell.warning.tau},

@@ -133,7 +133,7 @@ def _log_run(cfg: DictConfig, settings: AvoidSettings, cell: Cell, metrics: dict
         "delta2": cell.warning.delta2,
         "tau": cell.warning.tau,
         "samples_per_frame": cell.warning.samples,
-        "scheme": cell.estimate.method,
+        "scheme": cell.estimate.scheme,
         "theta": cell.estimate.theta,
         "gamma": cell.estimate.gamma,
         "n": cell.estimate.n,

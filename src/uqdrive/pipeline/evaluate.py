@@ -23,7 +23,6 @@ from omegaconf import DictConfig
 from tqdm import tqdm
 
 from uqdrive.checks import ConfigError
-from uqdrive.config import noise_label
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet, frames_from_table
 from uqdrive.data.preprocess import Split, preprocess_raw
@@ -34,6 +33,7 @@ from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.metrics import classification_metrics, mistake_auroc, reliability_bins
 from uqdrive.models.posterior import Posterior, is_method_name
 from uqdrive.plots import condition_lines_figure, reliability_grid, save_figure
+from uqdrive.resolvers import noise_label
 from uqdrive.tracking import stage_run
 from uqdrive.uq import frame_measures
 

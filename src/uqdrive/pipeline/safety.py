@@ -21,12 +21,12 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from uqdrive import checks
-from uqdrive.config import noise_label
 from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
+from uqdrive.resolvers import noise_label
 from uqdrive.safety.cells import (
     EstimatorSettings,
     cell_hash,
@@ -210,7 +210,7 @@ def run_safety(cfg: DictConfig) -> dict:
         "noise": job.noise,
         "theta": estimate.theta,
         "gamma": estimate.gamma,
-        "scheme": estimate.method,
+        "scheme": estimate.scheme,
         "n": estimate.n,
         "base_seed": settings.base_seed,
     }

@@ -210,9 +210,6 @@ class ScenarioGeometry:
     def lateral_deviation(self, points: np.ndarray) -> np.ndarray:
         return self.route.project(points)[1]
 
-    def progress(self, points: np.ndarray) -> np.ndarray:
-        return self.route.project(points)[0]
-
 
 # -- polygons -> triangles / markings ------------------------------------------------------
 

@@ -114,7 +114,7 @@ def fit_levels(n: int, theta: float) -> np.ndarray:
     return levels
 
 
-def clopper_pearson_fits(n: int, gamma: float, theta: float) -> np.ndarray:
+def clopper_pearson_fits(n: int, theta: float, gamma: float) -> np.ndarray:
     """For each count k = 0..n: does the exact interval at level 1 − γ lie inside [k/n − θ, k/n + θ]?
 
     Where it does, |k/n − η| > θ implies η outside the interval, an event of probability ≤ γ.
@@ -122,7 +122,7 @@ def clopper_pearson_fits(n: int, gamma: float, theta: float) -> np.ndarray:
     return fit_levels(int(n), float(theta)) <= gamma
 
 
-def _middle_fits(n: np.ndarray, gamma: float, theta: float) -> np.ndarray:
+def _middle_fits(n: np.ndarray, theta: float, gamma: float) -> np.ndarray:
     """The fit test for the two middle counts only (the widest intervals), vectorised over n."""
     ok = np.ones(n.shape, dtype=bool)
     for k in (n // 2, (n + 1) // 2):
@@ -145,7 +145,7 @@ def clopper_pearson_n(theta: float, gamma: float) -> int:
     n = math.ceil(math.log(2 / gamma) / -math.log1p(-theta))
     while True:
         block = np.arange(n, n + 512)
-        for cand in block[_middle_fits(block, gamma, theta)]:
-            if clopper_pearson_fits(int(cand), gamma, theta).all():
+        for cand in block[_middle_fits(block, theta, gamma)]:
+            if clopper_pearson_fits(int(cand), theta, gamma).all():
                 return int(cand)
         n += 512

@@ -35,7 +35,7 @@ Draw = Callable[[int], np.ndarray]
 class Estimate:
     """A rate estimate ``value`` with interval ``[low, high]`` from ``n`` samples.
 
-    ``guaranteed``: whether P(|value − η| > θ) ≤ γ really holds for the scheme ``method``;
+    ``guaranteed``: whether P(|value − η| > θ) ≤ γ really holds for the estimation ``scheme``;
     ``condition``: the assumption on η it holds under ("" when it holds for every η).
     """
 
@@ -45,14 +45,14 @@ class Estimate:
     n: int
     theta: float
     gamma: float
-    method: str
+    scheme: str  # the estimation scheme (chernoff, clopper_pearson, sequential, …), not the posterior
     guaranteed: bool
     condition: str = ""
 
 
-def _ball(k: int, n: int, theta: float, gamma: float, method: str, guaranteed: bool) -> Estimate:
+def _ball(k: int, n: int, theta: float, gamma: float, scheme: str, guaranteed: bool) -> Estimate:
     v = k / n
-    return Estimate(v, max(0.0, v - theta), min(1.0, v + theta), n, theta, gamma, method, guaranteed)
+    return Estimate(v, max(0.0, v - theta), min(1.0, v + theta), n, theta, gamma, scheme, guaranteed)
 
 
 def chernoff(k: int, n: int, theta: float, gamma: float) -> Estimate:
@@ -84,8 +84,8 @@ def massart(k: int, n: int, theta: float, gamma: float, rate_bound: float = 0.5)
 
 
 @lru_cache(maxsize=1024)
-def _cp_complete(n: int, gamma: float, theta: float) -> bool:
-    return bool(clopper_pearson_fits(n, gamma, theta).all())
+def _cp_complete(n: int, theta: float, gamma: float) -> bool:
+    return bool(clopper_pearson_fits(n, theta, gamma).all())
 
 
 def clopper_pearson(k: int, n: int, theta: float, gamma: float) -> Estimate:
@@ -98,7 +98,7 @@ def clopper_pearson(k: int, n: int, theta: float, gamma: float) -> Estimate:
     theta, gamma = check_unit("theta", theta), check_unit("gamma", gamma)
     k, n = check_counts(k, n)
     low, high = clopper_pearson_interval(k, n, gamma)
-    return Estimate(k / n, float(low), float(high), n, theta, gamma, "clopper_pearson", _cp_complete(n, gamma, theta))
+    return Estimate(k / n, float(low), float(high), n, theta, gamma, "clopper_pearson", _cp_complete(n, theta, gamma))
 
 
 def wilson(k: int, n: int, theta: float, gamma: float) -> Estimate:

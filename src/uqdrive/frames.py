@@ -3,7 +3,7 @@
 Writes ``<weather>.png`` (camera resolution, RGB) and ``weathers.png``: the weathers side
 by side, top row as rendered, bottom row as the network sees it (grey 64x48), enlarged.
 ``--compare-render 160x120`` writes instead ``resolution.png`` and ``resolution.json``: the
-network's input at the configured render size against that one (`uqdrive.sim.resolution`).
+network's input at the configured render size against that one (`uqdrive.resolution`).
 """
 
 from __future__ import annotations
@@ -15,10 +15,9 @@ import cv2
 import numpy as np
 
 from uqdrive.data.frames import preprocess_frame
-
-from .autopilot import Autopilot
-from .config import ScenarioConfig, WeatherConfig
-from .env import DrivingEnv
+from uqdrive.sim.autopilot import Autopilot
+from uqdrive.sim.config import ScenarioConfig, WeatherConfig
+from uqdrive.sim.env import DrivingEnv
 
 WEATHERS = ("clear_noon", "afternoon", "rain", "fog")
 
@@ -69,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
 
     conf = args.conf or find_conf()
     if args.compare_render:
-        from .resolution import write
+        from uqdrive.resolution import write
 
         result = write(
             Path(args.out),

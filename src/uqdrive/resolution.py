@@ -28,10 +28,9 @@ import numpy as np
 
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.files import atomic_path, write_json
-
-from .autopilot import Autopilot
-from .config import CameraConfig, ScenarioConfig, WeatherConfig
-from .env import DrivingEnv
+from uqdrive.sim.autopilot import Autopilot
+from uqdrive.sim.config import CameraConfig, ScenarioConfig, WeatherConfig
+from uqdrive.sim.env import DrivingEnv
 
 WEATHERS = ("clear_noon", "afternoon", "rain", "fog")
 SCENARIOS = ("roundabout", "obstacle")

@@ -20,10 +20,8 @@ from omegaconf import OmegaConf
 
 from uqdrive.checks import ConfigError
 
-OUTPUTS = (
-    "auto",
-    "pipeline",
-)  # the `outputs` key: auto = the sweep's folder in a multirun; pipeline = always the project
+# The `outputs` key: auto = the sweep's folder in a multirun; pipeline = always the project.
+OUTPUTS = ("auto", "pipeline")
 
 
 def read_param(key: str, root: str) -> object:
