@@ -64,7 +64,12 @@ def test_joblib_multirun_of_4_jobs_on_2_workers_logs_4_runs(stage_config, tmp_pa
     assert sorted(r.data.params["preprocess.split_seed"] for r in runs) == ["0", "1", "2", "3"]
 
 
+WAIT_S = 600  # each wait is bounded; a 2-core machine running other suites beside this one needs minutes
+
+
 def _sweep(project: Path, *overrides: str) -> subprocess.Popen:
+    """The sweep as a child process; its output goes to files in `project` (a pipe nobody reads while we
+    wait could fill up and stall it)."""
     return subprocess.Popen(
         [
             sys.executable,
@@ -78,11 +83,19 @@ def _sweep(project: Path, *overrides: str) -> subprocess.Popen:
             *overrides,
         ],
         cwd=project,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+        stdout=(project / "stdout.txt").open("w"),
+        stderr=(project / "stderr.txt").open("w"),
         env={**os.environ, "PYTHONPATH": str(ROOT / "src"), "PYTHONWARNINGS": "ignore"},
     )
+
+
+def _finish(sweep: subprocess.Popen, project: Path) -> str:
+    """Wait (bounded) for the sweep to end; its stderr."""
+    try:
+        sweep.wait(timeout=WAIT_S)
+    finally:
+        sweep.kill()
+    return (project / "stderr.txt").read_text()
 
 
 def _runs(project: Path) -> list:
@@ -97,22 +110,21 @@ def test_an_interrupted_or_failed_sweep_leaves_no_run_running(tmp_path):
     interrupted = tmp_path / "interrupted"
     interrupted.mkdir()
     sweep = _sweep(interrupted, "collect.episodes=500", "collect.base_seed=1,2")
-    deadline = time.monotonic() + 300
+    deadline = time.monotonic() + WAIT_S
     while not (interrupted / "mlflow.db").exists() or not _runs(interrupted):  # the parent run is open
-        assert time.monotonic() < deadline and sweep.poll() is None, sweep.communicate()[1][-3000:]
+        if time.monotonic() > deadline or sweep.poll() is not None:
+            sweep.kill()
+            pytest.fail(f"no parent run: {(interrupted / 'stderr.txt').read_text()[-3000:]}")
         time.sleep(0.5)
     sweep.send_signal(signal.SIGINT)  # Ctrl-C during the first job
-    try:
-        sweep.communicate(timeout=300)  # bounded: a loaded 2-core machine needs more than a minute here
-    finally:
-        sweep.kill()
+    _finish(sweep, interrupted)
     (parent,) = _runs(interrupted)
     assert parent.info.status == "KILLED" and sweep.returncode != 0
 
     failed = tmp_path / "failed"
     failed.mkdir()
     sweep = _sweep(failed, "collect.episodes=1", "noise=0,-1")  # the second job has a bad value
-    _, err = sweep.communicate(timeout=300)
+    err = _finish(sweep, failed)
     assert sweep.returncode == 2 and "error: noise=-1 must be >= 0" in err
     statuses = sorted((r.info.status, "mlflow.parentRunId" in r.data.tags) for r in _runs(failed))
     assert statuses == [("FAILED", False), ("FINISHED", True)]  # the parent, and the first job's run
