@@ -7,10 +7,15 @@ benchmarks themselves (README), never asserted in timed tests.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
+import torch
 
+from uqdrive.bench.posterior import random_posteriors
 from uqdrive.cli import main
+from uqdrive.data.binning import SteeringBins
+from uqdrive.models.checkpoint import save_posterior
 
 
 @pytest.mark.parametrize(
@@ -38,3 +43,23 @@ def test_rollout_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[
 def test_unknown_benchmark_is_named_with_the_choices(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "warp"]) == 2
     assert "unknown benchmark 'warp'; choose one of" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_benchmarks_drive_trained_models_of_an_experiments_class_set(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """--models: the checkpoints' own class set (here the avoid experiment's 7 classes), not the default 21."""
+    bins = SteeringBins(10, -0.3, 0.3)
+    for method, posterior in random_posteriors(torch.Generator().manual_seed(0), bins).items():
+        save_posterior(posterior, tmp_path / f"{method}.pt")
+    assert main(["bench", "controller", "--models", str(tmp_path), "--frames", "20"]) == 0
+    assert (
+        main(
+            ["bench", "rollout", "--models", str(tmp_path), "--samples", "20", "--steps", "15"]
+            + ["--repeats", "1", "--chunks", "3"]
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert re.search(r"^RESULT controller ", out, re.M) and re.search(r"^RESULT rollout ", out, re.M), out[-2000:]

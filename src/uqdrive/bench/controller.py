@@ -21,7 +21,6 @@ import numpy as np
 import torch
 
 from uqdrive.bench.posterior import random_posteriors
-from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.checkpoint import load_posterior
@@ -53,12 +52,12 @@ def main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     config = WarningConfig(theta=args.theta, gamma=args.gamma)
-    bins = SteeringBins()
     generator = torch.Generator().manual_seed(args.seed)
     if args.models is None:
         posteriors = random_posteriors(generator)
     else:
         posteriors = {m: load_posterior(args.models / f"{m}.pt", expected_method=m) for m in ("mcd", "vi", "hmc")}
+    bins = next(iter(posteriors.values())).bins  # one experiment's models share its class set
     with DrivingEnv() as env:
         frame = env.reset(
             args.seed,

@@ -31,9 +31,9 @@ HMC_STORED = 600  # kept last-layer samples of the paper profile (4 chains x 150
 ENSEMBLE_MEMBERS = 10  # the paper profile's
 
 
-def random_posteriors(generator: torch.Generator) -> dict[str, Posterior]:
+def random_posteriors(generator: torch.Generator, bins: SteeringBins | None = None) -> dict[str, Posterior]:
     """Every built-in posterior with the real architecture and random (but plausible) weights."""
-    mcd = init_weights(MCDPosterior(Architecture(), SteeringBins()), generator).eval()
+    mcd = init_weights(MCDPosterior(Architecture(), bins or SteeringBins()), generator).eval()
     vi = VIPosterior.from_mcd(mcd, prior_sigma=1.0, init_sigma=0.05).eval()
     start = flatten_mcd_head(mcd)
     shapes = mcd.arch.head_shapes(mcd.num_classes)

@@ -27,7 +27,7 @@ import torch
 from omegaconf import OmegaConf
 
 from uqdrive.bench.posterior import random_posteriors
-from uqdrive.models.checkpoint import save_posterior
+from uqdrive.models.checkpoint import load_posterior, save_posterior
 from uqdrive.parallel import map_ordered
 from uqdrive.safety.controller import AutopilotPolicy, Policy
 from uqdrive.safety.executors import PolicySpec, RolloutJob, RolloutWorker
@@ -100,7 +100,8 @@ def main(argv: list[str]) -> int:
             )
         else:
             model = args.models / f"{args.method}.pt"
-        spec = PolicySpec("bnn", 6.0, str(model), args.method, samples=args.samples, eps=0.1)
+        bins = load_posterior(model, expected_method=args.method).bins  # a trained model's own class set
+        spec = PolicySpec("bnn", 6.0, str(model), args.method, bins, samples=args.samples, eps=0.1)
         job = RolloutJob(spec, scenario, weather, 0.0, base_seed=0, camera=camera)
         worker, base_worker = RolloutWorker(job), RolloutWorker(dataclasses.replace(job, camera=baseline))
         for w in (worker, base_worker):
