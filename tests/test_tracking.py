@@ -1,4 +1,5 @@
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -129,3 +130,31 @@ def test_two_processes_creating_the_store_at_once_both_log(tmp_path):
         assert sorted(r.info.run_name for r in runs) == ["a · eta1=1", "b · eta1=1"]
         assert all(r.info.status == "FINISHED" for r in runs)
         assert (root / "a.json").exists() and (root / "b.json").exists()
+
+
+SWALLOWS_INTERRUPTS = """
+import signal, time
+from uqdrive.tracking import interrupt_handler
+handler = interrupt_handler(signal.getsignal(signal.SIGINT), lambda: print("marked", flush=True), 1.0)
+signal.signal(signal.SIGINT, handler)
+print("ready", flush=True)
+while True:
+    try:
+        time.sleep(0.05)
+    except BaseException:  # library code with a bare `except:` (around an import, say) eats the KeyboardInterrupt
+        pass
+"""
+
+
+def test_an_interrupt_that_library_code_swallows_still_ends_the_process():
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+    child = subprocess.Popen(
+        [sys.executable, "-c", SWALLOWS_INTERRUPTS], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert child.stdout.readline() == "ready\n"
+        child.send_signal(signal.SIGINT)
+        out, _ = child.communicate(timeout=120)
+    finally:
+        child.kill()
+    assert out == "marked\n" and child.returncode == -signal.SIGINT

@@ -19,7 +19,7 @@ import signal
 import threading
 import time
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
@@ -36,6 +36,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 MAX_PARAM_CHARS = 6000  # MLflow's limit on one param value
 LOCK_TIMEOUT_S = 600.0  # a migration takes seconds; a lock held this long is a stuck process
+INTERRUPT_GRACE_S = 20.0  # after Ctrl-C or SIGTERM, clean-up time before the signal's default action ends a sweep
 PARENT_RUN_ENV = "UQDRIVE_MLFLOW_PARENT_RUN"  # "<experiment id>:<run id>" of the sweep's parent run
 JOB_START_ENV = "UQDRIVE_JOB_START_MS"  # set at Hydra's job start: the run's start time
 # The keys runs are compared by, logged under these short names (config key; absent keys are skipped).
@@ -249,16 +250,27 @@ class CreateStoreCallback(Callback):
         self._handlers.clear()
 
     def _interrupted(self, previous: Any) -> Any:
-        """A signal handler: mark the parent KILLED, then do what the previous handler did."""
+        return interrupt_handler(previous, lambda: self._end_parent("KILLED"))
 
-        def handle(signum: int, frame: Any) -> None:
-            self._end_parent("KILLED")
-            if callable(previous):
-                previous(signum, frame)
-            elif previous != signal.SIG_IGN:
-                raise SystemExit(128 + signum)
 
-        return handle
+def interrupt_handler(previous: Any, on_signal: Callable[[], None], grace_s: float = INTERRUPT_GRACE_S) -> Any:
+    """A signal handler that runs `on_signal`, then does what `previous` did (Python's SIGINT handler raises
+    KeyboardInterrupt, so clean-up code runs). Library code can swallow that exception (a sweep interrupted
+    while importing its stage's modules ran on to its end, on a loaded machine): should the process still
+    run `grace_s` later, it ends by the signal's default action. A second Ctrl-C ends it at once."""
+
+    def handle(signum: int, frame: Any) -> None:
+        on_signal()
+        signal.signal(signum, signal.SIG_DFL)
+        timer = threading.Timer(grace_s, os.kill, (os.getpid(), signum))
+        timer.daemon = True
+        timer.start()
+        if callable(previous):
+            previous(signum, frame)
+        elif previous != signal.SIG_IGN:
+            raise SystemExit(128 + signum)
+
+    return handle
 
 
 def _project_root(config: DictConfig) -> str:
