@@ -204,14 +204,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ConfigError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
     checks.integer("executor.workers", cfg.executor.workers, 1)
     warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
-    estimator = EstimatorSettings(
-        scheme=cfg.avoid.scheme,
-        theta=cfg.avoid.theta,
-        gamma=cfg.avoid.gamma,
-        base_seed=cfg.avoid.base_seed,
-        look_size=cfg.avoid.look_size,
-        section="avoid",
-    )
+    estimator = EstimatorSettings.from_section(cfg.avoid, "avoid")
     validation_seed = checks.integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)

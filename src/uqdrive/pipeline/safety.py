@@ -69,13 +69,7 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     bad value (the message names the key, the value and what is allowed).
     """
     method = posterior_from_config(cfg.model).method
-    settings = EstimatorSettings(
-        scheme=cfg.safety.scheme,
-        theta=cfg.safety.theta,
-        gamma=cfg.safety.gamma,
-        base_seed=cfg.safety.base_seed,
-        look_size=cfg.safety.look_size,
-    )
+    settings = EstimatorSettings.from_section(cfg.safety, "safety")
     vehicle = VehicleConfig.from_config(cfg.vehicle)
     bins = SteeringBins(**cfg.experiment.bins)
     model_path = Path(cfg.safety.model_path)

@@ -11,8 +11,9 @@ import dataclasses
 import hashlib
 import json
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -57,6 +58,12 @@ class EstimatorSettings:
                 raise ConfigError(f"{self.section}.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
         integer(f"{self.section}.base_seed", self.base_seed, 0)
         integer(f"{self.section}.look_size", self.look_size, 1)
+
+    @classmethod
+    def from_section(cls, config: Mapping[str, Any], section: str) -> EstimatorSettings:
+        """The estimator a stage's config section (`safety`, `avoid`) names."""
+        keys = ("scheme", "theta", "gamma", "base_seed", "look_size")
+        return cls(**{key: config[key] for key in keys}, section=section)
 
     def planned_rollouts(self) -> int:
         """Rollouts the scheme runs (the most it may run, for `sequential`)."""
