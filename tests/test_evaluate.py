@@ -88,10 +88,13 @@ def test_heldout_config_writes_what_evaluate_reads(stage_config, tmp_path):
     assert heldout.scenario.name == evaluate.scenario.name == "roundabout"
     expected = Condition("rain", 0.05).heldout_path(Path(evaluate.evaluate.heldout_dir), evaluate.scenario.name)
     assert Path(heldout.collect.out) == expected == tmp_path / "data/heldout/roundabout-rain-noise0.05.parquet"
-    # its metrics JSON, mosaic and MLflow run are named after the condition, not the scenario, so the
-    # training collection's metrics/collect/roundabout.json is not overwritten
+    # its metrics JSON, mosaic and MLflow run are named after the condition and kept apart from the training
+    # collection's (metrics/collect/roundabout.json): the heldout stage's outputs are folders of their own
     assert heldout.collect.name == "heldout-roundabout-rain-noise0.05"
-    assert stage_config("collect", "scenario=roundabout").collect.name == "roundabout"
+    assert heldout.collect.metrics == f"{tmp_path}/metrics/heldout/roundabout-rain-noise0.05.json"
+    assert heldout.collect.mosaic == f"{tmp_path}/plots/heldout/roundabout-rain-noise0.05_mosaic.png"
+    collect = stage_config("collect", "scenario=roundabout").collect
+    assert collect.name == "roundabout" and collect.metrics == f"{tmp_path}/metrics/collect/roundabout.json"
 
 
 def test_heldout_episodes_are_new_seeds_in_every_profile(stage_config):

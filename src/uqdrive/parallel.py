@@ -1,41 +1,106 @@
-"""Ordered parallel map over processes, each with its own long-lived state (e.g. a pybullet client).
+"""One pool of worker processes for everything the project runs many times over: autopilot episodes
+(`collect`, `heldout`) and closed-loop rollouts (`safety`, `avoid`).
 
-Results come back in input order and every item carries its own seed, so the output is the
-same whatever the worker count.
+A *job* is a picklable recipe whose ``worker()`` builds the expensive per-process state once (a pybullet
+client and its world, a policy); ``worker().run(i)`` does item i, which carries its own seed, so results
+are the same whatever the worker count. A pool lives as long as its caller wants (a cell, or a whole
+stage of many cells), so spawned processes pay their imports once.
 """
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any, TypeVar
+from typing import Any, Protocol
 
 from uqdrive.checks import ConfigError
 
-T = TypeVar("T")
-R = TypeVar("R")
+
+class Worker(Protocol):
+    def run(self, index: int) -> Any:
+        """Item ``index`` of the job."""
+
+    def close(self) -> None:
+        """Release what the worker holds (its pybullet client)."""
 
 
-def map_ordered(
-    fn: Callable[[T], R],
-    items: Iterable[T],
-    workers: int,
-    initializer: Callable[..., None] | None = None,
-    initargs: tuple[Any, ...] = (),
-) -> Iterator[R]:
-    """Like `map(fn, items)`; with workers > 1, runs in `spawn`ed processes set up by `initializer`.
+class Job(Protocol):
+    def worker(self) -> Worker:
+        """Build the per-process state that runs this job's items."""
 
-    `fn` and `initializer` must be importable module-level functions. Lazily yields results
-    in order, so a caller can stream them to disk and show progress.
+
+_keyed: dict[int, Worker] = {}  # this process's worker, by job key
+_job_keys = itertools.count()  # unique in the process, so two pools never share a key
+
+
+def _run_keyed(item: tuple[int, Job, int]) -> Any:
+    """Item ``index`` of a job on this process's worker for it. A process keeps the worker of the job it met
+    last only: a pool's jobs come one after another (the cells of a sweep, the conditions of an avoid
+    stage), so an earlier job's world is done with, and a stage of 36 cells does not hold 36 worlds per
+    process. (A job met again is rebuilt; its items do not depend on the worker's history.)"""
+    key, job, index = item
+    if key not in _keyed:
+        for stale in list(_keyed):
+            _keyed.pop(stale).close()
+        _keyed[key] = job.worker()
+    return _keyed[key].run(index)
+
+
+class ProcessPool:
+    """Spawned processes kept for as long as the pool: each builds a job's worker when it meets the job,
+    so the start-up (imports, model, world) is paid once per process and job, not once per item.
+    ``executor(job)`` runs one job's items; with 1 worker everything runs in this process.
+    ``key``: the config key of the worker count, for the error message.
     """
-    if not isinstance(workers, int) or workers < 1:
-        raise ConfigError(f"workers={workers!r} must be an integer >= 1")
-    if workers == 1:
-        if initializer is not None:
-            initializer(*initargs)
-        yield from map(fn, items)
-        return
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer, initargs=initargs) as pool:
-        yield from pool.map(fn, items)
+
+    def __init__(self, workers: int, key: str = "executor.workers"):
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ConfigError(f"{key}={workers!r} must be an integer >= 1")
+        self.workers = workers
+        self._pool = (
+            None if workers == 1 else ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+        )
+        self._keys: list[int] = []
+
+    def executor(self, job: Job, owns_pool: bool = False) -> PooledExecutor:
+        """The job's executor; with ``owns_pool`` closing it closes the pool too."""
+        key = next(_job_keys)
+        self._keys.append(key)
+        return PooledExecutor(self, key, job, owns_pool)
+
+    def run(self, key: int, job: Job, indices: Sequence[int]) -> Iterator[Any]:
+        items = [(key, job, i) for i in indices]
+        yield from map(_run_keyed, items) if self._pool is None else self._pool.map(_run_keyed, items)
+
+    def release(self, key: int) -> None:
+        """Close an in-process job's worker (spawned processes drop theirs at the next job, or at close)."""
+        if key in _keyed and self._pool is None:
+            _keyed.pop(key).close()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+        for key in self._keys:
+            self.release(key)
+
+    def __enter__(self) -> ProcessPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class PooledExecutor:
+    """The items of one job on a `ProcessPool`, in index order; closing it closes the pool only if it owns it."""
+
+    def __init__(self, pool: ProcessPool, key: int, job: Job, owns_pool: bool = False):
+        self.pool, self.key, self.job, self.owns_pool = pool, key, job, owns_pool
+
+    def run(self, indices: Sequence[int]) -> Iterator[Any]:
+        yield from self.pool.run(self.key, self.job, indices)
+
+    def close(self) -> None:
+        self.pool.close() if self.owns_pool else self.pool.release(self.key)

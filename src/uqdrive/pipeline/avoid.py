@@ -303,16 +303,13 @@ def run_cell(
     if off is not None:
         executor = ReusingExecutor(executor, unchanged_by(warning, off))
     ran: list[RolloutResult] = []
+    bar = tqdm(
+        total=estimator.planned_rollouts(), desc=f"avoid {name}", unit="rollout", disable=not cfg.progress, leave=False
+    )
 
     def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
-        for result in tqdm(
-            fresh,
-            total=estimator.planned_rollouts(),
-            desc=f"avoid {name}",
-            unit="rollout",
-            disable=not cfg.progress,
-            leave=False,
-        ):
+        for result in fresh:  # one bar over the cell, however many looks a sequential scheme takes
+            bar.update()
             ran.append(result)
             yield result
 
@@ -320,6 +317,7 @@ def run_cell(
     try:
         estimate, results = estimate_safety(executor, estimator, progress, log)
     finally:
+        bar.close()
         executor.close()
     return Cell(name, condition.name, mode, warning, estimate, results, time.perf_counter() - start, reused=not ran)
 

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import mlflow
@@ -16,7 +17,8 @@ from uqdrive.checks import ConfigError
 from uqdrive.data.frames import encode_png
 from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
 from uqdrive.files import atomic_path, write_json
-from uqdrive.parallel import map_ordered
+from uqdrive.parallel import ProcessPool
+from uqdrive.pipeline.sweeps import grid, run_cells
 from uqdrive.plots import mosaic
 from uqdrive.sim import (
     Autopilot,
@@ -71,37 +73,49 @@ def record_episode(
     return rows, info["termination"], frames
 
 
-_worker: dict = {}
+@dataclasses.dataclass(frozen=True)
+class EpisodeJob:
+    """Autopilot episodes of one collect config (a plain, picklable copy), for `uqdrive.parallel.ProcessPool`."""
+
+    cfg: dict
+
+    def worker(self) -> EpisodeWorker:
+        return EpisodeWorker(DictConfig(self.cfg))
 
 
-def _init_worker(cfg: dict) -> None:
-    """Per-process state: one env (own pybullet client) reused for every episode of this worker."""
-    plain = DictConfig(cfg)
-    _worker.update(
-        cfg=plain,
-        env=make_env(plain),
-        autopilot=AutopilotConfig.from_config(plain.autopilot),
-        scenario=ScenarioConfig.from_config(plain.scenario),
-        weather=WeatherConfig.from_config(plain.weather),
-    )
+class EpisodeWorker:
+    """One env (its own pybullet client) reused for every episode this process records."""
+
+    def __init__(self, cfg: DictConfig):
+        self.cfg = cfg
+        self.env = make_env(cfg)
+        self.autopilot = AutopilotConfig.from_config(cfg.autopilot)
+        self.scenario = ScenarioConfig.from_config(cfg.scenario)
+        self.weather = WeatherConfig.from_config(cfg.weather)
+
+    def run(self, episode: int) -> tuple[int, dict[str, list], str, list[np.ndarray]]:
+        """Episode ``episode`` (seed collect.base_seed + episode): its seed, rows, termination and mosaic frames."""
+        cfg = self.cfg
+        seed = cfg.collect.base_seed + episode
+        rows, termination, frames = record_episode(
+            self.env, self.autopilot, seed, self.scenario, self.weather, cfg.noise
+        )
+        picks = np.linspace(0, len(frames) - 1, cfg.collect.mosaic_columns + 2)[1:-1].astype(int)
+        return seed, rows, termination, [frames[i] for i in picks]
+
+    def close(self) -> None:
+        self.env.close()
 
 
-def _collect_one(episode: int) -> tuple[int, dict[str, list], str, list[np.ndarray]]:
-    cfg = _worker["cfg"]
-    seed = cfg.collect.base_seed + episode
-    rows, termination, frames = record_episode(
-        _worker["env"], _worker["autopilot"], seed, _worker["scenario"], _worker["weather"], cfg.noise
-    )
-    picks = np.linspace(0, len(frames) - 1, cfg.collect.mosaic_columns + 2)[1:-1].astype(int)
-    return seed, rows, termination, [frames[i] for i in picks]
-
-
-def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.ndarray]) -> Iterator[dict[str, list]]:
-    """Yield one column batch per episode, in episode order whatever the worker count."""
-    plain = OmegaConf.to_container(cfg, resolve=True)
-    results = map_ordered(_collect_one, range(cfg.collect.episodes), cfg.collect.workers, _init_worker, (plain,))
+def iter_episodes(
+    cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.ndarray], pool: ProcessPool | None = None
+) -> Iterator[dict[str, list]]:
+    """Yield one column batch per episode, in episode order whatever the worker count. ``pool``: worker
+    processes shared with other collections (the `heldout` stage's conditions), else the stage's own."""
+    job = EpisodeJob(OmegaConf.to_container(cfg, resolve=True))
+    executor = (pool or ProcessPool(cfg.collect.workers, "collect.workers")).executor(job, owns_pool=pool is None)
     progress = tqdm(
-        results,
+        executor.run(range(cfg.collect.episodes)),
         total=cfg.collect.episodes,
         desc=f"collect {cfg.collect.name}",
         unit="episode",
@@ -122,8 +136,7 @@ def iter_episodes(cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.nda
                 **rows,
             }
     finally:
-        if "env" in _worker:  # in-process run (workers=1): release the pybullet client
-            _worker.pop("env").close()
+        executor.close()
 
 
 def check_name(name: object) -> str:
@@ -135,7 +148,8 @@ def check_name(name: object) -> str:
     return name
 
 
-def run_collect(cfg: DictConfig) -> dict:
+def run_collect(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
+    """Record cfg.collect.episodes autopilot episodes; ``pool``: worker processes shared by many collections."""
     ScenarioConfig.from_config(cfg.scenario)
     name = check_name(cfg.collect.name)
     WeatherConfig.from_config(cfg.weather)
@@ -145,18 +159,35 @@ def run_collect(cfg: DictConfig) -> dict:
     out = Path(cfg.collect.out)
     outcomes: Counter = Counter()
     mosaic_frames: list[np.ndarray] = []
-    frames = write_table_batches(out, RAW_SCHEMA, iter_episodes(cfg, outcomes, mosaic_frames))
+    frames = write_table_batches(out, RAW_SCHEMA, iter_episodes(cfg, outcomes, mosaic_frames, pool))
     metrics = {
         "episodes": cfg.collect.episodes,
         "frames": frames,
         "route_complete_fraction": outcomes["route_complete"] / cfg.collect.episodes,
         **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")},
     }
-    write_json(Path(cfg.paths.metrics) / "collect" / f"{name}.json", metrics)
-    mosaic_path = Path(cfg.paths.plots) / "collect" / f"{name}_mosaic.png"
+    write_json(cfg.collect.metrics, metrics)
+    mosaic_path = Path(cfg.collect.mosaic)
     with atomic_path(mosaic_path) as tmp:
         tmp.write_bytes(encode_png(mosaic(mosaic_frames, cfg.collect.mosaic_columns)))
     with stage_run(cfg.paths.root, "collect", cfg, run_name=name):
         mlflow.log_metrics(metrics)
         mlflow.log_artifact(str(mosaic_path))
     return {**metrics, "path": str(out)}
+
+
+def run_heldout(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, dict]]:
+    """Held-out frames in every condition of ``cfg.sweep`` (weathers × noises) in this process, on one pool of
+    workers; yields each condition's config and result as it finishes (`uqdrive.pipeline.sweeps`)."""
+    cells = grid(weather=cfg.sweep.weathers, noise=cfg.sweep.noises)
+    return run_cells(
+        "heldout", overrides, cells, run_collect, ProcessPool(cfg.collect.workers, "collect.workers"), cfg.progress
+    )
+
+
+def describe(result: dict) -> str:
+    """The line a stage prints for a finished collection."""
+    return (
+        f"collect: {result['frames']} frames from {result['episodes']} episodes "
+        f"(route completed in {result['route_complete_fraction']:.0%}) -> {result['path']}"
+    )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -25,6 +26,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.posterior import posterior_from_config
+from uqdrive.pipeline.sweeps import grid, run_cells
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
 from uqdrive.resolvers import noise_label
 from uqdrive.safety.cells import (
@@ -37,7 +39,7 @@ from uqdrive.safety.cells import (
     reusable_result,
 )
 from uqdrive.safety.controller import Controller
-from uqdrive.safety.executors import PolicySpec, RolloutJob, executor_options, make_executor
+from uqdrive.safety.executors import PolicySpec, ProcessPool, RolloutJob, executor_options, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.safe_sets import SafeSet, check_half_width, safe_set_for
@@ -150,8 +152,9 @@ def write_outputs(
     return table, positions, figure
 
 
-def run_safety(cfg: DictConfig) -> dict:
-    """Estimate η1 for one cell; reuses the cell's result file when its config hash matches."""
+def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
+    """Estimate η1 for one cell; reuses the cell's result file when its config hash matches. ``pool``: worker
+    processes shared by many cells (process backend; `uqdrive.pipeline.safety_sweep`), else the cell's own."""
     job, settings, key = build_job(cfg)
     workers = checks.integer("executor.workers", cfg.executor.workers, 1)
     out = Path(cfg.safety.out)
@@ -160,24 +163,27 @@ def run_safety(cfg: DictConfig) -> dict:
         log_cell(cfg, previous, [p for p in _cell_files(cfg) if p.exists()], reused=True)
         return {**previous, "reused": True}
     executor = make_executor(
-        cfg.executor.name, job, workers, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True))
+        cfg.executor.name, job, workers, pool, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True))
     )
     start = time.perf_counter()
+    bar = tqdm(
+        total=settings.planned_rollouts(),
+        desc=f"safety {cfg.safety.cell}",
+        unit="rollout",
+        disable=not cfg.progress,
+        leave=False,
+    )
+
+    def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
+        for result in fresh:  # one bar over the cell, however many looks a sequential scheme takes
+            bar.update()
+            yield result
+
     try:
-        estimate, results = estimate_safety(
-            executor,
-            settings,
-            lambda it: tqdm(
-                it,
-                total=settings.planned_rollouts(),
-                desc=f"safety {cfg.safety.cell}",
-                unit="rollout",
-                disable=not cfg.progress,
-                leave=False,
-            ),
-            RolloutLog(cfg.safety.rollout_log, key, settings.base_seed),
-        )
+        log = RolloutLog(cfg.safety.rollout_log, key, settings.base_seed)
+        estimate, results = estimate_safety(executor, settings, progress, log)
     finally:
+        bar.close()
         executor.close()
     seconds = time.perf_counter() - start
     geometry = build_geometry(job.scenario)
@@ -212,6 +218,26 @@ def run_safety(cfg: DictConfig) -> dict:
     write_json(out, result)  # before logging: a tracking failure never loses the cell; its presence marks it done
     log_cell(cfg, result, [figure, table])
     return {**result, "reused": False}
+
+
+def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, dict]]:
+    """Every cell of ``cfg.sweep`` (methods × locations × weathers × noises) in this process, on one pool of
+    workers (process backend); yields each cell's config and result as it finishes (`uqdrive.pipeline.sweeps`)."""
+    s = cfg.sweep
+    cells = grid(model=s.methods, scenario=s.locations, weather=s.weathers, noise=s.noises)
+    workers = checks.integer("executor.workers", cfg.executor.workers, 1)
+    pool = ProcessPool(workers) if cfg.executor.name == "process" else None
+    return run_cells("safety", overrides, cells, run_safety, pool, cfg.progress)
+
+
+def describe(cell: str, result: dict) -> str:
+    """The line a stage prints for a finished cell."""
+    r = result
+    return (
+        f"safety {cell}: eta1 = {r['eta1']:.3f} in [{r['eta1_low']:.3f}, {r['eta1_high']:.3f}] "
+        f"from {r['n']} rollouts ({r['scheme']}, theta={r['theta']:g}, gamma={r['gamma']:g})"
+        f"{' (reused: config unchanged)' if r['reused'] else ''}"
+    )
 
 
 SUMMARY_KEYS = (

@@ -1,4 +1,5 @@
-"""Run many rollouts in parallel: a local process pool (default) or Ray actors (``executor=ray``).
+"""Run many rollouts in parallel: the project's process pool (`uqdrive.parallel`, default) or Ray actors
+(``executor=ray``).
 
 Each worker owns one `DrivingEnv` (its own pybullet client) and one policy for its whole life;
 a rollout is named only by its index i and uses seed ``base_seed + i``, and results come back
@@ -9,10 +10,7 @@ worker count.
 from __future__ import annotations
 
 import dataclasses
-import itertools
-import multiprocessing
 from collections.abc import Iterator, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -21,6 +19,7 @@ import torch
 from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
+from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
 from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
@@ -87,6 +86,9 @@ class RolloutJob:
     horizon_s: float = 40.0
     half_width: float | None = None
 
+    def worker(self) -> RolloutWorker:
+        return RolloutWorker(self)
+
 
 class RolloutWorker:
     """One env + one policy, reused for every rollout the worker runs (one torch thread: the
@@ -115,75 +117,6 @@ class Executor(Protocol):
 
     def close(self) -> None:
         """Release workers."""
-
-
-_keyed: dict[int, RolloutWorker] = {}  # this process's workers, by job key
-_job_keys = itertools.count()  # unique in the process, so two pools never share a key
-
-
-def _run_keyed(item: tuple[int, RolloutJob, int]) -> RolloutResult:
-    key, job, index = item
-    if key not in _keyed:
-        _keyed[key] = RolloutWorker(job)
-    return _keyed[key].run(index)
-
-
-class ProcessPool:
-    """Spawned processes kept for as long as the pool (a cell, or a whole stage): each process builds a
-    `RolloutWorker` per job the first time it meets one, so the start-up (imports, model, world) is
-    paid once per process and job, not once per batch of rollouts. ``executor(job)`` gives the
-    `Executor` of one job; with 1 worker everything runs in this process.
-    """
-
-    def __init__(self, workers: int):
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ConfigError(f"executor.workers={workers!r} must be an integer >= 1")
-        self.workers = workers
-        self._pool = (
-            None if workers == 1 else ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
-        )
-        self._keys: list[int] = []
-
-    def executor(self, job: RolloutJob, owns_pool: bool = False) -> PooledExecutor:
-        """The job's executor; with ``owns_pool`` closing it closes the pool too."""
-        key = next(_job_keys)
-        self._keys.append(key)
-        return PooledExecutor(self, key, job, owns_pool)
-
-    def run(self, key: int, job: RolloutJob, indices: Sequence[int]) -> Iterator[RolloutResult]:
-        items = [(key, job, i) for i in indices]
-        yield from map(_run_keyed, items) if self._pool is None else self._pool.map(_run_keyed, items)
-
-    def release(self, key: int) -> None:
-        """Close an in-process job's worker (spawned processes keep theirs until the pool closes)."""
-        if key in _keyed and self._pool is None:
-            _keyed.pop(key).close()
-
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
-        for key in self._keys:
-            self.release(key)
-
-    def __enter__(self) -> ProcessPool:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-class PooledExecutor:
-    """The rollouts of one job on a `ProcessPool`; closing it closes the pool only if it owns it."""
-
-    def __init__(self, pool: ProcessPool, key: int, job: RolloutJob, owns_pool: bool = False):
-        self.pool, self.key, self.job, self.owns_pool = pool, key, job, owns_pool
-
-    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
-        yield from self.pool.run(self.key, self.job, indices)
-
-    def close(self) -> None:
-        self.pool.close() if self.owns_pool else self.pool.release(self.key)
 
 
 class RayExecutor:

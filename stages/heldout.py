@@ -1,0 +1,21 @@
+"""DVC stage `heldout`: the collect stage's autopilot at the roundabout in every weather × noise of params.yaml,
+on episode seeds training never uses, in one process on one pool of workers."""
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from uqdrive.stage import stage_main
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="heldout_sweep")
+@stage_main
+def main(cfg: DictConfig) -> None:
+    from uqdrive.pipeline.collect import describe, run_heldout  # not at the top: workers re-import this script
+
+    for _, result in run_heldout(cfg, list(HydraConfig.get().overrides.task)):
+        print(describe(result))
+
+
+if __name__ == "__main__":
+    main()

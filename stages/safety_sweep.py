@@ -1,0 +1,21 @@
+"""DVC stage `safety`: every cell of the offline-safety sweep (params.yaml: methods × locations × weathers ×
+noises) in one process on one pool of workers."""
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from uqdrive.stage import stage_main
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="safety_sweep")
+@stage_main
+def main(cfg: DictConfig) -> None:
+    from uqdrive.pipeline.safety import describe, run_safety_sweep  # not at the top: workers re-import this script
+
+    for cell, result in run_safety_sweep(cfg, list(HydraConfig.get().overrides.task)):
+        print(f"{describe(cell.safety.cell, result)} -> {cell.safety.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+"""The DVC stages that run a grid of cells in one process on one pool (uqdrive.pipeline.sweeps): `safety` and
+`heldout` give every cell the result, files and config hash its single-cell command gives it."""
+
+import pyarrow.parquet as pq
+import pytest
+from conftest import ALL_TENTHS, CONF
+from hydra import compose, initialize_config_dir
+
+from uqdrive.checks import ConfigError
+from uqdrive.pipeline.collect import run_collect, run_heldout
+from uqdrive.pipeline.safety import run_safety, run_safety_sweep
+from uqdrive.pipeline.sweeps import cell_overrides, grid
+
+SWEEP = (
+    "sweep.methods=[vi,mcd]",
+    "sweep.locations=[roundabout]",
+    "sweep.weathers=[clear_noon]",
+    "sweep.noises=[0,0.1]",
+)
+
+
+@pytest.fixture
+def models(random_models):
+    return (f"safety.model_path={random_models['mcd'].parent}/${{model.name}}.pt", *ALL_TENTHS)
+
+
+def sweep(run, config_name, root, *overrides):
+    args = [f"paths.root={root}", "profile=tiny", "progress=false", *overrides]
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return list(run(compose(config_name, args), args))
+
+
+def test_grid_varies_the_last_axis_fastest_and_a_cell_overrides_the_sweep():
+    assert grid(a=[1, 2], b=["x", "y"]) == [
+        {"a": 1, "b": "x"},
+        {"a": 1, "b": "y"},
+        {"a": 2, "b": "x"},
+        {"a": 2, "b": "y"},
+    ]
+    overrides = ["profile=quick", "weather=fog", "sweep.weathers=[rain]", "safety.theta=0.1"]
+    assert cell_overrides(overrides, {"weather": "rain", "noise": 0.1}) == [
+        "profile=quick",
+        "safety.theta=0.1",
+        "weather=rain",
+        "noise=0.1",
+    ]
+
+
+def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, models, stage_config):
+    swept = sweep(run_safety_sweep, "safety_sweep", tmp_path, *models, "executor.workers=2", *SWEEP)
+    assert [cell.safety.cell for cell, _ in swept] == [
+        f"{m}-roundabout-clear_noon-noise{n}" for m in ("vi", "mcd") for n in ("0.0", "0.1")
+    ]
+    assert all(not r["reused"] and r["n"] == 4 for _, r in swept)
+    # the single-cell command composes the same config: same hash, so it reuses the sweep's result as it is
+    cell, last = swept[-1]
+    assert run_safety(stage_config("safety", *models, "model=mcd", "noise=0.1")) == {**last, "reused": True}
+    # run afresh in one process elsewhere, it drives the rollouts the shared pool drove (whose processes had
+    # dropped the worlds of the cells before)
+    elsewhere = tmp_path / "single"
+    fresh = run_safety(
+        stage_config("safety", f"paths.root={elsewhere}", *models, "model=mcd", "noise=0.1", "executor.workers=1")
+    )
+    assert {k: v for k, v in fresh.items() if k != "seconds"} == {k: v for k, v in last.items() if k != "seconds"}
+    table = f"plots/safety/cells/{cell.safety.cell}.csv"
+    assert (elsewhere / table).read_text() == (tmp_path / table).read_text()
+
+
+def test_heldout_sweep_collects_every_condition_as_the_single_condition_command(tmp_path, stage_config):
+    swept = sweep(run_heldout, "heldout_sweep", tmp_path, "sweep.weathers=[clear_noon,rain]", "sweep.noises=[0.1]")
+    assert [cell.collect.name for cell, _ in swept] == [
+        "heldout-roundabout-clear_noon-noise0.1",
+        "heldout-roundabout-rain-noise0.1",
+    ]
+    assert (tmp_path / "metrics/heldout/roundabout-rain-noise0.1.json").exists()
+    assert (tmp_path / "plots/heldout/roundabout-rain-noise0.1_mosaic.png").exists()
+    elsewhere = tmp_path / "single"
+    run_collect(stage_config("heldout", f"paths.root={elsewhere}", "weather=rain", "noise=0.1", "collect.workers=1"))
+    table = "data/heldout/roundabout-rain-noise0.1.parquet"
+    assert pq.read_table(elsewhere / table).equals(pq.read_table(tmp_path / table))
+
+
+def test_a_weather_without_a_config_fails_before_any_cell(tmp_path, models):
+    with pytest.raises(ConfigError, match=r"^sweep cell model=vi scenario=roundabout weather=foggy noise=0: .*foggy"):
+        sweep(
+            run_safety_sweep,
+            "safety_sweep",
+            tmp_path,
+            *models,
+            *SWEEP[:2],
+            "sweep.weathers=[clear_noon,foggy]",
+            "sweep.noises=[0]",
+        )
+    assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()
