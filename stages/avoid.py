@@ -4,7 +4,7 @@ known condition and each unknown one (`model=<method>`, the `avoid` experiment's
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.stage import stage_main
+from uqdrive.stage import run_stage, stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid")
@@ -37,4 +37,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -4,7 +4,7 @@ import hydra
 from omegaconf import DictConfig
 
 from uqdrive.pipeline.evaluate import run_evaluate
-from uqdrive.stage import stage_main
+from uqdrive.stage import run_stage, stage_main
 
 
 def _fmt(value: float | None) -> str:
@@ -27,4 +27,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -4,7 +4,7 @@ import hydra
 from omegaconf import DictConfig
 
 from uqdrive.pipeline.safety import run_safety_summary
-from uqdrive.stage import stage_main
+from uqdrive.stage import run_stage, stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="safety_summary")
@@ -15,4 +15,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

