@@ -119,6 +119,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     # upstream; git holds the metrics files, so `dvc exp show` compares the experiment's numbers with the baseline's
     _git(project, "add", "-A")
     _git(project, "commit", "-qm", "tiny run")
+    rain_logs = {p.name: p.read_text() for p in (project / "cache/rollouts/safety").glob("*-rain-*.jsonl")}
     ran = sorted(
         line.split("'")[1]
         for line in _dvc(project, "exp", "run", "-S", "weathers=[rain,afternoon]").splitlines()
@@ -131,6 +132,10 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         "safety",
         "safety_summary",
     ]
+    # the safety stage simulated only the new weather's cells: the rain cells' logs are as they were
+    assert len(rain_logs) == 3
+    assert {p.name: p.read_text() for p in (project / "cache/rollouts/safety").glob("*-rain-*.jsonl")} == rain_logs
+    assert len(list((project / "cache/rollouts/safety").glob("*-afternoon-*.jsonl"))) == 3
     summaries = _metrics_of_experiments(json.loads(_dvc(project, "exp", "show", "--json")))
     assert len(summaries) >= 2  # the baseline and the experiment
     assert all(isinstance(m["offline_safety"]["vi"]["eta1_pooled"], float) for m in summaries)

@@ -1,15 +1,19 @@
 """The DVC stages that run a grid of cells in one process on one pool (uqdrive.pipeline.sweeps): `safety` and
 `heldout` give every cell the result, files and config hash its single-cell command gives it."""
 
+import shutil
+
 import pyarrow.parquet as pq
 import pytest
 from conftest import ALL_TENTHS, CONF
 from hydra import compose, initialize_config_dir
+from mlflow.tracking import MlflowClient
 
 from uqdrive.checks import ConfigError
 from uqdrive.pipeline.collect import run_collect, run_heldout
 from uqdrive.pipeline.safety import run_safety, run_safety_sweep
 from uqdrive.pipeline.sweeps import cell_overrides, grid
+from uqdrive.tracking import store_uris
 
 SWEEP = (
     "sweep.methods=[vi,mcd]",
@@ -37,7 +41,14 @@ def test_grid_varies_the_last_axis_fastest_and_a_cell_overrides_the_sweep():
         {"a": 2, "b": "x"},
         {"a": 2, "b": "y"},
     ]
-    overrides = ["profile=quick", "weather=fog", "sweep.weathers=[rain]", "safety.theta=0.1"]
+    overrides = [
+        "profile=quick",
+        "weather=fog",
+        "sweep.weathers=[rain]",
+        "~sweep.noises",
+        "++sweep.x=1",
+        "safety.theta=0.1",
+    ]
     assert cell_overrides(overrides, {"weather": "rain", "noise": 0.1}) == [
         "profile=quick",
         "safety.theta=0.1",
@@ -64,6 +75,17 @@ def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, model
     assert {k: v for k, v in fresh.items() if k != "seconds"} == {k: v for k, v in last.items() if k != "seconds"}
     table = f"plots/safety/cells/{cell.safety.cell}.csv"
     assert (elsewhere / table).read_text() == (tmp_path / table).read_text()
+    # DVC removes the stage's outputs before it reruns it: every cell is replayed from its rollout log, nothing is
+    # simulated, the results are the same and the runs say so
+    shutil.rmtree(tmp_path / "metrics/safety")
+    again = sweep(run_safety_sweep, "safety_sweep", tmp_path, *models, "executor.workers=2", *SWEEP)
+    assert [r["reused"] for _, r in again] == [True] * 4
+    assert [{k: v for k, v in r.items() if k not in ("seconds", "reused")} for _, r in again] == [
+        {k: v for k, v in r.items() if k not in ("seconds", "reused")} for _, r in swept
+    ]
+    client = MlflowClient(store_uris(tmp_path)[0])
+    logged = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
+    assert sorted(r.data.tags["reused"] for r in logged) == ["false"] * 4 + ["true"] * 5  # and the single-cell reuse
 
 
 def test_heldout_sweep_collects_every_condition_as_the_single_condition_command(tmp_path, stage_config):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import atexit
+import ctypes
 import functools
 import os
 import sys
@@ -53,4 +54,5 @@ def run_stage(main: Callable[[], object]) -> None:
     atexit._run_exitfuncs()
     sys.stdout.flush()
     sys.stderr.flush()
+    ctypes.CDLL(None).fflush(None)  # C libraries' buffered output (pybullet's), which os._exit would drop
     os._exit(0)

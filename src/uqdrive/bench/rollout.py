@@ -8,7 +8,7 @@ with the next seed), so the two are comparable whatever the controller does. The
 comparison drives the camera of ``conf/sim.yaml`` and a 160x120 camera (the render size before
 it was the network's own 64x48) in alternating repeats, one process, one torch thread: steps
 per second per core; the median ratio is reported. The worker comparison runs chunks of
-closed-loop steps through `uqdrive.parallel.map_ordered` and times the steady state (after each
+closed-loop steps through `uqdrive.parallel.ProcessPool` and times the steady state (after each
 worker's first chunk, i.e. after process start-up).
 Targets: overhead ≤ 2 (closed-loop step at most twice an env-only step), render_speedup ≥ 2,
 speedup2 ≥ 1.7.
@@ -28,7 +28,7 @@ from omegaconf import OmegaConf
 
 from uqdrive.bench.posterior import random_posteriors
 from uqdrive.models.checkpoint import load_posterior, save_posterior
-from uqdrive.parallel import map_ordered
+from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, Policy
 from uqdrive.safety.executors import PolicySpec, RolloutJob, RolloutWorker
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
@@ -54,25 +54,40 @@ def drive(env: DrivingEnv, policy: Policy, job: RolloutJob, steps: int, seed: in
     return time.process_time() - start
 
 
-_state: dict[str, object] = {}
+@dataclasses.dataclass(frozen=True)
+class ChunkJob:
+    """Chunks of ``steps`` closed-loop steps of ``job``'s controller, for `uqdrive.parallel.ProcessPool`."""
+
+    job: RolloutJob
+    steps: int
+
+    def worker(self) -> ChunkWorker:
+        return ChunkWorker(RolloutWorker(self.job), self.steps)
 
 
-def _init(job: RolloutJob, steps: int) -> None:
-    _state.update(worker=RolloutWorker(job), steps=steps)
+@dataclasses.dataclass
+class ChunkWorker:
+    rollouts: RolloutWorker
+    steps: int
 
+    def run(self, seed: int) -> float:
+        w = self.rollouts
+        return drive(w.env, w.policy, w.job, self.steps, seed)
 
-def _chunk(seed: int) -> float:
-    worker = _state["worker"]
-    return drive(worker.env, worker.policy, worker.job, _state["steps"], seed)
+    def close(self) -> None:
+        self.rollouts.close()
 
 
 def throughput(job: RolloutJob, workers: int, chunks: int, steps: int) -> float:
     """Steady-state closed-loop steps per second (wall clock) with ``workers`` processes."""
     first = None
-    for i, _ in enumerate(map_ordered(_chunk, [1000 * k for k in range(chunks)], workers, _init, (job, steps))):
-        if i == workers - 1:
-            first = time.perf_counter()
-    _state.clear()
+    executor = ProcessPool(workers).executor(ChunkJob(job, steps), owns_pool=True)
+    try:
+        for i, _ in enumerate(executor.run([1000 * k for k in range(chunks)])):
+            if i == workers - 1:
+                first = time.perf_counter()
+    finally:
+        executor.close()
     return (chunks - workers) * steps / (time.perf_counter() - first)
 
 

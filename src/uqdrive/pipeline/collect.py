@@ -180,9 +180,8 @@ def run_heldout(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[Dic
     """Held-out frames in every condition of ``cfg.sweep`` (weathers × noises) in this process, on one pool of
     workers; yields each condition's config and result as it finishes (`uqdrive.pipeline.sweeps`)."""
     cells = grid(weather=cfg.sweep.weathers, noise=cfg.sweep.noises)
-    return run_cells(
-        "heldout", overrides, cells, run_collect, ProcessPool(cfg.collect.workers, "collect.workers"), cfg.progress
-    )
+    pool = ProcessPool(cfg.collect.workers, "collect.workers")
+    yield from run_cells("heldout", overrides, cells, run_collect, pool, cfg.progress)
 
 
 def describe(result: dict) -> str:

@@ -153,8 +153,9 @@ def write_outputs(
 
 
 def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
-    """Estimate η1 for one cell; reuses the cell's result file when its config hash matches. ``pool``: worker
-    processes shared by many cells (process backend; `uqdrive.pipeline.safety_sweep`), else the cell's own."""
+    """Estimate η1 for one cell; reuses the cell's result file when its config hash matches, and the rollouts
+    its log holds. ``pool``: worker processes shared by many cells (`run_safety_sweep`), else the cell's own.
+    ``reused`` in the result: nothing was simulated."""
     job, settings, key = build_job(cfg)
     workers = checks.integer("executor.workers", cfg.executor.workers, 1)
     out = Path(cfg.safety.out)
@@ -174,9 +175,12 @@ def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
         leave=False,
     )
 
+    ran: list[int] = []
+
     def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
         for result in fresh:  # one bar over the cell, however many looks a sequential scheme takes
             bar.update()
+            ran.append(result.seed)
             yield result
 
     try:
@@ -216,8 +220,9 @@ def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
     }
     result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key}
     write_json(out, result)  # before logging: a tracking failure never loses the cell; its presence marks it done
-    log_cell(cfg, result, [figure, table])
-    return {**result, "reused": False}
+    reused = not ran  # every rollout replayed from the log (DVC removed the result file before rerunning the stage)
+    log_cell(cfg, result, [figure, table], reused=reused)
+    return {**result, "reused": reused}
 
 
 def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, dict]]:
@@ -227,7 +232,7 @@ def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tupl
     cells = grid(model=s.methods, scenario=s.locations, weather=s.weathers, noise=s.noises)
     workers = checks.integer("executor.workers", cfg.executor.workers, 1)
     pool = ProcessPool(workers) if cfg.executor.name == "process" else None
-    return run_cells("safety", overrides, cells, run_safety, pool, cfg.progress)
+    yield from run_cells("safety", overrides, cells, run_safety, pool, cfg.progress)
 
 
 def describe(cell: str, result: dict) -> str:

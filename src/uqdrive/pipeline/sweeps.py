@@ -37,7 +37,11 @@ def grid(**axes: Sequence[object]) -> list[dict[str, object]]:
 
 def cell_overrides(overrides: Sequence[str], cell: Cell) -> list[str]:
     """A cell's overrides: the sweep's own (but those of the cell's keys and `sweep.*`), then the cell's."""
-    kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in cell and not o.startswith("sweep.")]
+
+    def key(override: str) -> str:
+        return override.split("=", 1)[0].lstrip("+~")
+
+    kept = [o for o in overrides if key(o) not in cell and key(o).split(".")[0] != "sweep"]
     return [*kept, *(f"{key}={value}" for key, value in cell.items())]
 
 
@@ -59,7 +63,8 @@ def run_cells(
 ) -> Iterator[tuple[DictConfig, R]]:
     """``run(config, pool)`` for each cell's config of ``config_name``; yields each config and result as the cell
     finishes. ``overrides``: the stage's command-line overrides, passed on to every cell. Every config is
-    composed, and so checked, before the first cell runs. ``pool`` is closed at the end (also on an error).
+    composed, and so checked, before the first cell runs. ``pool`` is closed at the end (also on an error, or
+    when the caller stops early).
     Needs an initialised Hydra (a `@hydra.main` job, or `initialize_config_dir`)."""
     try:
         configs = [compose_cell(config_name, overrides, cell) for cell in cells]
