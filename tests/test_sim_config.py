@@ -62,3 +62,10 @@ def test_inconsistent_geometry_is_rejected():
 def test_negative_noise_is_rejected():
     with DrivingEnv() as env, pytest.raises(ValueError, match=r"noise=-0.1 must be >= 0"):
         env.reset(0, ScenarioConfig(), noise=-0.1)
+
+
+def test_every_scenario_kind_has_a_layout_builder():
+    from uqdrive.sim.config import SCENARIO_KINDS
+    from uqdrive.sim.layouts import LAYOUTS
+
+    assert set(LAYOUTS) == set(SCENARIO_KINDS)
