@@ -11,7 +11,9 @@ from .config import (
     check_noise,
 )
 from .env import TERMINATIONS, DrivingEnv
-from .geometry import PavedArea, Route, ScenarioGeometry, build_geometry
+from .geometry import ScenarioGeometry, build_geometry
+from .paving import PavedArea
+from .route import Route
 from .vehicle import KinematicBicycle, VehicleState
 
 __all__ = [

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from .config import AutopilotConfig, VehicleConfig
-from .geometry import Route
+from .route import Route
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,7 +12,8 @@ from uqdrive.checks import ConfigError
 from .bullet import connect_direct
 from .camera import Camera
 from .config import CameraConfig, ScenarioConfig, VehicleConfig, WeatherConfig, check_noise
-from .geometry import Route, ScenarioGeometry, build_geometry
+from .geometry import ScenarioGeometry, build_geometry
+from .route import Route
 from .vehicle import KinematicBicycle, VehicleState
 from .world import World
 

@@ -13,9 +13,8 @@ import math
 import numpy as np
 
 from .config import ScenarioConfig
-from .layouts import LAYOUTS, Obstacle
+from .layouts import LAYOUTS, Layout
 from .paving import PavedArea
-from .route import Route
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,18 +30,11 @@ class Scenery:
 
 
 @dataclasses.dataclass(frozen=True)
-class ScenarioGeometry:
-    """Everything the world and the safety checks need to know about one scenario."""
+class ScenarioGeometry(Layout):
+    """Everything the world and the safety checks need to know about one scenario: its layout, and around it."""
 
     config: ScenarioConfig
-    route: Route
-    start: tuple[float, float, float]  # x, y, yaw of the nominal start (body centre)
-    paved: PavedArea
-    asphalt: list[np.ndarray]  # triangles [n, 3, 2] per patch
-    markings: np.ndarray  # triangles [n, 3, 2]
-    obstacles: list[Obstacle]
     scenery: list[Scenery]
-    island: tuple[float, float, float] | None  # centre x, y and radius of a roundabout island
     bounds: tuple[float, float, float, float]  # xmin, ymin, xmax, ymax of the paved area
 
     def is_paved(self, points: np.ndarray) -> np.ndarray:
@@ -94,6 +86,5 @@ def build_geometry(cfg: ScenarioConfig) -> ScenarioGeometry:
     xs = np.concatenate([t.reshape(-1, 2) for t in lay.asphalt])
     bounds = (float(xs[:, 0].min()), float(xs[:, 1].min()), float(xs[:, 0].max()), float(xs[:, 1].max()))
     scenery = _place_scenery(cfg, lay.paved, bounds, lay.island)
-    return ScenarioGeometry(
-        cfg, lay.route, lay.start, lay.paved, lay.asphalt, lay.markings, lay.obstacles, scenery, lay.island, bounds
-    )
+    layout = {f.name: getattr(lay, f.name) for f in dataclasses.fields(lay)}
+    return ScenarioGeometry(**layout, config=cfg, scenery=scenery, bounds=bounds)
