@@ -36,5 +36,9 @@ def main(cfg: DictConfig) -> None:
     )
 
 
-if __name__ == "__main__":
-    run_stage(main)
+if __name__ == "__main__":  # the config groups it composes take their defaults from these schemas
+    from uqdrive.models.schemas import register_schemas as register_models
+    from uqdrive.safety.warnings import register_schema as register_warning
+    from uqdrive.sim.config import register_schemas as register_world
+
+    run_stage(main, register_world, register_warning, register_models)

@@ -14,5 +14,7 @@ def main(cfg: DictConfig) -> None:
     print(describe(run_collect(cfg)))
 
 
-if __name__ == "__main__":
-    run_stage(main)
+if __name__ == "__main__":  # the config groups it composes take their defaults from these schemas
+    from uqdrive.sim.config import register_schemas as register_world
+
+    run_stage(main, register_world)

@@ -17,5 +17,8 @@ def main(cfg: DictConfig) -> None:
         print(f"{describe(cell.safety.cell, result)} -> {cell.safety.out}")
 
 
-if __name__ == "__main__":
-    run_stage(main)
+if __name__ == "__main__":  # the config groups it composes take their defaults from these schemas
+    from uqdrive.models.schemas import register_schemas as register_models
+    from uqdrive.sim.config import register_schemas as register_world
+
+    run_stage(main, register_world, register_models)

@@ -19,5 +19,7 @@ def main(cfg: DictConfig) -> None:
     )
 
 
-if __name__ == "__main__":
-    run_stage(main)
+if __name__ == "__main__":  # the config groups it composes take their defaults from these schemas
+    from uqdrive.models.schemas import register_schemas as register_models
+
+    run_stage(main, register_models)

@@ -65,3 +65,15 @@ def missing_deps() -> dict[str, list[str]]:
 def test_every_stage_depends_on_every_project_file_it_imports():
     missing = missing_deps()
     assert not missing, "\n".join(f"{stage}: {', '.join(files)}" for stage, files in missing.items())
+
+
+def test_every_listed_dep_exists_once():
+    from dvc.repo import Repo
+
+    with Repo(str(ROOT)) as repo:
+        for stage in repo.index.stages:
+            paths = [d.def_path for d in stage.deps]
+            assert len(paths) == len(set(paths)), f"{stage.addressing} lists a dep twice"
+            code = [p for p in paths if p.split("/")[0] in ("src", "stages", "conf")]  # not other stages' outputs
+            absent = [p for p in code if not (ROOT / p).exists()]
+            assert not absent, f"{stage.addressing} depends on project files that do not exist: {absent}"

@@ -228,15 +228,15 @@ def test_a_file_of_another_condition_is_refused(stage_config, tmp_path, random_m
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("evaluate.eps=0", "evaluate.eps=0 must be a number > 0"),
-        ("evaluate.eps=-0.1", "evaluate.eps=-0.1 must be a number > 0"),
-        ("evaluate.samples=0", "evaluate.samples=0 must be an integer >= 1"),
-        ("evaluate.samples=2.5", "evaluate.samples=2.5 must be an integer >= 1"),
-        ("evaluate.batch_size=0", "evaluate.batch_size=0 must be an integer >= 1"),
-        ("methods=[mcd,Bnn]", r"methods=\['mcd', 'Bnn'\] must be a non-empty list of method names"),
-        ("methods=[]", r"methods=\[\] must be a non-empty list"),
-        ("noises=[-0.1]", r"noises=\[-0.1\] must be a non-empty list of numbers >= 0"),
-        ("weathers=[]", r"weathers=\[\] must be a non-empty list"),
+        ("evaluate.eps=0", "evaluate.eps=0: input should be greater than 0"),
+        ("evaluate.eps=-0.1", "evaluate.eps=-0.1: input should be greater than 0"),
+        ("evaluate.samples=0", "evaluate.samples=0: input should be greater than or equal to 1"),
+        ("evaluate.samples=2.5", "evaluate.samples=2.5: input should be a valid integer"),
+        ("evaluate.batch_size=0", "evaluate.batch_size=0: input should be greater than or equal to 1"),
+        ("methods=[mcd,Bnn]", r"methods\[1\]='Bnn': string should match pattern"),
+        ("methods=[]", r"methods=\[\]: tuple should have at least 1 item"),
+        ("noises=[-0.1]", r"noises\[0\]=-0.1: input should be greater than or equal to 0"),
+        ("weathers=[]", r"weathers=\[\]: tuple should have at least 1 item"),
     ],
 )
 def test_bad_config_values_fail_before_any_work(stage_config, tmp_path, override, message):

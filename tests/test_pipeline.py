@@ -96,7 +96,7 @@ def test_bad_values_fail_before_any_work(stage_config, tmp_path):
         run_collect(stage_config("collect", "noise=-0.1"))
     with pytest.raises(ValueError, match="scenario.kind='loop'"):
         run_collect(stage_config("collect", "scenario.kind=loop"))
-    with pytest.raises(ValueError, match=r"collect.name='\.\./x' must be a plain file name"):
+    with pytest.raises(ValueError, match=r"collect.name='\.\./x': string should match pattern"):
         run_collect(stage_config("collect", "collect.name=../x"))
     with pytest.raises(FileNotFoundError, match="dvc repro"):
         run_preprocess(stage_config("preprocess", "experiment.scenarios=[straight]"))

@@ -12,6 +12,7 @@ import pytest
 from uqdrive.safety.cells import EstimatorSettings, estimate_safety
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
+from uqdrive.schema import ConfigError, validate
 
 BASE_SEED = 1000
 
@@ -106,5 +107,5 @@ def test_a_cut_line_is_dropped_and_another_config_starts_afresh(tmp_path: Path) 
 
 
 def test_look_size_below_one_is_rejected() -> None:
-    with pytest.raises(ValueError, match=r"avoid.look_size=0 must be an integer >= 1"):
-        EstimatorSettings("sequential", 0.05, 0.05, 0, look_size=0, section="avoid")
+    with pytest.raises(ConfigError, match=r"^avoid.look_size=0: input should be greater than or equal to 1$"):
+        validate(EstimatorSettings, {"scheme": "sequential", "look_size": 0}, "avoid")

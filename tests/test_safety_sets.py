@@ -103,5 +103,3 @@ def test_default_corridor_is_the_lane_and_ends_at_the_first_exit():
     left, right = safe.boundaries()
     assert left.shape == right.shape == (len(geometry.route.s), 2)
     assert safe_set_for(build_geometry(scenario("straight")), 1.8, 4.5).boundaries() is None
-    with pytest.raises(ValueError, match=r"safety.half_width=-1"):
-        safe_set_for(geometry, 1.8, 4.5, -1)

@@ -9,10 +9,10 @@ from conftest import ALL_TENTHS, CONF
 from hydra import compose, initialize_config_dir
 from mlflow.tracking import MlflowClient
 
-from uqdrive.checks import ConfigError
 from uqdrive.pipeline.collect import run_collect, run_heldout
 from uqdrive.pipeline.safety import run_safety, run_safety_sweep
 from uqdrive.pipeline.sweeps import cell_overrides, grid
+from uqdrive.schema import ConfigError
 from uqdrive.tracking import store_uris
 
 SWEEP = (

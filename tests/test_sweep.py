@@ -14,8 +14,8 @@ from hydra.types import RunMode
 from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
-from uqdrive.checks import config_error
 from uqdrive.pipeline.collect import run_collect
+from uqdrive.schema import config_error
 from uqdrive.tracking import store_lock, store_uris
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,8 +15,6 @@ from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Protocol
 
-from uqdrive.checks import ConfigError
-
 
 class Worker(Protocol):
     def run(self, index: int) -> Any:
@@ -52,12 +50,11 @@ class ProcessPool:
     """Spawned processes kept for as long as the pool: each builds a job's worker when it meets the job,
     so the start-up (imports, model, world) is paid once per process and job, not once per item.
     ``executor(job)`` runs one job's items; with 1 worker everything runs in this process.
-    ``key``: the config key of the worker count, for the error message.
     """
 
-    def __init__(self, workers: int, key: str = "executor.workers"):
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ConfigError(f"{key}={workers!r} must be an integer >= 1")
+    def __init__(self, workers: int):
+        if workers < 1:
+            raise ValueError(f"workers={workers!r} must be >= 1")
         self.workers = workers
         self._pool = (
             None if workers == 1 else ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))

@@ -18,7 +18,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import OmegaConf
 
-from uqdrive.checks import ConfigError
+from uqdrive.schema import ConfigError
 
 # The `outputs` key: auto = the sweep's folder in a multirun; pipeline = always the project.
 OUTPUTS = ("auto", "pipeline")
@@ -37,7 +37,7 @@ def read_param(key: str, root: str) -> object:
 def noise_label(noise: object) -> str:
     """A noise sigma as DVC renders a float of params.yaml (0 and 0.0 → "0.0", 0.05 → "0.05"); a value that
     is not a number is left for the stage's check to reject."""
-    if isinstance(noise, bool) or not isinstance(noise, (int, float)):
+    if type(noise) not in (int, float):
         return str(noise)
     return repr(float(noise))
 

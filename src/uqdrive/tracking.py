@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import atexit
 import dataclasses
+import math
 import os
 import signal
 import threading
@@ -63,6 +64,15 @@ KEY_METRICS = {
 # skipped), rather than a fresh store made outside the lock.
 UNTRACKED_URI = "file:///dev/null/uqdrive-untracked"
 LOGGING_ERRORS = (MlflowException, SQLAlchemyError, OSError, LockTimeout)
+
+
+def numeric_metrics(values: Mapping[str, Any]) -> dict[str, float]:
+    """The entries MLflow can log as metrics: finite-or-inf numbers (not flags, not NaN), as floats."""
+    return {
+        k: float(v)
+        for k, v in values.items()
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+    }
 
 
 def store_uris(root: str | Path) -> tuple[str, str]:

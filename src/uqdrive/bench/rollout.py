@@ -24,14 +24,14 @@ import time
 from pathlib import Path
 
 import torch
-from omegaconf import OmegaConf
 
 from uqdrive.bench.posterior import random_posteriors
 from uqdrive.models.checkpoint import load_posterior, save_posterior
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, Policy
 from uqdrive.safety.executors import PolicySpec, RolloutJob, RolloutWorker
-from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.config import SimConfig
 
 CONF = Path(__file__).resolve().parents[3] / "conf"
 BASELINE_CAMERA = (160, 120)
@@ -106,7 +106,7 @@ def main(argv: list[str]) -> int:
     torch.set_num_threads(1)
     scenario = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml")
     weather = WeatherConfig.from_yaml(CONF / "weather" / f"{args.weather}.yaml")
-    camera = CameraConfig.from_config(OmegaConf.load(CONF / "sim.yaml").camera)
+    camera = SimConfig.from_yaml(CONF / "sim.yaml").camera
     baseline = dataclasses.replace(camera, width=BASELINE_CAMERA[0], height=BASELINE_CAMERA[1])
     with tempfile.TemporaryDirectory() as tmp:
         if args.models is None:

@@ -12,33 +12,31 @@ experiment)": an experiment keeps only the tenths its training labels use, from 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field
 
-from uqdrive.checks import ConfigError
+from uqdrive.schema import Count, Float, invalid, schema
+
+Steering = Annotated[Float, Field(ge=-1.0, le=1.0)]  # steering value: +1 full left
 
 
-@dataclass(frozen=True)
+@schema(frozen=True)
 class SteeringBins:
     """Uniform class centres ``low + k / per_unit`` for ``k = 0 … num_classes - 1`` (up to ``high``)."""
 
-    per_unit: int = 10
-    low: float = -1.0
-    high: float = 1.0
+    per_unit: Count = 10
+    low: Steering = -1.0
+    high: Steering = 1.0
 
     def __post_init__(self) -> None:
-        if isinstance(self.per_unit, bool) or not isinstance(self.per_unit, int) or self.per_unit < 1:
-            raise ConfigError(f"bins.per_unit={self.per_unit!r} must be a positive integer")
         for name in ("low", "high"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not -1.0 <= value <= 1.0:
-                raise ConfigError(f"bins.{name}={value!r} must be a steering value in [-1, 1]")
-            steps = value * self.per_unit
+            steps = getattr(self, name) * self.per_unit
             if abs(steps - round(steps)) > 1e-9:
-                raise ConfigError(f"bins.{name}={value!r} must be a multiple of 1/per_unit={1 / self.per_unit}")
+                raise invalid(name, getattr(self, name), f"must be a multiple of 1/per_unit={1 / self.per_unit}")
         if not self.low < self.high:
-            raise ConfigError(f"bins.low={self.low!r} must be < bins.high={self.high!r} (at least two classes)")
+            raise invalid("low", self.low, f"must be < high={self.high!r} (at least two classes)")
 
     @classmethod
     def from_dict(cls, data: Mapping) -> SteeringBins:

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import decode_png, preprocess_frame
 from uqdrive.data.tables import PROCESSED_SCHEMA
+from uqdrive.schema import ConfigError
 
 
 @dataclass(frozen=True)

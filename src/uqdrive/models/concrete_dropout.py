@@ -13,7 +13,7 @@ import math
 import torch
 from torch import nn
 
-from uqdrive.checks import ConfigError
+from uqdrive.schema import ConfigError
 
 EPS = 1e-7
 

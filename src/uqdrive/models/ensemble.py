@@ -10,29 +10,24 @@ with independent draws (sampling without replacement; Hoeffding's bound still ho
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Annotated
 
 import torch
+from pydantic import Field
 
 from uqdrive.models.heads import StoredHeadPosterior, he_init_heads, train_heads
 from uqdrive.models.posterior import Fitted
-from uqdrive.models.training import TrainingData, require
+from uqdrive.models.training import TrainingData
+from uqdrive.schema import Count, Int, Positive, schema
 
 
-@dataclass(frozen=True)
+@schema(frozen=True)
 class EnsembleSettings:
-    members: int
-    epochs: int
-    batch_size: int
-    lr: float
-    prior_sigma: float = 1.0
-
-    def __post_init__(self) -> None:
-        require("members", self.members, self.members >= 2, "≥ 2")
-        require("epochs", self.epochs, self.epochs >= 1, "≥ 1")
-        require("batch_size", self.batch_size, self.batch_size >= 1, "≥ 1")
-        require("lr", self.lr, self.lr > 0, "> 0")
-        require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
+    members: Annotated[Int, Field(ge=2)]
+    epochs: Count
+    batch_size: Count
+    lr: Positive
+    prior_sigma: Positive = 1.0  # same prior as VI and HMC (MAP training)
 
 
 class EnsemblePosterior(StoredHeadPosterior):

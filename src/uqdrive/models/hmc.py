@@ -16,9 +16,10 @@ Full-batch HMC with the step size adapted in warm-up. Convergence is judged in f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import torch
+from pydantic import Field
 
 from uqdrive.models.diagnostics import RHAT_OK, between_chain_mi_share, function_space_diagnostics
 from uqdrive.models.heads import (
@@ -36,54 +37,41 @@ from uqdrive.models.mcmc import LogProbGrad, hmc, split_rhat, whitened
 from uqdrive.models.metrics import classification_metrics
 from uqdrive.models.pilotnet import sampled_mlp_logits
 from uqdrive.models.posterior import Fitted
-from uqdrive.models.training import TrainingData, require
+from uqdrive.models.training import TrainingData
+from uqdrive.schema import Bool, Count, Int, OpenUnit, Positive, Seed, Unit, invalid, schema
 
 
-@dataclass(frozen=True)
+@schema(frozen=True)
 class HMCSettings:
-    chains: int
-    samples: int  # kept per chain
-    warmup: int  # iterations during which step size and mass adapt (discarded)
-    thin: int = 1
-    bayesian_layers: int = 4  # the last k of the 4 head layers are sampled; the ones below stay at the MAP
-    leapfrog_steps: int = 10
-    step_size: float = 1e-3  # initial; adapted during warm-up
-    target_accept: float = 0.75
-    metric: str = "laplace"  # laplace (dense, from the last-layer Laplace; bayesian_layers = 1) | diagonal
-    adapt_mass: bool = False  # diagonal mass adapted in warm-up, on top of the metric (use it with metric=diagonal)
-    start_scale: float = 2.0  # metric=laplace: chains start at this many Laplace standard deviations' spread
-    prior_sigma: float = 1.0
-    map_epochs: int = 5  # minibatch Adam epochs from the MCD head to the MAP that fixes the lower layers
-    start_epochs: int = 2  # minibatch Adam epochs of each chain from its own random start
-    map_lr: float = 1e-3
-    map_batch_size: int = 64
-    diagnostic_frames: int = 200  # validation frames whose predictive R̂/ESS are computed
-    rhat_target_share: float = 0.9  # of (frame, class) pairs with R̂ ≤ 1.1: the profile's convergence target
+    chains: Annotated[Int, Field(ge=4)]  # R-hat compares chains from dispersed starts
+    samples: Annotated[Int, Field(ge=4)]  # kept per chain (split R-hat needs 4)
+    warmup: Seed  # iterations during which step size and mass adapt (discarded)
+    thin: Count = 1
+    bayesian_layers: Literal[1, 2, 3, 4] = 4  # the last k of the 4 head layers are sampled; those below: the MAP
+    leapfrog_steps: Count = 10  # as in the paper
+    step_size: Positive = 1e-3  # initial; adapted during warm-up
+    target_accept: OpenUnit = 0.75
+    metric: Literal["laplace", "diagonal"] = "laplace"  # laplace: dense, from the last-layer Laplace (1 layer)
+    # diagonal mass adapted in warm-up, on top of the metric: true with metric=diagonal (with laplace the metric already
+    # whitens; measured: adapting on top lowered bulk ESS and left all of warm-up's middle half to it)
+    adapt_mass: Bool = False
+    start_scale: Positive = 2.0  # metric=laplace: chains start at this many Laplace standard deviations' spread
+    prior_sigma: Positive = 1.0
+    map_epochs: Seed = 5  # minibatch Adam epochs from the MCD head to the MAP that fixes the lower layers
+    start_epochs: Seed = 2  # minibatch Adam epochs of each chain from its own random start
+    map_lr: Positive = 1e-3
+    map_batch_size: Count = 64
+    diagnostic_frames: Count = 200  # validation frames whose predictive R̂/ESS are computed
+    rhat_target_share: Unit = 0.9  # of (frame, class) pairs with R̂ ≤ 1.1: the profile's convergence target
 
     def __post_init__(self) -> None:
-        require("chains", self.chains, self.chains >= 4, "≥ 4 (R-hat compares chains from dispersed starts)")
-        require("samples", self.samples, self.samples >= 4, "≥ 4 (split R-hat needs them)")
-        require("warmup", self.warmup, self.warmup >= 0, "≥ 0")
-        require("thin", self.thin, self.thin >= 1, "≥ 1")
-        require("bayesian_layers", self.bayesian_layers, self.bayesian_layers in (1, 2, 3, 4), "1, 2, 3 or 4")
-        require("leapfrog_steps", self.leapfrog_steps, self.leapfrog_steps >= 1, "≥ 1")
-        require("step_size", self.step_size, self.step_size > 0, "> 0")
-        require("target_accept", self.target_accept, 0 < self.target_accept < 1, "in (0, 1)")
-        require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
-        require("metric", self.metric, self.metric in ("laplace", "diagonal"), "laplace or diagonal")
-        require(
-            "metric",
-            self.metric,
-            self.metric != "laplace" or self.bayesian_layers == 1,
-            f"diagonal when bayesian_layers={self.bayesian_layers} (laplace whitens the last layer only)",
-        )
-        require("start_scale", self.start_scale, self.start_scale > 0, "> 0")
-        require("map_epochs", self.map_epochs, self.map_epochs >= 0, "≥ 0")
-        require("start_epochs", self.start_epochs, self.start_epochs >= 0, "≥ 0")
-        require("map_lr", self.map_lr, self.map_lr > 0, "> 0")
-        require("map_batch_size", self.map_batch_size, self.map_batch_size >= 1, "≥ 1")
-        require("diagnostic_frames", self.diagnostic_frames, self.diagnostic_frames >= 1, "≥ 1")
-        require("rhat_target_share", self.rhat_target_share, 0 < self.rhat_target_share <= 1, "in (0, 1]")
+        if self.metric == "laplace" and self.bayesian_layers != 1:
+            raise invalid(
+                "metric",
+                self.metric,
+                f"needs bayesian_layers=1, not {self.bayesian_layers} (laplace whitens the last layer only): "
+                "use metric=diagonal",
+            )
 
 
 def head_log_posterior(

@@ -19,33 +19,26 @@ local reparameterisation does): exact per frame, and n·C normals instead of n·
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.heads import fixed_layer_features, flatten_mcd_head, head_nll, head_size, train_heads, unflatten
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
-from uqdrive.models.training import TrainingData, curve_row, evaluate, require
+from uqdrive.models.training import TrainingData, curve_row, evaluate
+from uqdrive.schema import Bool, Count, Positive, Seed, schema
 
 PRIOR_GRID = torch.logspace(-4, 4, 161, dtype=torch.float64)  # candidate prior precisions λ
 CHOLESKY_JITTER = 1e-6
 
 
-@dataclass(frozen=True)
+@schema(frozen=True)
 class LaplaceSettings:
-    epochs: int  # Adam epochs from the MCD head to the MAP head
-    batch_size: int
-    lr: float
-    prior_sigma: float = 1.0  # prior of the MAP fit (and of the Laplace covariance unless optimise_prior)
-    optimise_prior: bool = True  # choose the last layer's prior precision by the Laplace evidence
-
-    def __post_init__(self) -> None:
-        require("epochs", self.epochs, self.epochs >= 0, "≥ 0")
-        require("batch_size", self.batch_size, self.batch_size >= 1, "≥ 1")
-        require("lr", self.lr, self.lr > 0, "> 0")
-        require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
+    epochs: Seed  # Adam epochs from the MCD head to the MAP head (0: the MCD head is the MAP)
+    batch_size: Count
+    lr: Positive
+    prior_sigma: Positive = 1.0  # prior of the MAP fit (and of the Laplace covariance unless optimise_prior)
+    optimise_prior: Bool = True  # choose the last layer's prior precision by the Laplace evidence
 
 
 def with_bias_input(phi: torch.Tensor) -> torch.Tensor:

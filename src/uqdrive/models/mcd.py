@@ -6,8 +6,6 @@ plain; dropout rates are learned (concrete dropout) rather than tuned by grid se
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import nn
 from torch.nn.functional import cross_entropy
@@ -17,25 +15,18 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.models.concrete_dropout import ConcreteDropout
 from uqdrive.models.pilotnet import Architecture, init_weights
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
-from uqdrive.models.training import TrainingData, compute_features, curve_row, evaluate, require
+from uqdrive.models.training import TrainingData, compute_features, curve_row, evaluate
+from uqdrive.schema import Count, NonNegative, OpenUnit, Positive, schema
 
 
-@dataclass(frozen=True)
+@schema(frozen=True)
 class MCDSettings:
-    epochs: int
-    batch_size: int
-    lr: float
-    init_p: float = 0.1
-    temperature: float = 0.1
-    lengthscale: float = 1e-4  # prior length scale l of concrete dropout's weight term l²/N
-
-    def __post_init__(self) -> None:
-        require("epochs", self.epochs, self.epochs >= 1, "≥ 1")
-        require("batch_size", self.batch_size, self.batch_size >= 1, "≥ 1")
-        require("lr", self.lr, self.lr > 0, "> 0")
-        require("init_p", self.init_p, 0 < self.init_p < 1, "in (0, 1)")
-        require("temperature", self.temperature, self.temperature > 0, "> 0")
-        require("lengthscale", self.lengthscale, self.lengthscale >= 0, "≥ 0")
+    epochs: Count
+    batch_size: Count
+    lr: Positive
+    init_p: OpenUnit = 0.1  # initial dropout rate of each of the three layers (learned from there)
+    temperature: Positive = 0.1  # of the concrete relaxation
+    lengthscale: NonNegative = 1e-4  # prior length scale l of concrete dropout's weight term l²/N
 
 
 class MCDPosterior(Posterior):

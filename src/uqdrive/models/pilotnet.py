@@ -9,36 +9,23 @@ per steering class. The trunk runs once per frame; only the head is sampled.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 
 import torch
 from torch import nn
 
-from uqdrive.checks import ConfigError
+from uqdrive.schema import Count, schema
 
 INPUT_SHAPE = (1, 48, 64)
 
 
-@dataclass(frozen=True)
+@schema(frozen=True)
 class Architecture:
     """Widths of the network; saved with every model so it can be rebuilt without the config."""
 
-    conv: tuple[int, ...] = (24, 36, 48, 64, 64)
-    features: int = 128  # first FC layer: the fixed features VI and HMC build on
-    hidden: tuple[int, ...] = field(default=(64, 32, 32))  # the head's hidden widths (4 FC layers in all)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "conv", tuple(int(c) for c in self.conv))
-        object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
-        if len(self.conv) != 5 or min(self.conv) < 1:
-            raise ConfigError(
-                f"arch.conv={list(self.conv)} must be 5 positive channel counts (PilotNet's 5 convolutions)"
-            )
-        if len(self.hidden) != 3 or min(self.hidden) < 1 or self.features < 1:
-            raise ConfigError(
-                f"arch.hidden={list(self.hidden)} must be 3 positive widths (4 head layers) "
-                f"and arch.features={self.features} positive"
-            )
+    conv: tuple[Count, Count, Count, Count, Count] = (24, 36, 48, 64, 64)  # PilotNet's 5 convolutions
+    features: Count = 128  # first FC layer: the fixed features VI and HMC build on
+    hidden: tuple[Count, Count, Count] = (64, 32, 32)  # the head's hidden widths (4 FC layers in all)
 
     def head_shapes(self, num_classes: int) -> list[tuple[int, int]]:
         """(in, out) of the four head layers."""

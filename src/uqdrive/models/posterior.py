@@ -25,14 +25,15 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import torch
 from torch import nn
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture, Trunk
+from uqdrive.schema import METHOD_NAME as METHOD_NAME_PATTERN
+from uqdrive.schema import ConfigError, plain, validate
 
 if TYPE_CHECKING:
     from uqdrive.models.training import TrainingData
 
-METHOD_NAME = re.compile(r"[a-z][a-z0-9_]*")
+METHOD_NAME = re.compile(METHOD_NAME_PATTERN)
 
 
 @dataclass
@@ -87,9 +88,9 @@ class Posterior(nn.Module, ABC):
 
 
 def check_draws(n: int) -> int:
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+    if int(n) != n or n < 1:
         raise ValueError(f"number of posterior draws n={n!r} must be a positive integer")
-    return n
+    return int(n)
 
 
 def is_method_name(name: object) -> bool:
@@ -135,6 +136,13 @@ def posterior_from_config(model: Any) -> type[Posterior]:
             f"model.name={method!r} does not match model._target_ {cls.__qualname__}, whose method is {cls.method!r}"
         )
     return cls
+
+
+def posterior_settings(model: Any) -> tuple[type[Posterior], Any]:
+    """The Posterior class a conf/model section names and its settings (the keys besides name and _target_)."""
+    cls = posterior_from_config(model)
+    settings = {k: v for k, v in plain(model).items() if k not in ("name", "_target_")}
+    return cls, validate(cls.Settings, settings, "model")
 
 
 def class_path(cls: type[Posterior]) -> str:

@@ -1,4 +1,4 @@
-"""What every method's `fit` shares: its data, settings checks, the trunk-feature cache and evaluation.
+"""What every method's `fit` shares: its data, the trunk-feature cache and evaluation.
 
 Head methods (VI, HMC, ensemble, Laplace) only ever see the base (MCD) model's trunk features,
 which are fixed, so `TrainingData` runs the convolutions once per split and every epoch /
@@ -7,13 +7,12 @@ leapfrog step reuses the tensor.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
 import torch
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet
 from uqdrive.models.checkpoint import load_posterior
@@ -23,20 +22,6 @@ from uqdrive.models.posterior import Posterior
 
 EVAL_CHUNK = 2048  # frames per head evaluation: bounds memory at n draws x chunk x classes
 BASE_METHOD = "mcd"  # the model whose trunk (and head, as a start) the head methods build on
-
-
-def require(name: str, value: object, ok: bool, allowed: str) -> None:
-    if not ok:
-        raise ConfigError(f"model.{name}={value!r} is invalid: must be {allowed}")
-
-
-def settings_from(cls: type, values: dict) -> object:
-    """Build a settings object from a config section, naming any unknown key."""
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise ConfigError(f"unknown model keys {unknown} for {cls.__name__}; allowed: {sorted(known)}")
-    return cls(**values)
 
 
 @dataclass

@@ -12,38 +12,30 @@ W ~ N(μ, σ²) is N(aμ, a²σ²) per unit, so we draw n·B·units normals inst
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 from torch import nn
 from torch.nn.functional import cross_entropy, softplus
 from tqdm import trange
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
-from uqdrive.models.training import TrainingData, curve_row, evaluate, require
+from uqdrive.models.training import TrainingData, curve_row, evaluate
+from uqdrive.schema import ConfigError, Count, Positive, schema
 
 
 def _inverse_softplus(y: float) -> float:
     return y + math.log(-math.expm1(-y))
 
 
-@dataclass(frozen=True)
+@schema(frozen=True)
 class VISettings:
-    epochs: int
-    batch_size: int
-    lr: float
-    prior_sigma: float = 1.0
-    init_sigma: float = 0.01
-
-    def __post_init__(self) -> None:
-        require("epochs", self.epochs, self.epochs >= 1, "≥ 1")
-        require("batch_size", self.batch_size, self.batch_size >= 1, "≥ 1")
-        require("lr", self.lr, self.lr > 0, "> 0")
-        require("prior_sigma", self.prior_sigma, self.prior_sigma > 0, "> 0")
-        require("init_sigma", self.init_sigma, self.init_sigma > 0, "> 0")
+    epochs: Count
+    batch_size: Count
+    lr: Positive
+    prior_sigma: Positive = 1.0  # prior N(0, prior_sigma²) on every head weight and bias
+    init_sigma: Positive = 0.01  # initial posterior std (means start at the MCD head)
 
 
 class VIPosterior(Posterior):

@@ -18,20 +18,17 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tqdm import tqdm
 
-from uqdrive import checks
-from uqdrive.checks import ConfigError
-from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.pipeline.avoid_cells import Cell, traces_of
+from uqdrive.pipeline.avoid_config import AvoidStage, CalibrationSettings
 from uqdrive.pipeline.avoid_outputs import write_outputs
 from uqdrive.pipeline.safety import code_digest
 from uqdrive.safety.calibration import calibrate, min_known_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_hash, cell_posterior, estimate_safety, file_digest
 from uqdrive.safety.executors import (
-    BACKENDS,
     Executor,
     PolicySpec,
     ProcessPool,
@@ -43,49 +40,11 @@ from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig, classify
-from uqdrive.sim import (
-    CameraConfig,
-    ScenarioConfig,
-    ScenarioGeometry,
-    VehicleConfig,
-    WeatherConfig,
-    build_geometry,
-    check_noise,
-)
+from uqdrive.schema import ConfigError, validate
+from uqdrive.sim import CameraConfig, ScenarioConfig, ScenarioGeometry, VehicleConfig, WeatherConfig, build_geometry
 
 KNOWN = "known"
 MODES = ("off", "on", "calibrated")
-UNKNOWN_KEYS = ("name", "weather", "noise", "scenario")
-
-
-@dataclasses.dataclass(frozen=True)
-class CalibrationSettings:
-    """Threshold calibration: known-condition autonomy must have an exact lower bound (level 1 − ``gamma``)
-    ≥ ``autonomy_target``; among those, the most replayed unknown-condition safety."""
-
-    autonomy_target: float
-    gamma: float
-    margin_m: float
-    deltas: tuple[float, ...]
-    taus: tuple[float, ...]
-
-    def __post_init__(self) -> None:
-        for name in ("autonomy_target", "gamma"):
-            if not 0 < checks.finite_number(f"avoid.calibration.{name}", getattr(self, name)) < 1:
-                raise ConfigError(
-                    f"avoid.calibration.{name}={getattr(self, name)!r} must be in the open interval (0, 1)"
-                )
-        if not checks.finite_number("avoid.calibration.margin_m", self.margin_m) >= 0:
-            raise ConfigError(f"avoid.calibration.margin_m={self.margin_m!r} must be a number of metres >= 0")
-        for name, ok, allowed in (("deltas", lambda v: 0 <= v <= 1, "in [0, 1]"), ("taus", lambda v: v >= 0, ">= 0")):
-            values = getattr(self, name)
-            if (
-                isinstance(values, (str, bytes))
-                or not values
-                or not all(ok(checks.finite_number(f"avoid.calibration.{name}", v)) for v in values)
-            ):
-                raise ConfigError(f"avoid.calibration.{name}={values!r} must be a non-empty list of numbers {allowed}")
-            object.__setattr__(self, name, tuple(sorted({float(v) for v in values})))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,39 +98,18 @@ class AvoidSettings:
         return {c.name: build_geometry(c.scenario) for c in self.conditions}
 
 
-def _unknown_conditions(cfg: DictConfig, scenario: ScenarioConfig) -> tuple[Condition, ...]:
-    items = OmegaConf.to_container(cfg.avoid.unknown, resolve=True)
-    if not isinstance(items, list) or not items:
-        raise ConfigError(
-            f"avoid.unknown={items!r} must be a non-empty list of conditions (each with keys {list(UNKNOWN_KEYS)})"
+def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...]:
+    """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather."""
+    weathers = {stage.weather.name: stage.weather, **stage.weathers}
+    return tuple(
+        Condition(
+            item.name,
+            ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
+            weathers[item.weather or stage.weather.name],
+            item.noise,
         )
-    weathers = {cfg.weather.name: cfg.weather, **dict(cfg.get("weathers") or {})}
-    out = []
-    for i, item in enumerate(items):
-        key = f"avoid.unknown[{i}]"
-        if not isinstance(item, dict) or set(item) - set(UNKNOWN_KEYS) or not item.get("name"):
-            raise ConfigError(f"{key}={item!r} must be a mapping with a name and keys among {list(UNKNOWN_KEYS)}")
-        if item["name"] == KNOWN:
-            raise ConfigError(f"{key}.name={KNOWN!r} is the training condition's name; choose another")
-        name = item.get("weather", cfg.weather.name)
-        if name not in weathers:
-            raise ConfigError(
-                f"{key}.weather={name!r} is not loaded; choose one of {sorted(weathers)} or add "
-                f"+weather@weathers.{name}={name}"
-            )
-        overrides = item.get("scenario") or {}
-        if not isinstance(overrides, dict):
-            raise ConfigError(f"{key}.scenario={overrides!r} must be a mapping of scenario fields")
-        try:
-            condition_scenario = ScenarioConfig.from_config({**scenario.to_dict(), **overrides})
-            noise = check_noise(item.get("noise", 0.0))
-        except ValueError as err:
-            raise ConfigError(f"{key}: {err}") from err
-        out.append(Condition(str(item["name"]), condition_scenario, WeatherConfig.from_config(weathers[name]), noise))
-    names = [c.name for c in out]
-    if len(set(names)) != len(names):
-        raise ConfigError(f"avoid.unknown names {names} must be unique")
-    return tuple(out)
+        for item in stage.avoid.unknown
+    )
 
 
 def check_horizon(
@@ -199,21 +137,11 @@ def check_horizon(
 
 def build_settings(cfg: DictConfig) -> AvoidSettings:
     """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
-    method = posterior_from_config(cfg.model).method
-    if cfg.executor.name not in BACKENDS:
-        raise ConfigError(f"executor.name={cfg.executor.name!r} is not a known backend; choose one of {list(BACKENDS)}")
-    checks.integer("executor.workers", cfg.executor.workers, 1)
-    warning = WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True))
-    estimator = EstimatorSettings.from_section(cfg.avoid, "avoid")
-    validation_seed = checks.integer("avoid.validation_seed", cfg.avoid.validation_seed, 0)
-    vehicle = VehicleConfig.from_config(cfg.vehicle)
-    speed = checks.speed("avoid.speed", cfg.avoid.speed, vehicle.max_speed)
-    scenario = ScenarioConfig.from_config(cfg.scenario)
-    if scenario.kind != "obstacle":
-        raise ConfigError(f"scenario.kind={scenario.kind!r}: the avoid stage needs an 'obstacle' scenario")
-    horizon = check_horizon(checks.seconds("avoid.horizon_s", cfg.avoid.horizon_s), warning, speed, scenario, vehicle)
-    known = Condition(KNOWN, scenario, WeatherConfig.from_config(cfg.weather), check_noise(cfg.avoid.known_noise))
-    calibration = CalibrationSettings(**OmegaConf.to_container(cfg.avoid.calibration, resolve=True))
+    stage = validate(AvoidStage, cfg)
+    avoid, warning, estimator = stage.avoid, stage.warning, stage.avoid.estimator
+    method = posterior_from_config(stage.model).method
+    horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
+    calibration = avoid.calibration
     needed = min_known_runs(calibration.autonomy_target, calibration.gamma)
     if estimator.scheme != "sequential" and estimator.planned_rollouts() < needed:
         raise ConfigError(
@@ -221,25 +149,23 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
             f"{estimator.planned_rollouts()} known-condition runs (it needs {needed}); lower it or "
             "tighten avoid.theta"
         )
-    bins = SteeringBins(**cfg.experiment.bins)
-    model_path = Path(cfg.avoid.model_path)
+    bins = stage.experiment.bins
+    model_path = Path(avoid.model_path)
     cell_posterior("avoid.model_path", model_path, method, bins)
-    if not checks.finite_number("avoid.eps", cfg.avoid.eps) > 0:
-        raise ConfigError(f"avoid.eps={cfg.avoid.eps!r} must be a number > 0 (steering units)")
-    spec = PolicySpec("bnn", speed, str(model_path), method, bins, warning.samples, float(cfg.avoid.eps))
+    spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
     return AvoidSettings(
         method,
         spec,
         file_digest(model_path),
         warning,
         estimator,
-        validation_seed,
-        known,
-        _unknown_conditions(cfg, scenario),
+        avoid.validation_seed,
+        Condition(KNOWN, stage.scenario, stage.weather, avoid.known_noise),
+        _unknown_conditions(stage),
         calibration,
-        CameraConfig.from_config(cfg.camera),
-        vehicle,
-        float(cfg.control_hz),
+        stage.camera,
+        stage.vehicle,
+        float(stage.control_hz),
         horizon,
     )
 
@@ -298,7 +224,7 @@ def run_cell(
         job,
         cfg.executor.workers,
         pool,
-        **executor_options(OmegaConf.to_container(cfg.executor, resolve=True)),
+        **executor_options(cfg.executor),
     )
     if off is not None:
         executor = ReusingExecutor(executor, unchanged_by(warning, off))

@@ -34,7 +34,7 @@ from uqdrive.plots import (
 )
 from uqdrive.safety.calibration import Calibration, Traces, replay
 from uqdrive.sim import ScenarioGeometry
-from uqdrive.tracking import stage_run
+from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq.pooled import pooled
 
 if TYPE_CHECKING:
@@ -142,13 +142,7 @@ def _log_run(cfg: DictConfig, settings: AvoidSettings, cell: Cell, metrics: dict
     }
     with stage_run(cfg.paths.root, "avoid", cfg, run_name=cell.name) as run:
         mlflow.log_params(params)
-        mlflow.log_metrics(
-            {
-                k: float(v)
-                for k, v in metrics.items()
-                if isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
-            }
-        )
+        mlflow.log_metrics(numeric_metrics(metrics))
         for path in artifacts:
             mlflow.log_artifact(str(path))
         return run.info.run_id

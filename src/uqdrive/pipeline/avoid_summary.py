@@ -12,7 +12,9 @@ from omegaconf import DictConfig
 
 from uqdrive import paper
 from uqdrive.files import write_json
+from uqdrive.pipeline.configs import NonEmptyNames, Stage
 from uqdrive.plots import avoid_trajectories_figure, save_figure
+from uqdrive.schema import Str, schema, validate
 
 SUMMARY_KEYS = (
     "eta1",
@@ -35,9 +37,24 @@ SUMMARY_KEYS = (
 COLUMNS = (("known", "on"), ("unknown", "off"), ("unknown", "on"), ("unknown", "calibrated"))
 
 
+@schema
+class AvoidSummarySection:
+    results_dir: Str
+    data_dir: Str
+    out: Str
+    figures_dir: Str
+
+
+@schema(root=True)
+class AvoidSummaryStage(Stage):
+    methods: NonEmptyNames
+    summary: AvoidSummarySection
+
+
 def run_avoid_summary(cfg: DictConfig) -> dict:
     """Every method's cells and calibration beside the paper's numbers, and one figure of all methods'
     paths (known with warnings on; the unknown conditions off, on and calibrated)."""
+    validate(AvoidSummaryStage, cfg)
     results_dir, data_dir = Path(cfg.summary.results_dir), Path(cfg.summary.data_dir)
     table: dict = {"paper": paper.to_dict()}
     panels = {}

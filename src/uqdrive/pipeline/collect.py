@@ -3,43 +3,58 @@
 from __future__ import annotations
 
 import dataclasses
-import re
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Annotated
 
 import mlflow
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
+from pydantic import Field
 from tqdm import tqdm
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.frames import encode_png
 from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
 from uqdrive.files import atomic_path, write_json
 from uqdrive.parallel import ProcessPool
+from uqdrive.pipeline.configs import Stage, Sweep
 from uqdrive.pipeline.sweeps import grid, run_cells
 from uqdrive.plots import mosaic
-from uqdrive.sim import (
-    Autopilot,
-    AutopilotConfig,
-    CameraConfig,
-    DrivingEnv,
-    ScenarioConfig,
-    VehicleConfig,
-    WeatherConfig,
-    check_noise,
-)
+from uqdrive.schema import Count, NonNegative, Seed, Str, schema, validate
+from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.config import SimConfig
 from uqdrive.tracking import stage_run
 
+FileName = Annotated[Str, Field(pattern=r"^[A-Za-z0-9_-][A-Za-z0-9_.-]*$")]  # letters, digits, _ - . (no folders)
 
-def make_env(cfg: DictConfig) -> DrivingEnv:
-    return DrivingEnv(
-        camera=CameraConfig.from_config(cfg.camera),
-        vehicle=VehicleConfig.from_config(cfg.vehicle),
-        control_hz=cfg.control_hz,
-        horizon_s=cfg.horizon_s,
-    )
+
+@schema
+class CollectSection:
+    out: Str
+    name: FileName  # the MLflow run, and file names
+    metrics: Str
+    mosaic: Str
+    episodes: Count
+    base_seed: Seed
+    workers: Count
+    mosaic_rows: Seed
+    mosaic_columns: Count
+
+
+@schema(root=True)
+class CollectStage(SimConfig, Stage):
+    """`stages/collect.py` (and each condition of `stages/heldout.py`)."""
+
+    scenario: ScenarioConfig
+    weather: WeatherConfig
+    noise: NonNegative
+    collect: CollectSection
+
+
+@schema(root=True)
+class HeldoutStage(CollectStage):
+    sweep: Sweep
 
 
 def record_episode(
@@ -75,32 +90,41 @@ def record_episode(
 
 @dataclasses.dataclass(frozen=True)
 class EpisodeJob:
-    """Autopilot episodes of one collect config (a plain, picklable copy), for `uqdrive.parallel.ProcessPool`."""
+    """Autopilot episodes of one collect config, for `uqdrive.parallel.ProcessPool` (only the world's settings:
+    a worker imports no more than the simulator)."""
 
-    cfg: dict
+    sim: SimConfig
+    scenario: ScenarioConfig
+    weather: WeatherConfig
+    noise: float
+    base_seed: int
+    mosaic_columns: int
+
+    @classmethod
+    def of(cls, stage: CollectStage) -> EpisodeJob:
+        sim = SimConfig(stage.control_hz, stage.horizon_s, stage.camera, stage.vehicle, stage.autopilot)
+        collect = stage.collect
+        return cls(sim, stage.scenario, stage.weather, stage.noise, collect.base_seed, collect.mosaic_columns)
 
     def worker(self) -> EpisodeWorker:
-        return EpisodeWorker(DictConfig(self.cfg))
+        return EpisodeWorker(self)
 
 
 class EpisodeWorker:
     """One env (its own pybullet client) reused for every episode this process records."""
 
-    def __init__(self, cfg: DictConfig):
-        self.cfg = cfg
-        self.env = make_env(cfg)
-        self.autopilot = AutopilotConfig.from_config(cfg.autopilot)
-        self.scenario = ScenarioConfig.from_config(cfg.scenario)
-        self.weather = WeatherConfig.from_config(cfg.weather)
+    def __init__(self, job: EpisodeJob):
+        self.job = job
+        self.env = DrivingEnv(job.sim.camera, job.sim.vehicle, job.sim.control_hz, job.sim.horizon_s)
 
     def run(self, episode: int) -> tuple[int, dict[str, list], str, list[np.ndarray]]:
         """Episode ``episode`` (seed collect.base_seed + episode): its seed, rows, termination and mosaic frames."""
-        cfg = self.cfg
-        seed = cfg.collect.base_seed + episode
+        job = self.job
+        seed = job.base_seed + episode
         rows, termination, frames = record_episode(
-            self.env, self.autopilot, seed, self.scenario, self.weather, cfg.noise
+            self.env, job.sim.autopilot, seed, job.scenario, job.weather, job.noise
         )
-        picks = np.linspace(0, len(frames) - 1, cfg.collect.mosaic_columns + 2)[1:-1].astype(int)
+        picks = np.linspace(0, len(frames) - 1, job.mosaic_columns + 2)[1:-1].astype(int)
         return seed, rows, termination, [frames[i] for i in picks]
 
     def close(self) -> None:
@@ -108,29 +132,29 @@ class EpisodeWorker:
 
 
 def iter_episodes(
-    cfg: DictConfig, outcomes: Counter, mosaic_frames: list[np.ndarray], pool: ProcessPool | None = None
+    stage: CollectStage, outcomes: Counter, mosaic_frames: list[np.ndarray], pool: ProcessPool | None = None
 ) -> Iterator[dict[str, list]]:
     """Yield one column batch per episode, in episode order whatever the worker count. ``pool``: worker
     processes shared with other collections (the `heldout` stage's conditions), else the stage's own."""
-    job = EpisodeJob(OmegaConf.to_container(cfg, resolve=True))
-    executor = (pool or ProcessPool(cfg.collect.workers, "collect.workers")).executor(job, owns_pool=pool is None)
+    collect = stage.collect
+    executor = (pool or ProcessPool(collect.workers)).executor(EpisodeJob.of(stage), owns_pool=pool is None)
     progress = tqdm(
-        executor.run(range(cfg.collect.episodes)),
-        total=cfg.collect.episodes,
-        desc=f"collect {cfg.collect.name}",
+        executor.run(range(collect.episodes)),
+        total=collect.episodes,
+        desc=f"collect {collect.name}",
         unit="episode",
-        disable=not cfg.progress,
+        disable=not stage.progress,
     )
     try:
         for episode, (seed, rows, termination, picks) in enumerate(progress):
             outcomes[termination] += 1
-            if episode < cfg.collect.mosaic_rows:
+            if episode < collect.mosaic_rows:
                 mosaic_frames.extend(picks)
             n = len(rows["step"])
             yield {
-                "scenario": [cfg.scenario.name] * n,
-                "weather": [cfg.weather.name] * n,
-                "noise": [cfg.noise] * n,
+                "scenario": [stage.scenario.name] * n,
+                "weather": [stage.weather.name] * n,
+                "noise": [stage.noise] * n,
                 "episode": [episode] * n,
                 "seed": [seed] * n,
                 **rows,
@@ -139,37 +163,24 @@ def iter_episodes(
         executor.close()
 
 
-def check_name(name: object) -> str:
-    """`collect.name` becomes file names, so it must be a plain one: no folders, nothing a shell would mangle."""
-    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name.startswith("."):
-        raise ConfigError(
-            f"collect.name={name!r} must be a plain file name: letters, digits, '_', '-', '.' (not starting with '.')"
-        )
-    return name
-
-
 def run_collect(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
-    """Record cfg.collect.episodes autopilot episodes; ``pool``: worker processes shared by many collections."""
-    ScenarioConfig.from_config(cfg.scenario)
-    name = check_name(cfg.collect.name)
-    WeatherConfig.from_config(cfg.weather)
-    check_noise(cfg.noise)
-    if cfg.collect.episodes < 1:
-        raise ConfigError(f"collect.episodes={cfg.collect.episodes} must be >= 1")
-    out = Path(cfg.collect.out)
+    """Record collect.episodes autopilot episodes; ``pool``: worker processes shared by many collections."""
+    stage = validate(CollectStage, cfg)
+    name, episodes = stage.collect.name, stage.collect.episodes
+    out = Path(stage.collect.out)
     outcomes: Counter = Counter()
     mosaic_frames: list[np.ndarray] = []
-    frames = write_table_batches(out, RAW_SCHEMA, iter_episodes(cfg, outcomes, mosaic_frames, pool))
+    frames = write_table_batches(out, RAW_SCHEMA, iter_episodes(stage, outcomes, mosaic_frames, pool))
     metrics = {
-        "episodes": cfg.collect.episodes,
+        "episodes": episodes,
         "frames": frames,
-        "route_complete_fraction": outcomes["route_complete"] / cfg.collect.episodes,
+        "route_complete_fraction": outcomes["route_complete"] / episodes,
         **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")},
     }
-    write_json(cfg.collect.metrics, metrics)
-    mosaic_path = Path(cfg.collect.mosaic)
+    write_json(stage.collect.metrics, metrics)
+    mosaic_path = Path(stage.collect.mosaic)
     with atomic_path(mosaic_path) as tmp:
-        tmp.write_bytes(encode_png(mosaic(mosaic_frames, cfg.collect.mosaic_columns)))
+        tmp.write_bytes(encode_png(mosaic(mosaic_frames, stage.collect.mosaic_columns)))
     with stage_run(cfg.paths.root, "collect", cfg, run_name=name):
         mlflow.log_metrics(metrics)
         mlflow.log_artifact(str(mosaic_path))
@@ -179,9 +190,10 @@ def run_collect(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
 def run_heldout(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, dict]]:
     """Held-out frames in every condition of ``cfg.sweep`` (weathers × noises) in this process, on one pool of
     workers; yields each condition's config and result as it finishes (`uqdrive.pipeline.sweeps`)."""
-    cells = grid(weather=cfg.sweep.weathers, noise=cfg.sweep.noises)
-    pool = ProcessPool(cfg.collect.workers, "collect.workers")
-    yield from run_cells("heldout", overrides, cells, run_collect, pool, cfg.progress)
+    stage = validate(HeldoutStage, cfg)
+    cells = grid(weather=cfg.sweep.weathers, noise=cfg.sweep.noises)  # as written, as the single-condition command
+    pool = ProcessPool(stage.collect.workers)
+    yield from run_cells("heldout", overrides, cells, CollectStage, run_collect, pool, stage.progress)
 
 
 def describe(result: dict) -> str:

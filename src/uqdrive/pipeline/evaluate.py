@@ -22,7 +22,6 @@ import torch
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet, frames_from_table
 from uqdrive.data.preprocess import Split, preprocess_raw
@@ -31,9 +30,11 @@ from uqdrive.files import write_csv, write_json
 from uqdrive.models.agreement import agreement_with_reference
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.metrics import classification_metrics, mistake_auroc, reliability_bins
-from uqdrive.models.posterior import Posterior, is_method_name
+from uqdrive.models.posterior import Posterior
+from uqdrive.pipeline.configs import Experiment, Named, NonEmptyMethodNames, NonEmptyNames, NonEmptyNoises, Stage
 from uqdrive.plots import condition_lines_figure, reliability_grid, save_figure
 from uqdrive.resolvers import noise_label
+from uqdrive.schema import Count, Positive, Str, schema, validate
 from uqdrive.tracking import stage_run
 from uqdrive.uq import frame_measures
 
@@ -53,22 +54,24 @@ AGREEMENT_PLOTTED = [
 ]
 
 
-@dataclass(frozen=True)
-class EvaluateSettings:
-    samples: int  # posterior draws per frame
-    eps: float  # η2's ball, steering units
-    batch_size: int
+@schema
+class EvaluateSection:
+    heldout_dir: Str
+    samples: Count  # posterior draws per frame
+    eps: Positive  # η2's ball, steering units
+    batch_size: Count
+    out: Str
+    plots_dir: Str
 
-    def __post_init__(self) -> None:
-        for key, value in (("samples", self.samples), ("batch_size", self.batch_size)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ConfigError(f"evaluate.{key}={value!r} must be an integer >= 1")
-        if (
-            isinstance(self.eps, bool)
-            or not isinstance(self.eps, (int, float))
-            or not (math.isfinite(self.eps) and self.eps > 0)
-        ):
-            raise ConfigError(f"evaluate.eps={self.eps!r} must be a number > 0 (steering units)")
+
+@schema(root=True)
+class EvaluateStage(Stage):
+    experiment: Experiment
+    scenario: Named  # where the held-out frames were collected
+    methods: NonEmptyMethodNames
+    weathers: NonEmptyNames
+    noises: NonEmptyNoises
+    evaluate: EvaluateSection
 
 
 @dataclass(frozen=True)
@@ -91,14 +94,9 @@ class Condition:
         return folder / f"{scenario}-{self.weather}-{self.key}.parquet"
 
 
-def conditions_from(cfg: DictConfig) -> list[Condition]:
-    """weathers × noises, checked: non-empty lists of names and of numbers >= 0."""
-    weathers, noises = list(cfg.weathers), list(cfg.noises)
-    if not weathers or not all(isinstance(w, str) and w for w in weathers):
-        raise ConfigError(f"weathers={weathers!r} must be a non-empty list of weather names (conf/weather/)")
-    if not noises or not all(isinstance(n, (int, float)) and not isinstance(n, bool) and n >= 0 for n in noises):
-        raise ConfigError(f"noises={noises!r} must be a non-empty list of numbers >= 0 (pixel-noise sigma)")
-    return [Condition(w, n) for w in weathers for n in noises]
+def conditions_from(stage: EvaluateStage) -> list[Condition]:
+    """weathers × noises."""
+    return [Condition(w, n) for w in stage.weathers for n in stage.noises]
 
 
 def check_inputs(cfg: DictConfig, methods: list[str], conditions: list[Condition]) -> dict[str, Path]:
@@ -149,7 +147,7 @@ def cell_generator(seed: int, method: str, condition: Condition) -> torch.Genera
 
 @torch.no_grad()
 def predict(
-    posterior: Posterior, frames: FrameSet, settings: EvaluateSettings, centres: np.ndarray, generator: torch.Generator
+    posterior: Posterior, frames: FrameSet, settings: EvaluateSection, centres: np.ndarray, generator: torch.Generator
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Predictive probabilities [B, C], η2 [B] and mutual information [B] of every frame, batch by batch
     (only one batch's [samples, batch, C] draws are held at a time)."""
@@ -271,15 +269,9 @@ def write_outputs(
 def run_evaluate(cfg: DictConfig) -> dict:
     """Evaluate every method of `methods` on the held-out frames of every weather × noise; returns the table,
     the output paths and the MLflow run id of each method."""
-    settings = EvaluateSettings(cfg.evaluate.samples, cfg.evaluate.eps, cfg.evaluate.batch_size)
-    bins = SteeringBins(**cfg.experiment.bins)
-    methods = list(cfg.methods)
-    if not methods or not all(is_method_name(m) for m in methods):
-        raise ConfigError(
-            f"methods={methods!r} must be a non-empty list of method names (conf/model/<name>.yaml: "
-            f"lower-case letters, digits and _)"
-        )
-    conditions = conditions_from(cfg)
+    stage = validate(EvaluateStage, cfg)
+    settings, bins, methods = stage.evaluate, stage.experiment.bins, list(stage.methods)
+    conditions = conditions_from(stage)
     model_paths = check_inputs(cfg, methods, conditions)
     posteriors = {m: load_posterior(path, expected_method=m, expected_classes=bins) for m, path in model_paths.items()}
     folder = Path(cfg.evaluate.heldout_dir)

@@ -10,22 +10,32 @@ import pyarrow as pa
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from uqdrive.checks import ConfigError
-from uqdrive.data.binning import SteeringBins
 from uqdrive.data.preprocess import Split, class_histogram, preprocess_raw
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, read_table, write_table_batches
 from uqdrive.files import write_csv, write_json
+from uqdrive.pipeline.configs import Experiment, Stage
 from uqdrive.plots import class_histogram_figure, save_figure
+from uqdrive.schema import OpenUnit, Seed, schema, validate
 from uqdrive.tracking import stage_run
 
 
+@schema
+class PreprocessSection:
+    val_fraction: OpenUnit
+    split_seed: Seed
+
+
+@schema(root=True)
+class PreprocessStage(Stage):
+    experiment: Experiment
+    preprocess: PreprocessSection
+
+
 def run_preprocess(cfg: DictConfig) -> dict:
-    bins = SteeringBins(**cfg.experiment.bins)
-    split = Split(val_fraction=cfg.preprocess.val_fraction, seed=cfg.preprocess.split_seed)
+    stage = validate(PreprocessStage, cfg)
+    bins, scenarios = stage.experiment.bins, list(stage.experiment.scenarios)
+    split = Split(val_fraction=stage.preprocess.val_fraction, seed=stage.preprocess.split_seed)
     raw_dir, out_dir = Path(cfg.paths.raw), Path(cfg.paths.processed)
-    scenarios = list(cfg.experiment.scenarios)
-    if not scenarios:
-        raise ConfigError(f"experiment.scenarios={scenarios} is empty: name at least one collected scenario")
 
     parts: dict[str, list[pa.Table]] = {"train": [], "val": []}
     steering = []

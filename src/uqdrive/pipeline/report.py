@@ -18,6 +18,7 @@ import mlflow
 from omegaconf import DictConfig
 
 from uqdrive.files import atomic_path, write_json
+from uqdrive.pipeline.configs import NonEmptyNames, NonEmptyNoises, Stage
 from uqdrive.pipeline.report_document import Report, fmt, read_json, table
 from uqdrive.pipeline.report_experiments import (
     avoid_section,
@@ -26,6 +27,7 @@ from uqdrive.pipeline.report_experiments import (
     safety_section,
     training_section,
 )
+from uqdrive.schema import Str, schema, validate
 from uqdrive.tracking import stage_run
 from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_scheme
 
@@ -41,6 +43,25 @@ PACKAGES = (
     "numpy",
     "scipy",
 )
+
+
+@schema
+class ReportSection:
+    out_dir: Str
+    summary: Str
+
+
+@schema(root=True)
+class ReportStage(Stage):
+    profile_name: Str
+    experiments: NonEmptyNames
+    train_weather: Str
+    posteriors: NonEmptyNames
+    methods: NonEmptyNames
+    weathers: NonEmptyNames
+    noises: NonEmptyNoises
+    locations: NonEmptyNames
+    report: ReportSection
 
 
 def _git_commit(root: Path) -> str:
@@ -240,6 +261,7 @@ def headline_metrics(cfg: DictConfig, metrics_dir: Path, summary: dict, avoided:
 
 
 def run_report(cfg: DictConfig) -> dict:
+    validate(ReportStage, cfg)
     root = Path(cfg.paths.root)
     metrics_dir = Path(cfg.paths.metrics)
     out_dir = Path(cfg.report.out_dir)

@@ -17,7 +17,7 @@ def fmt(value: object, digits: int = 3) -> str:
     """The one number format of the report (tests parse it back): fixed decimals, '–' for missing/NaN."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "–"
-    if isinstance(value, bool) or isinstance(value, int):
+    if isinstance(value, int):  # and bool
         return str(value)
     return f"{float(value):.{digits}f}"
 

@@ -18,19 +18,19 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import mlflow
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tqdm import tqdm
 
-from uqdrive import checks
-from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.posterior import posterior_from_config
+from uqdrive.pipeline.configs import Executor, ModelStage, NonEmptyNames, NonEmptyNoises, Stage, Sweep
 from uqdrive.pipeline.sweeps import grid, run_cells
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
 from uqdrive.resolvers import noise_label
 from uqdrive.safety.cells import (
     EstimatorSettings,
+    Scheme,
     cell_hash,
     cell_posterior,
     estimate_safety,
@@ -38,23 +38,82 @@ from uqdrive.safety.cells import (
     rates,
     reusable_result,
 )
-from uqdrive.safety.controller import Controller
 from uqdrive.safety.executors import PolicySpec, ProcessPool, RolloutJob, executor_options, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
-from uqdrive.safety.safe_sets import SafeSet, check_half_width, safe_set_for
-from uqdrive.sim import (
-    CameraConfig,
-    ScenarioConfig,
-    ScenarioGeometry,
-    VehicleConfig,
-    WeatherConfig,
-    build_geometry,
-    check_noise,
-)
-from uqdrive.tracking import stage_run
+from uqdrive.safety.safe_sets import SafeSet, safe_set_for
+from uqdrive.schema import Count, NonNegative, OpenUnit, Positive, Seed, Str, invalid, schema, validate
+from uqdrive.sim import ScenarioGeometry, build_geometry
+from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.tracking import numeric_metrics, stage_run
 
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
+
+
+@schema
+class SafetySection:
+    """conf/safety.yaml's `safety`: one cell's estimator, controller and outputs."""
+
+    model_path: Str
+    horizon_s: Positive  # T
+    scheme: Scheme
+    theta: OpenUnit
+    gamma: OpenUnit
+    look_size: Count
+    base_seed: Seed
+    speed: Positive  # m/s, at most vehicle.max_speed
+    samples: Count  # posterior draws per frame
+    eps: Positive  # η2's ball, steering units
+    half_width: Positive | None  # corridor half-width (m); None = the lane
+    cell: Str
+    out: Str
+    positions: Str
+    rollout_log: Str
+    plots_dir: Str
+
+    @property
+    def estimator(self) -> EstimatorSettings:
+        return EstimatorSettings(self.scheme, self.theta, self.gamma, self.base_seed, self.look_size)
+
+
+@schema(root=True)
+class SafetyStage(SimConfig, ModelStage):
+    """`stages/safety.py`: one cell of the offline-safety sweep."""
+
+    scenario: ScenarioConfig
+    weather: WeatherConfig
+    noise: NonNegative
+    executor: Executor
+    safety: SafetySection
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.safety.speed > self.vehicle.max_speed:
+            raise invalid("safety.speed", self.safety.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
+
+
+@schema(root=True)
+class SafetySweepStage(SafetyStage):
+    """`stages/safety_sweep.py`: every cell of `sweep` (each cell is also checked as a `SafetyStage`)."""
+
+    sweep: Sweep
+
+
+@schema
+class SafetySummarySection:
+    cells_dir: Str
+    positions_dir: Str
+    out: Str
+    figures_dir: Str
+
+
+@schema(root=True)
+class SafetySummaryStage(Stage):
+    methods: NonEmptyNames
+    weathers: NonEmptyNames
+    noises: NonEmptyNoises
+    locations: NonEmptyNames
+    summary: SafetySummarySection
 
 
 def code_digest() -> str:
@@ -67,37 +126,35 @@ def code_digest() -> str:
 def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
     """Validate the cell's config and load its model once; returns the job, the estimator and the cell hash.
 
-    Raises before any rollout on an unknown method, a missing or mismatched model file, or a
-    bad value (the message names the key, the value and what is allowed).
+    Raises before any rollout on a bad config value (one line naming the key, the value and what is
+    allowed), a missing or mismatched model file.
     """
-    method = posterior_from_config(cfg.model).method
-    settings = EstimatorSettings.from_section(cfg.safety, "safety")
-    vehicle = VehicleConfig.from_config(cfg.vehicle)
-    bins = SteeringBins(**cfg.experiment.bins)
-    model_path = Path(cfg.safety.model_path)
-    posterior = cell_posterior("safety.model_path", model_path, method, bins)
-    speed = checks.speed("safety.speed", cfg.safety.speed, vehicle.max_speed)
-    Controller(posterior, bins, cfg.safety.samples, cfg.safety.eps, speed)  # checks samples and eps as workers will
-    spec = PolicySpec("bnn", speed, str(model_path), method, bins, cfg.safety.samples, cfg.safety.eps)
+    stage = validate(SafetyStage, cfg)
+    safety = stage.safety
+    method = posterior_from_config(stage.model).method
+    bins = stage.experiment.bins
+    model_path = Path(safety.model_path)
+    cell_posterior("safety.model_path", model_path, method, bins)
+    spec = PolicySpec("bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps)
     job = RolloutJob(
         policy=spec,
-        scenario=ScenarioConfig.from_config(cfg.scenario),
-        weather=WeatherConfig.from_config(cfg.weather),
-        noise=check_noise(cfg.noise),
-        base_seed=settings.base_seed,
-        camera=CameraConfig.from_config(cfg.camera),
-        vehicle=vehicle,
-        control_hz=cfg.control_hz,
-        horizon_s=checks.seconds("safety.horizon_s", cfg.safety.horizon_s),
-        half_width=check_half_width(cfg.safety.half_width),
+        scenario=stage.scenario,
+        weather=stage.weather,
+        noise=stage.noise,
+        base_seed=safety.base_seed,
+        camera=stage.camera,
+        vehicle=stage.vehicle,
+        control_hz=stage.control_hz,
+        horizon_s=safety.horizon_s,
+        half_width=safety.half_width,
     )
     identity = {
         "model_sha256": file_digest(model_path),
         "code": code_digest(),
         "job": {**job.__dict__, "policy": {k: v for k, v in spec.__dict__.items() if k != "model_path"}},
-        "estimator": settings.__dict__,
+        "estimator": safety.estimator.__dict__,
     }
-    return job, settings, cell_hash(identity)
+    return job, safety.estimator, cell_hash(identity)
 
 
 def _positions(results: list[RolloutResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -157,15 +214,12 @@ def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
     its log holds. ``pool``: worker processes shared by many cells (`run_safety_sweep`), else the cell's own.
     ``reused`` in the result: nothing was simulated."""
     job, settings, key = build_job(cfg)
-    workers = checks.integer("executor.workers", cfg.executor.workers, 1)
     out = Path(cfg.safety.out)
     previous = reusable_result(out, key)
     if previous is not None:
         log_cell(cfg, previous, [p for p in _cell_files(cfg) if p.exists()], reused=True)
         return {**previous, "reused": True}
-    executor = make_executor(
-        cfg.executor.name, job, workers, pool, **executor_options(OmegaConf.to_container(cfg.executor, resolve=True))
-    )
+    executor = make_executor(cfg.executor.name, job, cfg.executor.workers, pool, **executor_options(cfg.executor))
     start = time.perf_counter()
     bar = tqdm(
         total=settings.planned_rollouts(),
@@ -228,11 +282,11 @@ def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
 def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, dict]]:
     """Every cell of ``cfg.sweep`` (methods × locations × weathers × noises) in this process, on one pool of
     workers (process backend); yields each cell's config and result as it finishes (`uqdrive.pipeline.sweeps`)."""
-    s = cfg.sweep
+    stage = validate(SafetySweepStage, cfg)
+    s = cfg.sweep  # the values as written: a cell's override is what the single-cell command would be given
     cells = grid(model=s.methods, scenario=s.locations, weather=s.weathers, noise=s.noises)
-    workers = checks.integer("executor.workers", cfg.executor.workers, 1)
-    pool = ProcessPool(workers) if cfg.executor.name == "process" else None
-    yield from run_cells("safety", overrides, cells, run_safety, pool, cfg.progress)
+    pool = ProcessPool(stage.executor.workers) if stage.executor.name == "process" else None
+    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, pool, stage.progress)
 
 
 def describe(cell: str, result: dict) -> str:
@@ -284,15 +338,7 @@ def _cell_files(cfg: DictConfig) -> list[Path]:
 
 def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool = False) -> None:
     """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
-    metrics = {
-        k: float(v)
-        for k, v in result.items()
-        if k not in CELL_PARAMS
-        and k != "noise"
-        and isinstance(v, (int, float))
-        and not isinstance(v, bool)
-        and not np.isnan(v)
-    }
+    metrics = numeric_metrics({k: v for k, v in result.items() if k not in CELL_PARAMS and k != "noise"})
     with stage_run(
         cfg.paths.root,
         "safety",
@@ -309,6 +355,7 @@ def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool 
 def run_safety_summary(cfg: DictConfig) -> dict:
     """Table of η̂1 over methods × locations × weathers × noises (metrics/safety.json: method → location →
     weather → noise<σ>), and one method × weather hexbin grid per location and noise."""
+    validate(SafetySummaryStage, cfg)
     cells = Path(cfg.summary.cells_dir)
     table: dict = {}
     figures = []

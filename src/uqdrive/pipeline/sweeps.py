@@ -21,8 +21,8 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from uqdrive.checks import ConfigError
 from uqdrive.parallel import ProcessPool
+from uqdrive.schema import ConfigError, validate
 from uqdrive.tracking import JOB_START_ENV
 
 R = TypeVar("R")
@@ -57,17 +57,20 @@ def run_cells(
     config_name: str,
     overrides: Sequence[str],
     cells: Sequence[Cell],
+    schema: type,
     run: Callable[[DictConfig, ProcessPool | None], R],
     pool: ProcessPool | None,
     progress: bool,
 ) -> Iterator[tuple[DictConfig, R]]:
     """``run(config, pool)`` for each cell's config of ``config_name``; yields each config and result as the cell
     finishes. ``overrides``: the stage's command-line overrides, passed on to every cell. Every config is
-    composed, and so checked, before the first cell runs. ``pool`` is closed at the end (also on an error, or
-    when the caller stops early).
+    composed and checked against ``schema`` before the first cell runs. ``pool`` is closed at the end (also on an
+    error, or when the caller stops early).
     Needs an initialised Hydra (a `@hydra.main` job, or `initialize_config_dir`)."""
     try:
         configs = [compose_cell(config_name, overrides, cell) for cell in cells]
+        for config in configs:
+            validate(schema, config)
         for config in tqdm(configs, desc=f"{config_name} cells", unit="cell", disable=not progress):
             os.environ[JOB_START_ENV] = str(int(time.time() * 1000))  # the cell's MLflow run starts with it
             yield config, run(config, pool)

@@ -9,54 +9,65 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import matplotlib.pyplot as plt
 import mlflow
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from uqdrive.checks import ConfigError
-from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import load_frames
 from uqdrive.files import write_csv, write_json
 from uqdrive.models.checkpoint import save_posterior
 from uqdrive.models.metrics import majority_accuracy
 from uqdrive.models.pilotnet import Architecture
-from uqdrive.models.posterior import Posterior, posterior_from_config
-from uqdrive.models.training import TrainingData, compute_features, evaluate, settings_from
+from uqdrive.models.posterior import posterior_settings
+from uqdrive.models.training import TrainingData, compute_features, evaluate
+from uqdrive.pipeline.configs import ModelStage
 from uqdrive.plots import save_figure
+from uqdrive.schema import Count, Str, schema, validate
 from uqdrive.tracking import stage_run
 
 
-def model_from_config(cfg: DictConfig) -> tuple[type[Posterior], object]:
-    """The Posterior class `model._target_` names and its checked settings (the model keys besides name, _target_)."""
-    cls = posterior_from_config(cfg.model)
-    model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    return cls, settings_from(cls.Settings, {k: v for k, v in model_cfg.items() if k not in ("name", "_target_")})
+@schema
+class TrainSection:
+    """Training sizes; the per-method ones reach the model's settings through conf/model/ (checked there)."""
+
+    base_model: Str
+    eval_samples: Count
+    threads: Count
+    mcd: dict[str, Any]
+    vi: dict[str, Any]
+    hmc: dict[str, Any]
+    ensemble: dict[str, Any]
+    laplace: dict[str, Any]
+
+
+@schema(root=True)
+class TrainStage(ModelStage):
+    arch: Architecture
+    train: TrainSection
 
 
 def run_train(cfg: DictConfig) -> dict:
-    cls, settings = model_from_config(cfg)
+    stage = validate(TrainStage, cfg)
+    cls, settings = posterior_settings(stage.model)
     method = cls.method
-    eval_samples = int(cfg.train.eval_samples)
-    if eval_samples < 1:
-        raise ConfigError(f"train.eval_samples={eval_samples} must be ≥ 1")
-    bins = SteeringBins(**cfg.experiment.bins)
+    eval_samples = stage.train.eval_samples
+    bins = stage.experiment.bins
     processed = Path(cfg.paths.processed)
     train = load_frames(processed / "train.parquet", bins.num_classes)
     val = load_frames(processed / "val.parquet", bins.num_classes)
     generator = torch.Generator().manual_seed(int(cfg.seed))
-    threads = int(cfg.train.threads)
-    if threads < 1:
-        raise ConfigError(f"train.threads={threads} must be ≥ 1")
+    threads = stage.train.threads
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
     data = TrainingData(
         train,
         val,
         bins,
-        Architecture(**OmegaConf.to_container(cfg.arch, resolve=True)),
-        Path(cfg.train.base_model),
+        stage.arch,
+        Path(stage.train.base_model),
         eval_samples,
     )
     try:

@@ -4,7 +4,7 @@ and the three-tier warning system on real-time decision confidence η2.
 Composes `sim` (the world), `models` (the posteriors) and `uq` (measures and estimators).
 """
 
-from uqdrive.safety.cells import SCHEMES, EstimatorSettings, cell_hash, estimate_safety, reusable_result
+from uqdrive.safety.cells import EstimatorSettings, cell_hash, estimate_safety, reusable_result
 from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
 from uqdrive.safety.executors import (
     BACKENDS,
@@ -25,7 +25,6 @@ __all__ = [
     "BACKENDS",
     "HANDOVER",
     "NO_WARNING",
-    "SCHEMES",
     "AutopilotPolicy",
     "Command",
     "ConstantPolicy",

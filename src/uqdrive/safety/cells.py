@@ -7,63 +7,44 @@ output paths), so an interrupted sweep run again reuses every finished cell.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Literal
 
 import numpy as np
 
-from uqdrive.checks import ConfigError, finite_number, integer
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.executors import Executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
+from uqdrive.schema import Count, OpenUnit, Seed, schema
 from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential, sequential_scheme
 
-SCHEMES = ("chernoff", "clopper_pearson", "sequential")
+Scheme = Literal["chernoff", "clopper_pearson", "sequential"]
 _PLANNED: dict[str, tuple[Callable[[float, float], int], Callable[[int, int, float, float], Estimate]]] = {
     "chernoff": (chernoff_n, chernoff),
     "clopper_pearson": (clopper_pearson_n, clopper_pearson),
 }
 
 
-@dataclasses.dataclass(frozen=True)
+@schema(frozen=True)
 class EstimatorSettings:
     """How η1 is estimated: scheme and (θ, γ) with P(|η̂1 − η1| > θ) ≤ γ; rollout i uses seed base_seed + i.
 
     ``look_size``: `sequential` looks after every look_size rollouts (a batch the workers run in
     parallel); 4 costs ≤ 1 rollout on average against looking after each one at θ = γ = 0.05.
-    ``section``: the config section these came from (`safety`, `avoid`), named in error messages.
     """
 
-    scheme: str = "chernoff"
-    theta: float = 0.05
-    gamma: float = 0.05
-    base_seed: int = 0
-    look_size: int = 4
-    section: str = "safety"
-
-    def __post_init__(self) -> None:
-        if self.scheme not in SCHEMES:
-            raise ConfigError(f"{self.section}.scheme={self.scheme!r} is not known; choose one of {list(SCHEMES)}")
-        for key in ("theta", "gamma"):
-            value = finite_number(f"{self.section}.{key}", getattr(self, key))
-            if not 0 < value < 1:
-                raise ConfigError(f"{self.section}.{key}={getattr(self, key)!r} must be in the open interval (0, 1)")
-        integer(f"{self.section}.base_seed", self.base_seed, 0)
-        integer(f"{self.section}.look_size", self.look_size, 1)
-
-    @classmethod
-    def from_section(cls, config: Mapping[str, Any], section: str) -> EstimatorSettings:
-        """The estimator a stage's config section (`safety`, `avoid`) names."""
-        keys = ("scheme", "theta", "gamma", "base_seed", "look_size")
-        return cls(**{key: config[key] for key in keys}, section=section)
+    scheme: Scheme = "chernoff"
+    theta: OpenUnit = 0.05
+    gamma: OpenUnit = 0.05
+    base_seed: Seed = 0
+    look_size: Count = 4
 
     def planned_rollouts(self) -> int:
         """Rollouts the scheme runs (the most it may run, for `sequential`)."""

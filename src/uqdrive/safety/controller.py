@@ -15,7 +15,6 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
@@ -81,12 +80,6 @@ class Controller:
         speed: float,
         generator: torch.Generator | None = None,
     ):
-        if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
-            raise ConfigError(f"safety.samples={n_samples!r} must be an integer >= 1 (posterior draws per frame)")
-        if isinstance(eps, bool) or not isinstance(eps, (int, float)) or not (math.isfinite(eps) and eps > 0):
-            raise ConfigError(f"safety.eps={eps!r} must be a number > 0 (steering units)")
-        if not isinstance(speed, (int, float)) or isinstance(speed, bool) or not speed > 0:
-            raise ConfigError(f"safety.speed={speed!r} must be a number > 0 (m/s)")
         self.posterior = posterior.eval()
         self.centres = torch.as_tensor(bins.centres, dtype=torch.float32)
         self.n_samples, self.eps, self.speed = n_samples, float(eps), float(speed)

@@ -16,7 +16,6 @@ from typing import Any, Protocol
 
 import torch
 
-from uqdrive.checks import ConfigError
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.parallel import ProcessPool
@@ -24,6 +23,7 @@ from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controlle
 from uqdrive.safety.rollout import RolloutResult, run_rollout
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningConfig, WarningController
+from uqdrive.schema import ConfigError
 from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig
 
 BACKENDS = ("process", "ray")
@@ -127,8 +127,6 @@ class RayExecutor:
     """
 
     def __init__(self, job: RolloutJob, workers: int, address: str | None = None):
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise ConfigError(f"executor.workers={workers!r} must be an integer >= 1")
         try:
             import ray
             from ray.util import ActorPool

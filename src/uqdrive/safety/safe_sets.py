@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uqdrive.checks import ConfigError
 from uqdrive.sim import ScenarioGeometry
 
 HANDOVER = "handover"  # termination of a run whose warning system braked to a stop and handed over
@@ -98,18 +97,6 @@ def body_corners(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: float, w
     return np.concatenate(out)
 
 
-def check_half_width(half_width: float | None, key: str = "safety.half_width") -> float | None:
-    if half_width is None:
-        return None
-    if (
-        isinstance(half_width, bool)
-        or not isinstance(half_width, (int, float))
-        or not (math.isfinite(half_width) and half_width > 0)
-    ):
-        raise ConfigError(f"{key}={half_width!r} must be null (the lane) or a number of metres > 0")
-    return float(half_width)
-
-
 def lane_half_width(geometry: ScenarioGeometry) -> np.ndarray:
     """Half-width of the lane the route runs in, per route point: half the ring on the ring
     (the route follows its centre line), half a lane on the arms (the route is the right lane's centre)."""
@@ -131,7 +118,6 @@ def safe_set_for(
 ) -> SafeSet:
     """The safe set of ``geometry``'s scenario for a car of the given size; ``half_width`` (m) replaces the
     lane's half-width at the roundabout."""
-    half_width = check_half_width(half_width)
     route, cfg = geometry.route, geometry.config
     car = (float(vehicle_length), float(vehicle_width))
     if cfg.kind == "obstacle":

@@ -12,53 +12,55 @@ the same code.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
 import torch
 
-from uqdrive.checks import ConfigError, finite_number
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Command, Controller
+from uqdrive.schema import Bool, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
 from uqdrive.uq import chernoff_n
 
 LEVELS = (0, 1, 2)
 
 
-@dataclasses.dataclass(frozen=True)
+@schema(frozen=True)
 class WarningAction:
     """What one warning level does: drive at ``speed`` × the cruise speed, alert the operator, hand over
     (brake to a stop and give control to the operator, so it needs ``speed`` = 0)."""
 
-    speed: float
-    alert: bool = False
-    handover: bool = False
+    speed: Unit
+    alert: Bool = False
+    handover: Bool = False
+
+    def __post_init__(self) -> None:
+        if self.handover and self.speed != 0:
+            raise invalid("speed", self.speed, "must be 0 when handover is true (a hand-over brakes to a stop)")
 
 
-def _check_action(key: str, action: object) -> WarningAction:
-    if not isinstance(action, WarningAction):
-        raise ConfigError(f"{key}={action!r} must be an action with speed, alert, handover")
-    speed = finite_number(f"{key}.speed", action.speed)
-    if not 0 <= speed <= 1:
-        raise ConfigError(f"{key}.speed={action.speed!r} must be in [0, 1] (a fraction of the cruise speed)")
-    for name in ("alert", "handover"):
-        if not isinstance(getattr(action, name), bool):
-            raise ConfigError(f"{key}.{name}={getattr(action, name)!r} must be true or false")
-    if action.handover and speed != 0:
-        raise ConfigError(
-            f"{key}.speed={action.speed!r} must be 0 when {key}.handover is true (a hand-over brakes to a stop)"
-        )
-    return WarningAction(speed, action.alert, action.handover)
+@schema(frozen=True)
+class WarningLevels:
+    """One action per level, iterated in level order 0, 1, 2: the paper's slow down; slow down and alert;
+    brake to a stop and hand over."""
+
+    warning0: WarningAction = WarningAction(0.5)  # high mutual information
+    warning1: WarningAction = WarningAction(0.5, alert=True)  # not δ1-confident
+    warning2: WarningAction = WarningAction(0.0, alert=True, handover=True)  # not δ2-confident
+
+    def __iter__(self) -> Iterator[WarningAction]:
+        return iter((self.warning0, self.warning1, self.warning2))
+
+    def __len__(self) -> int:
+        return len(LEVELS)
+
+    def __getitem__(self, level: int) -> WarningAction:
+        return tuple(self)[level]
 
 
-def _default_actions() -> tuple[WarningAction, WarningAction, WarningAction]:
-    """The paper's: warning 0 slows down, warning 1 slows down and alerts, warning 2 brakes and hands over."""
-    return WarningAction(0.5), WarningAction(0.5, alert=True), WarningAction(0.0, alert=True, handover=True)
-
-
-@dataclasses.dataclass(frozen=True)
+@schema(frozen=True)
 class WarningConfig:
     """Thresholds (δ1, δ2 on η2; τ on MI in nats), actions per level, and the per-frame sample size.
 
@@ -67,64 +69,24 @@ class WarningConfig:
     ``hold_s``: a slow-down lasts this long after the last frame that asked for it.
     """
 
-    delta1: float = 0.7
-    delta2: float = 0.6
-    tau: float = 0.45
-    theta: float = 0.05
-    gamma: float = 0.05
-    hold_s: float = 1.0
-    actions: tuple[WarningAction, WarningAction, WarningAction] = dataclasses.field(default_factory=_default_actions)
+    delta1: Unit = 0.7
+    delta2: Unit = 0.6  # <= delta1: warning 2 (η2 < δ2) is the severe one
+    tau: NonNegative = 0.45  # nats of mutual information
+    theta: OpenUnit = 0.05
+    gamma: OpenUnit = 0.05
+    hold_s: NonNegative = 1.0
+    actions: WarningLevels = WarningLevels()
 
     def __post_init__(self) -> None:
-        for name in ("delta1", "delta2"):
-            value = finite_number(f"warning.{name}", getattr(self, name))
-            if not 0 <= value <= 1:
-                raise ConfigError(f"warning.{name}={getattr(self, name)!r} must be in [0, 1] (a threshold on η2)")
         if self.delta2 > self.delta1:
-            raise ConfigError(
-                f"warning.delta2={self.delta2!r} must be <= warning.delta1={self.delta1!r} "
-                "(warning 2, η2 < δ2, is the severe one)"
+            raise invalid(
+                "delta2", self.delta2, f"must be <= delta1={self.delta1!r} (warning 2, η2 < δ2, is the severe one)"
             )
-        if not finite_number("warning.tau", self.tau) >= 0:
-            raise ConfigError(f"warning.tau={self.tau!r} must be >= 0 (a threshold on mutual information, nats)")
-        for name in ("theta", "gamma"):
-            value = finite_number(f"warning.{name}", getattr(self, name))
-            if not 0 < value < 1:
-                raise ConfigError(f"warning.{name}={getattr(self, name)!r} must be in the open interval (0, 1)")
-        if not finite_number("warning.hold_s", self.hold_s) >= 0:
-            raise ConfigError(f"warning.hold_s={self.hold_s!r} must be a number of seconds >= 0")
-        if isinstance(self.actions, (str, bytes)) or len(self.actions) != len(LEVELS):
-            raise ConfigError(f"warning.actions={self.actions!r} must hold one action per level {list(LEVELS)}")
-        object.__setattr__(
-            self,
-            "actions",
-            tuple(_check_action(f"warning.actions.warning{level}", a) for level, a in zip(LEVELS, self.actions)),
-        )
-        for name in ("delta1", "delta2", "tau", "theta", "gamma", "hold_s"):
-            object.__setattr__(self, name, float(getattr(self, name)))
 
     @classmethod
     def from_config(cls, mapping: Mapping[str, Any]) -> WarningConfig:
         """From the `warning` config group; ``actions`` maps warning0/1/2 to speed, alert, handover."""
-        data = dict(mapping)
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - fields)
-        if unknown:
-            raise ConfigError(f"warning: unknown key(s) {unknown}; allowed keys are {sorted(fields)}")
-        if "actions" in data:
-            actions = dict(data["actions"])
-            names = [f"warning{level}" for level in LEVELS]
-            if sorted(actions) != names:
-                raise ConfigError(f"warning.actions has keys {sorted(actions)}; it needs exactly {names}")
-            built = []
-            for name in names:
-                spec = dict(actions[name])
-                allowed = {"speed", "alert", "handover"}
-                if set(spec) - allowed or "speed" not in spec:
-                    raise ConfigError(f"warning.actions.{name}={spec!r} needs 'speed' and may have 'alert', 'handover'")
-                built.append(WarningAction(**spec))
-            data["actions"] = tuple(built)
-        return cls(**data)
+        return validate(cls, mapping, "warning")
 
     @property
     def samples(self) -> int:
@@ -149,6 +111,14 @@ class WarningConfig:
                 for level, a in zip(LEVELS, self.actions)
             },
         }
+
+
+def register_schema() -> None:
+    """The warning system's defaults (the paper's) in Hydra's ConfigStore as `warning/schema`, which
+    conf/warning/*.yaml extend."""
+    from hydra.core.config_store import ConfigStore
+
+    ConfigStore.instance().store(group="warning", name="schema", node=defaults(WarningConfig))
 
 
 def classify(

@@ -1,136 +1,61 @@
-"""Config schemas of the simulated world.
-
-Every knob is a dataclass field so that a new location, weather or car is a yaml file,
-not code. Validation happens in ``__post_init__`` so a bad Hydra override fails at start-up
-with a message naming the key, the value and what is allowed.
-"""
+"""Config schemas of the simulated world (`uqdrive.schema`): every knob is a field, so that a new
+location, weather or car is a yaml file that lists only what differs from these defaults."""
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar, get_args
 
-from uqdrive.checks import ConfigError
+from pydantic import Field
 
-SCENARIO_KINDS = ("straight", "obstacle", "roundabout")
+from uqdrive.schema import (
+    Bool,
+    Color,
+    Count,
+    Float,
+    Int,
+    NonNegative,
+    Positive,
+    Seed,
+    Str,
+    Unit,
+    defaults,
+    invalid,
+    plain,
+    schema,
+    validate,
+)
 
-T = TypeVar("T", bound="_Config")
+ScenarioKind = Literal["straight", "obstacle", "roundabout"]
+SCENARIO_KINDS = get_args(ScenarioKind)
+
+T = TypeVar("T", bound="Section")
 
 
-def _plain(value: Any) -> Any:
-    """OmegaConf containers -> plain Python, so dataclasses hold hashable, picklable values."""
-    try:
-        from omegaconf import DictConfig, ListConfig, OmegaConf
+class Section:
+    """A config section's schema, built from a mapping as the section ``section`` of a stage's config."""
 
-        if isinstance(value, (DictConfig, ListConfig)):
-            return OmegaConf.to_container(value, resolve=True)
-    except ImportError:  # pragma: no cover - omegaconf is a dependency
-        pass
-    return value
-
-
-class _Config:
-    """Shared ``from_config`` and validation helpers."""
-
-    _section: ClassVar[str] = ""
+    section: ClassVar[str] = ""
 
     @classmethod
     def from_config(cls: type[T], mapping: Mapping[str, Any] | None = None, **overrides: Any) -> T:
-        """Build from a dict or DictConfig; unknown keys are an error, not silently dropped."""
-        data = dict(_plain(mapping) or {})
-        data.update(overrides)
-        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise ConfigError(f"{cls._section}: unknown key(s) {unknown}; allowed keys are {sorted(names)}")
-        return cls(**data)
+        """From a dict or DictConfig (the missing keys take their defaults); errors name ``<section>.<key>``."""
+        return validate(cls, {**(plain(mapping) or {}), **overrides}, cls.section)
 
     @classmethod
     def from_yaml(cls: type[T], path) -> T:
-        """From a config-group file, honouring its Hydra ``defaults`` list of sibling files (a location
-        that inherits the roundabout and changes a few fields) as ``hydra.compose`` would."""
+        """From a config-group file, honouring its Hydra ``defaults`` list as ``hydra.compose`` would: sibling
+        files (a location that inherits the roundabout) and ``schema``, these defaults."""
         return cls.from_config(_load_group_file(Path(path)))
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)  # type: ignore[call-overload]
 
-    # -- validation helpers -------------------------------------------------------------
-    def _key(self, name: str) -> str:
-        return f"{self._section}.{name}"
 
-    def _number(
-        self,
-        name: str,
-        *,
-        ge: float | None = None,
-        gt: float | None = None,
-        le: float | None = None,
-        lt: float | None = None,
-    ) -> None:
-        value = getattr(self, name)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{self._key(name)}={value!r} must be a number")
-        for bound, op, ok in (
-            (ge, ">=", lambda b: value >= b),
-            (gt, ">", lambda b: value > b),
-            (le, "<=", lambda b: value <= b),
-            (lt, "<", lambda b: value < b),
-        ):
-            if bound is not None and not ok(bound):
-                raise ConfigError(f"{self._key(name)}={value!r} must be {op} {bound}")
-
-    def _integer(self, name: str, *, ge: int) -> None:
-        value = getattr(self, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < ge:
-            raise ConfigError(f"{self._key(name)}={value!r} must be an integer >= {ge}")
-
-    def _color(self, name: str) -> None:
-        value = getattr(self, name)
-        ok = (
-            isinstance(value, Sequence)
-            and not isinstance(value, str)
-            and len(value) == 3
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in value)
-        )
-        if not ok:
-            raise ConfigError(f"{self._key(name)}={value!r} must be an RGB triple with components in [0, 1]")
-        setattr(self, name, tuple(float(v) for v in value))
-
-    def _colors(self, name: str) -> None:
-        value = getattr(self, name)
-        if isinstance(value, str) or not isinstance(value, Sequence) or len(value) == 0:
-            raise ConfigError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
-        out = []
-        for item in value:
-            ok = (
-                isinstance(item, Sequence)
-                and not isinstance(item, str)
-                and len(item) == 3
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in item)
-            )
-            if not ok:
-                raise ConfigError(f"{self._key(name)}={value!r} must be a non-empty list of RGB triples in [0, 1]")
-            out.append(tuple(float(v) for v in item))
-        setattr(self, name, tuple(out))
-
-    def _vector(self, name: str, n: int, *, positive: bool = False) -> None:
-        value = getattr(self, name)
-        ok = (
-            isinstance(value, Sequence)
-            and not isinstance(value, str)
-            and len(value) == n
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and (v > 0 or not positive) for v in value)
-        )
-        if not ok:
-            what = "positive numbers" if positive else "numbers"
-            raise ConfigError(f"{self._key(name)}={value!r} must be a list of {n} {what}")
-        setattr(self, name, tuple(float(v) for v in value))
-
-
-@dataclasses.dataclass
-class ScenarioConfig(_Config):
+@schema
+class ScenarioConfig(Section):
     """Road layout and surroundings of one location, in metres.
 
     ``kind`` picks the layout; the other fields parametrise it. Straight roads run along +x
@@ -138,243 +63,182 @@ class ScenarioConfig(_Config):
     the origin, the ego enters from the south arm and leaves by the first exit (east arm).
     """
 
-    _section: ClassVar[str] = "scenario"
+    section: ClassVar[str] = "scenario"
 
-    name: str = "straight"
-    kind: str = "straight"
+    name: Str = "straight"
+    kind: ScenarioKind = "straight"
     # straight / obstacle road
-    road_length: float = 120.0
-    lane_width: float = 3.5
-    num_lanes: int = 2
+    road_length: Positive = 120.0
+    lane_width: Positive = 3.5
+    num_lanes: Count = 2
     # where the ego starts: metres from the road start (straight, obstacle) or before the ring entry
-    start_distance: float = 10.0
-    start_speed: float = 8.0
-    start_jitter_lateral: float = 0.3
-    start_jitter_longitudinal: float = 1.0
-    start_jitter_yaw_deg: float = 3.0
-    finish_margin: float = 5.0
+    start_distance: NonNegative = 10.0
+    start_speed: NonNegative = 8.0
+    start_jitter_lateral: NonNegative = 0.3
+    start_jitter_longitudinal: NonNegative = 1.0
+    start_jitter_yaw_deg: NonNegative = 3.0
+    finish_margin: NonNegative = 5.0
     # obstacle (stationary car in the ego lane, centre-to-centre distance from the nominal start)
-    obstacle_distance: float = 40.0
-    obstacle_size: tuple[float, float, float] = (4.5, 1.8, 1.5)
-    obstacle_color: tuple[float, float, float] = (0.75, 0.1, 0.1)
-    lane_change_length: float = 15.0
-    lane_change_gap: float = 8.0
+    obstacle_distance: Positive = 40.0
+    obstacle_size: tuple[Positive, Positive, Positive] = (4.5, 1.8, 1.5)
+    obstacle_color: Color = (0.75, 0.1, 0.1)
+    lane_change_length: Positive = 15.0
+    lane_change_gap: NonNegative = 8.0
     # roundabout
-    ring_radius: float = 14.0
-    ring_width: float = 6.0
-    arm_length: float = 40.0
-    junction_fillet: float = 5.0
-    route_fillet: float = 8.0
-    island_height: float = 0.6
+    ring_radius: Positive = 14.0
+    ring_width: Positive = 6.0
+    arm_length: Positive = 40.0
+    junction_fillet: Positive = 5.0
+    route_fillet: Positive = 8.0
+    island_height: Positive = 0.6
     # appearance and surroundings
-    asphalt_color: tuple[float, float, float] = (0.27, 0.27, 0.29)
-    marking_color: tuple[float, float, float] = (0.95, 0.95, 0.95)
-    ground_color: tuple[float, float, float] = (0.30, 0.52, 0.22)
-    marking_width: float = 0.25
-    dash_length: float = 3.0
-    dash_gap: float = 6.0
-    scenery_seed: int = 0
-    scenery_count: int = 40
-    scenery_margin: float = 3.0
-    scenery_extent: float = 35.0
-    tree_fraction: float = 0.7
-    trunk_color: tuple[float, float, float] = (0.40, 0.27, 0.15)
-    crown_colors: tuple[tuple[float, float, float], ...] = ((0.13, 0.40, 0.12), (0.20, 0.48, 0.16), (0.10, 0.33, 0.14))
-    building_colors: tuple[tuple[float, float, float], ...] = (
-        (0.72, 0.66, 0.58),
-        (0.58, 0.60, 0.66),
-        (0.78, 0.52, 0.40),
-        (0.85, 0.82, 0.72),
+    asphalt_color: Color = (0.27, 0.27, 0.29)
+    marking_color: Color = (0.95, 0.95, 0.95)
+    ground_color: Color = (0.30, 0.52, 0.22)
+    marking_width: Positive = 0.25
+    dash_length: Positive = 3.0
+    dash_gap: NonNegative = 6.0
+    scenery_seed: Seed = 0
+    scenery_count: Seed = 40
+    scenery_margin: NonNegative = 3.0
+    scenery_extent: Positive = 35.0
+    tree_fraction: Unit = 0.7
+    trunk_color: Color = (0.40, 0.27, 0.15)
+    crown_colors: tuple[Color, ...] = Field(((0.13, 0.40, 0.12), (0.20, 0.48, 0.16), (0.10, 0.33, 0.14)), min_length=1)
+    building_colors: tuple[Color, ...] = Field(
+        ((0.72, 0.66, 0.58), (0.58, 0.60, 0.66), (0.78, 0.52, 0.40), (0.85, 0.82, 0.72)), min_length=1
     )
 
     def __post_init__(self) -> None:
-        if self.kind not in SCENARIO_KINDS:
-            raise ConfigError(f"scenario.kind={self.kind!r} is not one of {list(SCENARIO_KINDS)}")
-        if not isinstance(self.name, str) or not self.name:
-            raise ConfigError(f"scenario.name={self.name!r} must be a non-empty string")
-        for name in (
-            "road_length",
-            "lane_width",
-            "ring_radius",
-            "ring_width",
-            "arm_length",
-            "junction_fillet",
-            "route_fillet",
-            "island_height",
-            "marking_width",
-            "dash_length",
-            "lane_change_length",
-            "obstacle_distance",
-            "scenery_extent",
-        ):
-            self._number(name, gt=0)
-        for name in (
-            "start_distance",
-            "start_speed",
-            "start_jitter_lateral",
-            "start_jitter_longitudinal",
-            "start_jitter_yaw_deg",
-            "finish_margin",
-            "dash_gap",
-            "lane_change_gap",
-            "scenery_margin",
-        ):
-            self._number(name, ge=0)
-        self._number("tree_fraction", ge=0, le=1)
-        self._integer("num_lanes", ge=1)
-        self._integer("scenery_count", ge=0)
-        self._integer("scenery_seed", ge=0)
-        self._vector("obstacle_size", 3, positive=True)
-        for name in ("obstacle_color", "asphalt_color", "marking_color", "ground_color", "trunk_color"):
-            self._color(name)
-        self._colors("crown_colors")
-        self._colors("building_colors")
         if self.kind == "obstacle" and self.num_lanes < 2:
-            raise ConfigError(
-                f"scenario.num_lanes={self.num_lanes} must be >= 2 for kind 'obstacle' (it passes on the left)"
-            )
+            raise invalid("num_lanes", self.num_lanes, "must be >= 2 for kind 'obstacle' (it passes on the left)")
         if self.kind != "roundabout" and self.start_distance + self.finish_margin >= self.road_length:
-            raise ConfigError(
-                f"scenario.start_distance={self.start_distance} leaves no route on a road of length {self.road_length}"
-            )
+            raise invalid("start_distance", self.start_distance, f"leaves no route on a road of {self.road_length} m")
         if self.kind == "roundabout" and self.ring_width / 2 >= self.ring_radius:
-            raise ConfigError(
-                f"scenario.ring_width={self.ring_width} must be < 2 * ring_radius ({2 * self.ring_radius})"
-            )
+            raise invalid("ring_width", self.ring_width, f"must be < 2 * ring_radius ({2 * self.ring_radius})")
         if self.kind == "roundabout" and self.start_distance >= self.arm_length:
-            raise ConfigError(f"scenario.start_distance={self.start_distance} must be < arm_length ({self.arm_length})")
+            raise invalid("start_distance", self.start_distance, f"must be < arm_length ({self.arm_length})")
 
 
-@dataclasses.dataclass
-class WeatherConfig(_Config):
+@schema
+class WeatherConfig(Section):
     """Lighting (pybullet TinyRenderer) plus image-space effects of one weather condition."""
 
-    _section: ClassVar[str] = "weather"
+    section: ClassVar[str] = "weather"
 
-    name: str = "clear_noon"
-    sky_top: tuple[float, float, float] = (0.30, 0.52, 0.88)
-    sky_horizon: tuple[float, float, float] = (0.72, 0.83, 0.95)
-    light_direction: tuple[float, float, float] = (0.3, 0.2, 1.0)
-    light_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    ambient: float = 0.6
-    diffuse: float = 0.5
-    specular: float = 0.05
-    shadow: bool = False
-    brightness: float = 1.0
-    contrast: float = 1.0
-    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    blur: float = 0.0
-    road_darkening: float = 1.0
-    road_sheen: float = 0.0
-    fog_density: float = 0.0
-    fog_color: tuple[float, float, float] = (0.75, 0.77, 0.80)
-    rain_streaks: int = 0
-    rain_length: float = 8.0
-    rain_intensity: float = 0.25
-    rain_angle_deg: float = 10.0
+    name: Str = "clear_noon"
+    sky_top: Color = (0.30, 0.52, 0.88)
+    sky_horizon: Color = (0.72, 0.83, 0.95)
+    light_direction: tuple[Float, Float, Float] = (0.3, 0.2, 1.0)
+    light_color: Color = (1.0, 1.0, 1.0)
+    ambient: NonNegative = 0.6
+    diffuse: NonNegative = 0.5
+    specular: NonNegative = 0.05
+    shadow: Bool = False
+    brightness: Positive = 1.0
+    contrast: Positive = 1.0
+    tint: tuple[Positive, Positive, Positive] = (1.0, 1.0, 1.0)
+    blur: NonNegative = 0.0
+    road_darkening: Positive = 1.0
+    road_sheen: NonNegative = 0.0
+    fog_density: NonNegative = 0.0
+    fog_color: Color = (0.75, 0.77, 0.80)
+    rain_streaks: Seed = 0
+    rain_length: NonNegative = 8.0
+    rain_intensity: Unit = 0.25
+    rain_angle_deg: Float = Field(10.0, ge=-80, le=80)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ConfigError(f"weather.name={self.name!r} must be a non-empty string")
-        for name in ("sky_top", "sky_horizon", "light_color", "fog_color"):
-            self._color(name)
-        self._vector("tint", 3, positive=True)
-        self._vector("light_direction", 3)
         if not any(self.light_direction):
-            raise ConfigError(f"weather.light_direction={self.light_direction!r} must not be the zero vector")
-        for name in ("ambient", "diffuse", "specular", "blur", "fog_density", "rain_length", "road_sheen"):
-            self._number(name, ge=0)
-        for name in ("brightness", "contrast", "road_darkening"):
-            self._number(name, gt=0)
-        self._number("rain_intensity", ge=0, le=1)
-        self._number("rain_angle_deg", ge=-80, le=80)
-        self._integer("rain_streaks", ge=0)
-        if not isinstance(self.shadow, bool):
-            raise ConfigError(f"weather.shadow={self.shadow!r} must be true or false")
+            raise invalid("light_direction", self.light_direction, "must not be the zero vector")
 
 
-@dataclasses.dataclass
-class CameraConfig(_Config):
+@schema
+class CameraConfig(Section):
     """Front-centre camera, mounted near the windscreen and looking slightly down."""
 
-    _section: ClassVar[str] = "camera"
+    section: ClassVar[str] = "camera"
 
-    width: int = 64  # the network's input size (conf/sim.yaml says why)
-    height: int = 48
-    fov_deg: float = 60.0
-    mount_forward: float = 0.6
-    mount_height: float = 1.4
-    pitch_deg: float = -6.0
-    near: float = 0.1
-    far: float = 150.0
+    # rendered size: the network's own 64x48 (it sees the grey of this image); rendering 160x120 to average it
+    # down to 64x48 made an env step about 3x dearer (README: the simulated world)
+    width: Int = Field(64, ge=8)
+    height: Int = Field(48, ge=8)
+    fov_deg: Float = Field(60.0, gt=0, lt=180)
+    mount_forward: Float = Field(0.6, ge=-5, le=5)
+    mount_height: Positive = 1.4
+    pitch_deg: Float = Field(-6.0, ge=-89, le=89)
+    near: Positive = 0.1
+    far: Positive = 150.0
 
     def __post_init__(self) -> None:
-        self._integer("width", ge=8)
-        self._integer("height", ge=8)
-        self._number("fov_deg", gt=0, lt=180)
-        self._number("mount_height", gt=0)
-        self._number("mount_forward", ge=-5, le=5)
-        self._number("pitch_deg", ge=-89, le=89)
-        self._number("near", gt=0)
-        self._number("far", gt=self.near)
+        if not self.far > self.near:
+            raise invalid("far", self.far, f"must be > camera.near ({self.near})")
 
 
-@dataclasses.dataclass
-class VehicleConfig(_Config):
+@schema
+class VehicleConfig(Section):
     """Kinematic bicycle of a full-size car; pose refers to the body centre."""
 
-    _section: ClassVar[str] = "vehicle"
+    section: ClassVar[str] = "vehicle"
 
-    length: float = 4.5
-    width: float = 1.8
-    height: float = 1.45
-    wheelbase: float = 2.7
-    max_steer_deg: float = 35.0
-    steer_time_constant: float = 0.1
-    max_accel: float = 3.0
-    max_brake: float = 6.0
-    max_speed: float = 20.0
-    color: tuple[float, float, float] = (0.15, 0.35, 0.75)
+    length: Positive = 4.5
+    width: Positive = 1.8
+    height: Positive = 1.45
+    wheelbase: Positive = 2.7
+    max_steer_deg: Float = Field(35.0, gt=0, lt=90)  # steer = +1 turns the road wheels this far to the left
+    steer_time_constant: NonNegative = 0.1
+    max_accel: Positive = 3.0
+    max_brake: Positive = 6.0
+    max_speed: Positive = 20.0
+    color: Color = (0.15, 0.35, 0.75)
 
     def __post_init__(self) -> None:
-        for name in ("length", "width", "height", "wheelbase", "max_accel", "max_brake", "max_speed"):
-            self._number(name, gt=0)
-        self._number("max_steer_deg", gt=0, lt=90)
-        self._number("steer_time_constant", ge=0)
-        self._color("color")
         if self.wheelbase >= self.length:
-            raise ConfigError(f"vehicle.wheelbase={self.wheelbase} must be < vehicle.length ({self.length})")
+            raise invalid("wheelbase", self.wheelbase, f"must be < vehicle.length ({self.length})")
 
 
-@dataclasses.dataclass
-class AutopilotConfig(_Config):
+@schema
+class AutopilotConfig(Section):
     """Pure pursuit on the scenario route, with optional seeded steering perturbations."""
 
-    _section: ClassVar[str] = "autopilot"
+    section: ClassVar[str] = "autopilot"
 
-    target_speed: float = 8.0
-    max_lateral_accel: float = 3.0
-    min_speed: float = 3.0
-    lookahead_base: float = 3.0
-    lookahead_gain: float = 0.5
-    perturb_prob: float = 0.0
-    perturb_magnitude: float = 0.15
-    perturb_duration_s: float = 0.4
+    target_speed: Positive = 8.0
+    max_lateral_accel: Positive = 3.0
+    min_speed: NonNegative = 3.0
+    lookahead_base: Positive = 3.0
+    lookahead_gain: NonNegative = 0.5
+    perturb_prob: Unit = 0.0
+    perturb_magnitude: Float = Field(0.15, ge=0, le=2)
+    perturb_duration_s: NonNegative = 0.4
 
-    def __post_init__(self) -> None:
-        for name in ("target_speed", "max_lateral_accel", "lookahead_base"):
-            self._number(name, gt=0)
-        for name in ("lookahead_gain", "perturb_duration_s", "min_speed"):
-            self._number(name, ge=0)
-        self._number("perturb_prob", ge=0, le=1)
-        self._number("perturb_magnitude", ge=0, le=2)
+
+@schema
+class SimConfig(Section):
+    """The simulated car, its camera and the autopilot: the keys conf/sim.yaml adds to a stage's config (at its
+    top level: ``section`` is empty)."""
+
+    control_hz: Count = 15  # camera frames and control decisions per second
+    horizon_s: Positive = 40  # an episode ends by timeout after this many simulated seconds
+    camera: CameraConfig = Field(default_factory=CameraConfig)
+    vehicle: VehicleConfig = Field(default_factory=VehicleConfig)
+    autopilot: AutopilotConfig = Field(default_factory=AutopilotConfig)
+
+
+def register_schemas() -> None:
+    """The world's defaults in Hydra's ConfigStore, which conf/scenario/, conf/weather/ and conf/sim.yaml extend
+    (`scenario/schema`, `weather/schema`, `sim_schema`): for the stages that compose them."""
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    store.store(group="scenario", name="schema", node=defaults(ScenarioConfig))
+    store.store(group="weather", name="schema", node=defaults(WeatherConfig))
+    store.store(name="sim_schema", node=defaults(SimConfig))
 
 
 def check_noise(noise: float) -> float:
-    """Sensor noise sigma in units of full intensity (0.05 = 5 % of 255)."""
-    if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not noise >= 0:
-        raise ConfigError(f"noise={noise!r} must be >= 0")
-    return float(noise)
+    """Sensor noise σ in units of full intensity (0.05 = 5 % of 255)."""
+    return validate(NonNegative, noise, "noise")
 
 
 def _load_group_file(path: Path) -> Any:
@@ -384,7 +248,11 @@ def _load_group_file(path: Path) -> Any:
     defaults = config.pop("defaults", None)
     if defaults is None:
         return config
-    parts = [config if entry == "_self_" else _load_group_file(path.with_name(f"{entry}.yaml")) for entry in defaults]
+    parts = [
+        config if entry == "_self_" else _load_group_file(path.with_name(f"{entry}.yaml"))
+        for entry in defaults
+        if not entry.endswith("schema")  # the schema's defaults (`schema`, `sim_schema`): from_config fills them in
+    ]
     if "_self_" not in defaults:
         parts.append(config)
     return OmegaConf.merge(*parts)

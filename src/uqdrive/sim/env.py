@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from uqdrive.checks import ConfigError
+from uqdrive.schema import ConfigError
 
 from .bullet import connect_direct
 from .camera import Camera

@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from uqdrive.checks import ConfigError
+from uqdrive.schema import ConfigError
 
 from .config import ScenarioConfig
 from .paving import MARK_STEP, PavedArea, band, circle, dashes, fan, rasterise, strip

@@ -26,7 +26,7 @@ def check_unit(name: str, value: float) -> float:
 
 def check_look_size(look_size: int) -> int:
     """Validate the samples drawn between two looks of a sequential scheme (an integer ≥ 1)."""
-    if isinstance(look_size, bool) or not isinstance(look_size, (int, np.integer)) or look_size < 1:
+    if isinstance(look_size, bool) or int(look_size) != look_size or look_size < 1:
         raise ValueError(f"look_size must be an integer >= 1 (samples between looks), got {look_size!r}")
     return int(look_size)
 

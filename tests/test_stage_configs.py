@@ -1,0 +1,126 @@
+"""Every stage checks its whole config against its schema before it works: a typo'd key, a wrong type and a value
+out of range each end it with one line naming the full key path, and it has written nothing."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from uqdrive.pipeline.avoid import run_avoid
+from uqdrive.pipeline.avoid_summary import run_avoid_summary
+from uqdrive.pipeline.collect import run_collect, run_heldout
+from uqdrive.pipeline.evaluate import run_evaluate
+from uqdrive.pipeline.preprocess import run_preprocess
+from uqdrive.pipeline.report import run_report
+from uqdrive.pipeline.safety import run_safety, run_safety_summary, run_safety_sweep
+from uqdrive.pipeline.train import run_train
+from uqdrive.schema import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def first(generator_stage):
+    """A grid stage is a generator: its checks run when the first cell is asked for."""
+    return lambda cfg: next(generator_stage(cfg, []))
+
+
+STAGES = {
+    "collect": run_collect,
+    "heldout": run_collect,
+    "heldout_sweep": first(run_heldout),
+    "preprocess": run_preprocess,
+    "train": run_train,
+    "safety": run_safety,
+    "safety_sweep": first(run_safety_sweep),
+    "evaluate": run_evaluate,
+    "avoid": run_avoid,
+    "safety_summary": run_safety_summary,
+    "avoid_summary": run_avoid_summary,
+    "report": run_report,
+}
+
+# stage: (a typo'd key, a wrong type, a value out of range), each an override and the start of its one line
+BAD = {
+    "collect": [
+        ("+collect.episodez=3", "collect.episodez: unknown key; did you mean 'episodes'?"),
+        ("collect.episodes=many", "collect.episodes='many': input should be a valid integer"),
+        ("collect.episodes=0", "collect.episodes=0: input should be greater than or equal to 1"),
+    ],
+    "heldout": [
+        ("+collect.mosaic_row=2", "collect.mosaic_row: unknown key; did you mean 'mosaic_rows'?"),
+        ("noise=loud", "noise='loud': input should be a valid number"),
+        ("noise=-0.1", "noise=-0.1: input should be greater than or equal to 0"),
+    ],
+    "heldout_sweep": [
+        ("+sweep.weather=[rain]", "sweep.weather: unknown key; did you mean 'weathers'?"),
+        ("sweep.noises=[low]", "sweep.noises[0]='low': input should be a valid number"),
+        ("sweep.noises=[-0.1]", "sweep.noises[0]=-0.1: input should be greater than or equal to 0"),
+    ],
+    "preprocess": [
+        ("+preprocess.val_fractoin=0.1", "preprocess.val_fractoin: unknown key; did you mean 'val_fraction'?"),
+        ("preprocess.split_seed=0.5", "preprocess.split_seed=0.5: input should be a valid integer"),
+        ("preprocess.val_fraction=1.5", "preprocess.val_fraction=1.5: input should be less than 1"),
+    ],
+    "train": [
+        ("+arch.hiden=[8,8,8]", "arch.hiden: unknown key; did you mean 'hidden'?"),
+        ("train.mcd.epochs=ten", "model.epochs='ten': input should be a valid integer"),
+        ("train.mcd.lr=-0.1", "model.lr=-0.1: input should be greater than 0"),
+    ],
+    "safety": [
+        ("+safety.thetaa=0.1", "safety.thetaa: unknown key; did you mean 'theta'?"),
+        ("safety.samples=lots", "safety.samples='lots': input should be a valid integer"),
+        ("safety.theta=2", "safety.theta=2: input should be less than 1"),
+    ],
+    "safety_sweep": [
+        ("+scenario.ring_radiuss=20", "scenario.ring_radiuss: unknown key; did you mean 'ring_radius'?"),
+        ("weather.shadow=sometimes", "weather.shadow='sometimes': input should be a valid boolean"),
+        ("camera.width=4", "camera.width=4: input should be greater than or equal to 8"),
+    ],
+    "evaluate": [
+        ("+evaluate.sample=3", "evaluate.sample: unknown key; did you mean 'samples'?"),
+        ("evaluate.eps=wide", "evaluate.eps='wide': input should be a valid number"),
+        ("evaluate.batch_size=0", "evaluate.batch_size=0: input should be greater than or equal to 1"),
+    ],
+    "avoid": [
+        (
+            "+warning.actions.warning0.alertt=true",
+            "warning.actions.warning0.alertt: unknown key; did you mean 'alert'?",
+        ),
+        ("warning.actions.warning1.alert=maybe", "warning.actions.warning1.alert='maybe': input should be a valid"),
+        ("avoid.calibration.gamma=1.5", "avoid.calibration.gamma=1.5: input should be less than 1"),
+    ],
+    "safety_summary": [
+        ("+summary.figure_dir=x", "summary.figure_dir: unknown key; did you mean 'figures_dir'?"),
+        ("noises=[none]", "noises[0]='none': input should be a valid number"),
+        ("locations=[]", "locations=[]: tuple should have at least 1 item"),
+    ],
+    "avoid_summary": [
+        ("+summary.result_dir=x", "summary.result_dir: unknown key; did you mean 'results_dir'?"),
+        ("methods=[1]", "methods[0]=1: input should be a valid string"),
+        ("methods=[]", "methods=[]: tuple should have at least 1 item"),
+    ],
+    "report": [
+        ("+report.outdir=x", "report.outdir: unknown key; did you mean 'out_dir'?"),
+        ("noises=[high]", "noises[0]='high': input should be a valid number"),
+        ("noises=[-1]", "noises[0]=-1: input should be greater than or equal to 0"),
+    ],
+}
+
+
+@pytest.mark.parametrize(
+    ("stage", "override", "message"), [(s, o, m) for s, cases in BAD.items() for o, m in cases], ids=str
+)
+def test_a_bad_key_type_or_value_in_any_stage_is_one_line_naming_the_key_and_nothing_is_written(
+    tmp_path, stage_config, stage, override, message
+):
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")  # the lists the stages read (${params:...})
+    cfg = stage_config(stage, override)
+    with pytest.raises(ConfigError) as err:
+        STAGES[stage](cfg)
+    assert str(err.value).startswith(message), str(err.value)
+    assert "\n" not in str(err.value)
+    assert [p.name for p in tmp_path.iterdir()] == ["params.yaml"]  # no output, no MLflow store
+
+
+def test_every_stage_config_is_covered():
+    assert set(STAGES) == {p.stem for p in (ROOT / "conf").glob("*.yaml")} - {"common", "sim"}
