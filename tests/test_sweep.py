@@ -125,7 +125,7 @@ def test_an_interrupted_or_failed_sweep_leaves_no_run_running(tmp_path):
     failed.mkdir()
     sweep = _sweep(failed, "collect.episodes=1", "noise=0,-1")  # the second job has a bad value
     err = _finish(sweep, failed)
-    assert sweep.returncode == 2 and "error: noise=-1 must be >= 0" in err
+    assert sweep.returncode == 2 and "error: noise=-1: input should be greater than or equal to 0" in err
     statuses = sorted((r.info.status, "mlflow.parentRunId" in r.data.tags) for r in _runs(failed))
     assert statuses == [("FAILED", False), ("FINISHED", True)]  # the parent, and the first job's run
     # the sweep wrote under its own folder, not into the project's pipeline outputs

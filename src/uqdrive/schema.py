@@ -48,12 +48,14 @@ class ConfigError(ValueError):
     """A bad config value; the message names the full key path, the value and what is allowed."""
 
 
-def schema(cls: type[T] | None = None, *, root: bool = False, frozen: bool = False):
+def schema(cls: type[T] | None = None, *, root: bool = False, frozen: bool = False, kw_only: bool = False):
     """A config section's schema: unknown keys are errors. ``root=True`` for a stage's whole config, whose
-    top level also holds keys of other stages (the profile sets them all) and so ignores what it does not name."""
+    top level also holds keys of other stages (the profile sets them all) and so ignores what it does not name.
+    ``kw_only``: fields without defaults may follow an inherited schema's fields with defaults (root: always)."""
 
     def wrap(c: type[T]) -> type[T]:
-        return _pydantic_dataclass(c, config=_ROOT if root else _SECTION, frozen=frozen, kw_only=root)
+        config = _ROOT if root else _SECTION
+        return _pydantic_dataclass(c, config=config, frozen=frozen, kw_only=root or kw_only)
 
     return wrap if cls is None else wrap(cls)
 

@@ -7,9 +7,9 @@ from typing import Annotated, Any
 from pydantic import Field
 
 from uqdrive.pipeline.configs import Executor, ModelStage
-from uqdrive.safety.cells import EstimatorSettings, Scheme
+from uqdrive.safety.cells import EstimatorSettings
 from uqdrive.safety.warnings import WarningConfig
-from uqdrive.schema import Count, NonNegative, OpenUnit, Positive, Seed, Str, Unit, invalid, schema, validate
+from uqdrive.schema import NonNegative, OpenUnit, Positive, Seed, Str, Unit, invalid, schema, validate
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
 
 
@@ -44,19 +44,15 @@ class CalibrationSettings:
         object.__setattr__(self, "taus", tuple(sorted(set(self.taus))))
 
 
-@schema
-class AvoidSection:
-    """conf/avoid.yaml's `avoid`."""
+@schema(frozen=True, kw_only=True)
+class AvoidSection(EstimatorSettings):
+    """conf/avoid.yaml's `avoid`: every cell's estimator (scheme, theta, gamma, look_size, base_seed), the world and
+    the calibration."""
 
     model_path: Str
     horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked)
     speed: Positive  # cruise speed (m/s), at most vehicle.max_speed
     eps: Positive
-    scheme: Scheme
-    theta: OpenUnit
-    gamma: OpenUnit
-    look_size: Count
-    base_seed: Seed
     validation_seed: Seed
     known_noise: NonNegative
     unknown: Annotated[tuple[UnknownCondition, ...], Field(min_length=1)]
@@ -70,10 +66,6 @@ class AvoidSection:
         names = [c.name for c in self.unknown]
         if len(set(names)) != len(names):
             raise invalid("unknown", names, "must have unique names")
-
-    @property
-    def estimator(self) -> EstimatorSettings:
-        return EstimatorSettings(self.scheme, self.theta, self.gamma, self.base_seed, self.look_size)
 
 
 @schema(root=True)

@@ -30,7 +30,6 @@ from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
 from uqdrive.resolvers import noise_label
 from uqdrive.safety.cells import (
     EstimatorSettings,
-    Scheme,
     cell_hash,
     cell_posterior,
     estimate_safety,
@@ -42,7 +41,7 @@ from uqdrive.safety.executors import PolicySpec, ProcessPool, RolloutJob, execut
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
-from uqdrive.schema import Count, NonNegative, OpenUnit, Positive, Seed, Str, invalid, schema, validate
+from uqdrive.schema import Count, NonNegative, Positive, Str, invalid, schema, validate
 from uqdrive.sim import ScenarioGeometry, build_geometry
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
 from uqdrive.tracking import numeric_metrics, stage_run
@@ -50,17 +49,13 @@ from uqdrive.tracking import numeric_metrics, stage_run
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
 
 
-@schema
-class SafetySection:
-    """conf/safety.yaml's `safety`: one cell's estimator, controller and outputs."""
+@schema(frozen=True, kw_only=True)
+class SafetySection(EstimatorSettings):
+    """conf/safety.yaml's `safety`: one cell's estimator (scheme, theta, gamma, look_size, base_seed), controller
+    and outputs."""
 
     model_path: Str
     horizon_s: Positive  # T
-    scheme: Scheme
-    theta: OpenUnit
-    gamma: OpenUnit
-    look_size: Count
-    base_seed: Seed
     speed: Positive  # m/s, at most vehicle.max_speed
     samples: Count  # posterior draws per frame
     eps: Positive  # η2's ball, steering units
@@ -70,10 +65,6 @@ class SafetySection:
     positions: Str
     rollout_log: Str
     plots_dir: Str
-
-    @property
-    def estimator(self) -> EstimatorSettings:
-        return EstimatorSettings(self.scheme, self.theta, self.gamma, self.base_seed, self.look_size)
 
 
 @schema(root=True)

@@ -46,6 +46,11 @@ class EstimatorSettings:
     base_seed: Seed = 0
     look_size: Count = 4
 
+    @property
+    def estimator(self) -> EstimatorSettings:
+        """These settings alone (a stage's config section that extends them holds more)."""
+        return EstimatorSettings(self.scheme, self.theta, self.gamma, self.base_seed, self.look_size)
+
     def planned_rollouts(self) -> int:
         """Rollouts the scheme runs (the most it may run, for `sequential`)."""
         if self.scheme == "sequential":
