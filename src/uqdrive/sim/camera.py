@@ -96,7 +96,7 @@ class Camera:
         depth = far * near / (far - (far - near) * depth_buf)
         np.copyto(depth, np.float32(np.inf), where=sky)
         self.last_depth = depth
-        img = apply_weather(img, depth, sky, road_lookup[seg + 1], look, streak_rng)
+        img = apply_weather(img, depth, sky, road_lookup.take(seg + 1), look, streak_rng)
         return add_noise(img, noise, noise_rng)
 
     def _look_of(self, weather: WeatherConfig) -> Look:
@@ -191,14 +191,17 @@ def _rain_cover(
     x0, y0 = u[:, 0] * _REF_WIDTH, u[:, 1] * _REF_HEIGHT
     reach = weather.rain_length * (0.5 + u[:, 2])
     angle = np.radians(weather.rain_angle_deg + 8.0 * u[:, 3] - 4.0)
-    ends = np.stack([x0, y0, x0 + np.sin(angle) * reach, y0 + np.cos(angle) * reach], axis=1)
-    ends = ends.astype(np.int32).reshape(-1, 2, 2)
+    ends = np.array([x0, y0, x0 + np.sin(angle) * reach, y0 + np.cos(angle) * reach]).astype(np.int32)
+    ends = ends.T.reshape(-1, 2, 2)  # np.array, not np.stack: this runs every frame, and np.stack is Python
     level = (u[:, 4] * _RAIN_LEVELS).astype(int)
+    ends = ends[np.argsort(level, kind="stable")]  # by opacity step: each step's streaks are one slice
     cover = np.zeros((_REF_HEIGHT, _REF_WIDTH), np.float32)
-    for k in range(_RAIN_LEVELS):
-        lines = ends[level == k]
-        if len(lines):
+    start = 0
+    for k, count in enumerate(np.bincount(level, minlength=_RAIN_LEVELS).tolist()):
+        if count:
+            lines = ends[start : start + count]
             cv2.polylines(cover, lines, False, weather.rain_intensity * (0.5 + 0.5 * (k + 0.5) / _RAIN_LEVELS))
+        start += count
     if (h, w) != cover.shape:
         cover = cv2.resize(cover, (w, h), interpolation=cv2.INTER_AREA)
     return 1 - cover, cover
@@ -218,5 +221,6 @@ def add_noise(img: np.ndarray, sigma: float, rng: np.random.Generator) -> np.nda
         cv2.setRNGSeed(int(rng.integers(2**31)))
         cv2.randn(noise, 0.0, float(sigma))
         img = img + _planes3(noise)
-    img = np.maximum(img, 0.0, out=img)  # convertScaleAbs saturates above, so only the floor needs clipping
-    return cv2.convertScaleAbs(img, alpha=255.0)  # rounds to nearest, as np.rint
+    # 255 img rounded to nearest (as np.rint) and saturated at 0 and 255 in one call: OpenCV's Python API has no
+    # convertTo (convertScaleAbs takes |x|, so it needed a floor first), so the second term has weight 0
+    return cv2.addWeighted(img, 255.0, img, 0.0, 0.0, dtype=cv2.CV_8U)

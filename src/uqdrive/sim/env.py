@@ -106,7 +106,7 @@ class DrivingEnv:
             raise RuntimeError("episode is over (or was never started); call reset() first")
         self._state = self.model.step(self._state, steer, speed, self.dt)
         self._t += self.dt
-        self._applied = float(np.clip(steer, -1.0, 1.0))
+        self._applied = min(max(float(steer), -1.0), 1.0)  # np.clip's value, nan included, without its cost
         info = self._evaluate()
         self.last_info = info
         return self._observe(), info
@@ -115,9 +115,8 @@ class DrivingEnv:
         st, geo, world = self._state, self._geometry, self._world
         world.set_ego_pose(st.x, st.y, st.yaw)
         collision = world.in_collision(st.x, st.y)
-        off_road = not bool(np.all(geo.is_paved(np.array(self.model.corners(st)))))
-        s, lateral = geo.route.project(np.array([[st.x, st.y]]))
-        progress = float(s[0])
+        off_road = not geo.paved.covers(self.model.corners(st))
+        progress, lateral = geo.route.project_point(st.x, st.y)
         if collision:
             termination = "collision"
         elif off_road:
@@ -141,7 +140,7 @@ class DrivingEnv:
             "steer_angle": st.steer_angle,
             "collision": collision,
             "off_road": off_road,
-            "lateral_deviation": float(lateral[0]),
+            "lateral_deviation": lateral,
             "progress": progress,
             "done": self._done,
             "termination": termination,

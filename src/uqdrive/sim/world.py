@@ -12,6 +12,7 @@ so the image is unchanged and only what can be seen is rasterised.
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -82,8 +83,6 @@ class World:
             radius = item.size[1] if item.kind == "tree" else 0.5 * math.hypot(*item.size[:2])
             self._collidable.append((body, item.x, item.y, radius))
             self._cullable.append((body, item.x, item.y, radius, colors))
-        self._col_xy = np.array([[c[1], c[2]] for c in self._collidable]).reshape(-1, 2)
-        self._col_r = np.array([c[3] for c in self._collidable])
         self._cull_xy = np.array([[c[1], c[2]] for c in self._cullable]).reshape(-1, 2)
         self._cull_reach = -np.array([c[3] for c in self._cullable])[:, None]  # signed distance a body reaches
         self._shown = np.ones(len(self._cullable), bool)
@@ -95,7 +94,13 @@ class World:
         # road mask of a segmentation image in one lookup: road_lookup[seg + 1] (seg is -1 on the sky)
         self.road_lookup = np.zeros(client.getNumBodies() + 1, bool)
         self.road_lookup[np.asarray(self.road_ids, int) + 1] = True
-        self._col_reach2 = (self._col_r + 0.5 * math.hypot(vehicle.length, vehicle.width) + 0.1) ** 2  # squared
+        # in_collision's props sorted by x (x, y, squared reach, id), and the farthest reach, for a window on x
+        half_diagonal = 0.5 * math.hypot(vehicle.length, vehicle.width)
+        reach = sorted((float(x), float(y), r + half_diagonal + 0.1, body) for body, x, y, r in self._collidable)
+        self._near_x = [x for x, *_ in reach]
+        self._near_test = [(x, y, d * d, body) for x, y, d, body in reach]
+        self._near_reach = max((d for *_, d, _ in reach), default=0.0) + 1e-6  # more than rounding can move
+        self._ego_pose: tuple[float, float, float] | None = None  # set but not yet placed in pybullet
 
     def _mesh(self, triangles: np.ndarray, z: float, color) -> list[int]:
         """Flat triangle mesh bodies (visual only); triangles made counter-clockwise so they face up."""
@@ -194,7 +199,15 @@ class World:
         return client.createMultiBody(0, col, vis)
 
     def set_ego_pose(self, x: float, y: float, yaw: float) -> None:
-        self.client.resetBasePositionAndOrientation(self.ego_id, [x, y, 0.0], _yaw_quat(yaw))
+        """Move the ego, in pybullet only once a query needs it (`_place_ego`): the ego is invisible, so
+        its pose matters to `in_collision` and `clearance` alone, and an env step is mostly far from props."""
+        self._ego_pose = (x, y, yaw)
+
+    def _place_ego(self) -> None:
+        if self._ego_pose is not None:
+            x, y, yaw = self._ego_pose
+            self.client.resetBasePositionAndOrientation(self.ego_id, [x, y, 0.0], _yaw_quat(yaw))
+            self._ego_pose = None
 
     def cull(self, apex_x: float, apex_y: float, yaw: float, half_angle: float) -> None:
         """Show exactly the bodies whose ground footprint (bounding circle) meets the wedge of
@@ -209,7 +222,8 @@ class World:
         else:
             left, right = yaw + half_angle, yaw - half_angle
             inward = np.array([[math.sin(left), -math.sin(right)], [-math.cos(left), math.cos(right)]])
-            visible = np.all((self._cull_xy - (apex_x, apex_y)) @ inward >= self._cull_reach, axis=1)
+            inside = (self._cull_xy - (apex_x, apex_y)) @ inward >= self._cull_reach  # of each side's half-plane
+            visible = inside[:, 0] & inside[:, 1]
         for k in np.flatnonzero(visible != self._shown):
             body, *_, colors = self._cullable[k]
             for shape, rgba in enumerate(colors):
@@ -219,19 +233,25 @@ class World:
         self._shown = visible
 
     def in_collision(self, x: float, y: float) -> bool:
-        """Exact pybullet overlap test of the ego (at its current pose) against nearby props."""
-        if not len(self._col_r):
-            return False
-        rel = self._col_xy - (x, y)
-        near = np.einsum("ij,ij->i", rel, rel) <= self._col_reach2
-        for k in np.flatnonzero(near):
-            if self.client.getClosestPoints(self.ego_id, self._collidable[k][0], distance=0.0):
-                return True
+        """Exact pybullet overlap test of the ego (at its current pose) against nearby props.
+
+        "Nearby" is a bounding-circle test with 0.1 m to spare, in plain Python over the props within
+        reach along x (numpy's per-call cost was most of an env step's collision check).
+        """
+        lo = bisect.bisect_left(self._near_x, x - self._near_reach)
+        hi = bisect.bisect_right(self._near_x, x + self._near_reach)
+        for px, py, reach2, body in self._near_test[lo:hi]:
+            dx, dy = px - x, py - y
+            if dx * dx + dy * dy <= reach2:
+                self._place_ego()
+                if self.client.getClosestPoints(self.ego_id, body, distance=0.0):
+                    return True
         return False
 
     def clearance(self, max_distance: float = 5.0) -> float:
         """Smallest distance (m) from the ego to any collidable body within max_distance."""
         best = max_distance
+        self._place_ego()
         for body, *_ in self._collidable:
             for pt in self.client.getClosestPoints(self.ego_id, body, distance=max_distance):
                 best = min(best, pt[8])
