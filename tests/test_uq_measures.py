@@ -94,6 +94,39 @@ def test_frame_measures_agree_with_the_single_functions() -> None:
     assert torch.allclose(m.steering_mean, mean) and torch.allclose(m.steering_var, var)
 
 
+def test_split_draws_give_the_mode_from_the_first_and_eta2_from_the_others_exactly() -> None:
+    probs = torch.distributions.Dirichlet(torch.full((5,), 0.3)).sample((60, 3))
+    whole = frame_measures(probs, CENTRES.float(), 0.1, split=25)
+    first = frame_measures(probs[:25], CENTRES.float(), 0.1)
+    for field in ("decision", "mutual_information", "entropy", "steering_mean", "steering_var"):
+        assert torch.equal(getattr(whole, field), getattr(first, field)), field
+    assert torch.equal(whole.eta2, decision_confidence(probs[25:], CENTRES.float(), 0.1, first.decision))
+    for split in (0, 60, -1):
+        with pytest.raises(ValueError, match=f"split={split} must leave draws on both sides"):
+            frame_measures(probs, CENTRES.float(), 0.1, split=split)
+
+
+def _with(value: float, at: tuple[int, int, int]) -> torch.Tensor:
+    probs = PROBS.clone()
+    probs[at] = value
+    return probs
+
+
+@pytest.mark.parametrize(
+    ("probs", "match"),
+    [
+        (_with(math.nan, (1, 0, 2)), "probs must be finite, got NaN or inf"),
+        (_with(math.inf, (3, 1, 0)), "probs must be finite, got NaN or inf"),
+        (_with(-math.inf, (0, 0, 4)), "probs must be finite, got NaN or inf"),
+        (_with(-0.1, (2, 1, 3)), r"probs must be >= 0, got minimum -0\.1"),
+        (_with(0.7, (0, 0, 0)), r"probs must sum to 1 along C .*got sum 1\.6 at sample 0, frame 0"),
+    ],
+)
+def test_every_non_probability_is_rejected_by_its_check(probs: torch.Tensor, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        frame_measures(probs, CENTRES, 0.1)
+
+
 @pytest.mark.parametrize(
     ("probs", "centres", "eps", "match"),
     [

@@ -78,20 +78,20 @@ def main(argv: list[str]) -> int:
         f"{'measures':>8} {'warning':>7}  (medians, ms)"
     )
     worst, worst_p95 = 0.0, 0.0
-    with torch.no_grad():
+    with torch.inference_mode():  # as the controller runs
         for method, posterior in posteriors.items():
             controller = WarningController(posterior, bins, config, eps=0.1, speed=8.0, control_hz=15.0)
             controller.reset(None, args.seed)
             full = _times_ms(lambda: controller.act(frame, info), args.frames)
             probs = posterior.sample_probs(x, n, generator)
-            measures = frame_measures(probs, centres, 0.1)
+            measures = frame_measures(probs, centres, 0.1, split=config.samples)
             e2, mi = float(measures.eta2[0]), float(measures.mutual_information[0])
             parts = [
                 statistics.median(_times_ms(fn, max(20, args.frames // 4)))
                 for fn in (
                     lambda: to_inputs(preprocess_frame(frame)[None]),
                     lambda: posterior.sample_probs(x, n, generator),
-                    lambda: frame_measures(probs, centres, 0.1),
+                    lambda: frame_measures(probs, centres, 0.1, split=config.samples),
                     lambda: controller.actions.step(classify(e2, mi, config.delta1, config.delta2, config.tau)),
                 )
             ]

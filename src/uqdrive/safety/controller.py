@@ -20,7 +20,7 @@ from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.posterior import Posterior
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
-from uqdrive.uq import decision_confidence, frame_measures
+from uqdrive.uq import frame_measures
 
 NO_WARNING = -1
 """Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.safety.warnings`)."""
@@ -88,17 +88,15 @@ class Controller:
     def reset(self, env: DrivingEnv, seed: int) -> None:
         self.generator.manual_seed(seed)
 
-    @torch.no_grad()
+    @torch.inference_mode()  # no autograd bookkeeping on the frame's ~100 small tensor ops
     def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
         if obs is None:
             raise ValueError("Controller needs a camera frame; reset the env with render=True")
         x = to_inputs(preprocess_frame(obs)[None])  # exactly what the network was trained on
         n = self.n_samples
-        probs = self.posterior.sample_probs(x, 2 * n, self.generator)
-        m = frame_measures(probs[:n], self.centres, self.eps)
-        eta2 = decision_confidence(probs[n:], self.centres, self.eps, m.decision)
+        m = frame_measures(self.posterior.sample_probs(x, 2 * n, self.generator), self.centres, self.eps, split=n)
         return Command(
-            float(m.decision[0]), self.speed, float(eta2[0]), float(m.mutual_information[0]), float(m.entropy[0])
+            float(m.decision[0]), self.speed, float(m.eta2[0]), float(m.mutual_information[0]), float(m.entropy[0])
         )
 
 

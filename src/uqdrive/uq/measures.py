@@ -49,6 +49,30 @@ def check_samples(probs: ArrayLike, centres: ArrayLike | None = None) -> tuple[t
         raise ValueError(f"probs must have n, B, C >= 1, got shape {tuple(p.shape)}")
     if not p.is_floating_point():
         p = p.to(torch.get_default_dtype())
+    if not _valid_probs(p):
+        _reject(p)
+    if centres is None:
+        return p, None
+    c = torch.as_tensor(centres, dtype=p.dtype)
+    if c.ndim != 1 or c.shape[0] != p.shape[-1]:
+        raise ValueError(
+            f"centres must be 1-D with length C={p.shape[-1]} (the last axis of probs), got shape {tuple(c.shape)}"
+        )
+    if not torch.isfinite(c).all():
+        raise ValueError("centres must be finite, got NaN or inf")
+    return p, c
+
+
+def _valid_probs(p: torch.Tensor) -> bool:
+    """Non-negative rows summing to 1 within tolerance, in three reductions (a controller checks every frame).
+
+    That also proves every entry finite: a NaN makes its row sum NaN (and the comparison false), +inf its
+    row sum inf, −inf the minimum; `_reject` then finds which check failed."""
+    return bool(p.min() >= 0) and bool((p.sum(-1) - 1).abs().max() <= PROB_SUM_TOL)
+
+
+def _reject(p: torch.Tensor) -> None:
+    """Raise the error naming the first check ``p`` fails."""
     if not torch.isfinite(p).all():
         raise ValueError("probs must be finite, got NaN or inf")
     if (p < 0).any():
@@ -60,16 +84,6 @@ def check_samples(probs: ArrayLike, centres: ArrayLike | None = None) -> tuple[t
             f"probs must sum to 1 along C (tolerance {PROB_SUM_TOL}), got sum "
             f"{p[i, b].sum().item():.6g} at sample {i}, frame {b}"
         )
-    if centres is None:
-        return p, None
-    c = torch.as_tensor(centres, dtype=p.dtype)
-    if c.ndim != 1 or c.shape[0] != p.shape[-1]:
-        raise ValueError(
-            f"centres must be 1-D with length C={p.shape[-1]} (the last axis of probs), got shape {tuple(c.shape)}"
-        )
-    if not torch.isfinite(c).all():
-        raise ValueError("centres must be finite, got NaN or inf")
-    return p, c
 
 
 def _check_eps(eps: float) -> float:
@@ -163,17 +177,25 @@ def steering_moments(probs: ArrayLike, centres: ArrayLike) -> tuple[torch.Tensor
     return mean, var
 
 
-def frame_measures(probs: ArrayLike, centres: ArrayLike, eps: float) -> FrameMeasures:
-    """All per-frame measures at once (validates the input once, shares the predictive)."""
+def frame_measures(probs: ArrayLike, centres: ArrayLike, eps: float, split: int | None = None) -> FrameMeasures:
+    """All per-frame measures at once (validates the input once, shares the predictive).
+
+    ``split``: draws ``[:split]`` give π(o) and every other measure, draws ``[split:]`` give η2 around
+    that π(o) (as :func:`decision_confidence` with ``pi``): the controller's separate draws, which make
+    η̂2 a binomial mean given π(o). The same numbers as the two calls, from one check of the input.
+    """
     e = _check_eps(eps)
     p, c = check_samples(probs, centres)
+    if split is not None and not 0 < split < len(p):
+        raise ValueError(f"split={split!r} must leave draws on both sides: 0 < split < n={len(p)}")
+    p, confidence = (p, p) if split is None else (p[:split], p[split:])
     q = p.mean(0)
     pi = c[q.argmax(-1)]
     h = _entropy(q)
     mean = q @ c
     return FrameMeasures(
         decision=pi,
-        eta2=_eta2(p, c, pi, e),
+        eta2=_eta2(confidence, c, pi, e),
         mutual_information=(h - _entropy(p).mean(0)).clamp_min(0),
         entropy=h,
         steering_mean=mean,
