@@ -60,7 +60,7 @@ class Autopilot:
         x, y, yaw, v = info["x"], info["y"], info["yaw"], info["speed"]
         half = self.vehicle.wheelbase / 2
         rx, ry = x - half * math.cos(yaw), y - half * math.sin(yaw)
-        s = float(self.route.project(np.array([[rx, ry]]))[0][0])
+        s = self.route.project_point(rx, ry)[0]
         lookahead = cfg.lookahead_base + cfg.lookahead_gain * v
         tx, ty, _ = self.route.sample(s + lookahead)
         dx, dy = float(tx) - rx, float(ty) - ry

@@ -88,20 +88,17 @@ class Route:
 
         Vectorised over points x segments, x and y apart (numpy is slow over a last axis of 2);
         past either end the end segment is extended so progress and deviation stay meaningful
-        when a car overshoots. A single point takes `project_point`, with the same result.
+        when a car overshoots. `project_point` gives one point's result, bit for bit, at a step's cost.
         """
-        q = np.atleast_2d(np.asarray(points, float))
-        if len(q) == 1:
-            s, lateral = self.project_point(q[0, 0], q[0, 1])
-            return np.array([s]), np.array([lateral])
-        return self._project_all(q)
+        return self._project_all(np.atleast_2d(np.asarray(points, float)))
 
     def project_point(self, x: float, y: float) -> tuple[float, float]:
         """`project` of one point, bit for bit, in plain Python over the few segments that can be closest.
 
-        Every env step and autopilot step projects the car, and numpy's per-call cost made that
-        the dearest check of a step. The candidates of a `_CELL` grid cell are worked out on its
-        first visit (`_cell_candidates`) and kept; a point off the grid takes the full computation.
+        Every env step and autopilot step projects the car, and numpy's per-call cost over all
+        segments made that the dearest check of a step. The candidates of a `_CELL` grid cell are
+        worked out on its first visit (`_cell_candidates`) and kept; a point off the grid takes the
+        full computation.
         """
         grid, x, y = self._grid, float(x), float(y)  # float64, as `project` makes them
         fx, fy = (x - grid.x0) / _CELL, (y - grid.y0) / _CELL
@@ -130,11 +127,18 @@ class Route:
         seg = math.sqrt(seg_len2)
         return float(self.s[k] + t * seg), float((dx * rel_y - dy * rel_x) / seg)
 
-    def _project_all(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _to_segments(self, q: np.ndarray) -> tuple[np.ndarray, ...]:
+        """From each point of q [N, 2] to every segment [N, S]: offsets from its start, the clipped
+        parameter of the closest point on it, and the squared distance to that point."""
         ax, ay, dx, dy, seg_len2, lo, hi = self._segments
         rel_x, rel_y = q[:, :1] - ax, q[:, 1:] - ay
         t = np.clip((rel_x * dx + rel_y * dy) / seg_len2, lo, hi)
         dist2 = (q[:, :1] - (ax + t * dx)) ** 2 + (q[:, 1:] - (ay + t * dy)) ** 2
+        return rel_x, rel_y, t, dist2
+
+    def _project_all(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        _, _, dx, dy, seg_len2, _, _ = self._segments
+        rel_x, rel_y, t, dist2 = self._to_segments(q)
         k = np.argmin(dist2, axis=1)
         rows = np.arange(len(q))
         seg = np.sqrt(seg_len2[k])
@@ -152,10 +156,8 @@ class Route:
         q, never tied with it (`_CELL_SLACK` dwarfs the rounding of these distances).
         """
         grid = self._grid
-        c = np.array([[grid.x0 + (ix + 0.5) * _CELL, grid.y0 + (iy + 0.5) * _CELL]])
-        ax, ay, dx, dy, seg_len2, lo, hi = self._segments
-        t = np.clip(((c[:, :1] - ax) * dx + (c[:, 1:] - ay) * dy) / seg_len2, lo, hi)
-        d = np.hypot(c[0, 0] - (ax + t[0] * dx), c[0, 1] - (ay + t[0] * dy))
+        centre = np.array([[grid.x0 + (ix + 0.5) * _CELL, grid.y0 + (iy + 0.5) * _CELL]])
+        d = np.sqrt(self._to_segments(centre)[3][0])
         near = np.flatnonzero(d <= d.min() + _CELL * math.sqrt(2) + _CELL_SLACK)
         return tuple(near.tolist()) if len(near) <= _MAX_CANDIDATES else None
 
