@@ -1,3 +1,4 @@
+import contextlib
 import dataclasses
 import json
 import subprocess
@@ -36,8 +37,9 @@ def run(env, seed, weather, noise=0.0, steps=4, scenario=OBSTACLE, render=True):
 def test_observation_shape_and_render_off(env):
     frames, traj = run(env, 0, WEATHERS["clear_noon"], steps=1)
     assert frames[0].shape == (INPUT_HEIGHT, INPUT_WIDTH, 3) and frames[0].dtype == np.uint8  # the network's size
-    with DrivingEnv(CameraConfig(width=160, height=120)) as large:
-        assert run(large, 0, WEATHERS["clear_noon"], steps=0)[0][0].shape == (120, 160, 3)
+    with DrivingEnv(CameraConfig(width=160, height=120)) as large:  # a larger render is delivered reduced
+        assert run(large, 0, WEATHERS["clear_noon"], steps=0)[0][0].shape == (INPUT_HEIGHT, INPUT_WIDTH, 3)
+        assert large.camera.last_depth.shape == (120, 160)
     frames, _ = run(env, 0, WEATHERS["clear_noon"], steps=1, render=False)
     assert frames == [None, None]
     assert set(traj) == {"t", "x", "y", "yaw", "speed", "steering"} and len(traj["t"]) == 2
@@ -131,10 +133,14 @@ def test_fog_lowers_contrast_with_depth(env):
     assert ratio_far < 0.5 * ratio_near
 
 
-def test_noise_only_adds_noise_and_sigma_is_what_the_network_sees(env):
+@pytest.mark.parametrize("size", [None, (80, 60), (160, 120)])
+def test_noise_only_adds_noise_and_sigma_is_what_the_network_sees(env, size):
+    """At every render size: the frame is reduced to 64x48 before the noise, so σ is not averaged away."""
     rain = WEATHERS["rain"]
-    clean, t_clean = run(env, 3, rain, noise=0.0)
-    noisy, t_noisy = run(env, 3, rain, noise=0.05)
+    other = size and DrivingEnv(CameraConfig(width=size[0], height=size[1]))
+    with contextlib.nullcontext(env) if other is None else other as env:
+        clean, t_clean = run(env, 3, rain, noise=0.0)
+        noisy, t_noisy = run(env, 3, rain, noise=0.05)
     for c, n in zip(clean, noisy):
         diff = n.astype(float) - c.astype(float)
         assert abs(diff.mean()) < 1.5

@@ -4,6 +4,10 @@ pybullet lighting (direction, colour, ambient/diffuse/specular, shadows) gives t
 sky, wet road, fog, tint, blur and rain streaks are image-space effects driven by the
 depth and segmentation buffers, so every weather costs one render. Blur and rain are given
 at 160x120 and scaled to the render size, so they mean the same at any resolution.
+
+Every frame is delivered at the network's 64x48, whatever the render size: a larger render is
+area-reduced after the weather and before the sensor noise, so that σ is the noise on the
+network's input at any render size (rendering larger only buys anti-aliasing).
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ import math
 
 import cv2
 import numpy as np
+
+from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH
 
 from .bullet import pybullet as p
 from .config import CameraConfig, WeatherConfig
@@ -69,8 +75,8 @@ class Camera:
         noise: float,
         noise_rng: np.random.Generator,
     ) -> np.ndarray:
-        """RGB uint8 [H, W, 3] seen from the body-centre pose (x, y, yaw); ``road_lookup[body id + 1]``
-        says which bodies are road (`World.road_lookup`)."""
+        """RGB uint8 [48, 64, 3] seen from the body-centre pose (x, y, yaw); ``road_lookup[body id + 1]``
+        says which bodies are road (`World.road_lookup`). ``last_depth`` keeps the render's size."""
         cfg = self.config
         look = self._look_of(weather)
         _, _, rgba, depth_buf, seg = self.client.getCameraImage(
@@ -97,6 +103,8 @@ class Camera:
         np.copyto(depth, np.float32(np.inf), where=sky)
         self.last_depth = depth
         img = apply_weather(img, depth, sky, road_lookup.take(seg + 1), look, streak_rng)
+        if img.shape[:2] != (INPUT_HEIGHT, INPUT_WIDTH):
+            img = cv2.resize(img, (INPUT_WIDTH, INPUT_HEIGHT), interpolation=cv2.INTER_AREA)
         return add_noise(img, noise, noise_rng)
 
     def _look_of(self, weather: WeatherConfig) -> Look:
@@ -210,9 +218,9 @@ def _rain_cover(
 def add_noise(img: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
     """Gaussian luminance noise, sigma in units of full intensity; float [0, 1] RGB -> uint8.
 
-    One normal per pixel, added to R, G and B alike: the grey value the network is fed
-    (weights summing to 1) gets exactly sigma, so at the default render size (the network's
-    64x48) sigma is the noise the network sees, before clipping to [0, 1] and 8-bit rounding.
+    One normal per pixel of the delivered 64x48 frame, added to R, G and B alike: the grey value
+    the network is fed (weights summing to 1) gets exactly sigma, at any render size, before
+    clipping to [0, 1] and 8-bit rounding.
     OpenCV draws the normals (3x faster than numpy: this runs on every frame), its generator
     re-seeded from ``rng`` each frame, so the noise stays a function of the episode seed alone.
     """

@@ -159,8 +159,8 @@ class CameraConfig(Section):
 
     section: ClassVar[str] = "camera"
 
-    # rendered size: the network's own 64x48 (it sees the grey of this image); rendering 160x120 to average it
-    # down to 64x48 made an env step about 3x dearer (README: the simulated world)
+    # rendered size: the network's own 64x48 (it sees the grey of this image); a larger render is area-reduced to
+    # 64x48 before the sensor noise (anti-aliasing at a price: 160x120 makes an env step about 4x dearer; README)
     width: Int = Field(64, ge=8)
     height: Int = Field(48, ge=8)
     fov_deg: Float = Field(60.0, gt=0, lt=180)
