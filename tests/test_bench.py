@@ -34,10 +34,17 @@ def test_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str], ar
 @pytest.mark.slow
 def test_rollout_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str]) -> None:
     """Spawns two worker processes (torch and pybullet start-up in each): tens of seconds."""
-    assert main(["bench", "rollout", "--samples", "20", "--steps", "15", "--repeats", "1", "--chunks", "3"]) == 0
+    assert main(["bench", "rollout", "--samples", "20", "--steps", "15", "--repeats", "1", "--chunks", "4"]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert any(line.startswith("closed loop, 160x120:") for line in out)
-    assert re.fullmatch(r"RESULT rollout overhead=[\d.]+ speedup2=[\d.]+ render_speedup=[\d.]+", out[-1]), out[-1]
+    pattern = r"RESULT rollout overhead=[\d.]+ speedup2=[\d.]+ render_speedup=[\d.]+ env_speedup=[\d.]+"
+    assert re.fullmatch(pattern, out[-1]), out[-1]
+
+
+def test_rollout_benchmark_refuses_chunks_that_time_nothing(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["bench", "rollout", "--chunks", "3"])
+    assert "--chunks=3 must be >= 4" in capsys.readouterr().err
 
 
 def test_unknown_benchmark_is_named_with_the_choices(capsys: pytest.CaptureFixture[str]) -> None:
@@ -57,7 +64,7 @@ def test_benchmarks_drive_trained_models_of_an_experiments_class_set(
     assert (
         main(
             ["bench", "rollout", "--models", str(tmp_path), "--samples", "20", "--steps", "15"]
-            + ["--repeats", "1", "--chunks", "3"]
+            + ["--repeats", "1", "--chunks", "4"]
         )
         == 0
     )
