@@ -137,8 +137,8 @@ def test_fog_lowers_contrast_with_depth(env):
 def test_noise_only_adds_noise_and_sigma_is_what_the_network_sees(env, size):
     """At every render size: the frame is reduced to 64x48 before the noise, so σ is not averaged away."""
     rain = WEATHERS["rain"]
-    other = size and DrivingEnv(CameraConfig(width=size[0], height=size[1]))
-    with contextlib.nullcontext(env) if other is None else other as env:
+    sized = DrivingEnv(CameraConfig(width=size[0], height=size[1])) if size else contextlib.nullcontext(env)
+    with sized as env:
         clean, t_clean = run(env, 3, rain, noise=0.0)
         noisy, t_noisy = run(env, 3, rain, noise=0.05)
     for c, n in zip(clean, noisy):
