@@ -138,6 +138,9 @@ def write_run(root):
             "calibration": {
                 "autonomy_target": 0.8,
                 "feasible": True,
+                "certified": 12,
+                "candidates": 729,
+                "guarantee": "With probability ≥ 0.95, each of the 12 certified candidates ...",
                 "delta1": 0.9,
                 "delta2": 0.8,
                 "tau": 0.45,

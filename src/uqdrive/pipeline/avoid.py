@@ -76,7 +76,7 @@ def run_avoid(cfg: DictConfig) -> dict:
             off = cells[condition.name, "off"] = run_cell(runner, cfg, settings, condition, "off", settings.warning)
             cells[condition.name, "on"] = run_cell(runner, cfg, settings, condition, "on", settings.warning, off)
         c, names = settings.calibration, [k.name for k in settings.conditions]
-        traces = traces_of([cells[name, "off"] for name in names], geometries)
+        traces = traces_of([cells[name, "off"] for name in names], geometries, settings.estimator.fixed_rollouts())
         calib = calibrate(
             traces,
             names,
@@ -85,6 +85,9 @@ def run_avoid(cfg: DictConfig) -> dict:
             list(c.taus),
             c.autonomy_target,
             c.gamma,
+            missed_limit=c.missed_limit,
+            calibration_fraction=c.calibration_fraction,
+            order=c.order,
             **settings.replay_args(),
         )
         calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from omegaconf import DictConfig
@@ -13,7 +13,7 @@ from pydantic import Field
 
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.pipeline.configs import Executor, ModelStage
-from uqdrive.safety.calibration import min_known_runs
+from uqdrive.safety.calibration import min_calibration_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
 from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.safe_sets import obstacle_pass_progress
@@ -52,15 +52,19 @@ class UnknownCondition:
 
 @schema(frozen=True)
 class CalibrationSettings:
-    """Threshold calibration: known-condition autonomy must have an exact lower bound (level 1 − ``gamma``)
-    ≥ ``autonomy_target``; among those, the most replayed unknown-condition safety. The candidate grids are
-    kept sorted and without repeats."""
+    """Threshold calibration by Learn-then-Test (`uqdrive.safety.calibration`): with probability ≥ 1 − ``gamma``
+    every certified candidate keeps the replayed known-condition autonomy ≥ ``autonomy_target`` (and, with
+    ``missed_limit``, each unknown condition's replayed missed-collision rate ≤ it); among the certified, the
+    most replayed unknown-condition safety. The candidate grids are kept sorted and without repeats."""
 
     autonomy_target: OpenUnit
-    gamma: OpenUnit
+    gamma: OpenUnit  # family-wise error over the candidate grid
     margin_m: NonNegative  # extra stopping distance a saved run must have kept before its collision point
     deltas: Annotated[tuple[Unit, ...], Field(min_length=1)]  # candidates for δ1 and δ2 (δ2 <= δ1)
     taus: Annotated[tuple[NonNegative, ...], Field(min_length=1)]  # candidates for τ
+    missed_limit: OpenUnit | None  # None: no constraint on the unknown conditions' missed collisions
+    calibration_fraction: Annotated[float, Field(gt=0, le=1)]  # share of run indices the tests use
+    order: Literal["firing", "learned"]  # the fixed sequence: a priori, or Pareto Testing on the other runs
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "deltas", tuple(sorted(set(self.deltas))))
@@ -227,13 +231,14 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     method = posterior_from_config(stage.model).method
     horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
     calibration = avoid.calibration
-    needed = min_known_runs(calibration.autonomy_target, calibration.gamma)
-    if estimator.scheme != "sequential" and estimator.planned_rollouts() < needed:
+    needed = min_calibration_runs(calibration.autonomy_target, calibration.gamma, calibration.calibration_fraction)
+    if estimator.fixed_rollouts() < needed:
         raise ConfigError(
-            f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be shown with "
-            f"{estimator.planned_rollouts()} known-condition runs (it needs {needed}); lower it or "
-            "tighten avoid.theta"
+            f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be certified with "
+            f"{estimator.fixed_rollouts()} known-condition runs (it needs {needed}); lower it or tighten avoid.theta"
         )
+    if calibration.order == "learned" and calibration.calibration_fraction == 1:
+        raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
     cell_posterior("avoid.model_path", model_path, method, bins, stage.experiment.train_stage(method))

@@ -5,7 +5,6 @@ catches; metrics/avoid/<method>.json.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -88,18 +87,19 @@ def replay_check(
     out = replay(traces, np.array([w.delta1]), np.array([w.delta2]), np.array([w.tau]), w, **settings.replay_args())
     check = {}
     for g, name in enumerate(calib_groups):
-        members = traces.group == g
-        safe = np.array([r.safe for r in cells[name, "on"].results])
-        replayed = out.safe[0, members]
+        replayed = out.safe[0, traces.group == g]
+        safe = np.array([r.safe for r in cells[name, "on"].results[: len(replayed)]])
         check[name] = {
             "replayed_eta1": float(replayed.mean()),
             "closed_loop_eta1": float(safe.mean()),
-            "agreement": float(np.mean(replayed == safe)) if len(safe) == len(replayed) else math.nan,
+            "agreement": float(np.mean(replayed == safe)),
         }
     return check
 
 
-def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict) -> dict:
+def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict, fresh: dict) -> dict:
+    """The chosen thresholds, what Learn-then-Test certified (and in what words), the replay at them, and the
+    closed-loop check on fresh seeds (``fresh``)."""
     row = {
         k: (v[calib.chosen].item() if hasattr(v[calib.chosen], "item") else v[calib.chosen])
         for k, v in calib.table.items()
@@ -109,10 +109,18 @@ def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict) -
         "delta2": calib.delta2,
         "tau": calib.tau,
         "feasible": calib.feasible,
+        "certified": calib.certified,
+        "guarantee": calib.guarantee,
         "autonomy_target": calib.target,
+        "max_certifiable_target": calib.max_target,
         "gamma": calib.gamma,
+        "missed_limit": calib.missed_limit,
+        "order": calib.order,
+        "calibration_runs": calib.calibration_runs,
+        "learn_runs": calib.learn_runs,
         "candidates": len(calib.table["delta1"]),
         "replayed": {k: v for k, v in row.items() if k not in ("delta1", "delta2", "tau")},
+        "fresh_seed_check": fresh,
         "uncaught_variants": uncaught,
         "replay_check": check,
     }
@@ -176,7 +184,14 @@ def write_outputs(
         for mode in MODES
     }
     check = replay_check(cells, names, settings, traces)
-    calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check)
+    fresh = {
+        "known_autonomy": table[names[0]]["calibrated"]["autonomy"],
+        "known_eta1": table[names[0]]["calibrated"]["eta1"],
+        "unknown_eta1": mixture["calibrated"]["eta1"],
+        "base_seed": settings.validation_seed,
+        "target_met": table[names[0]]["calibrated"]["autonomy"] >= calib.target,
+    }
+    calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check, fresh)
     calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
     configured = _configured_index(calib, settings)
     figures = [
@@ -226,7 +241,7 @@ def write_outputs(
                 "calibrated_delta2": calib.delta2,
                 "calibrated_tau": calib.tau,
                 "autonomy_target": calib.target,
-                "calibration_feasible": calib.feasible,
+                "calibration_certified": calib.certified,
             }
         )
         mlflow.log_metrics({f"replayed_{k}": float(v) for k, v in calibration["replayed"].items()})
