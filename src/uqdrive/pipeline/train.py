@@ -106,13 +106,14 @@ def run_train(cfg: DictConfig) -> dict:
 
 
 def curve_figure(rows: list[dict], method: str, unit: str) -> plt.Figure:
+    """Loss and validation accuracy per step; points are marked, so a curve of one step still shows."""
     step = [r["step"] for r in rows]
     fig, (loss_ax, acc_ax) = plt.subplots(1, 2, figsize=(9, 3.2))
-    loss_ax.plot(step, [r["train_loss"] for r in rows], label="train loss")
-    loss_ax.plot(step, [r["val_nll"] for r in rows], label="val NLL")
+    loss_ax.plot(step, [r["train_loss"] for r in rows], ".-", label="train loss")
+    loss_ax.plot(step, [r["val_nll"] for r in rows], ".-", label="val NLL")
     loss_ax.set_xlabel(unit)
     loss_ax.legend()
-    acc_ax.plot(step, [r["val_accuracy"] for r in rows])
+    acc_ax.plot(step, [r["val_accuracy"] for r in rows], ".-")
     acc_ax.set_xlabel(loss_ax.get_xlabel())
     acc_ax.set_ylabel("val accuracy")
     fig.suptitle(f"{method} learning curve")
