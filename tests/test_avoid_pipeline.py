@@ -9,9 +9,9 @@ from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
 from uqdrive.pipeline.avoid import run_avoid
-from uqdrive.pipeline.avoid_cells import MODES
 from uqdrive.pipeline.avoid_config import KNOWN, build_settings
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
+from uqdrive.pipeline.records import MODES
 from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
 

@@ -8,7 +8,8 @@ from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
-from uqdrive.pipeline.safety import run_safety, run_safety_summary
+from uqdrive.pipeline.safety import run_safety
+from uqdrive.pipeline.safety_summary import run_safety_summary
 from uqdrive.tracking import store_uris
 
 

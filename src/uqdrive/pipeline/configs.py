@@ -23,6 +23,7 @@ Noises = tuple[NonNegative, ...]
 NonEmptyNames = Annotated[Names, Field(min_length=1)]
 NonEmptyMethodNames = Annotated[MethodNames, Field(min_length=1)]
 NonEmptyNoises = Annotated[Noises, Field(min_length=1)]
+NonEmptySeeds = Annotated[tuple[Seed, ...], Field(min_length=1)]  # training seeds: the replicates
 
 
 @schema
@@ -62,7 +63,8 @@ class Named:
 class Stage:
     """What every stage's config holds (conf/common.yaml)."""
 
-    seed: Seed
+    seed: Seed  # the training seed: the replicate
+    replicate: Str  # its name (seed<seed>)
     progress: Bool
 
 
@@ -86,4 +88,16 @@ class Sweep:
     weathers: NonEmptyNames
     noises: NonEmptyNoises
     methods: MethodNames = ()
+    replicates: tuple[Seed, ...] = ()  # training seeds
     locations: Names = ()
+
+
+@schema(root=True)
+class SafetyGrid(Stage):
+    """The offline-safety sweep's cells, as a stage that reads them names them (params.yaml's lists)."""
+
+    methods: NonEmptyNames
+    replicates: NonEmptySeeds
+    weathers: NonEmptyNames
+    noises: NonEmptyNoises
+    locations: NonEmptyNames

@@ -282,7 +282,7 @@ hand-over. The paper's numbers are for {paper.AVOID_METHOD.upper()}.""")
             )
     report.add(
         "Calibration (beyond the paper), by Learn-then-Test: each candidate (δ1, δ2, τ) is tested, on the replayed "
-        "warnings-off runs, against the null \"its known-condition hand-over rate exceeds 1 − target\" (exact "
+        'warnings-off runs, against the null "its known-condition hand-over rate exceeds 1 − target" (exact '
         "binomial p-values), along a sequence fixed in advance (fixed-sequence testing: family-wise error ≤ γ over "
         "the whole grid); among the certified, the one with the most replayed unknown-condition safety; then "
         "checked in closed loop on fresh seeds. What each method's calibration certified:\n\n"

@@ -90,13 +90,13 @@ def run_train(cfg: DictConfig) -> dict:
         **extra,
     }
     model_path = save_posterior(model, Path(cfg.paths.models) / f"{method}.pt", metadata={"metrics": metrics})
-    plots = Path(cfg.paths.plots) / "train"
+    plots = Path(cfg.paths.plots)
     curve_csv = write_csv(plots / f"{method}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
     curve_png = save_figure(curve_figure(curve, method, cls.curve_unit), plots / f"{method}_curve.png")
-    metrics_json = Path(cfg.paths.metrics) / "train" / f"{method}.json"
+    metrics_json = Path(cfg.paths.metrics) / f"{method}.json"
     write_json(metrics_json, metrics)
 
-    with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}"):
+    with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}-{cfg.replicate}"):
         mlflow.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float))})
         for row in curve:
             mlflow.log_metrics({f"curve_{k}": float(v) for k, v in row.items() if k != "step"}, step=int(row["step"]))
