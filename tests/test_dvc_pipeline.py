@@ -85,7 +85,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     cell = safety["vi"]["roundabout"]["rain"]["noise0.0"]
     assert cell == {
         k: v
-        for k, v in json.loads((project / "metrics/safety/vi-roundabout-rain-noise0.0.json").read_text()).items()
+        for k, v in json.loads((project / "metrics/safety/vi-seed0-roundabout-rain-noise0.0.json").read_text()).items()
         if k in cell
     }
     assert (project / "plots/safety/summary/hexbin_roundabout_noise0.0.png").exists()

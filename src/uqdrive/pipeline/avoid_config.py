@@ -12,7 +12,7 @@ from omegaconf import DictConfig
 from pydantic import Field
 
 from uqdrive.models.posterior import posterior_from_config
-from uqdrive.pipeline.configs import Executor, ModelStage
+from uqdrive.pipeline.configs import Executor, ModelStage, train_stage
 from uqdrive.pipeline.records import MODES
 from uqdrive.safety.calibration import min_calibration_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
@@ -250,7 +250,8 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
-    cell_posterior("avoid.model_path", model_path, method, bins, stage.experiment.train_stage(method))
+    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
     spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
     return AvoidSettings(
         method,

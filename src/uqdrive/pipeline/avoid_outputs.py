@@ -13,7 +13,6 @@ import numpy as np
 from omegaconf import DictConfig
 
 from uqdrive.pipeline.avoid_cells import (
-    MODES,
     Cell,
     cell_metrics,
     distances,
@@ -24,7 +23,15 @@ from uqdrive.pipeline.avoid_cells import (
     write_tradeoff,
 )
 from uqdrive.pipeline.avoid_config import AvoidSettings
-from uqdrive.pipeline.records import AvoidCell, AvoidResult, CalibrationSummary, Mixture, as_dict, write_record
+from uqdrive.pipeline.records import (
+    MODES,
+    AvoidCell,
+    AvoidResult,
+    CalibrationSummary,
+    Mixture,
+    as_dict,
+    write_record,
+)
 from uqdrive.plots import (
     avoid_signals_figure,
     avoid_tradeoff_figure,

@@ -34,9 +34,10 @@ class Experiment:
     scenarios: NonEmptyNames
     bins: SteeringBins
 
-    def train_stage(self, method: str) -> str:
-        """The DVC stage that trains this experiment's ``method`` (MCD trains the trunk the heads sit on)."""
-        return f"train_mcd@{self.name}" if method == "mcd" else f"train@{self.name}-{method}"
+
+def train_stage(experiment: str, method: str, replicate: int) -> str:
+    """The DVC stage that trains ``experiment``'s ``method`` for one replicate (MCD: the trunk the heads sit on)."""
+    return f"train_mcd@{experiment}-{replicate}" if method == "mcd" else f"train@{experiment}-{method}-{replicate}"
 
 
 @schema

@@ -22,7 +22,7 @@ from omegaconf import DictConfig
 
 from uqdrive.files import atomic_path, write_csv
 from uqdrive.models.posterior import posterior_from_config
-from uqdrive.pipeline.configs import Executor, ModelStage, Sweep
+from uqdrive.pipeline.configs import Executor, ModelStage, Sweep, train_stage
 from uqdrive.pipeline.records import SafetyCell, as_dict, read_record, write_record
 from uqdrive.pipeline.sweeps import grid, run_cells
 from uqdrive.plots import safety_hexbin, save_figure
@@ -101,7 +101,8 @@ def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
     model_path = Path(safety.model_path)
-    cell_posterior("safety.model_path", model_path, method, bins, stage.experiment.train_stage(method))
+    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    cell_posterior("safety.model_path", model_path, method, bins, trained_by)
     spec = PolicySpec("bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps)
     job = RolloutJob(
         policy=spec,
