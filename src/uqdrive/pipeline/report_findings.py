@@ -33,8 +33,8 @@ def findings_markdown(findings) -> str:
         f"{findings.comparisons} comparisons, each on paired rollouts (the same seeds) of every training replicate, "
         f"decided by the stratified exact McNemar test with Holm's correction over all of them (family-wise error "
         f"≤ {findings.alpha:g}); a difference is supported only if no replicate points the other way. "
-        f"**{findings.supported} supported.** Effects are differences in η̂1 (first minus second) over the "
-        "replicates' paired runs, with an interval at the same level (not adjusted)."
+        f"**{findings.supported} supported.** The gain is the difference in η̂1 over the replicates' paired runs, "
+        "with an interval at the same level (not adjusted)."
     ]
     for (experiment, kind), title in KINDS.items():
         group = [f for f in supported if (f.experiment, f.kind) == (experiment, kind)]
@@ -49,7 +49,7 @@ def findings_markdown(findings) -> str:
             for f in sorted(group, key=lambda f: -abs(f.effect))
         ]
         lines.append(
-            f"**{title}**\n\n" + table(["finding", "effect [interval]", "adjusted p", "replicates agreeing"], rows)
+            f"**{title}**\n\n" + table(["finding", "η̂1 gained [interval]", "adjusted p", "replicates agreeing"], rows)
         )
     opposed = [f for f in findings.findings if f.significant and not f.consistent]
     if opposed:
