@@ -1,4 +1,4 @@
-"""`uqdrive bound` and `uqdrive bench estimators` end to end."""
+"""`uqdrive bound`, `uqdrive bench estimators` and `uqdrive bench threshold` end to end."""
 
 from __future__ import annotations
 
@@ -47,3 +47,16 @@ def test_bench_estimators_meets_its_targets(capsys: pytest.CaptureFixture[str]) 
     )
     assert m, last
     assert float(m[1]) >= 14.7 and float(m[2]) <= 1.12 and float(m[3]) <= 42 and float(m[4]) <= 42
+
+
+def test_bench_threshold_reports_the_draws_at_eta_1(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "threshold", "--deltas", "0.7", "--budget", "100"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    number = r"([\d.]+)"
+    m = re.fullmatch(
+        rf"RESULT threshold en_at_1={number} saving_at_1={number} en_at_0\.9={number} worst_en={number} "
+        rf"worst_vs_fixed={number} build_s={number}",
+        last,
+    )
+    assert m, last
+    assert float(m[1]) == 12.0 and float(m[5]) < 0.3
