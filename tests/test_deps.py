@@ -38,12 +38,13 @@ def test_hydra_targets_in_the_configs_are_part_of_every_stage():
     assert SRC / "uqdrive/tracking.py" in stage_closure(ROOT / "stages/report.py", ROOT / "conf")
 
 
-def test_the_cell_digest_covers_the_safety_stage_closure():
-    from uqdrive.pipeline.safety import code_digest
+def test_the_cell_digest_covers_the_rollout_code_the_stage_and_the_posterior_module():
+    from uqdrive.safety.runner import code_digest
 
-    closure = import_closure(SRC / "uqdrive/pipeline/safety.py")
-    assert SRC / "uqdrive/plots.py" in closure and SRC / "uqdrive/sim/world.py" in closure
-    assert code_digest() == files_digest(closure, SRC)
+    closure = import_closure(SRC / "uqdrive/safety/runner.py", ["uqdrive.pipeline.safety", "uqdrive.models.vi"])
+    assert {SRC / f"uqdrive/{f}" for f in ("plots.py", "sim/world.py", "models/vi.py", "uq/sequential.py")} <= closure
+    assert SRC / "uqdrive/models/hmc.py" not in closure
+    assert code_digest(["uqdrive.pipeline.safety", "uqdrive.models.vi"]) == files_digest(closure, SRC)
 
 
 def missing_deps() -> dict[str, list[str]]:
@@ -65,6 +66,19 @@ def missing_deps() -> dict[str, list[str]]:
 def test_every_stage_depends_on_every_project_file_it_imports():
     missing = missing_deps()
     assert not missing, "\n".join(f"{stage}: {', '.join(files)}" for stage, files in missing.items())
+
+
+def test_no_stage_depends_on_code_it_does_not_import():
+    """A listed source file or folder the stage never imports would rerun it for nothing."""
+    from dvc.repo import Repo
+
+    with Repo(str(ROOT)) as repo:
+        for stage in repo.index.stages:
+            script = next(arg for arg in shlex.split(stage.cmd) if arg.endswith(".py"))
+            files = [p.relative_to(ROOT) for p in stage_closure(ROOT / script, ROOT / "conf")]
+            code = [Path(d.def_path) for d in stage.deps if d.def_path.split("/")[0] in ("src", "stages")]
+            unused = [d.as_posix() for d in code if not any(f == d or d in f.parents for f in files)]
+            assert not unused, f"{stage.addressing} depends on code it does not import: {unused}"
 
 
 def test_every_listed_dep_exists_once():
