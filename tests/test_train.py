@@ -78,23 +78,7 @@ def trained(tmp_path_factory):
     return root, metrics
 
 
-@pytest.mark.parametrize(
-    "method",
-    [
-        *[m for m in METHODS if m != "laplace"],
-        pytest.param(
-            "laplace",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason=(
-                    "known defect: on this trunk (MAP head accuracy 1.0) the evidence-chosen prior precision "
-                    "(~1.3) leaves a logit std of ~18 against a logit spread of ~7, so the sampled GLM predictive "
-                    "falls to 0.29-0.50"
-                ),
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("method", METHODS)
 def test_each_method_beats_the_majority_class_on_validation(trained, method):
     m = trained[1][method]
     assert m["val_accuracy"] > m["majority_baseline_accuracy"] + 0.05, (method, m)
@@ -134,7 +118,18 @@ def test_method_specific_diagnostics(trained):
     assert "function-space R̂" in hmc["diagnostics"]
     assert metrics["vi"]["posterior_sigma_mean"] > 0
     assert metrics["ensemble"]["members"] == 3
-    assert PRIOR_GRID[0] <= metrics["laplace"]["prior_precision"] <= PRIOR_GRID[-1]
+    laplace = metrics["laplace"]
+    assert PRIOR_GRID[0] <= laplace["prior_precision"] <= PRIOR_GRID[-1]
+    assert "by validation NLL" in laplace["diagnostics"] and laplace["evidence_prior_precision"] > 0
+
+
+def test_laplace_curve_has_the_map_epochs_then_the_laplace_step(trained):
+    root, metrics = trained
+    rows = list(csv.DictReader((root / "plots/joint/train/laplace_curve.csv").open()))
+    epochs = 2  # the tiny profile's
+    assert [int(r["step"]) for r in rows] == list(range(1, epochs + 2))
+    assert [int(r["laplace"]) for r in rows] == [0] * epochs + [1]
+    assert abs(float(rows[-1]["val_accuracy"]) - metrics["laplace"]["val_accuracy"]) < 0.05
 
 
 def test_saved_models_reload_with_the_reported_accuracy(trained):
@@ -178,4 +173,6 @@ def test_bad_input_fails_clearly(tmp_path):
         run_train(compose_train(tmp_path, "model=hmc", "model.chains=2"))
     with pytest.raises(ValueError, match="model.members=1: input should be greater than or equal to 2"):
         run_train(compose_train(tmp_path, "model=ensemble", "model.members=1"))
+    with pytest.raises(ValueError, match="model.prior_tuning='marglik': input should be 'validation', 'evidence'"):
+        run_train(compose_train(tmp_path, "model=laplace", "model.prior_tuning=marglik"))
     assert not (tmp_path / "models").exists()
