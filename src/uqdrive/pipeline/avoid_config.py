@@ -12,13 +12,15 @@ from omegaconf import DictConfig
 from pydantic import Field
 
 from uqdrive.models.posterior import posterior_from_config
-from uqdrive.pipeline.configs import Executor, ModelStage
+from uqdrive.pipeline.configs import Executor, ModelStage, train_stage
+from uqdrive.pipeline.records import MODES
 from uqdrive.safety.calibration import min_calibration_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
 from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig
 from uqdrive.schema import (
+    Bool,
     ConfigError,
     NonNegative,
     OpenUnit,
@@ -77,11 +79,13 @@ class AvoidSection(EstimatorSettings):
     the calibration."""
 
     model_path: Str
+    name: Str  # <method>-<replicate>: the stage's cells, files and runs
     horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked)
     speed: Positive  # cruise speed (m/s), at most vehicle.max_speed
     eps: Positive
     validation_seed: Seed
     known_noise: NonNegative
+    family_wise: Bool  # spend γ over this controller's cells (conditions × modes): all of them at once
     unknown: Annotated[tuple[UnknownCondition, ...], Field(min_length=1)]
     calibration: CalibrationSettings
     out: Str
@@ -139,6 +143,8 @@ class AvoidSettings:
     """Everything a stage run needs, validated; ``spec`` is the warnings-off policy."""
 
     method: str
+    seed: int  # the replicate's training seed
+    name: str  # <method>-<replicate>
     spec: PolicySpec
     warning: WarningConfig
     estimator: EstimatorSettings
@@ -152,6 +158,7 @@ class AvoidSettings:
     horizon_s: float
     executor: Executor
     progress: bool
+    family_size: int  # cells the estimator's γ is spread over (1: per cell)
 
     @property
     def conditions(self) -> tuple[Condition, ...]:
@@ -227,7 +234,9 @@ def check_horizon(
 def build_settings(cfg: DictConfig) -> AvoidSettings:
     """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
     stage = validate(AvoidStage, cfg)
-    avoid, warning, estimator = stage.avoid, stage.warning, stage.avoid.estimator
+    avoid, warning = stage.avoid, stage.warning
+    family_size = (1 + len(avoid.unknown)) * len(MODES) if avoid.family_wise else 1
+    estimator = dataclasses.replace(avoid.estimator, gamma=avoid.gamma / family_size)
     method = posterior_from_config(stage.model).method
     horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
     calibration = avoid.calibration
@@ -241,10 +250,13 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
-    cell_posterior("avoid.model_path", model_path, method, bins, stage.experiment.train_stage(method))
+    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
     spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
     return AvoidSettings(
         method,
+        stage.seed,
+        avoid.name,
         spec,
         warning,
         estimator,
@@ -258,4 +270,5 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         horizon,
         stage.executor,
         stage.progress,
+        family_size,
     )
