@@ -97,8 +97,8 @@ def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
     assert sorted(r.data.params["method"] for r in runs) == sorted(METHODS)
     for run in runs:
         method = run.data.params["method"]
-        assert run.data.params["model.name"] == method
-        assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}"
+        assert "model.name" not in run.data.params  # logged once, as method (uqdrive.tracking.COMPARED_BY)
+        assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}-seed0"
         assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {f"{method}_curve.csv", f"{method}_curve.png", f"{method}.pt"} <= artefacts
@@ -125,7 +125,7 @@ def test_method_specific_diagnostics(trained):
 
 def test_laplace_curve_has_the_map_epochs_then_the_laplace_step(trained):
     root, metrics = trained
-    rows = list(csv.DictReader((root / "plots/joint/train/laplace_curve.csv").open()))
+    rows = list(csv.DictReader((root / "plots/joint/train/seed0/laplace_curve.csv").open()))
     epochs = 2  # the tiny profile's
     assert [int(r["step"]) for r in rows] == list(range(1, epochs + 2))
     assert [int(r["laplace"]) for r in rows] == [0] * epochs + [1]
