@@ -3,8 +3,7 @@
 Written directly in torch, not with laplace-torch: laplace-torch 0.3 requires torchvision, and
 the PyPI torchvision wheel next to our CPU torch==2.13.0 breaks `import torchmetrics` (its C ops
 do not register), so the package cannot be a dependency here. For the last layer the library's
-default (GGN Hessian, full covariance, GLM predictive, prior precision by marginal likelihood)
-is a few closed forms:
+set-up (GGN Hessian, full covariance, GLM predictive) is a few closed forms:
 - a MAP head (Adam from the MCD head, N(0, σ²) prior); the three lower layers stay at the MAP;
 - the last layer is linear in its weights W̃ = [W; b] [J, C] (J = inputs + 1), so the GGN is the
   exact Hessian of the NLL: H = Σ_n ψ_n ψ_nᵀ ⊗ (diag p_n − p_n p_nᵀ), ψ_n = [φ_n, 1];
@@ -19,7 +18,8 @@ is a few closed forms:
   leaves the prior's spread in almost every direction, logit standard deviations of 9–17 against a logit
   spread of ~25, and the sampled predictive puts its mass on classes never seen in training (validation
   accuracy 0.75 against the MAP's 1.0, NLL 1.97 against 0.05); the validation choice keeps the MAP's
-  accuracy there.
+  accuracy there. The train stage's validation metrics are then not held out for λ (one number chosen
+  among 41); the evaluate stage's frames are.
 Checked once against laplace-torch 0.3 (last_layer, full Hessian) on a toy network: Hessian and GLM logit
 covariance agree to 1e-6 (its float32). Draws are drawn per frame from its C×C logit Gaussian (as VI's
 local reparameterisation does): exact per frame, and n·C normals instead of n·P.
@@ -176,6 +176,25 @@ class LaplacePosterior(Posterior):
         mean, cov = glm_logits(self.last_layer_inputs(features), self.last_layer_weights(), self.covariance)
         return sample_glm_probs(mean, cov, check_draws(n), generator)
 
+    def choose_prior_precision(
+        self,
+        settings: LaplaceSettings,
+        hessian: torch.Tensor,
+        evidence: torch.Tensor,
+        data: TrainingData,
+        generator: torch.Generator,
+    ) -> float:
+        """λ as `prior_tuning` asks, for the MAP head held now; `evidence` is the log evidence over PRIOR_GRID."""
+        if settings.prior_tuning == "evidence":
+            return float(PRIOR_GRID[evidence.argmax()])
+        if settings.prior_tuning == "fixed":
+            return settings.prior_sigma**-2
+        val_psi = self.last_layer_inputs(data.val_features)
+        nll = validation_nll(
+            hessian, self.last_layer_weights(), val_psi, data.val.labels, VALIDATION_GRID, data.eval_samples, generator
+        )
+        return float(VALIDATION_GRID[nll.argmin()])
+
     @classmethod
     def fit(
         cls, settings: LaplaceSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
@@ -208,16 +227,7 @@ class LaplacePosterior(Posterior):
             nll = float(head_nll(data.train_features, data.train.labels, heads, laplace.shapes)[0])
         hessian = last_layer_hessian(psi, torch.softmax(psi @ weights, -1))
         evidence = log_evidence(hessian, weights, nll, PRIOR_GRID)
-        if settings.prior_tuning == "validation":
-            val_psi = laplace.last_layer_inputs(data.val_features)
-            search = validation_nll(
-                hessian, weights, val_psi, data.val.labels, VALIDATION_GRID, data.eval_samples, generator
-            )
-            precision = float(VALIDATION_GRID[search.argmin()])
-        elif settings.prior_tuning == "evidence":
-            precision = float(PRIOR_GRID[evidence.argmax()])
-        else:
-            precision = settings.prior_sigma**-2
+        precision = laplace.choose_prior_precision(settings, hessian, evidence, data, generator)
         laplace.covariance.copy_(posterior_covariance(hessian, precision))
         scores = evaluate(laplace, data.val_features, data.val.labels, data.eval_samples, generator)
         curve = [{**row, "laplace": 0} for row in map_curve]
