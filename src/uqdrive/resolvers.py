@@ -60,6 +60,11 @@ def output_root(root: str, outputs: str) -> str:
 
 
 def register_resolvers() -> None:
-    for name, resolver in (("params", read_param), ("posteriors", posteriors), ("noise_label", noise_label), ("output_root", output_root)):
+    for name, resolver in (
+        ("params", read_param),
+        ("posteriors", posteriors),
+        ("noise_label", noise_label),
+        ("output_root", output_root),
+    ):
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, resolver)
