@@ -7,8 +7,10 @@ import pytest
 from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
-import uqdrive.pipeline.avoid as avoid_stage
-from uqdrive.pipeline.avoid import KNOWN, MODES, build_settings, run_avoid
+import uqdrive.safety.runner as runner
+from uqdrive.pipeline.avoid import run_avoid
+from uqdrive.pipeline.avoid_cells import MODES
+from uqdrive.pipeline.avoid_config import KNOWN, build_settings
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
@@ -61,14 +63,17 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     by_name = {r.info.run_name.split(" · ")[0]: r for r in runs}  # the name carries η̂1
     assert set(by_name) == {f"mcd-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-calibration"}
     run = by_name["mcd-fog-on"]
-    assert {k: run.data.params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n")} == {
+    params = run.data.params
+    assert {k: params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n", "theta")} == {
         "method": "mcd",
+        "theta": "0.7",
         "condition": "fog",
         "warnings": "on",
         "delta1": "0.7",
         "samples_per_frame": "21",
         "n": "4",
     }
+    assert "avoid.theta" not in params and run.data.tags["reused"] == "false"  # each key once
     assert run.data.metrics["eta1"] == pytest.approx(saved["cells"]["fog"]["on"]["eta1"])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"mcd-fog-on.csv", "mcd-fog-on.png"}
 
@@ -173,7 +178,7 @@ def test_bad_input_fails_before_any_rollout(avoid_config, tmp_path, monkeypatch,
     def no_rollouts(*args, **kwargs):
         raise AssertionError("rollouts started")
 
-    monkeypatch.setattr(avoid_stage, "make_executor", no_rollouts)
+    monkeypatch.setattr(runner, "make_executor", no_rollouts)
     with pytest.raises(error, match=match):
         run_avoid(avoid_config("model=vi", *overrides))
     assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()

@@ -10,7 +10,7 @@ worker count.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -156,11 +156,6 @@ class RayExecutor:
         self._actors = []
         if self._started and self._ray.is_initialized():
             self._ray.shutdown()
-
-
-def executor_options(section: Mapping[str, Any]) -> dict[str, Any]:
-    """Backend options of an `executor` config section: everything but name and workers, unset ones dropped."""
-    return {k: v for k, v in section.items() if k not in ("name", "workers") and v is not None}
 
 
 def make_executor(
