@@ -4,8 +4,8 @@ the boundary η1(x) = τ between the conditions it drives safely enough and the 
 Why this sampler: a falsification sampler (cross-entropy, simulated annealing, Bayesian optimisation of a
 robustness score) looks for the worst condition and spends its rollouts there; what the map needs is the level
 set η1 = τ, wherever it runs. So phase one is active level-set estimation (the "straddle" idea of Bryan et al.,
-NIPS 2005): a space-filling start (scrambled Sobol points), then rounds of rollouts at the conditions whose side
-of τ is least certain under a kernel-smoothed Beta posterior of η1(x). It assumes nothing about the shape of
+NIPS 2005): a space-filling start (scrambled Sobol points), then rounds of rollouts where the kernel-smoothed
+rate of safe runs is near τ and still uncertain (their straddle score). It assumes nothing about the shape of
 η1 (no monotone direction, which a ring radius need not have), costs microseconds per round, and a round's
 rollouts run in parallel. Its data choose the partition that phase two certifies on fresh seeds; no guarantee
 rests on it.
@@ -18,25 +18,23 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
 from scipy.stats import qmc
 
 from uqdrive.schema import Count, Positive, Seed, invalid, schema
 
 CANDIDATES_LOG2 = 10  # 1024 scrambled Sobol points: where each round's conditions are chosen from
-PRIOR = (1.0, 1.0)  # Beta prior of η1 at a condition no rollout is near
 
 
 @schema(frozen=True)
 class SearchSettings:
     """Phase one's budget: ``budget`` rollouts, the first ``initial`` spread over the box (Sobol), then rounds
-    of ``batch`` (run in parallel) where η1's side of τ is least certain; ``bandwidth``: the kernel's width
-    in the unit cube (how far one rollout informs the posterior)."""
+    of ``batch`` (run in parallel) where η1 is near τ and least certain; ``bandwidth``: the kernel's width in
+    the unit cube (how far one rollout informs the estimate)."""
 
     budget: Count = 64
     initial: Count = 16
     batch: Count = 8
-    bandwidth: Positive = 0.15
+    bandwidth: Positive = 0.1
     seed: Seed = 0  # the Sobol candidates' scrambling
 
     def __post_init__(self) -> None:
@@ -45,9 +43,9 @@ class SearchSettings:
 
 
 class BoundaryModel:
-    """η1(x) ≈ Beta(a + Σ w_i y_i, b + Σ w_i (1 − y_i)), w_i = exp(−|x − x_i|² / 2h²): each rollout's outcome
-    y_i counts at x with a weight that falls with distance, so the posterior is confident where rollouts are
-    dense and agree, and near the prior where none are."""
+    """What phase one's rollouts say about η1(x): each outcome y_i counts at x with the weight
+    w_i = exp(−|x − x_i|² / 2h²), which falls with distance. ``rate`` (the weighted safe fraction) says where η1
+    crosses τ; the Beta(1 + Σ w_i y_i, 1 + Σ w_i (1 − y_i)) posterior's spread says how sure that is."""
 
     def __init__(self, points: np.ndarray, outcomes: np.ndarray, threshold: float, bandwidth: float):
         self.points = np.asarray(points, dtype=float).reshape(len(outcomes), -1)
@@ -62,26 +60,24 @@ class BoundaryModel:
         safe = w @ self.outcomes
         return safe, w.sum(1) - safe
 
-    def mean(self, x: np.ndarray) -> np.ndarray:
-        safe, unsafe = self.counts(x)
-        return (PRIOR[0] + safe) / (PRIOR[0] + PRIOR[1] + safe + unsafe)
-
     def rate(self, x: np.ndarray) -> np.ndarray:
-        """The kernel-weighted safe fraction (Nadaraya–Watson), without the prior: where the boundary runs.
-        (The posterior mean pulls a sparsely sampled, always safe corner below a τ near 1.)"""
+        """The kernel-weighted safe fraction (Nadaraya–Watson): where the boundary runs. (A posterior mean would
+        pull a sparsely sampled, always safe corner below a τ near 1.)"""
         safe, unsafe = self.counts(x)
         total = safe + unsafe
         return np.divide(safe, total, out=np.full_like(total, 0.5), where=total > 0)
 
-    def p_safe(self, x: np.ndarray) -> np.ndarray:
-        """Posterior P(η1(x) ≥ τ)."""
+    def spread(self, x: np.ndarray) -> np.ndarray:
+        """The posterior's standard deviation: large where few rollouts are near, or where they disagree."""
         safe, unsafe = self.counts(x)
-        return special.betainc(PRIOR[1] + unsafe, PRIOR[0] + safe, 1 - self.threshold)
+        a, b = 1 + safe, 1 + unsafe
+        return np.sqrt(a * b / ((a + b) ** 2 * (a + b + 1)))
 
-    def ambiguity(self, x: np.ndarray) -> np.ndarray:
-        """min(P(η1 ≥ τ), P(η1 < τ)): ½ where the side of τ is a coin toss, 0 where it is certain."""
-        p = self.p_safe(x)
-        return np.minimum(p, 1 - p)
+    def straddle(self, x: np.ndarray) -> np.ndarray:
+        """Bryan et al.'s straddle score, spread − |rate − τ| (shifted by 1 to stay positive): high where η1 is
+        near τ and still uncertain. It prefers the boundary to a well-sampled safe plateau, where a Beta
+        probability P(η1 ≥ τ) would stay undecided for tens of rollouts when τ is near 1."""
+        return 1 + self.spread(x) - np.abs(self.rate(x) - self.threshold)
 
     def with_points(self, points: np.ndarray, outcomes: np.ndarray) -> BoundaryModel:
         return BoundaryModel(
@@ -96,20 +92,20 @@ def candidates(dim: int, seed: int) -> np.ndarray:
 
 
 def pick_batch(model: BoundaryModel, pool: np.ndarray, available: np.ndarray, size: int) -> np.ndarray:
-    """Indices into ``pool`` (among ``available``) of the ``size`` next conditions: greedily the most ambiguous,
-    each pick then believed to come out at the posterior mean and penalised around (local penalisation), so
-    one round's rollouts spread along the boundary instead of piling onto one point."""
+    """Indices into ``pool`` (among ``available``) of the ``size`` next conditions: greedily the highest straddle
+    score, each pick then believed to come out at the current rate and its neighbourhood penalised (local
+    penalisation), so one round's rollouts spread along the boundary instead of piling onto one point."""
     chosen: list[int] = []
     open_ = available.copy()
     current = model
     penalty = np.ones(len(pool))
     for _ in range(min(size, int(open_.sum()))):
-        score = np.where(open_, current.ambiguity(pool) * penalty, -1.0)
+        score = np.where(open_, current.straddle(pool) * penalty, -1.0)
         j = int(np.argmax(score))
         chosen.append(j)
         open_[j] = False
         penalty *= 1 - np.exp(((pool - pool[j]) ** 2).sum(1) / (-2 * model.bandwidth**2))
-        current = current.with_points(pool[j : j + 1], current.mean(pool[j : j + 1]))
+        current = current.with_points(pool[j : j + 1], current.rate(pool[j : j + 1]))
     return np.array(chosen, dtype=int)
 
 
