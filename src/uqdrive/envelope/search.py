@@ -54,35 +54,44 @@ class BoundaryModel:
 
     def counts(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Kernel-weighted (safe, unsafe) counts at each row of ``x``."""
-        x = np.atleast_2d(np.asarray(x, dtype=float))
-        d2 = ((x[:, None, :] - self.points[None, :, :]) ** 2).sum(-1)
-        w = np.exp(d2 / (-2 * self.bandwidth**2))
+        w = kernel(np.atleast_2d(np.asarray(x, dtype=float)), self.points, self.bandwidth)
         safe = w @ self.outcomes
         return safe, w.sum(1) - safe
 
     def rate(self, x: np.ndarray) -> np.ndarray:
         """The kernel-weighted safe fraction (Nadaraya–Watson): where the boundary runs. (A posterior mean would
         pull a sparsely sampled, always safe corner below a τ near 1.)"""
-        safe, unsafe = self.counts(x)
-        total = safe + unsafe
-        return np.divide(safe, total, out=np.full_like(total, 0.5), where=total > 0)
+        return _rate(*self.counts(x))
 
     def spread(self, x: np.ndarray) -> np.ndarray:
         """The posterior's standard deviation: large where few rollouts are near, or where they disagree."""
-        safe, unsafe = self.counts(x)
-        a, b = 1 + safe, 1 + unsafe
-        return np.sqrt(a * b / ((a + b) ** 2 * (a + b + 1)))
+        return _spread(*self.counts(x))
 
     def straddle(self, x: np.ndarray) -> np.ndarray:
         """Bryan et al.'s straddle score, spread − |rate − τ| (shifted by 1 to stay positive): high where η1 is
         near τ and still uncertain. It prefers the boundary to a well-sampled safe plateau, where a Beta
         probability P(η1 ≥ τ) would stay undecided for tens of rollouts when τ is near 1."""
-        return 1 + self.spread(x) - np.abs(self.rate(x) - self.threshold)
+        return _straddle(*self.counts(x), self.threshold)
 
-    def with_points(self, points: np.ndarray, outcomes: np.ndarray) -> BoundaryModel:
-        return BoundaryModel(
-            np.vstack([self.points, points]), np.concatenate([self.outcomes, outcomes]), self.threshold, self.bandwidth
-        )
+
+def kernel(x: np.ndarray, points: np.ndarray, bandwidth: float) -> np.ndarray:
+    """[row of x, point] weights exp(−|x − point|² / 2h²)."""
+    d2 = ((x[:, None, :] - points[None, :, :]) ** 2).sum(-1)
+    return np.exp(d2 / (-2 * bandwidth**2))
+
+
+def _rate(safe: np.ndarray, unsafe: np.ndarray) -> np.ndarray:
+    total = safe + unsafe
+    return np.divide(safe, total, out=np.full_like(total, 0.5), where=total > 0)
+
+
+def _spread(safe: np.ndarray, unsafe: np.ndarray) -> np.ndarray:
+    a, b = 1 + safe, 1 + unsafe
+    return np.sqrt(a * b / ((a + b) ** 2 * (a + b + 1)))
+
+
+def _straddle(safe: np.ndarray, unsafe: np.ndarray, threshold: float) -> np.ndarray:
+    return 1 + _spread(safe, unsafe) - np.abs(_rate(safe, unsafe) - threshold)
 
 
 def candidates(dim: int, seed: int) -> np.ndarray:
@@ -97,15 +106,17 @@ def pick_batch(model: BoundaryModel, pool: np.ndarray, available: np.ndarray, si
     penalisation), so one round's rollouts spread along the boundary instead of piling onto one point."""
     chosen: list[int] = []
     open_ = available.copy()
-    current = model
+    safe, unsafe = model.counts(pool)
     penalty = np.ones(len(pool))
     for _ in range(min(size, int(open_.sum()))):
-        score = np.where(open_, current.straddle(pool) * penalty, -1.0)
+        score = np.where(open_, _straddle(safe, unsafe, model.threshold) * penalty, -1.0)
         j = int(np.argmax(score))
         chosen.append(j)
         open_[j] = False
-        penalty *= 1 - np.exp(((pool - pool[j]) ** 2).sum(1) / (-2 * model.bandwidth**2))
-        current = current.with_points(pool[j : j + 1], current.rate(pool[j : j + 1]))
+        near = kernel(pool, pool[j : j + 1], model.bandwidth)[:, 0]
+        believed = _rate(safe[j], unsafe[j])
+        safe, unsafe = safe + near * believed, unsafe + near * (1 - believed)
+        penalty *= 1 - near
     return np.array(chosen, dtype=int)
 
 
