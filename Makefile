@@ -14,6 +14,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet --no-compile -e .
+	$(BIN)/uqdrive plots-page --out .dvc/plots_page.html
 	touch $(STAMP)
 
 $(TEST_STAMP): $(STAMP)
@@ -35,7 +36,7 @@ lint: $(TEST_STAMP)
 	ruff format --check src stages tests
 
 ui: $(STAMP)
-	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000  (Ctrl-C stops it)"
+	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
 	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port 5000
 
 frames: $(STAMP)

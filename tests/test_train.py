@@ -24,7 +24,7 @@ from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.laplace import PRIOR_GRID
 from uqdrive.models.training import compute_features, evaluate
 from uqdrive.pipeline.train import run_train
-from uqdrive.tracking import store_uris
+from uqdrive.tracking import flatten, store_uris
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
@@ -104,17 +104,17 @@ def test_each_method_beats_the_majority_class_on_validation(trained, method):
 def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
     root, metrics = trained
     for method in METHODS:
-        assert json.loads((root / f"metrics/joint/train/{method}.json").read_text()) == metrics[method]
-        rows = list(csv.DictReader((root / f"plots/joint/train/{method}_curve.csv").open()))
+        assert json.loads((root / f"metrics/joint/train/seed0/{method}.json").read_text()) == metrics[method]
+        rows = list(csv.DictReader((root / f"plots/joint/train/seed0/{method}_curve.csv").open()))
         assert rows and {"step", "train_loss", "val_accuracy", "val_nll"} <= set(rows[0])
-        assert (root / f"plots/joint/train/{method}_curve.png").stat().st_size > 1000
+        assert (root / f"plots/joint/train/seed0/{method}_curve.png").stat().st_size > 1000
     client = MlflowClient(store_uris(root)[0])
     runs = client.search_runs([client.get_experiment_by_name("train").experiment_id])
     assert sorted(r.data.params["method"] for r in runs) == sorted(METHODS)
     for run in runs:
         method = run.data.params["method"]
         assert run.data.params["model.name"] == method
-        assert run.info.run_name == f"joint-{method} · val_accuracy={metrics[method]['val_accuracy']:.3g}"
+        assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}"
         assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {f"{method}_curve.csv", f"{method}_curve.png", f"{method}.pt"} <= artefacts
@@ -142,14 +142,16 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
     bins = SteeringBins()
     val = load_frames(root / "data/processed/joint/val.parquet", bins.num_classes)
     for method in METHODS:
-        posterior = load_posterior(root / f"models/joint/{method}.pt", expected_method=method, expected_classes=bins)
+        posterior = load_posterior(
+            root / f"models/joint/seed0/{method}.pt", expected_method=method, expected_classes=bins
+        )
         scores = evaluate(posterior, compute_features(posterior, val), val.labels, 20, torch.Generator().manual_seed(0))
         assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
 
 
 def test_head_methods_share_the_mcd_trunk(trained):
     root, _ = trained
-    trunks = [load_posterior(root / f"models/joint/{m}.pt").trunk.state_dict() for m in METHODS]
+    trunks = [load_posterior(root / f"models/joint/seed0/{m}.pt").trunk.state_dict() for m in METHODS]
     for other in trunks[1:]:
         assert all(torch.equal(trunks[0][k], other[k]) for k in trunks[0])
 
@@ -179,3 +181,12 @@ def test_bad_input_fails_clearly(tmp_path):
     with pytest.raises(ValueError, match="model.members=1: input should be greater than or equal to 2"):
         run_train(compose_train(tmp_path, "model=ensemble", "model.members=1"))
     assert not (tmp_path / "models").exists()
+
+
+def test_replicates_differ_by_their_seed_only(stage_config):
+    """Two replicates' training configs: the same data, settings and architecture; the seed, and the folders
+    named after it, are all that differ."""
+    flat = [flatten(stage_config("train", "model=vi", f"seed={s}")) for s in (0, 1)]
+    differ = {k for k in flat[0] if flat[0][k] != flat[1][k]}
+    assert differ == {"seed", "replicate", "paths.models", "paths.metrics", "paths.plots", "train.base_model"}
+    assert all("seed0" in str(flat[0][k]) and "seed1" in str(flat[1][k]) for k in differ - {"seed"})
