@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from uqdrive.data.frames import encode_png
-from uqdrive.pipeline.avoid_summary import summarise_avoid
 from uqdrive.pipeline.findings import avoid_comparisons, decide, safety_comparisons
-from uqdrive.pipeline.methods import summarise_methods
+from uqdrive.pipeline.methods import summarise_avoid, summarise_methods
 from uqdrive.pipeline.records import (
     MODES,
     AvoidCell,
@@ -123,9 +122,9 @@ def write_run(root):
                     diagnostics=f"{method} diagnostics",
                 )
                 trained[experiment, method, seed] = metrics
-                write_record(root / f"metrics/{experiment}/train/seed{seed}/{method}.json", metrics)
-            (root / f"plots/{experiment}/train/seed0").mkdir(parents=True, exist_ok=True)
-            (root / f"plots/{experiment}/train/seed0/{method}_curve.png").write_bytes(png)
+                write_record(root / f"metrics/{experiment}/train/{method}/seed{seed}.json", metrics)
+            (root / f"plots/{experiment}/train/{method}").mkdir(parents=True, exist_ok=True)
+            (root / f"plots/{experiment}/train/{method}/seed0_curve.png").write_bytes(png)
     cells = [
         safety_cell(rng, m, r, loc, w, x)
         for m in METHODS

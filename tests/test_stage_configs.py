@@ -11,11 +11,12 @@ from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.pipeline.collect import run_collect, run_heldout
 from uqdrive.pipeline.envelope import run_envelope
 from uqdrive.pipeline.evaluate import run_evaluate
+from uqdrive.pipeline.findings import run_findings
 from uqdrive.pipeline.preprocess import run_preprocess
 from uqdrive.pipeline.report import run_report
 from uqdrive.pipeline.safety import run_safety, run_safety_sweep
 from uqdrive.pipeline.safety_summary import run_safety_summary
-from uqdrive.pipeline.train import run_train
+from uqdrive.pipeline.train import run_train, run_train_replicates
 from uqdrive.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,12 +33,14 @@ STAGES = {
     "heldout_sweep": first(run_heldout),
     "preprocess": run_preprocess,
     "train": run_train,
+    "train_replicates": lambda cfg: run_train_replicates(cfg, []),
     "safety": run_safety,
     "safety_sweep": first(run_safety_sweep),
     "evaluate": run_evaluate,
     "avoid": run_avoid,
     "safety_summary": run_safety_summary,
     "avoid_summary": run_avoid_summary,
+    "findings": run_findings,
     "report": run_report,
     "envelope": run_envelope,
 }
@@ -97,10 +100,20 @@ BAD = {
         ("noises=[none]", "noises[0]='none': input should be a valid number"),
         ("locations=[]", "locations=[]: tuple should have at least 1 item"),
     ],
+    "train_replicates": [
+        ("+train.worker=2", "train.worker: unknown key; did you mean 'workers'?"),
+        ("replicates=[first]", "replicates[0]='first': input should be a valid integer"),
+        ("replicates=[]", "replicates=[]: tuple should have at least 1 item"),
+    ],
     "avoid_summary": [
         ("+summary.result_dir=x", "summary.result_dir: unknown key; did you mean 'results_dir'?"),
         ("methods=[1]", "methods[0]=1: input should be a valid string"),
         ("methods=[]", "methods=[]: tuple should have at least 1 item"),
+    ],
+    "findings": [
+        ("+findings.alhpa=0.1", "findings.alhpa: unknown key; did you mean 'alpha'?"),
+        ("replicates=[first]", "replicates[0]='first': input should be a valid integer"),
+        ("findings.alpha=0", "findings.alpha=0: input should be greater than 0"),
     ],
     "report": [
         ("+report.outdir=x", "report.outdir: unknown key; did you mean 'out_dir'?"),
