@@ -109,7 +109,7 @@ def build_envelope(cfg: DictConfig) -> Envelope:
     env = stage.envelope
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
-    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    trained_by = train_stage(stage.experiment.name, method)
     cell_posterior("envelope.model_path", Path(env.model_path), method, bins, trained_by)
     axes = tuple(Axis.of(a) for a in env.axes)
     blend = None
