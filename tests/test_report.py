@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from uqdrive.data.frames import encode_png
+from uqdrive.pipeline.envelope_records import EnvelopeAxis, EnvelopeRegion, EnvelopeResult, EnvelopeSearch, GridCost
 from uqdrive.pipeline.findings import avoid_comparisons, decide, safety_comparisons
 from uqdrive.pipeline.methods import summarise_avoid, summarise_methods
 from uqdrive.pipeline.records import (
@@ -100,6 +101,33 @@ def avoid_result(rng, method, seed) -> AvoidResult:
     )
 
 
+def envelope_result(rng, method) -> EnvelopeResult:
+    """A map of two regions (one safe, one undecided), the rest of the record as the stage writes it."""
+    regions = [
+        EnvelopeRegion(
+            **dict(name=f"r{i}", order=i, bounds={"noise": [0.1 * i, 0.1 * i + 0.1], "weather.blend": [0.0, 1.0]}),
+            **dict(depth=1, volume=0.5, gamma=0.025, verdict=verdict, rollouts=int(rng.integers(10, 60))),
+            **dict(safe_rollouts=5, eta1_hat=0.5, undecided_by=None if verdict == "safe" else "region_budget"),
+        )
+        for i, verdict in enumerate(("safe", "undecided"))
+    ]
+    certified = sum(r.rollouts for r in regions)
+    return EnvelopeResult(
+        **dict(method=method, replicate=0, experiment="offline", location="roundabout", weather="clear_noon"),
+        axes=[EnvelopeAxis("noise", [0.0, 0.2]), EnvelopeAxis("weather.blend", [0.0, 1.0])],
+        **dict(noise=0.0, blend={"from": "clear_noon", "to": "rain"}, threshold=0.9, gamma=0.05, theta=0.0),
+        **dict(guarantee="family-wise", base_seed=400000, regions=regions),
+        verdicts={"safe": 1, "unsafe": 0, "undecided": 1},
+        volume={"safe": 0.5, "unsafe": 0.0, "undecided": 0.5},
+        search=EnvelopeSearch(rollouts=8, failures=3, rounds=[8], points=[[0.1, 0.5]] * 8, outcomes="11100011"),
+        rollouts={"search": 8, "certify": certified, "total": 8 + certified},
+        grid=GridCost(
+            theta=0.05, cells=16, gamma_per_cell=0.003125, per_cell=1000, rollouts=16000, rollouts_per_cell_gamma=9000
+        ),
+        seconds=float(rng.random() * 100),
+    )
+
+
 def write_run(root):
     """Metrics and figures shaped like a finished pipeline's (random values, fixed seed), written as records."""
     rng = np.random.default_rng(0)
@@ -169,13 +197,18 @@ def write_run(root):
         for m in METHODS
     }
     (root / "metrics/evaluate.json").write_text(json.dumps(evaluated))
+    envelopes = [envelope_result(rng, m) for m in METHODS]
+    for envelope in envelopes:
+        write_record(root / f"metrics/envelope/{envelope.method}-seed0.json", envelope)
+    (root / "plots/envelope/vi-seed0").mkdir(parents=True)
+    (root / "plots/envelope/vi-seed0/map.png").write_bytes(png)  # mcd's map is missing
     (root / "plots/safety/summary").mkdir(parents=True)
     (root / "plots/safety/summary/hexbin_roundabout_noise0.0.png").write_bytes(png)  # the noise-0.05 one is missing
-    return trained, safety, avoid, findings, evaluated
+    return trained, safety, avoid, findings, evaluated, envelopes
 
 
 def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
-    trained, safety, avoid, findings, evaluated = write_run(tmp_path)
+    trained, safety, avoid, findings, evaluated, envelopes = write_run(tmp_path)
     result = run_report(stage_config("report"))
     text = (tmp_path / "reports/report.md").read_text()
 
@@ -223,6 +256,15 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert "- vi certified" in text  # each calibration's guarantee in words
     assert "| profile | `tiny` |" in text and "| training replicates | seeds 0, 1" in text
     assert "Figure missing: `plots/safety/summary/hexbin_roundabout_noise0.05.png`" in text
+    envelope_rows = {r["method"]: r for r in markdown_rows(text, "method | safe regions (box)")}
+    for envelope in envelopes:
+        row = envelope_rows[envelope.method]
+        n = envelope.rollouts
+        assert row["safe regions (box)"] == "1 (50%)" and row["undecided"] == "1 (50%)" and row["unsafe"] == "0 (0%)"
+        assert row["rollouts"] == f"8 + {n['certify']} = {n['total']}" and row["grid"] == "16000"
+        assert row["seconds"] == fmt(envelope.seconds, 0)
+    assert "weather.blend (clear_noon → rain) ∈ [0, 1]" in text
+    assert "Figure missing: `plots/envelope/mcd-seed0/map.png`" in text
 
     headline = json.loads((tmp_path / "metrics/summary.json").read_text())
     assert headline["safety_vi"] == pytest.approx(np.mean([a.value for a in safety.answers if a.method == "vi"]))
@@ -232,7 +274,7 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert headline["findings"] == findings.supported
 
     html = (tmp_path / "reports/report.html").read_text()
-    figures = len(EXPERIMENTS) * len(METHODS) + 1  # learning curves and one hexbin; the rest are missing
+    figures = len(EXPERIMENTS) * len(METHODS) + 2  # learning curves, one hexbin, vi's map; the rest are missing
     assert result["figures"] == figures and html.count('src="data:image/png;base64,') == figures
     assert not re.search(r'src="(?!data:)', html)  # self-contained: no file links left
 

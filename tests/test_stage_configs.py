@@ -9,6 +9,7 @@ import pytest
 from uqdrive.pipeline.avoid import run_avoid
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.pipeline.collect import run_collect, run_heldout
+from uqdrive.pipeline.envelope import run_envelope
 from uqdrive.pipeline.evaluate import run_evaluate
 from uqdrive.pipeline.findings import run_findings
 from uqdrive.pipeline.preprocess import run_preprocess
@@ -41,6 +42,7 @@ STAGES = {
     "avoid_summary": run_avoid_summary,
     "findings": run_findings,
     "report": run_report,
+    "envelope": run_envelope,
 }
 
 # stage: (a typo'd key, a wrong type, a value out of range), each an override and the start of its one line
@@ -117,6 +119,11 @@ BAD = {
         ("+report.outdir=x", "report.outdir: unknown key; did you mean 'out_dir'?"),
         ("noises=[high]", "noises[0]='high': input should be a valid number"),
         ("noises=[-1]", "noises[0]=-1: input should be greater than or equal to 0"),
+    ],
+    "envelope": [
+        ("+envelope.thresold=0.8", "envelope.thresold: unknown key; did you mean 'threshold'?"),
+        ("envelope.region_budget=many", "envelope.region_budget='many': input should be a valid integer"),
+        ("envelope.gamma=1.5", "envelope.gamma=1.5: input should be less than 1"),
     ],
 }
 

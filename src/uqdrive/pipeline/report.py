@@ -24,6 +24,7 @@ from uqdrive.pipeline.findings import Findings
 from uqdrive.pipeline.methods import UNKNOWN, AvoidSummary, SafetySummary
 from uqdrive.pipeline.records import SafetyCell, read_avoid_results, read_record, read_safety_cells
 from uqdrive.pipeline.report_document import Report, fmt, read_json, table
+from uqdrive.pipeline.report_envelope import envelope_section, read_envelopes
 from uqdrive.pipeline.report_experiments import (
     Run,
     avoid_section,
@@ -268,6 +269,7 @@ def run_report(cfg: DictConfig) -> dict:
     )
     findings = read_record(Findings, metrics_dir / "findings.json", "findings")
     evaluated = read_json(metrics_dir / "evaluate.json")
+    envelopes = read_envelopes(metrics_dir, list(stage.methods), seeds[0])
     report = Report(root, out_dir)
     run_section(report, stage, run)
     report.add("## What the run found\n\n" + findings_markdown(findings))
@@ -275,6 +277,7 @@ def run_report(cfg: DictConfig) -> dict:
     training_section(report, run, list(stage.experiments), list(stage.posteriors), seeds)
     safety_section(report, run, list(stage.methods), conditions_of(stage.locations, stage.weathers, stage.noises))
     avoid_section(report, run, list(stage.methods))
+    envelope_section(report, envelopes)
     evaluate_section(report, stage, evaluated)
     sample_counts_section(report, run.cells)
     write_json(Path(cfg.report.summary), headline_metrics(stage, run, findings))

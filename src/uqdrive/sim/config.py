@@ -13,6 +13,7 @@ from pydantic import Field
 from uqdrive.schema import (
     Bool,
     Color,
+    ConfigError,
     Count,
     Float,
     Int,
@@ -151,6 +152,34 @@ class WeatherConfig(Section):
     def __post_init__(self) -> None:
         if not any(self.light_direction):
             raise invalid("light_direction", self.light_direction, "must not be the zero vector")
+
+
+def blend_weather(start: WeatherConfig, end: WeatherConfig, t: float) -> WeatherConfig:
+    """The weather a fraction ``t`` of the way from ``start`` to ``end``, so that weather can be a continuous
+    condition axis (`uqdrive.envelope`): every number is interpolated, (1 − t)·start + t·end, which is each end
+    exactly at t = 0 and t = 1 (colours, light, fog, blur, rain; the rain-streak count rounded to whole streaks).
+    A switch (``shadow``) has no value in between: the two weathers must agree on it. The result is checked by
+    the weather schema like any weather (e.g. a light direction that passes through zero is refused)."""
+    t = validate(Unit, t, "weather.blend.t")
+    values: dict[str, Any] = {"name": f"{start.name}~{end.name}@{t:.4g}"}
+    for field in dataclasses.fields(WeatherConfig):
+        a, b = getattr(start, field.name), getattr(end, field.name)
+        if field.name == "name":
+            continue
+        if isinstance(a, bool):
+            if a != b:
+                raise ConfigError(
+                    f"weather.blend: {start.name} and {end.name} differ in {field.name} ({a} vs {b}), "
+                    "a switch with no value in between"
+                )
+            values[field.name] = a
+        elif isinstance(a, tuple):
+            values[field.name] = tuple((1 - t) * x + t * y for x, y in zip(a, b))
+        elif isinstance(a, int):
+            values[field.name] = round((1 - t) * a + t * b)
+        else:
+            values[field.name] = (1 - t) * a + t * b
+    return WeatherConfig.from_config(values)
 
 
 @schema
