@@ -9,15 +9,16 @@ from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, Cons
 from uqdrive.safety.executors import (
     BACKENDS,
     Executor,
+    LockstepExecutor,
+    LockstepJob,
     PolicySpec,
     ProcessPool,
-    RayExecutor,
     RolloutJob,
     RolloutWorker,
     executor_options,
     make_executor,
 )
-from uqdrive.safety.rollout import RolloutResult, run_rollout
+from uqdrive.safety.rollout import RolloutResult, run_rollout, run_rollouts
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, Verdict, safe_set_for
 from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
 
@@ -34,7 +35,8 @@ __all__ = [
     "Policy",
     "PolicySpec",
     "ProcessPool",
-    "RayExecutor",
+    "LockstepExecutor",
+    "LockstepJob",
     "RolloutJob",
     "RolloutResult",
     "RolloutWorker",
@@ -51,5 +53,6 @@ __all__ = [
     "make_executor",
     "reusable_result",
     "run_rollout",
+    "run_rollouts",
     "safe_set_for",
 ]

@@ -1,15 +1,19 @@
 """Run many rollouts in parallel: the project's process pool (`uqdrive.parallel`, default) or Ray actors
-(``executor=ray``).
+(``executor=ray``), each worker stepping several rollouts in lockstep.
 
-Each worker owns one `DrivingEnv` (its own pybullet client) and one policy for its whole life;
-a rollout is named only by its index i and uses seed ``base_seed + i``, and results come back
-in index order, so η̂1 and every per-rollout outcome are the same whatever the backend and
-worker count.
+Each worker owns up to ``lockstep`` `DrivingEnv`s (each its own pybullet client) and one policy with a
+slot per env for its whole life. A request's indices are dealt to the workers in chunks of consecutive
+indices; a worker runs its chunk ``lockstep`` rollouts at a time, one batched network forward per control
+step (`run_rollouts`). A rollout is named only by its index i and uses seed ``base_seed + i``, its draws
+come from its own slot's generator and its frame features do not depend on the frames beside it, and
+results come back in index order, so η̂1 and every per-rollout outcome are the same whatever the
+backend, worker count and lockstep width.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -20,7 +24,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
-from uqdrive.safety.rollout import RolloutResult, run_rollout
+from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningConfig, WarningController
 from uqdrive.schema import ConfigError
@@ -28,6 +32,12 @@ from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfi
 
 BACKENDS = ("process", "ray")
 POLICIES = ("bnn", "autopilot", "constant")
+LOCKSTEP = 8
+"""Rollouts a worker steps at once by default: the trunk's cost per frame at batch 8 is about half its cost
+alone (`uqdrive bench rollout --lockstep`), and 8 envs per worker stay small (pybullet clients of one world)."""
+CHUNK_WIDTHS = 4
+"""A worker's chunk holds at most this many lockstep widths: enough rollouts that slots freed by short
+rollouts refill, few enough that results come back (and are logged) every few seconds."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,29 +96,84 @@ class RolloutJob:
     horizon_s: float = 40.0
     half_width: float | None = None
 
+
+@dataclasses.dataclass(frozen=True)
+class LockstepJob:
+    """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time."""
+
+    job: RolloutJob
+    width: int = 1
+
     def worker(self) -> RolloutWorker:
-        return RolloutWorker(self)
+        return RolloutWorker(self.job, self.width)
 
 
 class RolloutWorker:
-    """One env + one policy, reused for every rollout the worker runs (one torch thread: the
-    parallelism is across workers, and a second intra-op thread only adds contention)."""
+    """Up to ``width`` envs and one policy, reused for every chunk the worker runs (one torch thread: the
+    parallelism is across workers, and a second intra-op thread only adds contention). Envs are built as a
+    chunk first needs them, so a worker given 2 rollouts builds 2 worlds, not ``width``."""
 
-    def __init__(self, job: RolloutJob):
+    def __init__(self, job: RolloutJob, width: int = 1):
+        if width < 1:
+            raise ValueError(f"lockstep width={width!r} must be >= 1")
         torch.set_num_threads(1)
-        self.job = job
-        self.env = DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
+        self.job, self.width = job, width
         self.policy = job.policy.build(job.control_hz)
-        self.env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
-        self.safe_set: SafeSet = safe_set_for(self.env.geometry, job.vehicle.width, job.vehicle.length, job.half_width)
+        self.envs: list[DrivingEnv] = []
+        self.safe_set: SafeSet | None = None
 
-    def run(self, index: int) -> RolloutResult:
+    def environments(self, count: int) -> list[DrivingEnv]:
+        """The first ``count`` envs (at most ``width``), each with its world built."""
         job = self.job
-        seed = job.base_seed + index
-        return run_rollout(self.env, self.policy, seed, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
+        while len(self.envs) < min(count, self.width):
+            env = DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
+            env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
+            self.safe_set = self.safe_set or safe_set_for(
+                env.geometry, job.vehicle.width, job.vehicle.length, job.half_width
+            )
+            self.envs.append(env)
+        return self.envs[: min(count, self.width)]
+
+    def run(self, indices: Sequence[int]) -> list[RolloutResult]:
+        """Rollouts ``indices`` (seeds base_seed + i), in that order."""
+        job = self.job
+        envs = self.environments(len(indices))
+        seeds = [job.base_seed + i for i in indices]
+        return run_rollouts(envs, self.policy, seeds, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
 
     def close(self) -> None:
-        self.env.close()
+        for env in self.envs:
+            env.close()
+        self.envs = []
+
+
+def lockstep_chunks(indices: Sequence[int], workers: int, width: int) -> list[tuple[int, ...]]:
+    """``indices`` cut into consecutive chunks: one per worker when they are few (4 rollouts on 2 workers: 2 each),
+    at most `CHUNK_WIDTHS` lockstep widths each when they are many."""
+    size = max(1, min(CHUNK_WIDTHS * width, math.ceil(len(indices) / workers)))
+    return [tuple(indices[i : i + size]) for i in range(0, len(indices), size)]
+
+
+class ChunkRunner(Protocol):
+    def run(self, items: Sequence[tuple[int, ...]]) -> Iterator[list[RolloutResult]]:
+        """Each chunk's results, chunk by chunk in order."""
+
+    def close(self) -> None:
+        """Release workers."""
+
+
+class LockstepExecutor:
+    """Deals each request's indices to ``runner``'s workers in chunks and yields the results in index order."""
+
+    def __init__(self, runner: ChunkRunner, workers: int, width: int):
+        self.runner, self.workers, self.width = runner, workers, width
+
+    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
+        for results in self.runner.run(lockstep_chunks(list(indices), self.workers, self.width)):
+            yield from results
+
+    def close(self) -> None:
+        self.runner.close()
 
 
 class Executor(Protocol):
@@ -119,14 +184,14 @@ class Executor(Protocol):
         """Release workers."""
 
 
-class RayExecutor:
-    """One Ray actor per worker, each a `RolloutWorker`.
+class RayRunner:
+    """One Ray actor per worker, each a `RolloutWorker` of ``width`` envs running chunks.
 
     ``address=None`` starts a private local Ray with ``workers`` CPUs (and shuts it down on
     close); otherwise joins that cluster. (Ray 2.60 has no ``local_mode`` any more.)
     """
 
-    def __init__(self, job: RolloutJob, workers: int, address: str | None = None):
+    def __init__(self, job: RolloutJob, workers: int, width: int, address: str | None = None):
         try:
             import ray
             from ray.util import ActorPool
@@ -144,11 +209,11 @@ class RayExecutor:
                 configure_logging=False,
             )
         actor = ray.remote(num_cpus=1)(RolloutWorker)
-        self._actors = [actor.remote(job) for _ in range(workers)]
+        self._actors = [actor.remote(job, width) for _ in range(workers)]
         self._pool = ActorPool(self._actors)
 
-    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
-        yield from self._pool.map(lambda a, i: a.run.remote(i), list(indices))
+    def run(self, items: Sequence[tuple[int, ...]]) -> Iterator[list[RolloutResult]]:
+        yield from self._pool.map(lambda a, chunk: a.run.remote(chunk), list(items))
 
     def close(self) -> None:
         for a in self._actors:
@@ -164,14 +229,24 @@ def executor_options(section: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def make_executor(
-    backend: str, job: RolloutJob, workers: int, pool: ProcessPool | None = None, **options: Any
+    backend: str,
+    job: RolloutJob,
+    workers: int,
+    pool: ProcessPool | None = None,
+    *,
+    lockstep: int = LOCKSTEP,
+    **options: Any,
 ) -> Executor:
-    """``process`` (default; on ``pool`` if given, else on a pool of its own) or ``ray``; ``options`` go to
-    the Ray backend (address)."""
+    """``process`` (default; on ``pool`` if given, else on a pool of its own) or ``ray``; each worker steps up to
+    ``lockstep`` rollouts at once (results do not depend on it); other ``options`` go to the Ray backend (address).
+    """
+    if isinstance(lockstep, bool) or not isinstance(lockstep, int) or lockstep < 1:
+        raise ConfigError(f"executor.lockstep={lockstep!r}: must be an integer >= 1 (rollouts a worker steps at once)")
     if backend == "process":
         if options:
             raise ConfigError(f"executor options {sorted(options)} apply only to executor.name=ray")
-        return (pool or ProcessPool(workers)).executor(job, owns_pool=pool is None)
+        runner = (pool or ProcessPool(workers)).executor(LockstepJob(job, lockstep), owns_pool=pool is None)
+        return LockstepExecutor(runner, (pool.workers if pool else workers), lockstep)
     if backend == "ray":
-        return RayExecutor(job, workers, **options)
+        return LockstepExecutor(RayRunner(job, workers, lockstep, **options), workers, lockstep)
     raise ConfigError(f"executor.name={backend!r} is not a known backend; choose one of {list(BACKENDS)}")

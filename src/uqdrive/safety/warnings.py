@@ -12,11 +12,10 @@ the same code.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-import torch
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
@@ -170,6 +169,7 @@ class WarningController(Controller):
     Draws ``config.samples`` weight samples per frame (Chernoff's n for the config's θ, γ).
     A hand-over brakes with the steering wheel held where it was when it fired (the network is
     not trusted any more), at speed 0 with ``handover`` set; the rollout ends once the car has stopped.
+    Each lockstep slot keeps its own actions' state.
     """
 
     def __init__(
@@ -180,32 +180,41 @@ class WarningController(Controller):
         eps: float,
         speed: float,
         control_hz: float,
-        generator: torch.Generator | None = None,
     ):
-        super().__init__(posterior, bins, config.samples, eps, speed, generator)
+        super().__init__(posterior, bins, config.samples, eps, speed)
         self.config = config
         self.hold_frames = round(config.hold_s * control_hz)
-        self.actions = WarningActions(config.actions, self.hold_frames)
-        self.held_steer: float | None = None
+        self.actions = {0: WarningActions(config.actions, self.hold_frames)}
+        self.held_steer: dict[int, float | None] = {0: None}
 
-    def reset(self, env, seed: int) -> None:
-        super().reset(env, seed)
-        self.actions = WarningActions(self.config.actions, self.hold_frames)
-        self.held_steer = None
+    def reset(self, env, seed: int, slot: int = 0) -> None:
+        super().reset(env, seed, slot)
+        self.actions[slot] = WarningActions(self.config.actions, self.hold_frames)
+        self.held_steer[slot] = None
 
-    def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
-        command = super().act(obs, info)
+    def act_batch(
+        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
+    ) -> list[Command]:
+        commands = super().act_batch(slots, frames, infos)
         cfg = self.config
-        level = classify(command.eta2, command.mutual_information, cfg.delta1, cfg.delta2, cfg.tau)
-        factor, alert, handover = self.actions.step(level)
-        if handover and self.held_steer is None:
-            self.held_steer = float((info or {}).get("steering", 0.0))
-        steer = command.steer if self.held_steer is None else self.held_steer
+        levels = classify(
+            [c.eta2 for c in commands], [c.mutual_information for c in commands], cfg.delta1, cfg.delta2, cfg.tau
+        )
+        return [
+            self._act_on(slot, command, int(level), info)
+            for slot, command, level, info in zip(slots, commands, levels, infos)
+        ]
+
+    def _act_on(self, slot: int, command: Command, level: int, info: dict) -> Command:
+        factor, alert, handover = self.actions[slot].step(level)
+        if handover and self.held_steer[slot] is None:
+            self.held_steer[slot] = float(info.get("steering", 0.0))
+        held = self.held_steer[slot]
         return dataclasses.replace(
             command,
-            steer=steer,
+            steer=command.steer if held is None else held,
             speed=self.speed * float(factor),
-            warning=int(level),
+            warning=level,
             alert=bool(alert),
             handover=bool(handover),
         )
