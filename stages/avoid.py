@@ -10,7 +10,8 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.avoid import MODES, run_avoid  # not at the top: spawned workers re-import this script
+    from uqdrive.pipeline.avoid import run_avoid  # not at the top: spawned workers re-import this script
+    from uqdrive.pipeline.avoid_cells import MODES
 
     r = run_avoid(cfg)
     for condition in r["conditions"]:

@@ -7,8 +7,10 @@ import pytest
 from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
-import uqdrive.pipeline.avoid as avoid_stage
-from uqdrive.pipeline.avoid import KNOWN, MODES, build_settings, run_avoid
+import uqdrive.safety.runner as runner
+from uqdrive.pipeline.avoid import run_avoid
+from uqdrive.pipeline.avoid_cells import MODES
+from uqdrive.pipeline.avoid_config import KNOWN, build_settings
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
@@ -173,7 +175,7 @@ def test_bad_input_fails_before_any_rollout(avoid_config, tmp_path, monkeypatch,
     def no_rollouts(*args, **kwargs):
         raise AssertionError("rollouts started")
 
-    monkeypatch.setattr(avoid_stage, "make_executor", no_rollouts)
+    monkeypatch.setattr(runner, "make_executor", no_rollouts)
     with pytest.raises(error, match=match):
         run_avoid(avoid_config("model=vi", *overrides))
     assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()

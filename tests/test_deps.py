@@ -38,12 +38,13 @@ def test_hydra_targets_in_the_configs_are_part_of_every_stage():
     assert SRC / "uqdrive/tracking.py" in stage_closure(ROOT / "stages/report.py", ROOT / "conf")
 
 
-def test_the_cell_digest_covers_the_safety_stage_closure():
-    from uqdrive.pipeline.safety import code_digest
+def test_the_cell_digest_covers_the_rollout_code_the_stage_and_the_posterior_module():
+    from uqdrive.safety.runner import code_digest
 
-    closure = import_closure(SRC / "uqdrive/pipeline/safety.py")
-    assert SRC / "uqdrive/plots.py" in closure and SRC / "uqdrive/sim/world.py" in closure
-    assert code_digest() == files_digest(closure, SRC)
+    closure = import_closure(SRC / "uqdrive/safety/runner.py", ["uqdrive.pipeline.safety", "uqdrive.models.vi"])
+    assert {SRC / f"uqdrive/{f}" for f in ("plots.py", "sim/world.py", "models/vi.py", "uq/sequential.py")} <= closure
+    assert SRC / "uqdrive/models/hmc.py" not in closure
+    assert code_digest(["uqdrive.pipeline.safety", "uqdrive.models.vi"]) == files_digest(closure, SRC)
 
 
 def missing_deps() -> dict[str, list[str]]:

@@ -110,6 +110,10 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert 'src="data:image/png;base64,' in (project / "reports/report.html").read_text()
 
     assert "Data and pipelines are up to date" in _dvc(project, "status")
+    # bytecode beside every source file (a test run or a benchmark imports what the stages did not): still up to date
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(project / "src")], check=True, timeout=300)
+    assert list((project / "src/uqdrive/bench").glob("__pycache__/*.pyc"))
+    assert "Data and pipelines are up to date" in _dvc(project, "status")
     stamp = (project / "data/raw/obstacle.parquet").stat().st_mtime_ns
     again = _dvc(project, "repro")
     assert "Running stage" not in again, again

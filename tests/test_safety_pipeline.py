@@ -1,12 +1,13 @@
 """The `safety` stage on the tiny profile: outputs, MLflow run, reuse of finished cells, clear errors, summary."""
 
 import json
+import shutil
 
 import pytest
 from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
-import uqdrive.pipeline.safety as safety_stage
+import uqdrive.safety.runner as runner
 from uqdrive.pipeline.safety import run_safety, run_safety_summary
 from uqdrive.tracking import store_uris
 
@@ -72,30 +73,40 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7"))["reused"]
 
 
-def test_a_result_of_older_code_is_not_reused(safety_config, monkeypatch):
-    cfg = safety_config("model=mcd")
-    assert not run_safety(cfg)["reused"] and run_safety(cfg)["reused"]
-    monkeypatch.setattr(safety_stage, "code_digest", lambda: "sources edited since")
-    assert not run_safety(cfg)["reused"]
+def test_a_cell_reruns_when_a_file_its_rollouts_run_changes(safety_config, tmp_path, monkeypatch):
+    """The identity covers the posterior's module, which no static import reaches (it is loaded by the name the
+    model file records): an edit to how VI draws reruns a VI cell, and leaves an MCD cell reused."""
+    src = tmp_path / "src"
+    shutil.copytree(runner.SRC / "uqdrive", src / "uqdrive", ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(runner, "SRC", src)
+    vi, mcd = safety_config("model=vi"), safety_config("model=mcd")
+    assert not run_safety(vi)["reused"] and not run_safety(mcd)["reused"]
+    assert run_safety(vi)["reused"] and run_safety(mcd)["reused"]
+    with (src / "uqdrive/models/vi.py").open("a") as f:
+        f.write("# how a VI head draws changed\n")
+    assert not run_safety(vi)["reused"] and run_safety(mcd)["reused"]
+    with (src / "uqdrive/uq/estimators.py").open("a") as f:  # the runner's own closure: every cell
+        f.write("# an estimator changed\n")
+    assert not run_safety(mcd)["reused"]
 
 
 def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path, monkeypatch):
     cells = [("mcd", "clear_noon"), ("vi", "clear_noon"), ("vi", "rain")]
     configs = [safety_config(f"model={m}", f"weather={w}") for m, w in cells]
-    real = safety_stage.estimate_safety
+    real = runner.make_executor
 
-    def interrupted(executor, settings, progress=iter, log=None):
+    def interrupted(*args, **kwargs):
         if interrupted.calls == 1:
-            raise KeyboardInterrupt  # Ctrl-C during the second cell's rollouts
+            raise KeyboardInterrupt  # Ctrl-C as the second cell's rollouts start
         interrupted.calls += 1
-        return real(executor, settings, progress, log)
+        return real(*args, **kwargs)
 
     interrupted.calls = 0
-    monkeypatch.setattr(safety_stage, "estimate_safety", interrupted)
+    monkeypatch.setattr(runner, "make_executor", interrupted)
     with pytest.raises(KeyboardInterrupt):
         for cfg in configs:
             run_safety(cfg)
-    monkeypatch.setattr(safety_stage, "estimate_safety", real)
+    monkeypatch.setattr(runner, "make_executor", real)
     assert not (tmp_path / "metrics/safety/vi-roundabout-clear_noon-noise0.0.json").exists()
     assert [run_safety(cfg)["reused"] for cfg in configs] == [True, False, False]
     assert sorted(r.data.tags["reused"] for r in runs(tmp_path)[1]) == ["false", "false", "false", "true"]
@@ -103,7 +114,7 @@ def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path,
 
 def test_a_cell_interrupted_mid_way_keeps_its_finished_rollouts(safety_config, tmp_path, monkeypatch):
     cfg = safety_config("model=vi")  # chernoff_n(0.7, 0.05) = 4 rollouts
-    real = safety_stage.make_executor
+    real = runner.make_executor
     ran: list[int] = []
 
     class Interrupting:
@@ -120,10 +131,10 @@ def test_a_cell_interrupted_mid_way_keeps_its_finished_rollouts(safety_config, t
         def close(self):
             self.inner.close()
 
-    monkeypatch.setattr(safety_stage, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), 2))
+    monkeypatch.setattr(runner, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), 2))
     with pytest.raises(KeyboardInterrupt):
         run_safety(cfg)
-    monkeypatch.setattr(safety_stage, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), None))
+    monkeypatch.setattr(runner, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), None))
     result = run_safety(cfg)
     assert ran == [100000, 100001, 100002, 100003] and result["n"] == 4  # the first two were not rerun
     rows = (tmp_path / "plots/safety/cells/vi-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
@@ -165,7 +176,7 @@ def test_bad_input_fails_before_any_rollout(safety_config, tmp_path, monkeypatch
     def no_rollouts(*args, **kwargs):
         raise AssertionError("rollouts started")
 
-    monkeypatch.setattr(safety_stage, "make_executor", no_rollouts)
+    monkeypatch.setattr(runner, "make_executor", no_rollouts)
     with pytest.raises(error, match=match):
         run_safety(safety_config("model=vi", *overrides))
     assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()

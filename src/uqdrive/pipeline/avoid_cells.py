@@ -19,6 +19,8 @@ from uqdrive.safety.warnings import LEVELS, WarningConfig, classify
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.uq import Estimate
 
+MODES = ("off", "on", "calibrated")  # warnings off (only counted), on (configured thresholds), calibrated
+
 
 @dataclasses.dataclass
 class Cell:

@@ -1,16 +1,39 @@
-"""The avoid stage's config: its unknown conditions, the threshold calibration, the stage's whole schema."""
+"""The avoid stage's config: its unknown conditions, the threshold calibration, the stage's whole schema, and the
+validated settings a run works from (`build_settings`)."""
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
+from omegaconf import DictConfig
 from pydantic import Field
 
+from uqdrive.models.posterior import posterior_from_config
 from uqdrive.pipeline.configs import Executor, ModelStage
-from uqdrive.safety.cells import EstimatorSettings
+from uqdrive.safety.calibration import min_known_runs
+from uqdrive.safety.cells import EstimatorSettings, cell_posterior
+from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig
-from uqdrive.schema import NonNegative, OpenUnit, Positive, Seed, Str, Unit, invalid, schema, validate
+from uqdrive.schema import (
+    ConfigError,
+    NonNegative,
+    OpenUnit,
+    Positive,
+    Seed,
+    Str,
+    Unit,
+    invalid,
+    schema,
+    validate,
+)
+from uqdrive.sim import CameraConfig, ScenarioGeometry, VehicleConfig, build_geometry
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+
+KNOWN = "known"
 
 
 @schema
@@ -23,7 +46,7 @@ class UnknownCondition:
     scenario: dict[str, Any] = Field(default_factory=dict)  # fields of the obstacle scenario to change
 
     def __post_init__(self) -> None:
-        if self.name == "known":
+        if self.name == KNOWN:
             raise invalid("name", self.name, "is the training condition's name; choose another")
 
 
@@ -95,3 +118,139 @@ class AvoidStage(SimConfig, ModelStage):
                     f"{condition.weather}",
                 )
             validate(ScenarioConfig, {**self.scenario.to_dict(), **condition.scenario}, f"avoid.unknown[{i}].scenario")
+
+
+@dataclasses.dataclass(frozen=True)
+class Condition:
+    """Where a cell drives: the world (e.g. another obstacle car), the weather, the sensor noise."""
+
+    name: str
+    scenario: ScenarioConfig
+    weather: WeatherConfig
+    noise: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class AvoidSettings:
+    """Everything a stage run needs, validated; ``spec`` is the warnings-off policy."""
+
+    method: str
+    spec: PolicySpec
+    warning: WarningConfig
+    estimator: EstimatorSettings
+    validation_seed: int
+    known: Condition
+    unknown: tuple[Condition, ...]
+    calibration: CalibrationSettings
+    camera: CameraConfig
+    vehicle: VehicleConfig
+    control_hz: float
+    horizon_s: float
+    executor: Executor
+    progress: bool
+
+    @property
+    def conditions(self) -> tuple[Condition, ...]:
+        return (self.known, *self.unknown)
+
+    def job(self, condition: Condition, warning: WarningConfig | None, base_seed: int) -> RolloutJob:
+        """The rollouts of one cell: ``warning`` None drives without the warning system."""
+        return RolloutJob(
+            policy=dataclasses.replace(self.spec, warnings=warning),
+            scenario=condition.scenario,
+            weather=condition.weather,
+            noise=condition.noise,
+            base_seed=base_seed,
+            camera=self.camera,
+            vehicle=self.vehicle,
+            control_hz=self.control_hz,
+            horizon_s=self.horizon_s,
+        )
+
+    def replay_args(self) -> dict[str, float]:
+        """The car and calibration settings the threshold replay needs (`uqdrive.safety.calibration.replay`)."""
+        return {
+            "control_hz": self.control_hz,
+            "cruise": self.spec.speed,
+            "start_speed": min(self.known.scenario.start_speed, self.vehicle.max_speed),
+            "max_accel": self.vehicle.max_accel,
+            "max_brake": self.vehicle.max_brake,
+            "margin_m": self.calibration.margin_m,
+        }
+
+    def geometries(self) -> dict[str, ScenarioGeometry]:
+        """Road geometry per condition name, for distances along the road."""
+        return {c.name: build_geometry(c.scenario) for c in self.conditions}
+
+
+def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...]:
+    """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather."""
+    weathers = {stage.weather.name: stage.weather, **stage.weathers}
+    return tuple(
+        Condition(
+            item.name,
+            ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
+            weathers[item.weather or stage.weather.name],
+            item.noise,
+        )
+        for item in stage.avoid.unknown
+    )
+
+
+def check_horizon(
+    horizon: float, warning: WarningConfig, speed: float, scenario: ScenarioConfig, vehicle: VehicleConfig
+) -> float:
+    """The horizon must let a run that warnings slow down (but do not stop) pass the obstacle: a timeout
+    before it would be a non-answer, neither safe nor a collision."""
+    slowest = (
+        min(a.speed for a in warning.actions if not a.handover) if any(not a.handover for a in warning.actions) else 1.0
+    )
+    if slowest <= 0:
+        raise ConfigError(
+            "warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
+            "give it a speed > 0 or handover: true"
+        )
+    distance = obstacle_pass_progress(build_geometry(scenario), vehicle.length) - scenario.start_distance
+    needed = distance / (slowest * speed) + 1.0  # + 1 s for the start jitter and speed changes
+    if horizon < needed:
+        raise ConfigError(
+            f"avoid.horizon_s={horizon:g} is too short: a run slowed to {slowest * speed:g} m/s needs "
+            f"{needed:.1f} s to pass the obstacle ({distance:.0f} m); set at least {np.ceil(needed):g}"
+        )
+    return horizon
+
+
+def build_settings(cfg: DictConfig) -> AvoidSettings:
+    """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
+    stage = validate(AvoidStage, cfg)
+    avoid, warning, estimator = stage.avoid, stage.warning, stage.avoid.estimator
+    method = posterior_from_config(stage.model).method
+    horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
+    calibration = avoid.calibration
+    needed = min_known_runs(calibration.autonomy_target, calibration.gamma)
+    if estimator.scheme != "sequential" and estimator.planned_rollouts() < needed:
+        raise ConfigError(
+            f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be shown with "
+            f"{estimator.planned_rollouts()} known-condition runs (it needs {needed}); lower it or "
+            "tighten avoid.theta"
+        )
+    bins = stage.experiment.bins
+    model_path = Path(avoid.model_path)
+    cell_posterior("avoid.model_path", model_path, method, bins)
+    spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
+    return AvoidSettings(
+        method,
+        spec,
+        warning,
+        estimator,
+        avoid.validation_seed,
+        Condition(KNOWN, stage.scenario, stage.weather, avoid.known_noise),
+        _unknown_conditions(stage),
+        calibration,
+        stage.camera,
+        stage.vehicle,
+        float(stage.control_hz),
+        horizon,
+        stage.executor,
+        stage.progress,
+    )

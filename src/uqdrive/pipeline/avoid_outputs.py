@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import matplotlib.pyplot as plt
 import mlflow
@@ -16,6 +15,7 @@ from omegaconf import DictConfig
 
 from uqdrive.files import write_json
 from uqdrive.pipeline.avoid_cells import (
+    MODES,
     Cell,
     cell_metrics,
     distances,
@@ -25,6 +25,7 @@ from uqdrive.pipeline.avoid_cells import (
     write_signals,
     write_tradeoff,
 )
+from uqdrive.pipeline.avoid_config import AvoidSettings
 from uqdrive.plots import (
     avoid_signals_figure,
     avoid_tradeoff_figure,
@@ -36,11 +37,6 @@ from uqdrive.safety.calibration import Calibration, Traces, replay
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq.pooled import pooled
-
-if TYPE_CHECKING:
-    from uqdrive.pipeline.avoid import AvoidSettings
-
-MODES = ("off", "on", "calibrated")
 
 
 def unknown_mixture(cells: list[Cell], metrics: list[dict], gamma: float) -> dict:
@@ -85,12 +81,11 @@ def replay_check(
     calib_groups: list[str],
     settings: AvoidSettings,
     traces: Traces,
-    replay_args: dict,
 ) -> dict:
     """The replay at the configured thresholds against the warnings-on cells on the same seeds: how well
     the approximation predicts closed loop, run by run."""
     w = settings.warning
-    out = replay(traces, np.array([w.delta1]), np.array([w.delta2]), np.array([w.tau]), w, **replay_args)
+    out = replay(traces, np.array([w.delta1]), np.array([w.delta2]), np.array([w.tau]), w, **settings.replay_args())
     check = {}
     for g, name in enumerate(calib_groups):
         members = traces.group == g
@@ -154,7 +149,6 @@ def write_outputs(
     cells: dict[tuple[str, str], Cell],
     calib: Calibration,
     traces: Traces,
-    replay_args: dict,
     geometries: dict[str, ScenarioGeometry],
     seconds: float,
 ) -> dict:
@@ -186,7 +180,7 @@ def write_outputs(
         )
         for mode in MODES
     }
-    check = replay_check(cells, names, settings, traces, replay_args)
+    check = replay_check(cells, names, settings, traces)
     calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check)
     calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
     configured = _configured_index(calib, settings)

@@ -11,35 +11,25 @@ first rollout. A cell whose result file already holds its config hash is not run
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Iterator, Sequence
+from contextlib import nullcontext
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import mlflow
 import numpy as np
 from omegaconf import DictConfig
-from tqdm import tqdm
 
-from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.pipeline.configs import Executor, ModelStage, NonEmptyNames, NonEmptyNoises, Stage, Sweep
 from uqdrive.pipeline.sweeps import grid, run_cells
 from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
 from uqdrive.resolvers import noise_label
-from uqdrive.safety.cells import (
-    EstimatorSettings,
-    cell_hash,
-    cell_posterior,
-    estimate_safety,
-    file_digest,
-    rates,
-    reusable_result,
-)
-from uqdrive.safety.executors import PolicySpec, ProcessPool, RolloutJob, executor_options, make_executor
+from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
+from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.rollout import RolloutResult
-from uqdrive.safety.rollout_log import RolloutLog
+from uqdrive.safety.runner import CellRunner, estimate_key
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.schema import Count, NonNegative, Positive, Str, invalid, schema, validate
 from uqdrive.sim import ScenarioGeometry, build_geometry
@@ -107,15 +97,8 @@ class SafetySummaryStage(Stage):
     summary: SafetySummarySection
 
 
-def code_digest() -> str:
-    """sha256 of the package sources this module imports, transitively (the import closure DVC's deps are
-    checked against): changed code is a new cell, so a rerun never reuses a result computed, or shaped,
-    by older code."""
-    return files_digest(import_closure(__file__), SRC)
-
-
-def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
-    """Validate the cell's config and load its model once; returns the job, the estimator and the cell hash.
+def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
+    """Validate the cell's config and load its model once; returns the stage config, the job and the cell's key.
 
     Raises before any rollout on a bad config value (one line naming the key, the value and what is
     allowed), a missing or mismatched model file.
@@ -139,13 +122,19 @@ def build_job(cfg: DictConfig) -> tuple[RolloutJob, EstimatorSettings, str]:
         horizon_s=safety.horizon_s,
         half_width=safety.half_width,
     )
-    identity = {
-        "model_sha256": file_digest(model_path),
-        "code": code_digest(),
-        "job": {**job.__dict__, "policy": {k: v for k, v in spec.__dict__.items() if k != "model_path"}},
-        "estimator": safety.estimator.__dict__,
-    }
-    return job, safety.estimator, cell_hash(identity)
+    return stage, job, estimate_key(job, safety.estimator, __name__)
+
+
+def reusable_result(path: str | Path, key: str) -> dict | None:
+    """The finished result at ``path`` if it was computed for the cell with key ``key``."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    try:
+        result = json.loads(path.read_text())
+    except json.JSONDecodeError:
+        return None
+    return result if isinstance(result, dict) and result.get("config_hash") == key else None
 
 
 def _positions(results: list[RolloutResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -200,41 +189,19 @@ def write_outputs(
     return table, positions, figure
 
 
-def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
-    """Estimate η1 for one cell; reuses the cell's result file when its config hash matches, and the rollouts
-    its log holds. ``pool``: worker processes shared by many cells (`run_safety_sweep`), else the cell's own.
-    ``reused`` in the result: nothing was simulated."""
-    job, settings, key = build_job(cfg)
+def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> dict:
+    """Estimate η1 for one cell; reuses the cell's result file when its key matches, and the rollouts its log
+    holds. ``runner``: shared by many cells (`run_safety_sweep`), else the cell's own. ``reused`` in the result:
+    nothing was simulated."""
+    stage, job, key = build_job(cfg)
     out = Path(cfg.safety.out)
     previous = reusable_result(out, key)
     if previous is not None:
         log_cell(cfg, previous, [p for p in _cell_files(cfg) if p.exists()], reused=True)
         return {**previous, "reused": True}
-    executor = make_executor(cfg.executor.name, job, cfg.executor.workers, pool, **executor_options(cfg.executor))
-    start = time.perf_counter()
-    bar = tqdm(
-        total=settings.planned_rollouts(),
-        desc=f"safety {cfg.safety.cell}",
-        unit="rollout",
-        disable=not cfg.progress,
-        leave=False,
-    )
-
-    ran: list[int] = []
-
-    def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
-        for result in fresh:  # one bar over the cell, however many looks a sequential scheme takes
-            bar.update()
-            ran.append(result.seed)
-            yield result
-
-    try:
-        log = RolloutLog(cfg.safety.rollout_log, key, settings.base_seed)
-        estimate, results = estimate_safety(executor, settings, progress, log)
-    finally:
-        bar.close()
-        executor.close()
-    seconds = time.perf_counter() - start
+    with nullcontext(runner) if runner else CellRunner.of(stage.executor, stage.progress) as cells:
+        cell = cells.estimate(f"safety {cfg.safety.cell}", job, stage.safety.estimator, key, cfg.safety.rollout_log)
+    estimate, results = cell.outcome, cell.results
     geometry = build_geometry(job.scenario)
     safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
     title = (
@@ -248,10 +215,10 @@ def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
         "eta1_high": estimate.high,
         "rollouts": estimate.n,
         "steps": int(sum(r.steps for r in results)),
-        "seconds": seconds,
+        "seconds": cell.seconds,
         **rates(results),
     }
-    cell = {
+    record = {
         "method": cfg.model.name,
         "experiment": cfg.experiment.name,
         "location": job.scenario.name,
@@ -261,23 +228,23 @@ def run_safety(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
         "gamma": estimate.gamma,
         "scheme": estimate.scheme,
         "n": estimate.n,
-        "base_seed": settings.base_seed,
+        "base_seed": stage.safety.base_seed,
     }
-    result = {**cell, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key}
+    result = {**record, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key}
     write_json(out, result)  # before logging: a tracking failure never loses the cell; its presence marks it done
-    reused = not ran  # every rollout replayed from the log (DVC removed the result file before rerunning the stage)
-    log_cell(cfg, result, [figure, table], reused=reused)
-    return {**result, "reused": reused}
+    log_cell(cfg, result, [figure, table], reused=cell.reused)
+    return {**result, "reused": cell.reused}
 
 
 def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, dict]]:
-    """Every cell of ``cfg.sweep`` (methods × locations × weathers × noises) in this process, on one pool of
-    workers (process backend); yields each cell's config and result as it finishes (`uqdrive.pipeline.sweeps`)."""
+    """Every cell of ``cfg.sweep`` (methods × locations × weathers × noises) in this process, on one cell runner
+    (one pool of workers with the process backend); yields each cell's config and result as it finishes
+    (`uqdrive.pipeline.sweeps`)."""
     stage = validate(SafetySweepStage, cfg)
     s = cfg.sweep  # the values as written: a cell's override is what the single-cell command would be given
     cells = grid(model=s.methods, scenario=s.locations, weather=s.weathers, noise=s.noises)
-    pool = ProcessPool(stage.executor.workers) if stage.executor.name == "process" else None
-    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, pool, stage.progress)
+    runner = CellRunner.of(stage.executor, stage.progress)
+    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress)
 
 
 def describe(cell: str, result: dict) -> str:

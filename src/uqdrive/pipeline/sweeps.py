@@ -14,19 +14,27 @@ import itertools
 import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from typing import TypeVar
+from typing import Protocol, TypeVar
 
 from hydra import compose
 from hydra.errors import HydraException
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from uqdrive.parallel import ProcessPool
 from uqdrive.schema import ConfigError, validate
 from uqdrive.tracking import JOB_START_ENV
 
 R = TypeVar("R")
 Cell = Mapping[str, object]
+
+
+class Shared(Protocol):
+    """What a grid stage's cells share and the stage closes at its end (a worker pool, a cell runner)."""
+
+    def close(self) -> None: ...
+
+
+S = TypeVar("S", bound=Shared)
 
 
 def grid(**axes: Sequence[object]) -> list[dict[str, object]]:
@@ -58,14 +66,14 @@ def run_cells(
     overrides: Sequence[str],
     cells: Sequence[Cell],
     schema: type,
-    run: Callable[[DictConfig, ProcessPool | None], R],
-    pool: ProcessPool | None,
+    run: Callable[[DictConfig, S], R],
+    shared: S,
     progress: bool,
 ) -> Iterator[tuple[DictConfig, R]]:
-    """``run(config, pool)`` for each cell's config of ``config_name``; yields each config and result as the cell
+    """``run(config, shared)`` for each cell's config of ``config_name``; yields each config and result as the cell
     finishes. ``overrides``: the stage's command-line overrides, passed on to every cell. Every config is
-    composed and checked against ``schema`` before the first cell runs. ``pool`` is closed at the end (also on an
-    error, or when the caller stops early).
+    composed and checked against ``schema`` before the first cell runs. ``shared`` is closed at the end (also on
+    an error, or when the caller stops early).
     Needs an initialised Hydra (a `@hydra.main` job, or `initialize_config_dir`)."""
     try:
         configs = [compose_cell(config_name, overrides, cell) for cell in cells]
@@ -73,8 +81,7 @@ def run_cells(
             validate(schema, config)
         for config in tqdm(configs, desc=f"{config_name} cells", unit="cell", disable=not progress):
             os.environ[JOB_START_ENV] = str(int(time.time() * 1000))  # the cell's MLflow run starts with it
-            yield config, run(config, pool)
+            yield config, run(config, shared)
     finally:
         os.environ.pop(JOB_START_ENV, None)
-        if pool is not None:
-            pool.close()
+        shared.close()

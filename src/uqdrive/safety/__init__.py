@@ -4,7 +4,7 @@ and the three-tier warning system on real-time decision confidence η2.
 Composes `sim` (the world), `models` (the posteriors) and `uq` (measures and estimators).
 """
 
-from uqdrive.safety.cells import EstimatorSettings, cell_hash, estimate_safety, reusable_result
+from uqdrive.safety.cells import EstimatorSettings, estimate_safety
 from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, ConstantPolicy, Controller, Policy
 from uqdrive.safety.executors import (
     BACKENDS,
@@ -15,10 +15,10 @@ from uqdrive.safety.executors import (
     ProcessPool,
     RolloutJob,
     RolloutWorker,
-    executor_options,
     make_executor,
 )
 from uqdrive.safety.rollout import RolloutResult, run_rollout, run_rollouts
+from uqdrive.safety.runner import CellRun, CellRunner
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, Verdict, safe_set_for
 from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
 
@@ -27,6 +27,8 @@ __all__ = [
     "HANDOVER",
     "NO_WARNING",
     "AutopilotPolicy",
+    "CellRun",
+    "CellRunner",
     "Command",
     "ConstantPolicy",
     "Controller",
@@ -46,12 +48,9 @@ __all__ = [
     "WarningActions",
     "WarningConfig",
     "WarningController",
-    "cell_hash",
     "classify",
     "estimate_safety",
-    "executor_options",
     "make_executor",
-    "reusable_result",
     "run_rollout",
     "run_rollouts",
     "safe_set_for",

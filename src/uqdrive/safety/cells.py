@@ -1,16 +1,12 @@
-"""One sweep cell (method × scenario × weather × noise): its validated settings, its identity, its estimate.
-
-A cell's result is keyed by a hash of everything that decides it (the model file's bytes,
-the world, the estimator, the seeds) and nothing that does not (worker count, backend,
-output paths), so an interrupted sweep run again reuses every finished cell.
-"""
+"""What a cell estimates and from which rollouts: the estimator's settings, the outcomes it pulls in index order
+(replayed from the cell's log, reused, or simulated), the model it drives, and the rates reported beside η̂1.
+The cell's identity, log and executor are the runner's (`uqdrive.safety.runner`)."""
 
 from __future__ import annotations
 
 import hashlib
-import json
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Literal
 
@@ -57,6 +53,52 @@ class EstimatorSettings:
             return sequential_scheme(self.theta, self.gamma, self.look_size).max_n
         return _PLANNED[self.scheme][0](self.theta, self.gamma)
 
+    def estimate(self, draw: Callable[[int], np.ndarray]) -> Estimate:
+        """η̂ from outcomes ``draw(count)`` pulls in index order, as many as the scheme asks for."""
+        if self.scheme == "sequential":
+            return sequential(draw, self.theta, self.gamma, self.look_size)
+        n = self.planned_rollouts()
+        return _PLANNED[self.scheme][1](int(draw(n).sum()), n, self.theta, self.gamma)
+
+
+class Draws:
+    """Outcomes of rollouts 0, 1, … in index order, as an estimator or a test asks for them (``draw(count)``):
+    each rollout comes from the cell's log if an earlier run kept it, else from ``reuse`` (a rollout known to
+    be identical, e.g. a warnings-off run in which no warning would fire), else from ``executor``. Every rollout
+    not read from the log is appended to it as it finishes, so an interrupted cell resumes where it stopped
+    and ends exactly as an uninterrupted one (rollout i always has seed base_seed + i, and consumers read
+    outcomes in index order). ``fresh`` counts the rollouts simulated or reused, not replayed from the log.
+    """
+
+    def __init__(
+        self,
+        executor: Executor,
+        log: RolloutLog | None = None,
+        reuse: Mapping[int, RolloutResult] | None = None,
+        progress: Callable[[Iterator[RolloutResult]], Iterator[RolloutResult]] = iter,
+    ):
+        self.executor, self.log, self.reuse, self.progress = executor, log, dict(reuse or {}), progress
+        self.kept = log.load() if log is not None else []
+        self.results: list[RolloutResult] = []
+        self.fresh = 0
+
+    def _run(self, indices: range) -> Iterator[RolloutResult]:
+        simulated = self.executor.run([i for i in indices if i not in self.reuse])
+        for i in indices:
+            yield self.reuse[i] if i in self.reuse else next(simulated)
+
+    def __call__(self, count: int) -> np.ndarray:
+        start = len(self.results)
+        replayed = self.kept[start : start + count]
+        self.results.extend(replayed)
+        if len(replayed) < count:
+            for result in self.progress(self._run(range(start + len(replayed), start + count))):
+                if self.log is not None:
+                    self.log.append(result)
+                self.fresh += 1
+                self.results.append(result)
+        return np.array([r.safe for r in self.results[start:]], dtype=np.int64)
+
 
 def estimate_safety(
     executor: Executor,
@@ -64,33 +106,10 @@ def estimate_safety(
     progress: Callable[[Iterator[RolloutResult]], Iterator[RolloutResult]] = iter,
     log: RolloutLog | None = None,
 ) -> tuple[Estimate, list[RolloutResult]]:
-    """Run rollouts 0, 1, … as the scheme asks for them and estimate η1 = P(path in the safe set).
-
-    With ``log``, each finished rollout is kept as it finishes and the rollouts an interrupted
-    run already kept are reused, not rerun: the estimate and the returned rollouts are exactly
-    those of an uninterrupted run (the scheme consumes outcomes in index order).
-    """
-    kept = log.load() if log is not None else []
-    results: list[RolloutResult] = []
-
-    def fresh(indices: range) -> Iterator[RolloutResult]:
-        for result in progress(executor.run(indices)):
-            if log is not None:
-                log.append(result)
-            yield result
-
-    def draw(count: int) -> np.ndarray:
-        start = len(results)
-        reused = kept[start : start + count]
-        results.extend(reused)
-        results.extend(fresh(range(start + len(reused), start + count)) if len(reused) < count else ())
-        return np.array([r.safe for r in results[start:]], dtype=np.int64)
-
-    if settings.scheme == "sequential":
-        return sequential(draw, settings.theta, settings.gamma, settings.look_size), results
-    n = settings.planned_rollouts()
-    k = int(draw(n).sum())
-    return _PLANNED[settings.scheme][1](k, n, settings.theta, settings.gamma), results
+    """Run rollouts 0, 1, … as the scheme asks for them and estimate η1 = P(path in the safe set); with ``log``,
+    an interrupted run's rollouts are reused, not rerun (see `Draws`)."""
+    draws = Draws(executor, log, progress=progress)
+    return settings.estimate(draws), draws.results
 
 
 def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins) -> Posterior:
@@ -107,23 +126,6 @@ def file_digest(path: str | Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
-
-
-def cell_hash(identity: dict) -> str:
-    """Stable hash of a JSON-able description of everything that decides a cell's result."""
-    return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def reusable_result(path: str | Path, key: str) -> dict | None:
-    """The finished result at ``path`` if it was computed for the cell with hash ``key``."""
-    path = Path(path)
-    if not path.exists():
-        return None
-    try:
-        result = json.loads(path.read_text())
-    except json.JSONDecodeError:
-        return None
-    return result if isinstance(result, dict) and result.get("config_hash") == key else None
 
 
 def rates(results: Sequence[RolloutResult]) -> dict[str, float]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -221,11 +221,6 @@ class RayRunner:
         self._actors = []
         if self._started and self._ray.is_initialized():
             self._ray.shutdown()
-
-
-def executor_options(section: Mapping[str, Any]) -> dict[str, Any]:
-    """Backend options of an `executor` config section: everything but name and workers, unset ones dropped."""
-    return {k: v for k, v in section.items() if k not in ("name", "workers") and v is not None}
 
 
 def make_executor(

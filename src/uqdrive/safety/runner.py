@@ -1,0 +1,157 @@
+"""The one cell runner of every closed-loop stage (the offline-safety sweep, collision avoidance, the operating
+envelope): a cell's identity, its rollout log, the executor's lifetime and the progress bar.
+
+A cell's identity hashes everything its rollouts depend on and nothing they do not (worker count, backend, output
+paths): the model file's bytes, the job (world, policy, seeds), what consumes the outcomes (estimator or test),
+and every project source file a rollout runs — the runner's own import closure (executors, controllers, the
+simulator, the estimators), the posterior's module (loaded by name from the model file, so no static import
+reaches it) and the stage module that shapes the cell's result. Finished rollouts are appended to the cell's log
+under that identity; a rerun replays them and simulates only the rest, and a log of another identity is
+started afresh.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+from tqdm import tqdm
+
+from uqdrive.deps import SRC, files_digest, import_closure
+from uqdrive.models.checkpoint import read_checkpoint
+from uqdrive.parallel import ProcessPool
+from uqdrive.safety.cells import Draws, EstimatorSettings, file_digest
+from uqdrive.safety.executors import RolloutJob, make_executor
+from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.rollout_log import RolloutLog
+from uqdrive.uq import Estimate
+
+T = TypeVar("T")
+RUNNER = Path(__file__).resolve().relative_to(SRC)  # this module, inside the package folder
+
+
+def code_digest(modules: Sequence[str] = (), src: Path | None = None) -> str:
+    """sha256 of the project files a rollout runs: this module's import closure plus ``modules`` (dotted names)
+    and theirs, read from ``src`` (the folder holding the package; default: the one this code runs from)."""
+    src = src or SRC
+    return files_digest(import_closure(src / RUNNER, modules, src), src)
+
+
+def model_module(model_path: str | Path) -> str:
+    """The module of the posterior class a model file names (`target`): code no static import reaches."""
+    return str(read_checkpoint(model_path)["target"]).rpartition(".")[0]
+
+
+def job_identity(job: Any) -> dict:
+    """The job as plain data, less the model file's path (its bytes are hashed instead: a retrained model at the
+    same path is a new cell, the same model elsewhere is not)."""
+    fields = dict(job.__dict__)
+    policy = getattr(job, "policy", None)
+    if policy is not None and dataclasses.is_dataclass(policy):
+        fields["policy"] = {k: v for k, v in policy.__dict__.items() if k != "model_path"}
+    return fields
+
+
+def cell_key(job: Any, consumer: Mapping[str, Any], model_path: str | Path | None, stage_module: str) -> str:
+    """The identity hash of a cell: model bytes, job, ``consumer`` (the estimator's or test's settings), code."""
+    modules = [stage_module, *([model_module(model_path)] if model_path else [])]
+    identity = {
+        "model_sha256": file_digest(model_path) if model_path else None,
+        "code": code_digest(modules),
+        "job": job_identity(job),
+        "consumer": dict(consumer),
+    }
+    return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def estimate_key(job: RolloutJob, settings: EstimatorSettings, stage_module: str) -> str:
+    """The identity hash of a cell that estimates η1 of a `RolloutJob` by ``settings``."""
+    return cell_key(job, settings.__dict__, job.policy.model_path or None, stage_module)
+
+
+@dataclasses.dataclass(frozen=True)
+class CellRun(Generic[T]):
+    """A finished cell: what its consumer concluded, its rollouts in index order, wall time, identity.
+    ``reused``: every rollout was replayed from the cell's log (nothing simulated)."""
+
+    name: str
+    key: str
+    outcome: T
+    results: list[RolloutResult]
+    seconds: float
+    reused: bool
+
+
+class CellRunner:
+    """Runs cells one after another on one backend; with the process backend, on one pool of workers for the
+    runner's life (a stage's cells share it: the workers pay their imports once). A context manager."""
+
+    def __init__(self, backend: str, workers: int, options: Mapping[str, Any] | None = None, progress: bool = True):
+        self.backend, self.workers, self.options, self.progress = backend, workers, dict(options or {}), progress
+        self.pool = ProcessPool(workers) if backend == "process" else None
+
+    @classmethod
+    def of(cls, executor: Any, progress: bool = True) -> CellRunner:
+        """From a stage's validated `executor` section (name, workers, options())."""
+        return cls(executor.name, executor.workers, executor.options(), progress)
+
+    def run(
+        self,
+        name: str,
+        job: Any,
+        key: str,
+        log_path: str | Path,
+        base_seed: int,
+        consume: Callable[[Draws], T],
+        total: int,
+        reuse: Mapping[int, RolloutResult] | None = None,
+    ) -> CellRun[T]:
+        """``consume(draw)`` over the cell's rollouts (``draw(count)``: the next count outcomes, 0/1, in index
+        order); ``total``: the most rollouts it may ask for (the progress bar's length)."""
+        executor = make_executor(self.backend, job, self.workers, self.pool, **self.options)
+        bar = tqdm(total=total, desc=name, unit="rollout", disable=not self.progress, leave=False)
+
+        def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
+            for result in fresh:  # one bar over the cell, however many looks a sequential consumer takes
+                bar.update()
+                yield result
+
+        start = time.perf_counter()
+        try:
+            draws = Draws(executor, RolloutLog(log_path, key, base_seed), reuse, progress)
+            bar.update(len(draws.kept))
+            outcome = consume(draws)
+        finally:
+            bar.close()
+            executor.close()
+        return CellRun(name, key, outcome, draws.results, time.perf_counter() - start, reused=draws.fresh == 0)
+
+    def estimate(
+        self,
+        name: str,
+        job: RolloutJob,
+        settings: EstimatorSettings,
+        key: str,
+        log_path: str | Path,
+        reuse: Mapping[int, RolloutResult] | None = None,
+    ) -> CellRun[Estimate]:
+        """η̂1 of one cell of a `RolloutJob` by ``settings``' scheme (``key``: `estimate_key`)."""
+        return self.run(
+            name, job, key, log_path, settings.base_seed, settings.estimate, settings.planned_rollouts(), reuse
+        )
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+            self.pool = None
+
+    def __enter__(self) -> CellRunner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
