@@ -63,14 +63,17 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     by_name = {r.info.run_name.split(" · ")[0]: r for r in runs}  # the name carries η̂1
     assert set(by_name) == {f"mcd-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-calibration"}
     run = by_name["mcd-fog-on"]
-    assert {k: run.data.params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n")} == {
+    params = run.data.params
+    assert {k: params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n", "theta")} == {
         "method": "mcd",
+        "theta": "0.7",
         "condition": "fog",
         "warnings": "on",
         "delta1": "0.7",
         "samples_per_frame": "21",
         "n": "4",
     }
+    assert "avoid.theta" not in params and run.data.tags["reused"] == "false"  # each key once
     assert run.data.metrics["eta1"] == pytest.approx(saved["cells"]["fog"]["on"]["eta1"])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"mcd-fog-on.csv", "mcd-fog-on.png"}
 

@@ -37,7 +37,13 @@ ROOT = Path(__file__).resolve().parents[1]
             "collect",
             ["weather=snow"],
             "error: In 'collect': Could not find 'weather/snow'; Available options in "
-            "'weather':; afternoon; clear_noon; fog; rain; schema",
+            "'weather':; afternoon; clear_noon; fog; rain",
+        ),
+        (  # a group's schema (its defaults) is no option of the group
+            "safety",
+            ["weather=weather_schema"],
+            "error: In 'safety': Could not find 'weather/weather_schema'; Available options in "
+            "'weather':; afternoon; clear_noon; fog; rain",
         ),
     ],
 )
@@ -71,3 +77,34 @@ def test_only_config_errors_become_one_line():
     assert stopped.value.code == 2
     with pytest.raises(KeyError):
         bug(None)
+
+
+def run_script(stage: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(ROOT / "stages" / f"{stage}.py"), *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+    )
+
+
+def test_the_resolved_job_config_and_the_help_print_without_running(tmp_path):
+    shown = run_script("safety", "model=vi", "--cfg", "job", "--resolve", cwd=tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    assert "cell: vi-roundabout-clear_noon-noise0.0" in shown.stdout
+    assert f"out: {tmp_path}/outputs/" in shown.stdout  # an ad-hoc run writes under its own folder
+    helped = run_script("safety", "--help", cwd=tmp_path)
+    assert helped.returncode == 0 and "weather: afternoon, clear_noon, fog, rain" in helped.stdout
+    assert "schema" not in helped.stdout.split("== Config ==")[0]
+
+
+def test_an_empty_model_file_is_one_line_naming_the_key_and_the_stage_that_trains_it(tmp_path):
+    (tmp_path / "vi.pt").write_bytes(b"")
+    result = run_script("safety", "profile=tiny", "model=vi", f"safety.model_path={tmp_path}/vi.pt", cwd=tmp_path)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.splitlines() == [
+        f"error: safety.model_path={tmp_path}/vi.pt: is empty (0 bytes): not a uqdrive model file; "
+        "dvc repro train@offline-vi"
+    ]

@@ -55,6 +55,7 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
         "scheme": "chernoff",
         "n": "4",
     }
+    assert not {"safety.theta", "safety.gamma", "safety.scheme"} & set(params) and params["safety.base_seed"] == "100000"
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
         assert run.data.metrics[key] == pytest.approx(result[key])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
@@ -154,8 +155,8 @@ def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
         (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
         (
             ("safety.model_path=/nonexistent/vi.pt",),
-            FileNotFoundError,
-            r"safety.model_path=/nonexistent/vi.pt does not exist",
+            ValueError,
+            r"^safety.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@offline-vi$",
         ),
         (("safety.theta=1.5",), ValueError, r"safety.theta=1.5: input should be less than 1"),
         (("safety.gamma=0",), ValueError, r"safety.gamma=0: input should be greater than 0"),

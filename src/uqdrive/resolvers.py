@@ -5,8 +5,9 @@
   from params.yaml, the single source of truth; a Hydra CLI override (`scenarios=[straight]`) still wins.
 - `${noise_label:NOISE}` is the one text of a noise level in cell names and paths: `noise=0` and
   `noise=0.0` are one cell.
-- `${output_root:ROOT,OUTPUTS}` is where a run writes: the project for a single run (what `dvc repro`
-  runs), the sweep's own folder for a Hydra multirun, so ad-hoc sweeps leave the pipeline's outputs alone.
+- `${output_root:ROOT,OUTPUTS}` is where a run writes: the project's pipeline folders when asked
+  (`outputs=pipeline`, what `dvc.yaml`'s commands pass), else the run's own Hydra folder (`outputs/<date>/<time>`,
+  or the sweep's folder for a multirun), so an ad-hoc run or sweep never overwrites a tracked pipeline output.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from omegaconf import OmegaConf
 
 from uqdrive.schema import ConfigError
 
-# The `outputs` key: auto = the sweep's folder in a multirun; pipeline = always the project.
+# The `outputs` key: auto = the run's (or the sweep's) own Hydra folder; pipeline = the project's folders.
 OUTPUTS = ("auto", "pipeline")
 
 
@@ -43,12 +44,14 @@ def noise_label(noise: object) -> str:
 
 
 def output_root(root: str, outputs: str) -> str:
-    """``root`` for a single run or ``outputs=pipeline``; in a multirun, its sweep folder (hydra.sweep.dir)."""
+    """``root`` with ``outputs=pipeline`` or outside a Hydra job (a config composed in code); else the job's own
+    folder: hydra.run.dir for a single run, hydra.sweep.dir for a multirun."""
     if outputs not in OUTPUTS:
         raise ConfigError(f"outputs={outputs!r} is not known; choose one of {list(OUTPUTS)}")
-    if outputs == "pipeline" or not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.MULTIRUN:
+    if outputs == "pipeline" or not HydraConfig.initialized():
         return root
-    return str(Path(root) / HydraConfig.get().sweep.dir)
+    hydra = HydraConfig.get()
+    return str(Path(root) / (hydra.sweep.dir if hydra.mode == RunMode.MULTIRUN else hydra.run.dir))
 
 
 def register_resolvers() -> None:

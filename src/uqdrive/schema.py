@@ -7,9 +7,9 @@ say everything a config key may hold; cross-field rules live in its ``__post_ini
 path; `uqdrive.stage` prints that line and exits with 2 before the stage does any work.
 
 The defaults are written once, in the dataclasses: the module owning a config group's schema stores its
-defaults (`defaults`) in Hydra's ConfigStore as `<group>/schema` (`uqdrive.sim.config.register_schemas`, …;
+defaults (`defaults`) in Hydra's ConfigStore as `<group>_schema` (`uqdrive.sim.config.register_schemas`, …;
 each stage script registers the groups it composes), and the group's yaml files list only what differs
-(``defaults: [schema, _self_]``), so ``scenario.ring_radius=20`` overrides a key no yaml spells out.
+(``defaults: [/<group>_schema@_here_, _self_]``), so ``scenario.ring_radius=20`` overrides a key no yaml spells out.
 """
 
 from __future__ import annotations

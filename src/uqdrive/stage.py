@@ -62,6 +62,7 @@ def run_stage(main: Callable[[], object], *register_schemas: Callable[[], None])
     config error too: one line and exit code 2, as `stage_main` reports the stage's own checks."""
     for register in register_schemas:  # the defaults of the config groups this stage composes (ConfigStore)
         register()
+    register_resolvers()  # also for what Hydra does before the task (`--cfg job --resolve`, `--help`)
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing its multi-line report
     try:
         main()

@@ -40,7 +40,8 @@ LOCK_TIMEOUT_S = 600.0  # a migration takes seconds; a lock held this long is a 
 INTERRUPT_GRACE_S = 20.0  # after Ctrl-C or SIGTERM, clean-up time before the signal's default action ends a sweep
 PARENT_RUN_ENV = "UQDRIVE_MLFLOW_PARENT_RUN"  # "<experiment id>:<run id>" of the sweep's parent run
 JOB_START_ENV = "UQDRIVE_JOB_START_MS"  # set at Hydra's job start: the run's start time
-# The keys runs are compared by, logged under these short names (config key; absent keys are skipped).
+# The keys runs are compared by, logged under these short names (config key, ``{stage}`` for the stage's own
+# section; absent keys are skipped), each once: a section key logged here is not logged again under its full name.
 COMPARED_BY = {
     "method": "model.name",
     "experiment": "experiment.name",
@@ -49,6 +50,9 @@ COMPARED_BY = {
     "location": "scenario.name",
     "profile": "profile_name",
     "seed": "seed",
+    "scheme": "{stage}.scheme",
+    "theta": "{stage}.theta",
+    "gamma": "{stage}.gamma",
 }
 SECTIONS = {"train": ("train", "model", "arch")}  # a stage's own config sections, when not just its name
 # The number each experiment is judged by. MLflow 3.17's runs table shows no metric column until a user
@@ -124,8 +128,10 @@ def run_params(config: DictConfig | Mapping[str, Any], stage: str, root: str | P
         if isinstance(value, DictConfig):
             params.update(flatten(value, prefix=f"{section}."))
     for name, key in COMPARED_BY.items():
+        key = key.format(stage=stage)
         value = OmegaConf.select(config, key, default=None)
         if value is not None and not isinstance(value, DictConfig):
+            params.pop(key, None)
             params[name] = str(value)
     prefix = f"{Path(root).resolve()}{os.sep}"
     return {k: v.replace(prefix, "") for k, v in params.items()}

@@ -46,10 +46,14 @@ def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist; train it first (dvc repro train)")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path} is empty (0 bytes): not a uqdrive model file")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as err:
-        raise ValueError(f"{path} is not a uqdrive model file (torch.load failed: {err})") from None
+        raise ValueError(
+            f"{path} is not a uqdrive model file (torch.load failed: {type(err).__name__}: {err})"
+        ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ValueError(f"{path} is not a uqdrive model file (no '{FORMAT}' format tag)")
     if payload.get("version") != VERSION:

@@ -1,5 +1,6 @@
-"""The built-in posteriors' settings defaults in Hydra's ConfigStore (`model/<method>_schema`) and the network's
-widths (`arch_schema`): conf/model/<method>.yaml and conf/train.yaml extend them, listing only what differs."""
+"""The built-in posteriors' settings defaults in Hydra's ConfigStore (`<method>_schema`, top-level: no option of
+the `model` group) and the network's widths (`arch_schema`): conf/model/<method>.yaml and conf/train.yaml extend
+them, listing only what differs."""
 
 from __future__ import annotations
 
@@ -20,4 +21,4 @@ def register_schemas() -> None:
     store = ConfigStore.instance()
     store.store(name="arch_schema", node=defaults(Architecture))
     for posterior in BUILT_IN:
-        store.store(group="model", name=f"{posterior.method}_schema", node=defaults(posterior.Settings))
+        store.store(name=f"{posterior.method}_schema", node=defaults(posterior.Settings))

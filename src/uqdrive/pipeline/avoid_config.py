@@ -236,7 +236,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         )
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
-    cell_posterior("avoid.model_path", model_path, method, bins)
+    cell_posterior("avoid.model_path", model_path, method, bins, stage.experiment.train_stage(method))
     spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
     return AvoidSettings(
         method,

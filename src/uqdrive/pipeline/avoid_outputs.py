@@ -119,23 +119,18 @@ def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict) -
 
 
 def _log_run(cfg: DictConfig, settings: AvoidSettings, cell: Cell, metrics: dict, artifacts: list[Path]) -> str:
+    """The cell's run: the stage's config (`stage_run`) plus what is the cell's own (condition, warnings mode, the
+    thresholds it drove with, n); tagged ``reused`` when nothing was simulated."""
     params = {
-        "method": settings.method,
-        "experiment": cfg.experiment.name,
         "condition": cell.condition,
         "warnings": cell.mode,
         "delta1": cell.warning.delta1,
         "delta2": cell.warning.delta2,
         "tau": cell.warning.tau,
         "samples_per_frame": cell.warning.samples,
-        "scheme": cell.estimate.scheme,
-        "theta": cell.estimate.theta,
-        "gamma": cell.estimate.gamma,
         "n": cell.estimate.n,
-        "base_seed": settings.validation_seed if cell.mode == "calibrated" else settings.estimator.base_seed,
-        "reused": cell.reused,
     }
-    with stage_run(cfg.paths.root, "avoid", cfg, run_name=cell.name) as run:
+    with stage_run(cfg.paths.root, "avoid", cfg, run_name=cell.name, tags={"reused": str(cell.reused).lower()}) as run:
         mlflow.log_params(params)
         mlflow.log_metrics(numeric_metrics(metrics))
         for path in artifacts:
@@ -227,7 +222,6 @@ def write_outputs(
     with stage_run(cfg.paths.root, "avoid", cfg, run_name=f"{settings.method}-calibration") as run:
         mlflow.log_params(
             {
-                "method": settings.method,
                 "calibrated_delta1": calib.delta1,
                 "calibrated_delta2": calib.delta2,
                 "calibrated_tau": calib.tau,

@@ -33,6 +33,10 @@ class Experiment:
     scenarios: NonEmptyNames
     bins: SteeringBins
 
+    def train_stage(self, method: str) -> str:
+        """The DVC stage that trains this experiment's ``method`` (MCD trains the trunk the heads sit on)."""
+        return f"train_mcd@{self.name}" if method == "mcd" else f"train@{self.name}-{method}"
+
 
 @schema
 class Executor:

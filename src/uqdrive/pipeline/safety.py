@@ -108,7 +108,7 @@ def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
     model_path = Path(safety.model_path)
-    cell_posterior("safety.model_path", model_path, method, bins)
+    cell_posterior("safety.model_path", model_path, method, bins, stage.experiment.train_stage(method))
     spec = PolicySpec("bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps)
     job = RolloutJob(
         policy=spec,
@@ -276,17 +276,7 @@ SUMMARY_KEYS = (
     "mean_eta2",
     "mean_mutual_information",
 )
-CELL_PARAMS = (
-    "method",
-    "experiment",
-    "location",
-    "weather",
-    "theta",
-    "gamma",
-    "scheme",
-    "n",
-    "base_seed",
-)  # noise: tracking's own
+CELL_PARAMS = ("method", "experiment", "location", "weather", "noise", "theta", "gamma", "scheme", "n", "base_seed")
 
 
 def _cell_files(cfg: DictConfig) -> list[Path]:
@@ -296,7 +286,7 @@ def _cell_files(cfg: DictConfig) -> list[Path]:
 
 def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool = False) -> None:
     """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
-    metrics = numeric_metrics({k: v for k, v in result.items() if k not in CELL_PARAMS and k != "noise"})
+    metrics = numeric_metrics({k: v for k, v in result.items() if k not in CELL_PARAMS})
     with stage_run(
         cfg.paths.root,
         "safety",
@@ -304,7 +294,7 @@ def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool 
         run_name=cfg.safety.cell,
         tags={"reused": str(reused).lower(), "config_hash": result["config_hash"]},
     ):
-        mlflow.log_params({k: result[k] for k in CELL_PARAMS})
+        mlflow.log_param("n", result["n"])  # the rest of the cell's keys are its config's (`stage_run`)
         mlflow.log_metrics(metrics)
         for path in artifacts:
             mlflow.log_artifact(str(path))

@@ -96,7 +96,7 @@ def run_train(cfg: DictConfig) -> dict:
     metrics_json = Path(cfg.paths.metrics) / "train" / f"{method}.json"
     write_json(metrics_json, metrics)
 
-    with stage_run(cfg.paths.root, "train", cfg, run_name=method):
+    with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}"):
         mlflow.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float))})
         for row in curve:
             mlflow.log_metrics({f"curve_{k}": float(v) for k, v in row.items() if k != "step"}, step=int(row["step"]))

@@ -18,7 +18,7 @@ from uqdrive.models.posterior import Posterior
 from uqdrive.safety.executors import Executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
-from uqdrive.schema import Count, OpenUnit, Seed, schema
+from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, schema
 from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential, sequential_scheme
 
 Scheme = Literal["chernoff", "clopper_pearson", "sequential"]
@@ -112,11 +112,15 @@ def estimate_safety(
     return settings.estimate(draws), draws.results
 
 
-def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins) -> Posterior:
-    """The cell's model, loaded once up front so a missing or mismatched file fails before any rollout."""
-    if not path.exists():
-        raise FileNotFoundError(f"{key}={path} does not exist; train it first (dvc repro train_mcd / train@{method})")
-    return load_posterior(path, expected_method=method, expected_classes=bins)
+def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins, trained_by: str) -> Posterior:
+    """The cell's model, loaded once up front so a missing, empty or mismatched file fails before any rollout, in
+    one line naming the config key and the DVC stage that trains it (``trained_by``)."""
+    try:
+        return load_posterior(path, expected_method=method, expected_classes=bins)
+    except FileNotFoundError:
+        raise ConfigError(f"{key}={path} does not exist; train it first: dvc repro {trained_by}") from None
+    except ValueError as err:
+        raise ConfigError(f"{key}={path}: {str(err).removeprefix(f'{path} ')}; dvc repro {trained_by}") from None
 
 
 def file_digest(path: str | Path) -> str:

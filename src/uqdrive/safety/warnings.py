@@ -113,11 +113,11 @@ class WarningConfig:
 
 
 def register_schema() -> None:
-    """The warning system's defaults (the paper's) in Hydra's ConfigStore as `warning/schema`, which
+    """The warning system's defaults (the paper's) in Hydra's ConfigStore as `warning_schema`, which
     conf/warning/*.yaml extend."""
     from hydra.core.config_store import ConfigStore
 
-    ConfigStore.instance().store(group="warning", name="schema", node=defaults(WarningConfig))
+    ConfigStore.instance().store(name="warning_schema", node=defaults(WarningConfig))
 
 
 def classify(

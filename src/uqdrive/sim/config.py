@@ -227,12 +227,13 @@ class SimConfig(Section):
 
 def register_schemas() -> None:
     """The world's defaults in Hydra's ConfigStore, which conf/scenario/, conf/weather/ and conf/sim.yaml extend
-    (`scenario/schema`, `weather/schema`, `sim_schema`): for the stages that compose them."""
+    (`scenario_schema`, `weather_schema`, `sim_schema`): for the stages that compose them. Top-level nodes, not
+    options of the groups they fill, so `weather=weather_schema` is no weather and `--help` lists none."""
     from hydra.core.config_store import ConfigStore
 
     store = ConfigStore.instance()
-    store.store(group="scenario", name="schema", node=defaults(ScenarioConfig))
-    store.store(group="weather", name="schema", node=defaults(WeatherConfig))
+    store.store(name="scenario_schema", node=defaults(ScenarioConfig))
+    store.store(name="weather_schema", node=defaults(WeatherConfig))
     store.store(name="sim_schema", node=defaults(SimConfig))
 
 
@@ -251,7 +252,7 @@ def _load_group_file(path: Path) -> Any:
     parts = [
         config if entry == "_self_" else _load_group_file(path.with_name(f"{entry}.yaml"))
         for entry in defaults
-        if not entry.endswith("schema")  # the schema's defaults (`schema`, `sim_schema`): from_config fills them in
+        if not entry.split("@")[0].endswith("_schema")  # the schema's defaults: from_config fills them in
     ]
     if "_self_" not in defaults:
         parts.append(config)
