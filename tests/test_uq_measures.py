@@ -14,6 +14,7 @@ from uqdrive.uq import (
     expected_entropy,
     frame_measures,
     mutual_information,
+    mutual_information_se,
     predictive_entropy,
     sample_decisions,
     steering_moments,
@@ -149,3 +150,14 @@ def test_bad_input_is_rejected_with_a_clear_message(probs, centres, eps, match: 
 
 def test_small_rounding_in_probabilities_is_accepted() -> None:
     assert decision_confidence(PROBS * (1 + 5e-5), CENTRES, 0.1).shape == (2,)
+
+
+def test_mutual_information_se_is_the_jackknife_of_the_plug_in_estimate() -> None:
+    """Leave each draw out in turn, by a plain loop over the single-function MI."""
+    probs = torch.softmax(torch.randn((9, 3, 5), generator=torch.Generator().manual_seed(4)), -1).double()
+    n = len(probs)
+    left_out = torch.stack([mutual_information(torch.cat([probs[:i], probs[i + 1 :]])) for i in range(n)])
+    expected = ((n - 1) / n * ((left_out - left_out.mean(0)) ** 2).sum(0)).sqrt()
+    assert torch.allclose(mutual_information_se(probs), expected, atol=1e-12)
+    assert torch.equal(mutual_information_se(probs[:1, :1].expand(4, 1, 5)), torch.zeros(1, dtype=probs.dtype))
+    assert torch.isnan(mutual_information_se(probs[:1])).all()

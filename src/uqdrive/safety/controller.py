@@ -20,8 +20,8 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.posterior import Posterior
+from uqdrive.safety.draws import DrawSettings, FrameDecision, fixed_frame
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
-from uqdrive.uq import frame_measures
 
 NO_WARNING = -1
 """Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.safety.warnings`)."""
@@ -80,10 +80,22 @@ class Controller:
 
     needs_camera = True
 
-    def __init__(self, posterior: Posterior, bins: SteeringBins, n_samples: int, eps: float, speed: float):
+    thresholds: tuple[float, float] | None = None
+    """(δ1, δ2) whose η2 tier a frame decides: a controller that acts on no warning asks none."""
+
+    def __init__(
+        self,
+        posterior: Posterior,
+        bins: SteeringBins,
+        n_samples: int,
+        eps: float,
+        speed: float,
+        draws: DrawSettings | None = None,
+    ):
         self.posterior = posterior.eval()
         self.centres = torch.as_tensor(bins.centres, dtype=torch.float32)
         self.n_samples, self.eps, self.speed = n_samples, float(eps), float(speed)
+        self.draws = draws or DrawSettings()
         self.generators = {0: torch.Generator()}
 
     def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
@@ -103,21 +115,21 @@ class Controller:
             np.stack([preprocess_frame(frame) for frame in frames])
         )  # exactly what the network was trained on
         features = self.posterior.features_each(x)
-        return [self._decide(features[b : b + 1], self.generators[slot]) for b, slot in enumerate(slots)]
+        frames = [self.decide(features[b : b + 1], self.generators[slot]) for b, slot in enumerate(slots)]
+        return self.commands(slots, frames, infos)
 
-    def _decide(self, features: torch.Tensor, generator: torch.Generator) -> Command:
-        """One frame's command from its features [1, F], its draws from the slot's ``generator``; every step is
-        the frame alone's (a batched reduction over frames could round differently)."""
-        n = self.n_samples
-        m = frame_measures(self.posterior.head_probs(features, 2 * n, generator), self.centres, self.eps, split=n)
-        return Command(
-            float(m.decision[0]),
-            self.speed,
-            float(m.eta2[0]),
-            float(m.mutual_information[0]),
-            float(m.entropy[0]),
-            draws=2 * n,
-        )
+    def decide(self, features: torch.Tensor, generator: torch.Generator) -> FrameDecision:
+        """One frame's decisions from its features [1, F], its draws from its slot's ``generator``; every step is
+        the frame alone's (a reduction over a batch of frames could round differently)."""
+
+        def draw(m: int) -> torch.Tensor:
+            return self.posterior.head_probs(features, m, generator)
+
+        return fixed_frame(draw, self.n_samples, self.centres, self.eps, self.thresholds)
+
+    def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
+        """Steer at π(o), at the cruise speed."""
+        return [Command(f.decision, self.speed, f.eta2, f.mutual_information, f.entropy, draws=f.draws) for f in frames]
 
 
 class AutopilotPolicy:

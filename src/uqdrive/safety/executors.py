@@ -24,6 +24,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
+from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningConfig, WarningController
@@ -46,7 +47,8 @@ class PolicySpec:
 
     kind: ``bnn`` (posterior from ``model_path``), ``autopilot`` or ``constant`` (``steer``).
     ``warnings``: a ``bnn`` policy with the warning system (its ``samples`` must be the warning
-    config's Chernoff n).
+    config's Chernoff n). ``draws``: how many posterior draws a ``bnn`` frame takes (`DrawSettings`:
+    the paper's fixed ``samples`` + ``samples``, or sequential with ``samples`` as the cap).
     """
 
     kind: str
@@ -59,6 +61,7 @@ class PolicySpec:
     steer: float = 0.0
     autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
     warnings: WarningConfig | None = None
+    draws: DrawSettings = dataclasses.field(default_factory=DrawSettings)
 
     def __post_init__(self) -> None:
         if self.kind not in POLICIES:
@@ -74,8 +77,10 @@ class PolicySpec:
         if self.kind == "bnn":
             posterior = load_posterior(Path(self.model_path), expected_method=self.method, expected_classes=self.bins)
             if self.warnings is not None:
-                return WarningController(posterior, self.bins, self.warnings, self.eps, self.speed, control_hz)
-            return Controller(posterior, self.bins, self.samples, self.eps, self.speed)
+                return WarningController(
+                    posterior, self.bins, self.warnings, self.eps, self.speed, control_hz, self.draws
+                )
+            return Controller(posterior, self.bins, self.samples, self.eps, self.speed, self.draws)
         if self.kind == "autopilot":
             return AutopilotPolicy(self.autopilot)
         return ConstantPolicy(self.steer, self.speed)

@@ -20,6 +20,7 @@ import numpy as np
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Command, Controller
+from uqdrive.safety.draws import DOUBTFUL, UNSURE, DrawSettings, FrameDecision
 from uqdrive.schema import Bool, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
 from uqdrive.uq import chernoff_n
 
@@ -137,6 +138,16 @@ def classify(
     return np.where(eta2 < delta2, 2, np.where(eta2 < delta1, 1, np.where(mi > tau, 0, NO_WARNING))).astype(np.int8)
 
 
+def warning_level(tier: int, mutual_information: float, tau: float) -> int:
+    """One frame's level from its η2 tier (`uqdrive.safety.draws`: decided by the frame's draws) and its MI: what
+    `classify` gives from η2 itself."""
+    if tier == DOUBTFUL:
+        return 2
+    if tier == UNSURE:
+        return 1
+    return 0 if mutual_information > tau else NO_WARNING
+
+
 class WarningActions:
     """The actions' state over a batch of systems: slow-downs held ``hold_frames``, hand-over latched.
 
@@ -180,8 +191,9 @@ class WarningController(Controller):
         eps: float,
         speed: float,
         control_hz: float,
+        draws: DrawSettings | None = None,
     ):
-        super().__init__(posterior, bins, config.samples, eps, speed)
+        super().__init__(posterior, bins, config.samples, eps, speed, draws)
         self.config = config
         self.hold_frames = round(config.hold_s * control_hz)
         self.actions = {0: WarningActions(config.actions, self.hold_frames)}
@@ -192,18 +204,15 @@ class WarningController(Controller):
         self.actions[slot] = WarningActions(self.config.actions, self.hold_frames)
         self.held_steer[slot] = None
 
-    def act_batch(
-        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
-    ) -> list[Command]:
-        commands = super().act_batch(slots, frames, infos)
-        cfg = self.config
-        levels = classify(
-            [c.eta2 for c in commands], [c.mutual_information for c in commands], cfg.delta1, cfg.delta2, cfg.tau
-        )
-        return [
-            self._act_on(slot, command, int(level), info)
-            for slot, command, level, info in zip(slots, commands, levels, infos)
-        ]
+    @property
+    def thresholds(self) -> tuple[float, float]:
+        return self.config.delta1, self.config.delta2
+
+    def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
+        """π(o) steers, the frame's warning level sets the speed (and may hand over)."""
+        commands = super().commands(slots, frames, infos)
+        levels = [warning_level(f.tier, f.mutual_information, self.config.tau) for f in frames]
+        return [self._act_on(*args) for args in zip(slots, commands, levels, infos)]
 
     def _act_on(self, slot: int, command: Command, level: int, info: dict) -> Command:
         factor, alert, handover = self.actions[slot].step(level)

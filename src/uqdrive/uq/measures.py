@@ -164,6 +164,21 @@ def mutual_information(probs: ArrayLike) -> torch.Tensor:
     return (_entropy(p.mean(0)) - _entropy(p).mean(0)).clamp_min(0)
 
 
+def mutual_information_se(probs: ArrayLike) -> torch.Tensor:
+    """Jackknife standard error ``[B]`` of :func:`mutual_information` from these n draws: how precise the plug-in
+    MI is at the draws made (0 when all draws agree exactly; NaN for a single draw). An approximate standard
+    error, not a bound: the plug-in MI is biased low at small n, by more than this where the draws disagree.
+    """
+    p, _ = check_samples(probs)
+    n = len(p)
+    if n < 2:
+        return torch.full(p.shape[1:2], math.nan, dtype=p.dtype)
+    h = _entropy(p)  # [n, B]
+    q_without = (p.sum(0) - p) / (n - 1)  # [n, B, C]: the predictive without draw i
+    mi_without = _entropy(q_without) - (h.sum(0) - h) / (n - 1)
+    return ((n - 1) / n * (mi_without - mi_without.mean(0)).square().sum(0)).sqrt()
+
+
 def steering_moments(probs: ArrayLike, centres: ArrayLike) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and variance ``[B]`` of steering under the posterior *predictive* (mixture over samples).
 
