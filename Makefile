@@ -35,7 +35,7 @@ lint: $(TEST_STAMP)
 	ruff format --check src stages tests
 
 ui: $(STAMP)
-	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000  (Ctrl-C stops it)"
+	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
 	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port 5000
 
 frames: $(STAMP)

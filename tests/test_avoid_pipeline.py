@@ -60,7 +60,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
 
     client = MlflowClient(store_uris(tmp_path)[0])
     runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
-    by_name = {r.info.run_name.split(" · ")[0]: r for r in runs}  # the name carries η̂1
+    by_name = {r.info.run_name.split(" · ")[-1]: r for r in runs}  # the name starts with η̂1
     assert set(by_name) == {f"mcd-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-calibration"}
     run = by_name["mcd-fog-on"]
     params = run.data.params
@@ -120,7 +120,11 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
         (("warning.tau=-1",), ValueError, r"warning.tau=-1: input should be greater than or equal to 0"),
         (("warning.actions.warning2.speed=0.5",), ValueError, r"warning.actions.warning2.speed=0.5 must be 0 when"),
         (("model.name=lasso",), ValueError, r"model.name='lasso' does not match model._target_ VIPosterior"),
-        (("avoid.model_path=/nonexistent/vi.pt",), FileNotFoundError, r"avoid.model_path=/nonexistent/vi.pt does not"),
+        (
+            ("avoid.model_path=/nonexistent/vi.pt",),
+            ValueError,
+            r"^avoid.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@avoid-vi$",
+        ),
         (("avoid.theta=0",), ValueError, r"avoid.theta=0: input should be greater than 0"),
         (
             ("avoid.scheme=bootstrap",),

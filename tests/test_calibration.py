@@ -1,15 +1,29 @@
-"""Replaying warning thresholds over recorded warnings-off runs, and choosing them on the paper's joint claim:
-the most unknown-condition safety whose known-condition autonomy bound meets the target."""
+"""Replaying warning thresholds over recorded warnings-off runs, and choosing them on the paper's joint claim with
+Learn-then-Test: the most unknown-condition safety among the thresholds certified to keep known autonomy ≥ the target.
+
+p-values are recomputed here from binomial coefficients; the family-wise error is computed exactly by enumerating
+every hand-over count, and by 10,000 simulated calibrations for the learned (Pareto Testing) order."""
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
-from uqdrive.safety.calibration import NEVER_FIRES, Traces, calibrate, candidates, min_known_runs, replay
+from uqdrive.safety.calibration import (
+    NEVER_FIRES,
+    Replay,
+    Traces,
+    calibrate,
+    candidates,
+    certify,
+    firing_order,
+    min_calibration_runs,
+    replay,
+)
 from uqdrive.safety.warnings import WarningConfig
-from uqdrive.uq import clopper_pearson_interval
 
 FAST = WarningConfig(theta=0.3)  # the paper's thresholds and actions
 ARGS = {"control_hz": 15.0, "cruise": 8.0, "start_speed": 8.0, "max_accel": 3.0, "max_brake": 6.0, "margin_m": 0.5}
@@ -57,34 +71,92 @@ def random_traces(rng: np.random.Generator, known: int, unknown: int) -> Traces:
     return Traces.from_runs(runs)
 
 
+def binomial_lower_tail(k: int, n: int, p: float) -> float:
+    """P(Bin(n, p) ≤ k) from binomial coefficients."""
+    return sum(math.comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(k + 1))
+
+
+DELTAS, TAUS = [0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0], [0.3, 0.45]
+
+
 @pytest.mark.parametrize("target", [0.6, 0.8, 0.85])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_calibration_never_returns_thresholds_below_the_autonomy_target(target, seed):
+def test_the_chosen_thresholds_are_certified_by_an_exact_p_value_and_the_safest_certified(target, seed):
     t = random_traces(np.random.default_rng(seed), known=30, unknown=40)
-    deltas, taus = [0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0], [0.3, 0.45]
-    calib = calibrate(t, ["known", "unknown"], FAST, deltas, taus, target=target, gamma=0.05, **ARGS)
+    calib = calibrate(t, ["known", "unknown"], FAST, DELTAS, TAUS, target=target, gamma=0.05, **ARGS)
     table, chosen = calib.table, calib.chosen
-    # the bound is recomputed here from the replayed hand-overs, independently of the table's own column
+    # the chosen candidate's p-value, recomputed from its replayed hand-overs with binomial coefficients
     handovers = replay(
         t, table["delta1"][[chosen]], table["delta2"][[chosen]], table["tau"][[chosen]], FAST, **ARGS
     ).handover[0, t.group == 0]
-    low, _ = clopper_pearson_interval(int((~handovers).sum()), len(handovers), 0.05)
-    assert calib.feasible and low >= target
-    # and among the candidates that meet the target, no other is safer in the unknown condition
-    assert table["eta1_unknown"][chosen] == table["eta1_unknown"][table["feasible"]].max()
+    assert binomial_lower_tail(int(handovers.sum()), handovers.size, 1 - target) <= 0.05
+    assert calib.feasible and table["certified"][chosen] and calib.certified == table["certified"].sum()
+    # a candidate whose null was not rejected is never chosen: no certified one is safer in the unknown condition
+    assert table["eta1_unknown"][chosen] == table["eta1_unknown"][table["certified"]].max()
+    assert not table["certified"][table["p_value"] > 0.05].any()
+    # fixed-sequence: the certified set is the prefix of the firing order before the first p > gamma
+    sequence = firing_order(table["delta1"], table["delta2"], table["tau"])
+    assert (table["sequence"][sequence] == np.arange(sequence.size)).all()
+    # with the default actions only δ2 decides a hand-over, so the risk grows along the order
+    assert (np.diff(table["p_autonomy"][sequence]) >= 0).all()
+    assert all(np.unique(table["p_autonomy"][table["delta2"] == v]).size == 1 for v in np.unique(table["delta2"]))
+    failed = np.flatnonzero(table["p_value"][sequence] > 0.05)
+    assert failed.size and table["certified"][sequence].tolist() == [i < failed[0] for i in range(sequence.size)]
     always = np.flatnonzero(table["delta2"] == 1.0)  # hand over at the first frame with any disagreement
-    assert not table["feasible"][always].any() and table["autonomy"][always].max() < 0.5
+    assert not table["certified"][always].any() and table["autonomy"][always].max() < 0.5
+    assert calib.calibration_runs == {"known": 30, "unknown": 40} and calib.learn_runs == {"known": 0, "unknown": 0}
+    assert f"each of the {calib.certified} certified candidates" in calib.guarantee
 
 
-def test_the_never_firing_candidate_is_on_every_grid_and_too_few_known_runs_are_refused():
-    d1, d2, t = candidates([0.7], [0.45])
-    assert NEVER_FIRES in list(zip(d1, d2, t))
-    for target in (0.3, 0.8, 0.95):  # n/n has exact lower bound (γ/2)^(1/n): the fewest n reaching the target
-        assert min_known_runs(target, 0.05) == math.ceil(math.log(0.025) / math.log(target))
-    with pytest.raises(
-        ValueError, match="target=0.8 needs at least 17 known-condition runs at gamma=0.05; there are 1"
-    ):
-        calibrate(traces(), ["known", "unknown"], FAST, [0.7], [0.45], target=0.8, gamma=0.05, **ARGS)
+def test_nothing_certifiable_falls_back_to_the_never_firing_candidate_and_says_so():
+    """10 known calibration runs without a hand-over give p = 0.8^10 = 0.107 for "hand-over rate > 0.2"."""
+    t = random_traces(np.random.default_rng(0), known=20, unknown=10)
+    calib = calibrate(
+        t, ["known", "unknown"], FAST, DELTAS, TAUS, target=0.8, gamma=0.05, calibration_fraction=0.5, **ARGS
+    )
+    never = list(zip(calib.table["delta1"], calib.table["delta2"], calib.table["tau"])).index(NEVER_FIRES)
+    assert calib.calibration_runs == {"known": 10, "unknown": 5} and calib.learn_runs == {"known": 10, "unknown": 5}
+    assert calib.table["p_value"][never] == pytest.approx(0.8**10, rel=1e-12)
+    assert not calib.feasible and calib.certified == 0 and calib.chosen == never
+    assert (calib.delta1, calib.delta2, calib.tau) == NEVER_FIRES
+    assert calib.max_target == pytest.approx(0.05 ** (1 / 10)) and "Nothing certified at gamma=0.05" in calib.guarantee
+    assert "can certify known-condition autonomy ≥ 0.741 at most" in calib.guarantee
+
+
+def test_fewest_runs_that_can_certify_a_target():
+    for target, gamma in ((0.8, 0.05), (0.95, 0.05), (0.3, 0.05), (0.9, 0.1)):
+        fewest = next(n for n in range(1, 1000) if binomial_lower_tail(0, n, 1 - target) <= gamma)
+        assert min_calibration_runs(target, gamma) == fewest
+        assert min_calibration_runs(target, gamma, 0.5) == 2 * fewest  # every other index calibrates
+    assert min_calibration_runs(0.8, 0.05) == 14 and min_calibration_runs(0.95, 0.05) == 59
+
+
+def test_the_never_firing_candidate_is_on_every_grid_first_in_the_firing_order():
+    d1, d2, t = candidates([0.7, 0.9], [0.45, 1.0])
+    first = firing_order(d1, d2, t)[0]
+    assert NEVER_FIRES in list(zip(d1, d2, t)) and (d1[first], d2[first], t[first]) == NEVER_FIRES
+    with pytest.raises(ValueError, match="'learned' needs calibration_fraction < 1"):
+        calibrate(traces(), ["known", "unknown"], FAST, [0.7], [0.45], target=0.5, gamma=0.05, order="learned", **ARGS)
+
+
+def test_the_learned_order_reads_only_the_learn_split():
+    """Every other run index learns the order; making the calibration runs hand over changes their p-values and
+    nothing about the order."""
+    t = random_traces(np.random.default_rng(4), known=30, unknown=30)
+    args = {"target": 0.6, "gamma": 0.05, "calibration_fraction": 0.5, "order": "learned"}
+    calib = calibrate(t, ["known", "unknown"], FAST, DELTAS, TAUS, **args, **ARGS)
+    calibration_known = (t.group == 0) & (np.arange(t.group.size) % 2 == 1)  # known runs come first: index = row
+    eta2 = t.eta2.copy()
+    eta2[calibration_known, 3] = 0.55  # below every δ2 but 0.5: those candidates now hand over on these runs
+    shaken = calibrate(dataclasses.replace(t, eta2=eta2), ["known", "unknown"], FAST, DELTAS, TAUS, **args, **ARGS)
+    assert (shaken.table["sequence"] == calib.table["sequence"]).all()
+    assert (shaken.table["p_value"] >= calib.table["p_value"]).all()
+    assert (shaken.table["p_value"] > calib.table["p_value"]).any()
+    assert calib.calibration_runs == calib.learn_runs == {"known": 15, "unknown": 15} and calib.order == "learned"
+    in_order = np.argsort(np.where(calib.table["sequence"] < 0, np.inf, calib.table["sequence"]))
+    tested = in_order[: int((calib.table["sequence"] >= 0).sum())]
+    certified = calib.table["certified"][tested]
+    assert certified.tolist() == sorted(certified.tolist(), reverse=True)  # a prefix of the learned order
 
 
 def test_a_silent_failure_is_never_saved_by_any_threshold():
@@ -92,4 +164,55 @@ def test_a_silent_failure_is_never_saved_by_any_threshold():
         traces(), ["known", "unknown"], FAST, [0.5, 0.6, 0.7, 0.9, 0.95, 1.0], [0.45], target=0.02, gamma=0.05, **ARGS
     )
     # the dipping collision can be saved, the silent one never: unknown η̂1 tops out at 1/2
-    assert calib.table["eta1_unknown"].max() == 0.5 and calib.table["eta1_unknown"][calib.chosen] == 0.5
+    assert calib.feasible and calib.table["eta1_unknown"].max() == 0.5
+    assert calib.table["eta1_unknown"][calib.chosen] == 0.5
+
+
+def synthetic(handover: np.ndarray, unsafe: np.ndarray | None = None) -> tuple[Replay, np.ndarray]:
+    """Replayed outcomes of candidates × runs: known runs first (``handover``), then unknown runs (``unsafe``)."""
+    unsafe = np.zeros((handover.shape[0], 0), bool) if unsafe is None else unsafe
+    group = np.r_[np.zeros(handover.shape[1], np.int64), np.ones(unsafe.shape[1], np.int64)]
+    safe = np.c_[np.ones_like(handover), ~unsafe]
+    out = Replay(safe, np.c_[handover, np.zeros_like(unsafe)], np.ones(safe.shape, float))
+    return out, group
+
+
+def test_family_wise_error_of_the_firing_order_is_at_most_gamma_exactly():
+    """Candidates in firing order: never-firing; hand-over rate 0.2001 (null true); 0.1 (false); 0.2001 (true).
+    Every triple of hand-over counts is enumerated with its exact probability. Testing all four at γ without
+    stopping would err with probability 1 − (1 − 0.8^14)² ≈ 0.086; the fixed sequence errs only if candidate 1's
+    null is rejected (0.7999^14 ≈ 0.0439)."""
+    n, target, gamma, rates = 14, 0.8, 0.05, (0.0, 0.2001, 0.1, 0.2001)
+    table = {"delta1": np.zeros(4), "delta2": np.arange(4.0), "tau": np.zeros(4)}
+    pmf = [np.array([math.comb(n, k) * q**k * (1 - q) ** (n - k) for k in range(n + 1)]) for q in rates[1:]]
+    error = 0.0
+    for counts in itertools.product(range(n + 1), repeat=3):
+        handover = np.arange(n)[None] < np.array([0, *counts])[:, None]
+        out, group = synthetic(handover)
+        certified = certify(out, group, np.ones(n, bool), table, target, gamma, None, "firing")["certified"]
+        if certified[[1, 3]].any():
+            error += math.prod(p[k] for p, k in zip(pmf, counts))
+    assert 0.04 < error <= gamma
+
+
+def test_family_wise_error_of_pareto_testing_with_two_constraints_by_simulation():
+    """Two constraints (autonomy ≥ 0.8, missed collisions ≤ 0.3), the order learned on every other run and the
+    tests on the rest. Candidate 0 misses too many collisions, 1-2 meet both, 3-7 hand over just too often
+    (0.201) while missing few collisions, so the learn split often ranks one of them first. 10,000 calibrations
+    (outcomes independent across candidates): the error rate's exact 95% upper bound stays below γ. Learning
+    the order on the calibration runs themselves errs about 19% of the time here."""
+    rng = np.random.default_rng(7)
+    target, limit, gamma, n, reps = 0.8, 0.3, 0.05, 100, 10_000
+    handover_rate = np.array([0.0, 0.08, 0.1, 0.201, 0.201, 0.201, 0.201, 0.201])
+    missed_rate = np.array([0.5, 0.22, 0.18, 0.1, 0.1, 0.1, 0.1, 0.1])
+    bad = (handover_rate > 1 - target) | (missed_rate > limit)
+    table = {"delta1": np.zeros(8), "delta2": np.arange(8.0), "tau": np.zeros(8)}
+    calibrating = np.r_[np.arange(n) % 2 == 1, np.arange(n) % 2 == 1]
+    handover = rng.random((reps, 8, n)) < handover_rate[:, None]
+    unsafe = rng.random((reps, 8, n)) < missed_rate[:, None]
+    errors = 0
+    for r in range(reps):
+        out, group = synthetic(handover[r], unsafe[r])
+        certified = certify(out, group, calibrating, table, target, gamma, limit, "learned")["certified"]
+        errors += bool(certified[bad].any())
+    assert stats.beta.ppf(0.975, errors + 1, reps - errors) < gamma

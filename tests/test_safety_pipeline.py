@@ -55,7 +55,8 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
         "scheme": "chernoff",
         "n": "4",
     }
-    assert not {"safety.theta", "safety.gamma", "safety.scheme"} & set(params) and params["safety.base_seed"] == "100000"
+    assert not {"safety.theta", "safety.gamma", "safety.scheme"} & set(params)  # each key once
+    assert params["safety.base_seed"] == "100000"
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
         assert run.data.metrics[key] == pytest.approx(result[key])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {

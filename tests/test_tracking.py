@@ -34,7 +34,7 @@ def test_params_are_the_stage_section_and_the_compared_keys_with_project_paths_r
         }
     )
     assert run_params(cfg, "safety", tmp_path) == {
-        "safety.theta": "0.25",
+        "theta": "0.25",  # compared by: under its short name, once
         "safety.out": "metrics/safety/a.json",
         "method": "vi",
         "weather": "rain",
@@ -57,7 +57,7 @@ def test_stage_run_creates_store_at_root_and_starts_when_the_job_started(tmp_pat
     assert logged.data.params == {"collect.episodes": "3", "location": "obstacle"}
     assert logged.data.metrics == {"frames": 42.0, "route_complete_fraction": 0.5}
     assert logged.info.start_time == 1700000000000 and logged.info.status == "FINISHED"
-    assert logged.info.run_name == "obstacle · route_complete_fraction=0.5"  # the key metric, seen without set-up
+    assert logged.info.run_name == "route_complete_fraction=0.5 · obstacle"  # the key metric, seen without set-up
     assert logged.info.artifact_uri.startswith(artifact_root)
     assert (tmp_path / "mlartifacts").is_dir()
 
@@ -127,7 +127,7 @@ def test_two_processes_creating_the_store_at_once_both_log(tmp_path):
             assert child.returncode == 0 and "MLflow:" not in err, err[-3000:]
         client = MlflowClient(store_uris(root)[0])
         runs = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
-        assert sorted(r.info.run_name for r in runs) == ["a · eta1=1", "b · eta1=1"]
+        assert sorted(r.info.run_name for r in runs) == ["eta1=1 · a", "eta1=1 · b"]
         assert all(r.info.status == "FINISHED" for r in runs)
         assert (root / "a.json").exists() and (root / "b.json").exists()
 

@@ -114,7 +114,7 @@ def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
     for run in runs:
         method = run.data.params["method"]
         assert run.data.params["model.name"] == method
-        assert run.info.run_name == f"joint-{method} · val_accuracy={metrics[method]['val_accuracy']:.3g}"
+        assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}"
         assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {f"{method}_curve.csv", f"{method}_curve.png", f"{method}.pt"} <= artefacts

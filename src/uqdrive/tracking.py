@@ -56,7 +56,8 @@ COMPARED_BY = {
 }
 SECTIONS = {"train": ("train", "model", "arch")}  # a stage's own config sections, when not just its name
 # The number each experiment is judged by. MLflow 3.17's runs table shows no metric column until a user
-# picks one (its default columns are Source, Models, Dataset), so the run's name carries it too.
+# picks one (its default columns are Created, Dataset, Duration, …), so the run's name starts with it: the
+# Run Name column shows about 20 characters.
 KEY_METRICS = {
     "safety": "eta1",
     "avoid": "eta1",
@@ -67,6 +68,8 @@ KEY_METRICS = {
 # Where the block's logging calls go when the store could not be opened: nowhere (every call fails and is
 # skipped), rather than a fresh store made outside the lock.
 UNTRACKED_URI = "file:///dev/null/uqdrive-untracked"
+# MLflow 3's UI opens an experiment of no declared kind on its GenAI traces page (empty here): ours are model runs.
+EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
 LOGGING_ERRORS = (MlflowException, SQLAlchemyError, OSError, LockTimeout)
 
 
@@ -99,9 +102,12 @@ def ensure_experiment(root: str | Path, name: str) -> str:
     with store_lock(root):
         client = MlflowClient(tracking_uri)  # opening a new store migrates its schema
         experiment = client.get_experiment_by_name(name)
-        if experiment is not None:
-            return experiment.experiment_id
-        return client.create_experiment(name, artifact_location=f"{artifact_root}/{name}")
+        if experiment is None:
+            return client.create_experiment(name, artifact_location=f"{artifact_root}/{name}", tags=EXPERIMENT_KIND)
+        for key, value in EXPERIMENT_KIND.items():  # a store made by older code
+            if experiment.tags.get(key) != value:
+                client.set_experiment_tag(experiment.experiment_id, key, value)
+        return experiment.experiment_id
 
 
 def flatten(config: Mapping[str, Any] | DictConfig, prefix: str = "") -> dict[str, str]:
@@ -198,12 +204,12 @@ def stage_run(
 
 
 def _name_with_key_metric(run_id: str, stage: str, run_name: str | None) -> None:
-    """Append the experiment's key metric to the run's name, so the runs table shows it without set-up."""
+    """Start the run's name with the experiment's key metric, so the runs table shows it without set-up."""
     key = KEY_METRICS.get(stage)
     client = mlflow.MlflowClient()
     value = client.get_run(run_id).data.metrics.get(key) if key else None
     if value is not None:
-        client.update_run(run_id, name=f"{run_name or stage} · {key}={value:.3g}")
+        client.update_run(run_id, name=f"{key}={value:.3g} · {run_name or stage}")
 
 
 def _terminate(root: str | Path, run_id: str, status: str) -> None:

@@ -1,12 +1,18 @@
-"""Choosing the warning thresholds (δ1, δ2, τ) by replaying recorded warnings-off rollouts.
+"""Choosing the warning thresholds (δ1, δ2, τ) by replaying recorded warnings-off rollouts, with a guarantee.
 
 The paper sets δ1 = 0.7, δ2 = 0.6, τ = 0.45 by looking at how uncertainty behaves as the car
 approaches the obstacle, and asks of the result two things at once: safety in unknown
 conditions, and full autonomy in the known one. Calibration makes that joint claim the
-objective: the most replayed unknown-condition safety among the thresholds whose known-condition
-autonomy has an exact lower bound ≥ the target. "Always hand over" is safe and useless; the
-autonomy constraint is what rules it out, and the never-firing candidate (δ1 = δ2 = 0, τ = 10 nats) is
-always on the grid, so a target the known runs can show at all is always met.
+objective, and certifies the constraint by Learn-then-Test (`uqdrive.uq.ltt`): every candidate's null
+is "its known-condition hand-over rate exceeds 1 − target" (and, where configured, "its missed-collision
+rate in some unknown condition exceeds the limit"), tested with exact binomial p-values on the
+calibration runs, by fixed-sequence testing along an order fixed before those runs are seen. With
+probability ≥ 1 − γ every certified candidate meets the target, so the choice among them (the most
+replayed unknown-condition safety) needs no further correction. Checking each candidate's own bound and
+then choosing among the 729 would not do: the bound that was checked is not the bound that holds for
+the one chosen. "Always hand over" is safe and useless; the autonomy constraint rules it out. The
+never-firing candidate (δ1 = δ2 = 0, τ = 10 nats) is always on the grid and first in the default order;
+where nothing is certified the calibration falls back to it and says so.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import numpy as np
 from uqdrive.safety.controller import NO_WARNING
 from uqdrive.safety.warnings import WarningActions, WarningConfig, classify
 from uqdrive.uq import clopper_pearson_interval
+from uqdrive.uq.ltt import fixed_sequence, interleaved_split, pareto_order, rate_above_p
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,13 +125,20 @@ def replay(
 
 @dataclasses.dataclass(frozen=True)
 class Calibration:
-    """Chosen thresholds and every candidate's replayed outcome (the safety–autonomy front).
+    """Chosen thresholds, what Learn-then-Test certified, and every candidate's replayed outcome.
 
-    ``table`` columns per candidate: delta1, delta2, tau; autonomy (known runs with no hand-over)
-    and autonomy_low (its exact lower bound at level 1 − γ); full_speed (known runs' share of
-    frames at full speed); eta1_<group> (replayed η̂1 per condition); eta1_unknown (pooled over the
-    unknown conditions, equal runs each); feasible (autonomy_low ≥ target); pareto (not beaten in
-    both autonomy and eta1_unknown).
+    ``feasible``: the chosen candidate is certified (False: nothing was, and it is the never-firing one).
+    ``certified``: how many candidates are. ``calibration_runs``/``learn_runs``: runs per condition in each
+    split. ``max_target``: the highest autonomy target the known calibration runs could certify at level γ
+    (no hand-over in any). ``guarantee``: the claim in words, or what could not be certified.
+
+    ``table`` columns per candidate: delta1, delta2, tau; autonomy (known runs with no hand-over) and
+    autonomy_low (its own exact lower bound at level 1 − γ: descriptive, it does not account for the
+    choice); full_speed (known runs' share of frames at full speed); eta1_<group> (replayed η̂1 per
+    condition); eta1_unknown (pooled over the unknown conditions); pareto (not beaten in both autonomy and
+    eta1_unknown); p_autonomy, p_missed (where a limit is set) and p_value (the larger: the candidate's
+    null is their union); sequence (position in the testing order, −1 if not in it); certified (its null
+    rejected); feasible (the same as certified, the column the trade-off figure marks).
     """
 
     delta1: float
@@ -135,9 +149,41 @@ class Calibration:
     gamma: float
     table: dict[str, np.ndarray]
     chosen: int
+    certified: int
+    calibration_runs: dict[str, int]
+    learn_runs: dict[str, int]
+    order: str
+    missed_limit: float | None
+    max_target: float
+
+    @property
+    def guarantee(self) -> str:
+        """The claim in words, or why there is none."""
+        runs = f"{next(iter(self.calibration_runs.values()))} known-condition calibration runs"
+        if not self.feasible:
+            first = self.table["p_value"][self.table["sequence"] == 0]
+            return (
+                f"Nothing certified at gamma={self.gamma:g}: the first candidate of the {self.order} order has "
+                f"p = {first[0] if first.size else 1.0:.3g}. {runs} can certify known-condition autonomy "
+                f"≥ {self.max_target:.3f} at most (no hand-over in any); fell back to the never-firing thresholds "
+                "(no warnings)."
+            )
+        missed = (
+            ""
+            if self.missed_limit is None
+            else f" and a replayed missed-collision rate ≤ {self.missed_limit:g} in every unknown condition"
+        )
+        return (
+            f"With probability ≥ {1 - self.gamma:g}, each of the {self.certified} certified candidates, the chosen "
+            f"one among them, keeps the replayed known-condition autonomy ≥ {self.target:g}{missed} "
+            f"(Learn-then-Test: exact binomial p-values on {runs}, fixed-sequence testing along the {self.order} "
+            "order). It assumes independent runs whose number was fixed before they ran; the replay keeps each "
+            "recorded path, so closed-loop cells on fresh seeds check what the thresholds achieve."
+        )
 
 
 NEVER_FIRES = (0.0, 0.0, 10.0)  # η2 < 0 is impossible and MI ≤ ln C < 10 nats: no warning, full autonomy
+ORDERS = ("firing", "learned")
 
 
 def candidates(deltas: list[float], taus: list[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -166,6 +212,87 @@ def min_known_runs(target: float, gamma: float) -> int:
     return n
 
 
+def min_calibration_runs(target: float, gamma: float, calibration_fraction: float = 1.0) -> int:
+    """Fewest known-condition runs whose calibration share, with no hand-over in any, certifies ``target``:
+    the p-value target^n must reach γ (n = 14 for 0.8 at γ = 0.05, 59 for 0.95)."""
+    needed = 1
+    while float(rate_above_p(0, needed, 1 - target)) > gamma:
+        needed += 1
+    runs = needed
+    while interleaved_split(runs, calibration_fraction).sum() < needed:
+        runs += 1
+    return runs
+
+
+def firing_order(delta1: np.ndarray, delta2: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Candidates from the least to the most eager to hand over, fixed before any run is seen: δ2 ascending
+    (a hand-over is warning 2, η2 < δ2, so with the default actions a larger δ2 hands over on every run a
+    smaller one does, and candidates sharing δ2 hand over alike), then δ1 ascending, τ descending. Any fixed
+    order keeps the guarantee; this one makes the hand-over risk grow along it, which is what lets
+    fixed-sequence testing go far."""
+    return np.lexsort((-np.asarray(tau), delta1, delta2))
+
+
+def run_index(group: np.ndarray) -> np.ndarray:
+    """Each run's index within its condition: rollout i of every cell (seed base_seed + i)."""
+    index = np.zeros(group.size, np.int64)
+    for g in np.unique(group):
+        members = group == g
+        index[members] = np.arange(int(members.sum()))
+    return index
+
+
+def null_p_values(
+    out: Replay, group: np.ndarray, runs: np.ndarray, target: float, missed_limit: float | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Exact p-values from the replayed runs selected by ``runs`` (a mask): "hand-over rate > 1 − target" on the
+    known ones (group 0) and, with a limit, "missed-collision rate > limit in some unknown condition" (the
+    largest of the per-condition p-values: the union of the conditions' nulls, tested with no correction)."""
+    known = runs & (group == 0)
+    p_autonomy = rate_above_p(out.handover[:, known].sum(1), int(known.sum()), 1 - target)
+    if missed_limit is None:
+        return p_autonomy, None
+    per_condition = [
+        rate_above_p((~out.safe[:, runs & (group == g)]).sum(1), int(np.sum(runs & (group == g))), missed_limit)
+        for g in np.unique(group[group > 0])
+    ]
+    return p_autonomy, np.max(per_condition, axis=0)
+
+
+def union_p(p_autonomy: np.ndarray, p_missed: np.ndarray | None) -> np.ndarray:
+    """A candidate's null is the union of its constraints' nulls; the larger p-value is valid for it."""
+    return p_autonomy if p_missed is None else np.maximum(p_autonomy, p_missed)
+
+
+def testing_order(
+    order: str, table: dict[str, np.ndarray], out: Replay, group: np.ndarray, learn: np.ndarray, **nulls: float | None
+) -> np.ndarray:
+    """The fixed sequence: ``firing`` (a priori) or ``learned`` (Pareto Testing: the candidates not beaten in
+    p-value and replayed unknown-condition η̂1, both on the learn split's runs only, by p-value)."""
+    if order == "firing":
+        return firing_order(table["delta1"], table["delta2"], table["tau"])
+    unknown = learn & (group > 0)
+    utility = out.safe[:, unknown].mean(1) if unknown.any() else np.zeros(len(table["delta1"]))
+    return pareto_order(union_p(*null_p_values(out, group, learn, **nulls)), utility)
+
+
+def replayed_table(
+    out: Replay, traces: Traces, groups: list[str], thresholds: tuple[np.ndarray, ...], gamma: float
+) -> dict[str, np.ndarray]:
+    """Every candidate's replayed outcome on all runs (the columns before the tests')."""
+    known = traces.group == 0
+    kept = (~out.handover[:, known]).sum(1)
+    table = dict(zip(("delta1", "delta2", "tau"), thresholds))
+    table["autonomy"] = kept / known.sum()
+    table["autonomy_low"] = clopper_pearson_interval(kept, int(known.sum()), gamma)[0]
+    table["full_speed"] = out.full_speed[:, known].mean(1)
+    for g, name in enumerate(groups):
+        table[f"eta1_{name}"] = out.safe[:, traces.group == g].mean(1)
+    table["eta1_unknown"] = out.safe[:, traces.group > 0].mean(1)
+    table["pareto"] = pareto(table["autonomy"], table["eta1_unknown"])
+    return table
+
+
 def calibrate(
     traces: Traces,
     groups: list[str],
@@ -174,54 +301,89 @@ def calibrate(
     taus: list[float],
     target: float,
     gamma: float,
+    *,
+    missed_limit: float | None = None,
+    calibration_fraction: float = 1.0,
+    order: str = "firing",
     **replay_args: float,
 ) -> Calibration:
-    """Thresholds that maximise the replayed unknown-condition η̂1 subject to the exact (Clopper–Pearson,
-    level 1 − ``gamma``) lower bound of known-condition autonomy being ≥ ``target``.
+    """Thresholds certified by Learn-then-Test at family-wise error ``gamma`` to keep the replayed known-condition
+    autonomy ≥ ``target`` (and each unknown condition's replayed missed-collision rate ≤ ``missed_limit``, if
+    given); among the certified, the most replayed unknown-condition η̂1.
 
-    ``groups[0]`` is the known condition, the others the unknown ones (``traces.group`` indexes
-    ``groups``). Ties go to more autonomy, then more time at full speed, then the candidate
-    closest to ``config``'s thresholds. Raises if the known runs are too few for the target to be
-    shown at all (see ``min_known_runs``). The replayed outcome is an approximation on the runs
-    the thresholds are chosen on: only closed-loop cells on fresh seeds say what they achieve.
+    ``groups[0]`` is the known condition, the others the unknown ones (``traces.group`` indexes ``groups``;
+    each condition's runs in rollout order). Run index i calibrates iff ⌊(i + 1) f⌋ > ⌊i f⌋ with f =
+    ``calibration_fraction``; the other indices form the learn split, which ``order="learned"`` ranks the
+    candidates on (it needs f < 1; the default ``"firing"`` order needs no runs, so f = 1 tests on every run).
+    The choice among the certified uses every run: the guarantee holds for all of them at once. Ties go to
+    more autonomy, then more time at full speed, then the candidate closest to ``config``'s thresholds. With
+    nothing certified it returns the never-firing candidate with ``feasible`` False.
     """
     counts = [int(np.sum(traces.group == g)) for g in range(len(groups))]
     if len(groups) < 2 or min(counts) == 0:
         raise ValueError(
             f"calibration needs runs of the known and at least one unknown condition, got {dict(zip(groups, counts))}"
         )
-    if counts[0] < min_known_runs(target, gamma):
-        raise ValueError(
-            f"calibration target={target} needs at least {min_known_runs(target, gamma)} known-condition "
-            f"runs at gamma={gamma}; there are {counts[0]}"
-        )
-    d1, d2, t = candidates(deltas, taus)
-    out = replay(traces, d1, d2, t, config, **replay_args)
-    known = traces.group == 0
-    autonomy = 1 - out.handover[:, known].mean(1)
-    table: dict[str, np.ndarray] = {
-        "delta1": d1,
-        "delta2": d2,
-        "tau": t,
-        "autonomy": autonomy,
-        "autonomy_low": clopper_pearson_interval(np.round(autonomy * counts[0]).astype(int), counts[0], gamma)[0],
-        "full_speed": out.full_speed[:, known].mean(1),
-    }
-    for g, name in enumerate(groups):
-        table[f"eta1_{name}"] = out.safe[:, traces.group == g].mean(1)
-    table["eta1_unknown"] = out.safe[:, traces.group > 0].mean(1)
-    table["feasible"] = table["autonomy_low"] >= target
-    table["pareto"] = pareto(autonomy, table["eta1_unknown"])
-    distance = np.abs(d1 - config.delta1) + np.abs(d2 - config.delta2) + np.abs(t - config.tau)
-    order = np.lexsort((distance, -table["full_speed"], -autonomy, -table["eta1_unknown"], ~table["feasible"]))
-    best = int(order[0])
+    if order not in ORDERS or (order == "learned" and calibration_fraction >= 1):
+        raise ValueError(f"order={order!r} must be one of {ORDERS}; 'learned' needs calibration_fraction < 1")
+    thresholds = candidates(deltas, taus)
+    out = replay(traces, *thresholds, config, **replay_args)
+    index = run_index(traces.group)
+    calibrating = interleaved_split(int(index.max()) + 1, calibration_fraction)[index]
+    table = replayed_table(out, traces, groups, thresholds, gamma)
+    table |= certify(out, traces.group, calibrating, table, target, gamma, missed_limit, order)
+    best = choose(table, config)
+    split, learn = (
+        {name: int(np.sum(part & (traces.group == g))) for g, name in enumerate(groups)}
+        for part in (calibrating, ~calibrating)
+    )
+    known = split[groups[0]]
     return Calibration(
-        float(d1[best]),
-        float(d2[best]),
-        float(t[best]),
-        bool(table["feasible"][best]),
+        float(table["delta1"][best]),
+        float(table["delta2"][best]),
+        float(table["tau"][best]),
+        bool(table["certified"][best]),
         float(target),
         float(gamma),
         table,
         best,
+        int(table["certified"].sum()),
+        split,
+        learn,
+        order,
+        missed_limit,
+        float(gamma ** (1 / known)) if known else 0.0,
     )
+
+
+def certify(
+    out: Replay,
+    group: np.ndarray,
+    calibrating: np.ndarray,
+    table: dict[str, np.ndarray],
+    target: float,
+    gamma: float,
+    missed_limit: float | None,
+    order: str,
+) -> dict[str, np.ndarray]:
+    """Learn-then-Test over the candidates: p-values on the calibrating runs, fixed-sequence testing along the
+    ``order`` (learned, if so, on the other runs). Returns the table's test columns."""
+    nulls = {"target": target, "missed_limit": missed_limit}
+    p_autonomy, p_missed = null_p_values(out, group, calibrating, **nulls)
+    p_value = union_p(p_autonomy, p_missed)
+    sequence = testing_order(order, table, out, group, ~calibrating, **nulls)
+    certified = fixed_sequence(p_value, sequence, gamma)
+    position = np.full(len(certified), -1)
+    position[sequence] = np.arange(len(sequence))
+    columns = {"p_autonomy": p_autonomy} | ({} if p_missed is None else {"p_missed": p_missed})
+    return columns | {"p_value": p_value, "sequence": position, "certified": certified, "feasible": certified}
+
+
+def choose(table: dict[str, np.ndarray], config: WarningConfig) -> int:
+    """The most replayed unknown-condition η̂1 among the certified (ties as `calibrate` says), else never-firing."""
+    d1, d2, t = table["delta1"], table["delta2"], table["tau"]
+    if not table["certified"].any():
+        return list(zip(d1, d2, t)).index(NEVER_FIRES)
+    distance = np.abs(d1 - config.delta1) + np.abs(d2 - config.delta2) + np.abs(t - config.tau)
+    keys = (distance, -table["full_speed"], -table["autonomy"], -table["eta1_unknown"], ~table["certified"])
+    return int(np.lexsort(keys)[0])

@@ -2,6 +2,8 @@
 
 Knows nothing of the simulator, data or models: it takes posterior class probabilities
 ``[n, B, C]`` and the class centres, or 0/1 outcomes.
+Comparisons of cells on the same seeds: exact paired tests (`paired`), Holm and Bonferroni (`multiplicity`),
+intervals over training replicates (`replicates`), a family's findings (`findings`); Learn-then-Test (`ltt`).
 """
 
 from uqdrive.uq.bounds import (
@@ -22,6 +24,7 @@ from uqdrive.uq.estimators import (
     sprt_cap,
     wilson,
 )
+from uqdrive.uq.findings import Comparison, Finding, decide_findings
 from uqdrive.uq.measures import (
     FrameMeasures,
     check_samples,
@@ -36,6 +39,17 @@ from uqdrive.uq.measures import (
     sample_decisions,
     steering_moments,
 )
+from uqdrive.uq.multiplicity import holm, per_cell_gamma
+from uqdrive.uq.paired import (
+    PairedTable,
+    PairedTest,
+    difference_interval,
+    mcnemar_p,
+    paired_table,
+    paired_test,
+    stratified_p,
+)
+from uqdrive.uq.replicates import ReplicateInterval, replicate_bounded_interval, replicate_t_interval
 from uqdrive.uq.sequential import SequentialScheme, sequential_scheme
 
 __all__ = [
@@ -67,4 +81,19 @@ __all__ = [
     "sprt_cap",
     "steering_moments",
     "wilson",
+    "Comparison",
+    "Finding",
+    "decide_findings",
+    "holm",
+    "per_cell_gamma",
+    "PairedTable",
+    "PairedTest",
+    "difference_interval",
+    "mcnemar_p",
+    "paired_table",
+    "paired_test",
+    "stratified_p",
+    "ReplicateInterval",
+    "replicate_bounded_interval",
+    "replicate_t_interval",
 ]
