@@ -14,6 +14,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet --no-compile -e .
+	$(BIN)/uqdrive plots-page --out .dvc/plots_page.html
 	touch $(STAMP)
 
 $(TEST_STAMP): $(STAMP)

@@ -11,29 +11,28 @@ from uqdrive.stage import run_stage, stage_main
 @stage_main
 def main(cfg: DictConfig) -> None:
     from uqdrive.pipeline.avoid import run_avoid  # not at the top: spawned workers re-import this script
-    from uqdrive.pipeline.avoid_cells import MODES
+    from uqdrive.pipeline.records import MODES
 
     r = run_avoid(cfg)
-    for condition in r["conditions"]:
+    for condition in r.conditions:
         for mode in MODES:
-            c = r["cells"][condition][mode]
+            c = r.cells[condition][mode]
             print(
-                f"avoid {r['method']} {condition:>12} warnings {mode:>10}: eta1 = {c['eta1']:.2f} "
-                f"[{c['eta1_low']:.2f}, {c['eta1_high']:.2f}] n={c['n']}, autonomy {c['autonomy']:.2f}, "
-                f"passed {c['passed_rate']:.2f}, warnings 0/1/2 in "
-                f"{c['warning0_runs']}/{c['warning1_runs']}/{c['warning2_runs']} runs"
+                f"avoid {cfg.avoid.name} {condition:>12} warnings {mode:>10}: eta1 = {c.eta1:.2f} "
+                f"[{c.eta1_low:.2f}, {c.eta1_high:.2f}] n={c.n}, autonomy {c.autonomy:.2f}, "
+                f"passed {c.passed_rate:.2f}, "
+                f"warnings 0/1/2 in {c.warning0_runs}/{c.warning1_runs}/{c.warning2_runs} runs"
             )
     for mode in MODES:
-        u = r["unknown"][mode]
+        u = r.unknown[mode]
         print(
-            f"avoid {r['method']} unknown mixture warnings {mode:>10}: eta1 = {u['eta1']:.2f} "
-            f"[{u['eta1_low']:.2f}, {u['eta1_high']:.2f}], autonomy {u['autonomy']:.2f}"
+            f"avoid {cfg.avoid.name} unknown mixture warnings {mode:>10}: eta1 = {u.eta1:.2f} "
+            f"[{u.eta1_low:.2f}, {u.eta1_high:.2f}], autonomy {u.autonomy:.2f}"
         )
-    k = r["calibration"]
+    k = r.calibration
     print(
-        f"calibrated: delta1={k['delta1']:g} delta2={k['delta2']:g} tau={k['tau']:g} (known autonomy bound "
-        f"{k['replayed']['autonomy_low']:.2f} vs target {k['autonomy_target']:g}, replayed unknown eta1 "
-        f"{k['replayed']['eta1_unknown']:.2f}) in {r['seconds']:.0f} s -> {cfg.avoid.out}"
+        f"calibrated: delta1={k.delta1:g} delta2={k.delta2:g} tau={k.tau:g}, {k.certified} of {k.candidates} "
+        f"candidates certified; {k.guarantee} ({r.seconds:.0f} s) -> {cfg.avoid.out}"
     )
 
 

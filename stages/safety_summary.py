@@ -1,9 +1,10 @@
-"""DVC stage `safety_summary`: metrics/safety.json (η̂1 per method × weather × noise) and the hexbin figures."""
+"""DVC stage `safety_summary`: metrics/safety.json (each method's answer over its replicates per condition) and
+the offline-safety figures."""
 
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.pipeline.safety import run_safety_summary
+from uqdrive.pipeline.safety_summary import run_safety_summary
 from uqdrive.stage import run_stage, stage_main
 
 

@@ -9,9 +9,9 @@ from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
 from uqdrive.pipeline.avoid import run_avoid
-from uqdrive.pipeline.avoid_cells import MODES
 from uqdrive.pipeline.avoid_config import KNOWN, build_settings
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
+from uqdrive.pipeline.records import MODES, as_dict
 from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
 
@@ -30,8 +30,8 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     avoid_config, stage_config, tmp_path
 ):
     result = run_avoid(avoid_config("model=mcd"))
-    saved = json.loads((tmp_path / "metrics/avoid/mcd.json").read_text())
-    assert saved == result and saved["samples_per_frame"] == 21  # chernoff_n(0.3, 0.05), the tiny profile
+    saved = json.loads((tmp_path / "metrics/avoid/mcd-seed0.json").read_text())
+    assert saved == as_dict(result) and saved["samples_per_frame"] == 21  # chernoff_n(0.3, 0.05), the tiny profile
     assert saved["conditions"] == [KNOWN, "fog"]  # the tiny profile's one unknown condition
     for condition in saved["conditions"]:
         for mode in MODES:
@@ -42,27 +42,42 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
             assert cell["autonomy"] == 1 - cell["handover_rate"] and 0 <= cell["full_speed_fraction"] <= 1
             assert sum(cell["terminations"].values()) == 4
             assert 0 <= cell["timeout_before_obstacle_rate"] <= 1 - cell["eta1"] + 1e-12  # a timeout is never safe
-            assert (tmp_path / f"cache/rollouts/avoid/mcd/mcd-{condition}-{mode}.jsonl").exists()
-            assert (tmp_path / f"data/avoid/mcd/traces/mcd-{condition}-{mode}.npz").exists()
-            assert (tmp_path / f"plots/avoid/mcd/cells/mcd-{condition}-{mode}.png").stat().st_size > 5000
-        assert saved["cells"][condition]["off"]["handover_rate"] == 0  # off: warnings are only counted
+            assert (tmp_path / f"cache/rollouts/avoid/mcd-seed0/mcd-seed0-{condition}-{mode}.jsonl").exists()
+            assert (tmp_path / f"data/avoid/mcd-seed0/traces/mcd-seed0-{condition}-{mode}.npz").exists()
+            assert (tmp_path / f"plots/avoid/mcd-seed0/cells/mcd-seed0-{condition}-{mode}.png").stat().st_size > 5000
+            assert len(cell["outcomes"]) == 4 and cell["outcomes"].count("1") == round(cell["eta1"] * 4)
+        for mode in ("off", "fresh_off"):  # warnings off: only counted
+            assert saved["cells"][condition][mode]["handover_rate"] == 0
+        # fresh_off and calibrated run the validation seeds, the others the stage's
+        assert [saved["cells"][condition][m]["base_seed"] for m in MODES] == [200000, 200000, 300000, 300000]
     for mode in MODES:  # one unknown condition: its mixture is that cell
         assert saved["unknown"][mode]["eta1"] == saved["cells"]["fog"][mode]["eta1"]
     assert saved["cells"][KNOWN]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
     calibration = saved["calibration"]
     assert saved["cells"][KNOWN]["calibrated"]["thresholds"] == {k: calibration[k] for k in ("delta1", "delta2", "tau")}
-    assert calibration["feasible"] and calibration["replayed"]["autonomy_low"] >= calibration["autonomy_target"]
+    # Learn-then-Test on the 4 known runs: with no hand-over in any, the null "hand-over rate > 0.7" has
+    # p = 0.3^4 = 0.008 <= 0.05, so the never-firing candidate (first in the sequence) at least is certified
+    assert calibration["feasible"] and calibration["certified"] >= 1 and calibration["replayed"]["certified"]
+    assert calibration["guarantee"].startswith("With probability ≥ 0.95, each of the")
+    assert calibration["calibration_runs"] == {KNOWN: 4, "fog": 4} and calibration["learn_runs"] == {KNOWN: 0, "fog": 0}
+    assert calibration["fresh_seed_check"] == {
+        "known_autonomy": saved["cells"][KNOWN]["calibrated"]["autonomy"],
+        "known_eta1": saved["cells"][KNOWN]["calibrated"]["eta1"],
+        "unknown_eta1": saved["unknown"]["calibrated"]["eta1"],
+        "base_seed": 300000,
+        "target_met": saved["cells"][KNOWN]["calibrated"]["autonomy"] >= 0.3,
+    }
     assert calibration["candidates"] > 100 and set(calibration["replay_check"]) == {KNOWN, "fog"}
-    rows = (tmp_path / "plots/avoid/mcd/tradeoff.csv").read_text().splitlines()
+    rows = (tmp_path / "plots/avoid/mcd-seed0/tradeoff.csv").read_text().splitlines()
     assert len(rows) == calibration["candidates"] + 1 and rows[0].startswith("delta1,delta2,tau")
     for name in ("trajectories", "warnings", "tradeoff"):
-        assert (tmp_path / f"plots/avoid/mcd/{name}.png").stat().st_size > 5000
+        assert (tmp_path / f"plots/avoid/mcd-seed0/{name}.png").stat().st_size > 5000
 
     client = MlflowClient(store_uris(tmp_path)[0])
     runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
     by_name = {r.info.run_name.split(" · ")[-1]: r for r in runs}  # the name starts with η̂1
-    assert set(by_name) == {f"mcd-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-calibration"}
-    run = by_name["mcd-fog-on"]
+    assert set(by_name) == {f"mcd-seed0-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-seed0-calibration"}
+    run = by_name["mcd-seed0-fog-on"]
     params = run.data.params
     assert {k: params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n", "theta")} == {
         "method": "mcd",
@@ -75,22 +90,28 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     }
     assert "avoid.theta" not in params and run.data.tags["reused"] == "false"  # each key once
     assert run.data.metrics["eta1"] == pytest.approx(saved["cells"]["fog"]["on"]["eta1"])
-    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"mcd-fog-on.csv", "mcd-fog-on.png"}
+    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
+        "mcd-seed0-fog-on.csv",
+        "mcd-seed0-fog-on.png",
+    }
 
     again = run_avoid(avoid_config("model=mcd"))  # every cell is reused, with the same numbers
-    assert all(again["cells"][c][m]["reused"] for c in again["conditions"] for m in MODES)
-    assert {c: {m: again["cells"][c][m]["eta1"] for m in MODES} for c in again["conditions"]} == {
+    assert all(again.cells[c][m].reused for c in again.conditions for m in MODES)
+    assert {c: {m: again.cells[c][m].eta1 for m in MODES} for c in again.conditions} == {
         c: {m: saved["cells"][c][m]["eta1"] for m in MODES} for c in saved["conditions"]
     }
 
-    summary = run_avoid_summary(stage_config("avoid_summary", "methods=[mcd]"))
-    table = json.loads((tmp_path / "metrics/avoid.json").read_text())
-    assert table == summary["table"] and set(table) == {"paper", "mcd"}
-    assert table["mcd"]["unknown"]["on"]["eta1"] == saved["unknown"]["on"]["eta1"]
-    assert table["paper"]["avoid"]["unknown_on"] == 0.9
+    run_avoid(avoid_config("model=mcd", "seed=1"))  # a second replicate (here the same network: plumbing)
+    summary = run_avoid_summary(stage_config("avoid_summary", "methods=[mcd]", "replicates=[0,1]"))["summary"]
+    assert json.loads((tmp_path / "metrics/avoid.json").read_text()) == as_dict(summary)
+    on = summary.answer("mcd", "unknown mixture", "on")
+    second = json.loads((tmp_path / "metrics/avoid/mcd-seed1.json").read_text())
+    assert on.replicates == [0, 1] and on.estimates == [saved["unknown"]["on"]["eta1"], second["unknown"]["on"]["eta1"]]
+    assert on.low <= on.value <= on.high and on.value == pytest.approx(sum(on.estimates) / 2)
+    assert summary.paper["avoid"]["unknown_on"] == 0.9
     assert (tmp_path / "plots/avoid/summary/coll_avoid_main.png").stat().st_size > 5000
-    with pytest.raises(FileNotFoundError, match="vi.json is missing"):
-        run_avoid_summary(stage_config("avoid_summary", "methods=[vi]"))
+    with pytest.raises(FileNotFoundError, match="vi-seed0.json is missing; .* dvc repro avoid@vi-0"):
+        run_avoid_summary(stage_config("avoid_summary", "methods=[vi]", "replicates=[0]"))
 
 
 def test_thresholds_actions_and_samples_come_from_config(avoid_config):
@@ -123,7 +144,7 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
         (
             ("avoid.model_path=/nonexistent/vi.pt",),
             ValueError,
-            r"^avoid.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@avoid-vi$",
+            r"^avoid.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@avoid-vi-0$",
         ),
         (("avoid.theta=0",), ValueError, r"avoid.theta=0: input should be greater than 0"),
         (
@@ -167,7 +188,7 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
         (
             ("avoid.calibration.autonomy_target=0.5",),
             ValueError,
-            r"autonomy_target=0.5 cannot be shown with 4 known-condition runs \(it needs 6\)",
+            r"autonomy_target=0.5 cannot be certified with 4 known-condition runs \(it needs 5\)",
         ),
         (
             ("avoid.calibration.deltas=[0.5,1.5]",),
@@ -176,6 +197,11 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
         ),
         (("executor.workers=0",), ValueError, r"executor.workers=0: input should be greater than or equal to 1"),
         (("scenario=roundabout",), ValueError, r"scenario.kind='roundabout' must be 'obstacle' for the avoid stage"),
+        (
+            ("avoid.calibration.order=learned",),
+            ValueError,
+            r"^avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1$",
+        ),
     ],
 )
 def test_bad_input_fails_before_any_rollout(avoid_config, tmp_path, monkeypatch, overrides, error, match):

@@ -93,7 +93,7 @@ def run_script(stage: str, *args: str, cwd: Path) -> subprocess.CompletedProcess
 def test_the_resolved_job_config_and_the_help_print_without_running(tmp_path):
     shown = run_script("safety", "model=vi", "--cfg", "job", "--resolve", cwd=tmp_path)
     assert shown.returncode == 0, shown.stderr
-    assert "cell: vi-roundabout-clear_noon-noise0.0" in shown.stdout
+    assert "cell: vi-seed0-roundabout-clear_noon-noise0.0" in shown.stdout
     assert f"out: {tmp_path}/outputs/" in shown.stdout  # an ad-hoc run writes under its own folder
     helped = run_script("safety", "--help", cwd=tmp_path)
     assert helped.returncode == 0 and "weather: afternoon, clear_noon, fog, rain" in helped.stdout
@@ -106,5 +106,5 @@ def test_an_empty_model_file_is_one_line_naming_the_key_and_the_stage_that_train
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.splitlines() == [
         f"error: safety.model_path={tmp_path}/vi.pt: is empty (0 bytes): not a uqdrive model file; "
-        "dvc repro train@offline-vi"
+        "dvc repro train@offline-vi-0"
     ]

@@ -68,6 +68,19 @@ def test_every_stage_depends_on_every_project_file_it_imports():
     assert not missing, "\n".join(f"{stage}: {', '.join(files)}" for stage, files in missing.items())
 
 
+def test_no_stage_depends_on_code_it_does_not_import():
+    """A listed source file or folder the stage never imports would rerun it for nothing."""
+    from dvc.repo import Repo
+
+    with Repo(str(ROOT)) as repo:
+        for stage in repo.index.stages:
+            script = next(arg for arg in shlex.split(stage.cmd) if arg.endswith(".py"))
+            files = [p.relative_to(ROOT) for p in stage_closure(ROOT / script, ROOT / "conf")]
+            code = [Path(d.def_path) for d in stage.deps if d.def_path.split("/")[0] in ("src", "stages")]
+            unused = [d.as_posix() for d in code if not any(f == d or d in f.parents for f in files)]
+            assert not unused, f"{stage.addressing} depends on code it does not import: {unused}"
+
+
 def test_every_listed_dep_exists_once():
     from dvc.repo import Repo
 

@@ -152,7 +152,7 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
 
     client = MlflowClient(store_uris(store_root)[0])
     runs = {m: client.get_run(run_id) for m, run_id in result["mlflow_runs"].items()}
-    assert {m: r.info.run_name for m, r in runs.items()} == {"mcd": "mcd", "hmc": "hmc"}
+    assert {m: r.info.run_name for m, r in runs.items()} == {"mcd": "mcd-seed0", "hmc": "hmc-seed0"}
     assert {client.get_experiment(r.info.experiment_id).name for r in runs.values()} == {"evaluate"}
     hmc = runs["hmc"]
     assert hmc.data.params["method"] == "hmc" and hmc.data.params["profile"] == "tiny"

@@ -1,4 +1,5 @@
-"""The `report` stage: tables filled from the metrics files, figures embedded, clear error on a missing input."""
+"""The `report` stage: tables filled from the metrics files (typed records), findings first, figures embedded, a
+clear error on a missing input."""
 
 import json
 import re
@@ -7,11 +8,26 @@ import numpy as np
 import pytest
 
 from uqdrive.data.frames import encode_png
+from uqdrive.pipeline.avoid_summary import summarise_avoid
+from uqdrive.pipeline.findings import avoid_comparisons, decide, safety_comparisons
+from uqdrive.pipeline.methods import summarise_methods
+from uqdrive.pipeline.records import (
+    MODES,
+    AvoidCell,
+    AvoidResult,
+    CalibrationSummary,
+    Mixture,
+    SafetyCell,
+    TrainMetrics,
+    write_record,
+)
 from uqdrive.pipeline.report import run_report
 from uqdrive.pipeline.report_document import fmt
+from uqdrive.pipeline.report_findings import findings_markdown
 
-METHODS, WEATHERS, NOISES = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05)
-EXPERIMENTS, LOCATIONS, MODES = ("avoid", "offline"), ("roundabout", "roundabout_large"), ("off", "on", "calibrated")
+METHODS, WEATHERS, NOISES, SEEDS = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05), (0, 1)
+EXPERIMENTS, LOCATIONS, CONDITIONS = ("avoid", "offline"), ("roundabout", "roundabout_large"), ("known", "fog")
+N = 19
 
 
 def markdown_rows(text: str, first_header: str) -> list[dict[str, str]]:
@@ -27,66 +43,109 @@ def markdown_rows(text: str, first_header: str) -> list[dict[str, str]]:
     return rows
 
 
+def outcomes(rng: np.random.Generator, rate: float) -> str:
+    return "".join("1" if s else "0" for s in rng.random(N) < rate)
+
+
+def safety_cell(rng, method, seed, location, weather, noise) -> SafetyCell:
+    safe = outcomes(rng, 0.2 if weather == "rain" and noise else 0.9)
+    eta1 = safe.count("1") / N
+    rates = dict(collision_rate=0.0, off_road_rate=0.0, left_corridor_rate=1 - eta1, reached_goal_rate=1.0)
+    corridor = dict(max_corridor_use=float(rng.random() * 2), mean_corridor_use=0.3, mean_lateral_deviation=0.2)
+    return SafetyCell(
+        **dict(method=method, replicate=seed, experiment="offline", location=location, weather=weather, noise=noise),
+        **dict(theta=0.25, gamma=0.05, scheme="clopper_pearson", n=N, base_seed=100000, family_size=1),
+        **dict(fixed_rollouts=N, eta1=eta1, eta1_low=max(0, eta1 - 0.25), eta1_high=min(1, eta1 + 0.25)),
+        **dict(rollouts=N, steps=100, seconds=1.0, **rates, **corridor, mean_eta2=0.9, mean_mutual_information=0.1),
+        **dict(guaranteed=True, outcomes=safe, config_hash="x"),
+    )
+
+
+def avoid_cell(rng, mode) -> AvoidCell:
+    safe = outcomes(rng, 0.8 if mode in ("on", "calibrated") else 0.4)
+    eta1 = safe.count("1") / N
+    seed = 300000 if mode in ("fresh_off", "calibrated") else 200000
+    counts = {f"warning{lv}_{k}": 1 for lv in range(3) for k in ("frames", "runs")}
+    return AvoidCell(
+        **dict(eta1=eta1, eta1_low=0.0, eta1_high=1.0, n=N, handover_rate=0.1, autonomy=float(rng.random())),
+        **dict(full_speed_fraction=0.9, collision_rate=1 - eta1, off_road_rate=0.0, passed_rate=eta1),
+        **dict(timeout_before_obstacle_rate=0.0, handover_distance_min=10.0, handover_distance_median=12.5),
+        **dict(handover_distances=[12.5], mean_steps=100.0, seconds=1.0, reused=False, **counts),
+        **dict(terminations={"collision": 1}, guaranteed=True, scheme="clopper_pearson", theta=0.25, gamma=0.05),
+        **dict(family_size=1, fixed_rollouts=N, thresholds={"delta1": 0.7}, base_seed=seed, outcomes=safe),
+    )
+
+
+def avoid_result(rng, method, seed) -> AvoidResult:
+    cells = {c: {m: avoid_cell(rng, m) for m in MODES} for c in CONDITIONS}
+    unknown = {m: Mixture(cells["fog"][m].eta1, 0.0, 1.0, 0.3, 0.05, N, 0.5, "hoeffding") for m in MODES}
+    calibration = CalibrationSummary(
+        **dict(delta1=0.9, delta2=0.8, tau=0.45, feasible=True, certified=12, guarantee=f"{method} certified"),
+        **dict(autonomy_target=0.8, max_certifiable_target=0.85, gamma=0.05, missed_limit=None, order="firing"),
+        **dict(calibration_runs={"known": N, "fog": N}, learn_runs={"known": 0, "fog": 0}, candidates=729),
+        replayed={"eta1_unknown": 0.6},
+        fresh_seed_check={"known_autonomy": 1.0, "unknown_eta1": 0.5},
+        uncaught_variants=[
+            {"condition": "fog", "eta1_off": 0.4, "min_eta2_median": 0.97, "max_mutual_information_median": 0.1}
+        ]
+        if method == "vi"
+        else [],
+        replay_check={},
+    )
+    return AvoidResult(
+        **dict(
+            method=method, replicate=seed, experiment="avoid", cells=cells, unknown=unknown, calibration=calibration
+        ),
+        **dict(warning={}, samples_per_frame=738, conditions=list(CONDITIONS), horizon_s=14.0, speed=8.0, seconds=1.0),
+        mlflow_run_ids={},
+    )
+
+
 def write_run(root):
-    """Metrics and figures shaped like a finished pipeline's (random values, fixed seed)."""
+    """Metrics and figures shaped like a finished pipeline's (random values, fixed seed), written as records."""
     rng = np.random.default_rng(0)
     (root / "params.yaml").write_text(
-        f"experiments: {list(EXPERIMENTS)}\ntrain_weather: clear_noon\n"
-        f"posteriors: {list(METHODS)}\nmethods: {list(METHODS)}\n"
-        f"weathers: {list(WEATHERS)}\nnoises: {list(NOISES)}\nlocations: {list(LOCATIONS)}\n"
+        f"experiments: {list(EXPERIMENTS)}\ntrain_weather: clear_noon\nposteriors: {list(METHODS)}\n"
+        f"methods: {list(METHODS)}\nreplicates: {list(SEEDS)}\nweathers: {list(WEATHERS)}\nnoises: {list(NOISES)}\n"
+        f"locations: {list(LOCATIONS)}\n"
     )
     png = encode_png(rng.integers(0, 255, (20, 30, 3), dtype=np.uint8))
+    trained = {}
     for experiment in EXPERIMENTS:
-        (root / f"metrics/{experiment}/train").mkdir(parents=True, exist_ok=True)
+        (root / f"metrics/{experiment}").mkdir(parents=True, exist_ok=True)
         (root / f"metrics/{experiment}/preprocess.json").write_text(json.dumps({"num_classes": 7}))
         for method in METHODS:
-            train = {
-                "val_accuracy": rng.random(),
-                "majority_baseline_accuracy": 0.5,
-                "val_nll": 0.3,
-                "val_ece": 0.02,
-                "val_brier": 0.1,
-                "train_frames": 100,
-                "seed": 0,
-                "dropout_p1": 0.1,
-                "dropout_p2": 0.09,
-                "dropout_p3": 0.08,
-                "posterior_sigma_mean": 0.01,
-                "diagnostics": f"{method} diagnostics",
-            }
-            (root / f"metrics/{experiment}/train/{method}.json").write_text(json.dumps(train))
-            (root / f"plots/{experiment}/train").mkdir(parents=True, exist_ok=True)
-            (root / f"plots/{experiment}/train/{method}_curve.png").write_bytes(png)
-    summary = {
-        m: {
-            loc: {
-                w: {
-                    f"noise{x}": {
-                        "eta1": round(rng.random() * 19) / 19,
-                        "eta1_low": 0.1,
-                        "eta1_high": 0.9,
-                        "theta": 0.25,
-                        "gamma": 0.05,
-                        "n": 19,
-                        "scheme": "clopper_pearson",
-                        "base_seed": 100000,
-                        "collision_rate": rng.random(),
-                        "off_road_rate": 0.0,
-                        "left_corridor_rate": rng.random(),
-                        "reached_goal_rate": 1.0,
-                        "max_corridor_use": rng.random() * 2,
-                        "mean_corridor_use": 0.3,
-                        "mean_lateral_deviation": 0.2,
-                    }
-                    for x in NOISES
-                }
-                for w in WEATHERS
-            }
-            for loc in LOCATIONS
-        }
+            for seed in SEEDS:
+                metrics = TrainMetrics(
+                    **dict(method=method, val_accuracy=float(rng.random()), val_nll=0.3, val_ece=0.02, val_brier=0.1),
+                    **dict(majority_baseline_accuracy=0.5, train_frames=100, val_frames=40, eval_samples=10, seed=seed),
+                    train_seconds=1.0,
+                    diagnostics=f"{method} diagnostics",
+                )
+                trained[experiment, method, seed] = metrics
+                write_record(root / f"metrics/{experiment}/train/seed{seed}/{method}.json", metrics)
+            (root / f"plots/{experiment}/train/seed0").mkdir(parents=True, exist_ok=True)
+            (root / f"plots/{experiment}/train/seed0/{method}_curve.png").write_bytes(png)
+    cells = [
+        safety_cell(rng, m, r, loc, w, x)
         for m in METHODS
-    }
-    (root / "metrics/safety.json").write_text(json.dumps(summary))
+        for r in SEEDS
+        for loc in LOCATIONS
+        for w in WEATHERS
+        for x in NOISES
+    ]
+    for cell in cells:
+        write_record(root / f"metrics/safety/{cell.name}.json", cell)
+    safety = summarise_methods(cells, METHODS)
+    write_record(root / "metrics/safety.json", safety)
+    results = [avoid_result(rng, m, r) for m in METHODS for r in SEEDS]
+    for result in results:
+        write_record(root / f"metrics/avoid/{result.method}-seed{result.replicate}.json", result)
+    avoid = summarise_avoid(results, list(METHODS))
+    write_record(root / "metrics/avoid.json", avoid)
+    family = [*safety_comparisons(cells, list(METHODS), ("roundabout", "clear_noon", 0.0))]
+    findings = decide([*family, *avoid_comparisons(results, list(METHODS))], 0.05)
+    write_record(root / "metrics/findings.json", findings)
     evaluated = {
         m: {
             w: {
@@ -111,135 +170,88 @@ def write_run(root):
         for m in METHODS
     }
     (root / "metrics/evaluate.json").write_text(json.dumps(evaluated))
-    cell = {
-        "eta1_low": 0.1,
-        "eta1_high": 1.0,
-        "n": 19,
-        "full_speed_fraction": 0.9,
-        "collision_rate": 0.0,
-        "passed_rate": 1.0,
-        "timeout_before_obstacle_rate": 0.0,
-        "handover_distance_median": 12.5,
-        "warning0_runs": 1,
-        "warning1_runs": 2,
-        "warning2_runs": 3,
-        "thresholds": {"delta1": 0.7, "delta2": 0.6, "tau": 0.45},
-    }
-    avoided = {
-        m: {
-            "cells": {
-                c: {mode: {**cell, "eta1": rng.random(), "autonomy": rng.random()} for mode in MODES}
-                for c in ("known", "fog", "white_van")
-            },
-            "unknown": {
-                mode: {"eta1": rng.random(), "eta1_low": 0.0, "eta1_high": 1.0, "n": 38, "autonomy": 0.5}
-                for mode in MODES
-            },
-            "calibration": {
-                "autonomy_target": 0.8,
-                "feasible": True,
-                "delta1": 0.9,
-                "delta2": 0.8,
-                "tau": 0.45,
-                "replayed": {"autonomy_low": 0.82, "eta1_unknown": 0.6},
-                "uncaught_variants": [
-                    {
-                        "condition": "white_van",
-                        "eta1_off": 0.4,
-                        "min_eta2_median": 0.97,
-                        "max_mutual_information_median": 0.1,
-                    }
-                ]
-                if m == "vi"
-                else [],
-            },
-        }
-        for m in METHODS
-    }
-    (root / "metrics/avoid.json").write_text(json.dumps(avoided))
     (root / "plots/safety/summary").mkdir(parents=True)
     (root / "plots/safety/summary/hexbin_roundabout_noise0.0.png").write_bytes(png)  # the noise-0.05 one is missing
-    return summary, evaluated, avoided
+    return trained, safety, avoid, findings, evaluated
 
 
 def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
-    summary, evaluated, avoided = write_run(tmp_path)
+    trained, safety, avoid, findings, evaluated = write_run(tmp_path)
     result = run_report(stage_config("report"))
     text = (tmp_path / "reports/report.md").read_text()
+
+    assert findings_markdown(findings) in text  # the findings, generated from the file, come before the tables
+    assert text.index("## What the run found") < text.index("## Controllers")
+    assert findings.supported > 0  # rain with noise breaks both methods in every replicate (0.2 against 0.9)
     rows = markdown_rows(text, "method | location | weather")
     assert len(rows) == len(METHODS) * len(LOCATIONS) * len(WEATHERS) * len(NOISES)
     for row in rows:
-        cell = summary[row["method"]][row["location"]][row["weather"]][f"noise{float(row['noise'])}"]
-        assert row["η̂1"] == fmt(cell["eta1"]) and row["corridor use"] == fmt(cell["max_corridor_use"], 2)
-        assert row["interval"] == f"[{fmt(cell['eta1_low'])}, {fmt(cell['eta1_high'])}]" and row["n"] == "19"
-    pooled_rows = {
-        (r["method"], r["location"], r["noise"]): r for r in markdown_rows(text, "method | location | noise")
-    }
-    cells = [summary["vi"]["roundabout"][w]["noise0.0"] for w in WEATHERS]
-    mean = np.mean([c["eta1"] for c in cells])  # the uniform mixture of the weather cells
-    assert pooled_rows[("vi", "roundabout", "0")]["η̂1 all weathers"] == fmt(mean)
+        answer = safety.answer(row["method"], row["location"], row["weather"], float(row["noise"]))
+        assert (
+            row["η̂1"] == fmt(answer.value, 2)
+            and row["method interval"] == f"[{fmt(answer.low, 2)}, {fmt(answer.high, 2)}]"
+        )
+        assert row["per replicate"] == " / ".join(fmt(e, 2) for e in answer.estimates)
+    assert "**Guarantee: per cell.**" in text
     fidelity = {r["claim"]: r for r in markdown_rows(text, "claim")}
     assert fidelity["offline, vi, all weathers"]["paper"] == "0.91 ± 0.05"
+    vi_dry = [safety.answer("vi", "roundabout", w, 0.0) for w in WEATHERS]
+    mean = np.mean([np.mean([a.estimates[r] for a in vi_dry]) for r in range(len(SEEDS))])
     assert fidelity["offline, vi, all weathers"]["ours [interval]"].startswith(fmt(mean, 2))
-    vi_unknown_on = avoided["vi"]["unknown"]["on"]
+    on = avoid.answer("vi", "unknown mixture", "on")
     assert fidelity["avoid, vi, unknown conditions, warnings on"]["ours [interval]"] == (
-        f"{fmt(vi_unknown_on['eta1'], 2)} [{fmt(0.0, 2)}, {fmt(1.0, 2)}]"
+        f"{fmt(on.value, 2)} [{fmt(on.low, 2)}, {fmt(on.high, 2)}]"
     )
-    assert fidelity["avoid, vi, unknown conditions, warnings on"]["overlap"] == "yes"  # [0, 1] holds 0.90
     training = {(r["experiment"], r["method"]): r for r in markdown_rows(text, "experiment | method")}
-    assert training[("avoid", "vi")]["val accuracy"] == fmt(
-        json.loads((tmp_path / "metrics/avoid/train/vi.json").read_text())["val_accuracy"]
-    )
-    assert training[("offline", "mcd")]["diagnostics"] == "mcd diagnostics"
+    accuracy = [trained["avoid", "vi", r].val_accuracy for r in SEEDS]
+    assert training[("avoid", "vi")]["val accuracy (mean)"] == fmt(np.mean(accuracy))
+    assert training[("avoid", "vi")]["per replicate"] == " / ".join(fmt(a) for a in accuracy)
+    assert training[("offline", "mcd")]["diagnostics (first replicate)"] == "mcd diagnostics"
     agreement = {r["method"]: r for r in markdown_rows(text, "method | mean TV to HMC")}
     mcd_cells = [evaluated["mcd"][w][f"noise{x}"] for w in WEATHERS for x in NOISES]
     assert agreement["mcd"]["mean TV to HMC"] == fmt(sum(c["hmc_tv_distance"] for c in mcd_cells) / 4)
-    assert agreement["mcd"]["worst condition TV"] == fmt(max(c["hmc_tv_distance"] for c in mcd_cells))
     assert agreement["vi"]["MI Spearman ρ"] == "–"
     held_out = markdown_rows(text, "method | weather | noise | frames")
     assert len(held_out) == len(METHODS) * len(WEATHERS) * len(NOISES)
-    for row in held_out:
-        cell = evaluated[row["method"]][row["weather"]][f"noise{float(row['noise'])}"]
-        assert (row["accuracy"], row["ECE"], row["mean MI"], row["AUROC MI"], row["AUROC 1 − η2"]) == (
-            fmt(cell["accuracy"]),
-            fmt(cell["ece"]),
-            fmt(cell["mean_mutual_information"]),
-            fmt(cell["auroc_mi"]),
-            "–",
-        )
     avoid_rows = markdown_rows(text, "method | condition")
-    assert len(avoid_rows) == len(METHODS) * (3 + 1) * len(MODES)
+    assert len(avoid_rows) == len(METHODS) * (len(CONDITIONS) + 1) * len(MODES)
     for row in avoid_rows:
-        if "mixture" not in row["condition"]:
-            cell = avoided[row["method"]]["cells"][row["condition"]][row["warnings"]]
-            assert (row["η̂1"], row["autonomy"], row["median hand-over distance (m)"]) == (
-                fmt(cell["eta1"]),
-                fmt(cell["autonomy"], 2),
-                "12.5",
-            )
-    assert "**vi, white_van**: η̂1 0.40 without warnings and no threshold" in text
-    assert "| profile | `tiny` |" in text
+        answer = avoid.answer(row["method"], row["condition"], row["warnings"])
+        assert row["η̂1"] == fmt(answer.value, 2) and row["per replicate"] == " / ".join(
+            fmt(e, 2) for e in answer.estimates
+        )
+    assert "**vi seed0, fog**: η̂1 0.40 without warnings and no threshold" in text
+    assert "- vi certified" in text  # each calibration's guarantee in words
+    assert "| profile | `tiny` |" in text and "| training replicates | seeds 0, 1" in text
     assert "Figure missing: `plots/safety/summary/hexbin_roundabout_noise0.05.png`" in text
 
     headline = json.loads((tmp_path / "metrics/summary.json").read_text())
-    assert headline["offline_safety"]["vi"]["eta1_pooled"] == pytest.approx(
-        np.mean([summary["vi"][loc][w][f"noise{x}"]["eta1"] for loc in LOCATIONS for w in WEATHERS for x in NOISES])
+    assert headline["offline_eta1"]["vi"] == pytest.approx(
+        np.mean([a.value for a in safety.answers if a.method == "vi"])
     )
-    assert headline["avoid"]["mcd"]["unknown_on_eta1"] == avoided["mcd"]["unknown"]["on"]["eta1"]
-    assert (
-        headline["val_accuracy"]["avoid"]["vi"]
-        == json.loads((tmp_path / "metrics/avoid/train/vi.json").read_text())["val_accuracy"]
-    )
+    assert headline["avoid_unknown_eta1"]["mcd"]["on"] == avoid.answer("mcd", "unknown mixture", "on").value
+    assert headline["accuracy"]["avoid"]["vi"] == pytest.approx(np.mean(accuracy))
+    assert headline["findings"] == findings.supported
 
     html = (tmp_path / "reports/report.html").read_text()
-    figures = len(EXPERIMENTS) * len(METHODS) + 1  # learning curves and one hexbin; agreement_hmc.png is missing
+    figures = len(EXPERIMENTS) * len(METHODS) + 1  # learning curves and one hexbin; the rest are missing
     assert result["figures"] == figures and html.count('src="data:image/png;base64,') == figures
     assert not re.search(r'src="(?!data:)', html)  # self-contained: no file links left
 
 
-def test_missing_metrics_file_names_it(stage_config, tmp_path):
+def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp_path):
     write_run(tmp_path)
     (tmp_path / "metrics/safety.json").unlink()
-    with pytest.raises(FileNotFoundError, match="metrics/safety.json is missing"):
+    with pytest.raises(FileNotFoundError, match="metrics/safety.json is missing; .* dvc repro safety_summary"):
         run_report(stage_config("report"))
+    (tmp_path / "again").mkdir()
+    write_run(tmp_path / "again")
+    path = tmp_path / "again/metrics/avoid/vi-seed1.json"
+    stale = json.loads(path.read_text())
+    del stale["calibration"]["guarantee"]  # written by older code
+    path.write_text(json.dumps(stale))
+    with pytest.raises(
+        ValueError, match=r"vi-seed1.json: calibration.guarantee is required; rerun dvc repro avoid@vi-1"
+    ):
+        run_report(stage_config("report", f"paths.root={tmp_path}/again"))
     assert not (tmp_path / "reports").exists()

@@ -72,7 +72,7 @@ def same(a: RolloutResult, b: RolloutResult) -> bool:
     return True
 
 
-@pytest.mark.parametrize(("scheme", "interrupt_after"), [("sequential", 13), ("sequential", 30), ("chernoff", 7)])
+@pytest.mark.parametrize(("scheme", "interrupt_after"), [("sequential", 13), ("sequential", 22), ("chernoff", 7)])
 def test_interrupted_cell_resumes_to_the_uninterrupted_result(
     tmp_path: Path, scheme: str, interrupt_after: int
 ) -> None:

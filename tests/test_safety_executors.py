@@ -172,7 +172,7 @@ def test_the_readme_ray_path_on_a_ray_cluster_agrees_with_the_process_backend(
         timeout=600,
     )
     assert run.returncode == 0, run.stderr[-3000:]
-    name = "vi-roundabout-rain-noise0.05"
+    name = "vi-seed0-roundabout-rain-noise0.05"
     from uqdrive.pipeline.safety import run_safety
 
     local = run_safety(stage_config("safety", *cell[2:], "executor=process", "executor.workers=2"))

@@ -8,7 +8,9 @@ from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
-from uqdrive.pipeline.safety import run_safety, run_safety_summary
+from uqdrive.pipeline.records import as_dict
+from uqdrive.pipeline.safety import run_safety
+from uqdrive.pipeline.safety_summary import run_safety_summary
 from uqdrive.tracking import store_uris
 
 
@@ -33,11 +35,11 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     assert not result["reused"] and result["n"] == 4 == result["rollouts"]  # chernoff_n(0.7, 0.05)
     assert result["scheme"] == "chernoff" and result["guaranteed"]
     assert result["eta1_low"] <= result["eta1"] <= result["eta1_high"]
-    out = tmp_path / "metrics/safety/hmc-roundabout-afternoon-noise0.05.json"
+    out = tmp_path / "metrics/safety/hmc-seed0-roundabout-afternoon-noise0.05.json"
     saved = json.loads(out.read_text())
     assert saved == {k: v for k, v in result.items() if k != "reused"}
-    assert (tmp_path / "data/safety/hmc-roundabout-afternoon-noise0.05.npz").exists()
-    assert (tmp_path / "plots/safety/cells/hmc-roundabout-afternoon-noise0.05.png").stat().st_size > 5000
+    assert (tmp_path / "data/safety/hmc-seed0-roundabout-afternoon-noise0.05.npz").exists()
+    assert (tmp_path / "plots/safety/cells/hmc-seed0-roundabout-afternoon-noise0.05.png").stat().st_size > 5000
 
     client, logged = runs(tmp_path)
     (run,) = logged
@@ -60,8 +62,8 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
         assert run.data.metrics[key] == pytest.approx(result[key])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
-        "hmc-roundabout-afternoon-noise0.05.png",
-        "hmc-roundabout-afternoon-noise0.05.csv",
+        "hmc-seed0-roundabout-afternoon-noise0.05.png",
+        "hmc-seed0-roundabout-afternoon-noise0.05.csv",
     }
 
     # same config, other worker count: reused, nothing rerun; a run tagged reused lists the cell
@@ -109,7 +111,7 @@ def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path,
         for cfg in configs:
             run_safety(cfg)
     monkeypatch.setattr(runner, "make_executor", real)
-    assert not (tmp_path / "metrics/safety/vi-roundabout-clear_noon-noise0.0.json").exists()
+    assert not (tmp_path / "metrics/safety/vi-seed0-roundabout-clear_noon-noise0.0.json").exists()
     assert [run_safety(cfg)["reused"] for cfg in configs] == [True, False, False]
     assert sorted(r.data.tags["reused"] for r in runs(tmp_path)[1]) == ["false", "false", "false", "true"]
 
@@ -139,14 +141,14 @@ def test_a_cell_interrupted_mid_way_keeps_its_finished_rollouts(safety_config, t
     monkeypatch.setattr(runner, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), None))
     result = run_safety(cfg)
     assert ran == [100000, 100001, 100002, 100003] and result["n"] == 4  # the first two were not rerun
-    rows = (tmp_path / "plots/safety/cells/vi-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
+    rows = (tmp_path / "plots/safety/cells/vi-seed0-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
     assert [int(r.split(",")[0]) for r in rows[1:]] == [100000, 100001, 100002, 100003]
 
 
 def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
     result = run_safety(safety_config("model=vi", "safety.scheme=sequential", "safety.theta=0.45"))
     assert result["scheme"] == "sequential" and result["guaranteed"]
-    rows = (tmp_path / "plots/safety/cells/vi-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
+    rows = (tmp_path / "plots/safety/cells/vi-seed0-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
     assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(100000, 100000 + result["n"]))
 
 
@@ -157,7 +159,7 @@ def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
         (
             ("safety.model_path=/nonexistent/vi.pt",),
             ValueError,
-            r"^safety.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@offline-vi$",
+            r"^safety.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@offline-vi-0$",
         ),
         (("safety.theta=1.5",), ValueError, r"safety.theta=1.5: input should be less than 1"),
         (("safety.gamma=0",), ValueError, r"safety.gamma=0: input should be greater than 0"),
@@ -189,29 +191,43 @@ def test_model_of_another_method_is_refused(safety_config, random_models):
         run_safety(safety_config("model=vi", f"safety.model_path={random_models['mcd']}"))
 
 
-def test_summary_tabulates_cells_and_draws_one_grid_per_location_and_noise(safety_config, stage_config, tmp_path):
+def test_summary_answers_per_method_over_replicates_and_draws_one_grid_per_location_and_noise(
+    safety_config, stage_config, tmp_path
+):
     for method in ("mcd", "vi"):
         for location in ("roundabout", "roundabout_town"):
-            run_safety(safety_config(f"model={method}", "noise=0", f"scenario={location}"))
+            for seed in (0, 1):  # a second replicate (here the same network: plumbing), on the same rollout seeds
+                run_safety(safety_config(f"model={method}", "noise=0", f"scenario={location}", f"seed={seed}"))
     summary = run_safety_summary(
         stage_config(
             "safety_summary",
             "methods=[mcd,vi]",
+            "replicates=[0,1]",
             "weathers=[clear_noon]",
             "noises=[0]",
             "locations=[roundabout,roundabout_town]",
         )
-    )
-    table = json.loads((tmp_path / "metrics/safety.json").read_text())
-    assert table == summary["table"] and set(table) == {"mcd", "vi"}
-    cell = table["vi"]["roundabout_town"]["clear_noon"]["noise0.0"]  # noise=0 and 0.0 are one cell
-    assert cell["n"] == 4 and 0 <= cell["eta1"] <= 1 and cell["max_corridor_use"] >= cell["mean_corridor_use"]
-    assert cell["left_corridor_rate"] == 0 or cell["max_corridor_use"] > 1  # one rule: leaving the lane is > 1
+    )["summary"]
+    assert json.loads((tmp_path / "metrics/safety.json").read_text()) == as_dict(summary)
+    answer = summary.answer("vi", "roundabout_town", "clear_noon", 0)  # noise=0 and 0.0 are one cell
+    cells = [
+        json.loads((tmp_path / f"metrics/safety/vi-seed{r}-roundabout_town-clear_noon-noise0.0.json").read_text())
+        for r in (0, 1)
+    ]
+    assert answer.replicates == [0, 1] and answer.rollouts == 4 == cells[0]["n"]
+    assert answer.estimates == [c["eta1"] for c in cells] and answer.value == pytest.approx(sum(answer.estimates) / 2)
+    assert 0 <= answer.low <= answer.value <= answer.high <= 1 and "hoeffding" in answer.interval
+    assert summary.family_size == 1 and summary.cell_gamma == 0.05
     for location in ("roundabout", "roundabout_town"):
         assert (tmp_path / f"plots/safety/summary/hexbin_{location}_noise0.0.png").stat().st_size > 5000
-    with pytest.raises(FileNotFoundError, match="hmc-roundabout-clear_noon-noise0.0.json is missing"):
+    with pytest.raises(FileNotFoundError, match="hmc-seed0-roundabout-clear_noon-noise0.0.json is missing"):
         run_safety_summary(
             stage_config(
-                "safety_summary", "methods=[hmc]", "weathers=[clear_noon]", "noises=[0]", "locations=[roundabout]"
+                "safety_summary",
+                "methods=[hmc]",
+                "replicates=[0]",
+                "weathers=[clear_noon]",
+                "noises=[0]",
+                "locations=[roundabout]",
             )
         )

@@ -12,7 +12,8 @@ from uqdrive.pipeline.collect import run_collect, run_heldout
 from uqdrive.pipeline.evaluate import run_evaluate
 from uqdrive.pipeline.preprocess import run_preprocess
 from uqdrive.pipeline.report import run_report
-from uqdrive.pipeline.safety import run_safety, run_safety_summary, run_safety_sweep
+from uqdrive.pipeline.safety import run_safety, run_safety_sweep
+from uqdrive.pipeline.safety_summary import run_safety_summary
 from uqdrive.pipeline.train import run_train
 from uqdrive.schema import ConfigError
 

@@ -60,7 +60,7 @@ def test_grid_varies_the_last_axis_fastest_and_a_cell_overrides_the_sweep():
 def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, models, stage_config):
     swept = sweep(run_safety_sweep, "safety_sweep", tmp_path, *models, "executor.workers=2", *SWEEP)
     assert [cell.safety.cell for cell, _ in swept] == [
-        f"{m}-roundabout-clear_noon-noise{n}" for m in ("vi", "mcd") for n in ("0.0", "0.1")
+        f"{m}-seed0-roundabout-clear_noon-noise{n}" for m in ("vi", "mcd") for n in ("0.0", "0.1")
     ]
     assert all(not r["reused"] and r["n"] == 4 for _, r in swept)
     # the single-cell command composes the same config: same hash, so it reuses the sweep's result as it is

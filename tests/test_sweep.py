@@ -137,7 +137,7 @@ def test_an_interrupted_or_failed_sweep_leaves_no_run_running(tmp_path):
 def test_one_noise_level_is_one_cell(stage_config, noise):
     safety = stage_config("safety", f"noise={noise}")
     heldout = stage_config("heldout", f"noise={noise}")
-    assert safety.safety.cell == "mcd-roundabout-clear_noon-noise0.0"  # as DVC names params.yaml's 0.0
+    assert safety.safety.cell == "mcd-seed0-roundabout-clear_noon-noise0.0"  # as DVC names params.yaml's 0.0
     assert Path(heldout.collect.out).name == "roundabout-clear_noon-noise0.0.parquet"
 
 
@@ -156,13 +156,13 @@ def test_a_multirun_writes_under_its_sweep_folder_unless_asked(stage_config, tmp
     swept = stage_config("safety")
     sweep = tmp_path / "multirun/2026-01-01/00-00-00"
     assert (swept.safety.out, swept.safety.positions, swept.safety.model_path) == (
-        f"{sweep}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
-        f"{sweep}/data/safety/mcd-roundabout-clear_noon-noise0.0.npz",
-        f"{tmp_path}/models/offline/mcd.pt",
+        f"{sweep}/metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json",
+        f"{sweep}/data/safety/mcd-seed0-roundabout-clear_noon-noise0.0.npz",
+        f"{tmp_path}/models/offline/seed0/mcd.pt",
     )
     assert (
         stage_config("safety", "outputs=pipeline").safety.out
-        == f"{tmp_path}/metrics/safety/mcd-roundabout-clear_noon-noise0.0.json"
+        == f"{tmp_path}/metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json"
     )
     with pytest.raises(Exception) as bad:
         _ = stage_config("safety", "outputs=somewhere").safety.out
@@ -173,9 +173,9 @@ def test_a_single_run_writes_the_pipeline_outputs(stage_config, tmp_path):
     expected = {
         ("collect", "collect.out"): "data/raw/straight.parquet",
         ("preprocess", "paths.processed"): "data/processed/offline",
-        ("train", "paths.models"): "models/offline",
-        ("safety", "safety.out"): "metrics/safety/mcd-roundabout-clear_noon-noise0.0.json",
-        ("avoid", "avoid.out"): "metrics/avoid/mcd.json",
+        ("train", "paths.models"): "models/offline/seed0",
+        ("safety", "safety.out"): "metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json",
+        ("avoid", "avoid.out"): "metrics/avoid/mcd-seed0.json",
         ("report", "report.out_dir"): "reports",
     }
     for (stage, key), path in expected.items():

@@ -104,10 +104,10 @@ def test_each_method_beats_the_majority_class_on_validation(trained, method):
 def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
     root, metrics = trained
     for method in METHODS:
-        assert json.loads((root / f"metrics/joint/train/{method}.json").read_text()) == metrics[method]
-        rows = list(csv.DictReader((root / f"plots/joint/train/{method}_curve.csv").open()))
+        assert json.loads((root / f"metrics/joint/train/seed0/{method}.json").read_text()) == metrics[method]
+        rows = list(csv.DictReader((root / f"plots/joint/train/seed0/{method}_curve.csv").open()))
         assert rows and {"step", "train_loss", "val_accuracy", "val_nll"} <= set(rows[0])
-        assert (root / f"plots/joint/train/{method}_curve.png").stat().st_size > 1000
+        assert (root / f"plots/joint/train/seed0/{method}_curve.png").stat().st_size > 1000
     client = MlflowClient(store_uris(root)[0])
     runs = client.search_runs([client.get_experiment_by_name("train").experiment_id])
     assert sorted(r.data.params["method"] for r in runs) == sorted(METHODS)
@@ -142,14 +142,16 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
     bins = SteeringBins()
     val = load_frames(root / "data/processed/joint/val.parquet", bins.num_classes)
     for method in METHODS:
-        posterior = load_posterior(root / f"models/joint/{method}.pt", expected_method=method, expected_classes=bins)
+        posterior = load_posterior(
+            root / f"models/joint/seed0/{method}.pt", expected_method=method, expected_classes=bins
+        )
         scores = evaluate(posterior, compute_features(posterior, val), val.labels, 20, torch.Generator().manual_seed(0))
         assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
 
 
 def test_head_methods_share_the_mcd_trunk(trained):
     root, _ = trained
-    trunks = [load_posterior(root / f"models/joint/{m}.pt").trunk.state_dict() for m in METHODS]
+    trunks = [load_posterior(root / f"models/joint/seed0/{m}.pt").trunk.state_dict() for m in METHODS]
     for other in trunks[1:]:
         assert all(torch.equal(trunks[0][k], other[k]) for k in trunks[0])
 

@@ -1,4 +1,4 @@
-"""`uqdrive bound` and `uqdrive bench estimators` end to end."""
+"""`uqdrive bound`, `uqdrive bench estimators` and `uqdrive bench threshold` end to end."""
 
 from __future__ import annotations
 
@@ -15,8 +15,10 @@ def test_bound_table(capsys: pytest.CaptureFixture[str]) -> None:
     assert re.search(r"chernoff .*\s738\s+planned\s+yes", out)
     assert re.search(r"clopper_pearson .*\s404\s+planned\s+yes", out)
     assert re.search(r"massart, a priori min\(eta,1-eta\) <= 0.1\s+305", out)
-    assert re.search(r"sequential \(calibrated Clopper-Pearson\), a look every 1\s+402\s+worst case\s+yes", out)
-    assert "expected samples 401 at eta=0.5, 197 at eta=0.9, 84 at eta=0.99, 72 at eta=1" in out
+    assert re.search(r"sequential \(calibrated fit and ball rules\), a look every 1\s+402\s+worst case\s+yes", out)
+    assert (
+        "expected samples 401.4 at eta=0.5, 174.0 at eta=0.9, 93.3 at eta=0.95, 44.6 at eta=0.99, 37.0 at eta=1" in out
+    )
     assert re.search(r"sprt .*no \(decision only\)", out)
 
 
@@ -35,8 +37,26 @@ def test_bound_rejects_bad_theta(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_bench_estimators_meets_its_targets(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["bench", "estimators"]) == 0
+    assert main(["bench", "estimators", "--runs", "200", "--split", "2"]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
-    m = re.fullmatch(r"RESULT estimators saving_at_0\.99=([\d.]+) worst_ratio=([\d.]+) worst_vs_cp=([\d.]+)", last)
+    number = r"([\d.]+)"
+    m = re.fullmatch(
+        rf"RESULT estimators saving_at_0\.99={number} worst_vs_cp={number} en_at_0={number} en_at_1={number} "
+        rf"calibrate_s={number} calibrate_vs_fit_only={number}",
+        last,
+    )
     assert m, last
-    assert float(m[1]) >= 7.5 and float(m[2]) <= 0.6 and float(m[3]) <= 1.12
+    assert float(m[1]) >= 14.7 and float(m[2]) <= 1.12 and float(m[3]) <= 42 and float(m[4]) <= 42
+
+
+def test_bench_threshold_reports_the_draws_at_eta_1(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "threshold", "--deltas", "0.7", "--budget", "100"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    number = r"([\d.]+)"
+    m = re.fullmatch(
+        rf"RESULT threshold en_at_1={number} saving_at_1={number} en_at_0\.9={number} worst_en={number} "
+        rf"worst_vs_fixed={number} build_s={number}",
+        last,
+    )
+    assert m, last
+    assert float(m[1]) == 12.0 and float(m[5]) < 0.3

@@ -101,19 +101,26 @@ def test_sequential_follows_its_stopping_rule(look_size: int) -> None:
         assert set(sizes) == {look_size} and est.n == x.size <= scheme.max_n
         counts = np.cumsum(x)
         looks = np.arange(look_size, x.size + 1, look_size)
-        stops = [bool(scheme.stop_tables[n // look_size - 1][counts[n - 1]]) or n == scheme.max_n for n in looks]
+        stops = [bool(scheme.look(n, counts[n - 1 : n]).stop[0]) or n == scheme.max_n for n in looks]
         assert stops[-1] and not any(stops[:-1])
-        assert est.value == counts[-1] / x.size and est.guaranteed and est.scheme == "sequential"
-        assert (est.low, est.high) == (max(0.0, est.value - THETA), min(1.0, est.value + THETA))
+        look = scheme.look(x.size, counts[-1:])
+        assert (est.value, est.low, est.high) == (look.value[0], look.low[0], look.high[0])
+        assert est.guaranteed and est.scheme == "sequential" and est.high - est.low <= 2 * THETA + 1e-12
+        assert est.low == pytest.approx(max(0.0, est.value - THETA), abs=1e-12)
+        assert est.high == pytest.approx(min(1.0, est.value + THETA), abs=1e-12)
 
 
 def test_sequential_at_the_extremes_and_its_savings() -> None:
-    est = sequential(lambda k: np.ones(k, dtype=np.int8), THETA, GAMMA, 1)
-    assert est.n == 72 and est.value == 1.0  # (γ'/2)^(1/n) >= 1 − θ first holds at n = 72
+    """All successes: the ball [1 − 2θ, 1] is settled once √2 · 0.9^n ≤ ball_level (n = 37 at look 1),
+    long before k/n ± θ is (72); the value is its centre, 1 − θ."""
     scheme = sequential_scheme(THETA, GAMMA, 1)
+    first = math.ceil(math.log(scheme.ball_level / math.sqrt(2)) / math.log(1 - 2 * THETA))
+    est = sequential(lambda k: np.ones(k, dtype=np.int8), THETA, GAMMA, 1)
+    assert est.n == first == 37 and (est.value, est.low, est.high) == pytest.approx((0.95, 0.9, 1.0), abs=1e-12)
+    est = sequential(lambda k: np.zeros(k, dtype=np.int8), THETA, GAMMA, 1)
+    assert est.n == 37 and (est.value, est.low, est.high) == pytest.approx((0.05, 0.0, 0.1), abs=1e-12)
     mean_n, _ = scheme.operating_characteristics(np.linspace(0, 1, 201))
-    at_099 = scheme.operating_characteristics(0.99)[0][0]
-    assert at_099 <= 95 and scheme.operating_characteristics(0.9)[0][0] <= 240
+    assert scheme.operating_characteristics(0.99)[0][0] <= 50 and scheme.operating_characteristics(0.9)[0][0] <= 180
     assert mean_n.max() <= 1.12 * clopper_pearson_n(THETA, GAMMA)
 
 

@@ -12,13 +12,15 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("uqdrive.bench", "speed benchmarks; `uqdrive bench --help` lists them"),
     "bound": ("uqdrive.uq.cli", "sample counts of each estimation scheme for (theta, gamma)"),
+    "findings": ("uqdrive.pipeline.report_findings", "print metrics/findings.json as the report states it"),
     "frames": ("uqdrive.frames", "write one example camera frame per weather to docs/"),
+    "plots-page": ("uqdrive.plots_page", "write the page `dvc plots show` fills, its scripts inlined (no CDN)"),
 }
 
 
 def _usage() -> str:
     lines = ["usage: uqdrive COMMAND [ARGS...]", "", "commands:"]
-    lines += [f"  {name:<8} {help_}" for name, (_, help_) in COMMANDS.items()]
+    lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
     return "\n".join(lines)
 
 

@@ -272,19 +272,16 @@ def avoid_tradeoff_figure(
     table: dict[str, np.ndarray], chosen: int, default: int | None, target: float, title: str
 ) -> plt.Figure:
     """The paper's joint claim as a front: replayed unknown-condition η̂1 against known-condition autonomy
-    for every candidate (δ1, δ2, τ); candidates whose autonomy bound misses ``target`` are hollow; the
-    Pareto front, the chosen and the configured thresholds."""
+    for every candidate (δ1, δ2, τ); candidates Learn-then-Test did not certify (autonomy ≥ ``target``) are
+    hollow; the Pareto front, the chosen and the configured thresholds."""
     fig, ax = plt.subplots(figsize=(5.5, 4))
-    autonomy, safety, feasible = table["autonomy"], table["eta1_unknown"], table["feasible"].astype(bool)
+    autonomy, safety, certified = table["autonomy"], table["eta1_unknown"], table["certified"].astype(bool)
     ax.scatter(
-        autonomy[~feasible],
-        safety[~feasible],
-        s=10,
-        facecolors="none",
-        edgecolors="0.6",
-        label=f"autonomy bound < {target:g}",
+        autonomy[~certified], safety[~certified], s=10, facecolors="none", edgecolors="0.6", label="not certified"
     )
-    ax.scatter(autonomy[feasible], safety[feasible], s=10, color="tab:blue", label=f"autonomy bound ≥ {target:g}")
+    ax.scatter(
+        autonomy[certified], safety[certified], s=10, color="tab:blue", label=f"certified: autonomy ≥ {target:g}"
+    )
     front = np.flatnonzero(table["pareto"])
     front = front[np.argsort(autonomy[front])]
     ax.plot(autonomy[front], safety[front], "-", color="tab:blue", lw=1, label="Pareto front")

@@ -49,7 +49,7 @@ COMPARED_BY = {
     "noise": "noise",
     "location": "scenario.name",
     "profile": "profile_name",
-    "seed": "seed",
+    "replicate": "seed",  # the training seed
     "scheme": "{stage}.scheme",
     "theta": "{stage}.theta",
     "gamma": "{stage}.gamma",

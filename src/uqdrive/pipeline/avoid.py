@@ -21,6 +21,7 @@ from omegaconf import DictConfig
 from uqdrive.pipeline.avoid_cells import Cell, traces_of
 from uqdrive.pipeline.avoid_config import AvoidSettings, Condition, build_settings
 from uqdrive.pipeline.avoid_outputs import write_outputs
+from uqdrive.pipeline.records import FRESH, WARNINGS_OFF
 from uqdrive.safety.calibration import calibrate
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
@@ -47,13 +48,13 @@ def run_cell(
     off: Cell | None = None,
 ) -> Cell:
     """η̂1 of one cell; the rollouts its log already holds (same identity) are replayed, not rerun, so a finished
-    cell costs nothing on a rerun and an interrupted one resumes. ``mode`` off drives without warnings (its
-    warnings are only counted). ``off``: the warnings-off cell on the same seeds, whose rollouts no warning
-    would change are reused exactly."""
-    base_seed = settings.validation_seed if mode == "calibrated" else settings.estimator.base_seed
+    cell costs nothing on a rerun and an interrupted one resumes. The modes off and fresh_off drive without
+    warnings (``warning``'s are only counted); fresh_off and calibrated drive the validation seeds. ``off``: the
+    warnings-off cell on the same seeds, whose rollouts no warning would change are reused exactly."""
+    base_seed = settings.validation_seed if mode in FRESH else settings.estimator.base_seed
     estimator = dataclasses.replace(settings.estimator, base_seed=base_seed)
-    job = settings.job(condition, None if mode == "off" else warning, base_seed)
-    name = f"{settings.method}-{condition.name}-{mode}"
+    job = settings.job(condition, None if mode in WARNINGS_OFF else warning, base_seed)
+    name = f"{settings.name}-{condition.name}-{mode}"
     run = runner.estimate(
         f"avoid {name}",
         job,
@@ -62,7 +63,7 @@ def run_cell(
         Path(cfg.avoid.rollout_log) / f"{name}.jsonl",
         reuse=unchanged_by(warning, off) if off is not None else None,
     )
-    return Cell(name, condition.name, mode, warning, run.outcome, run.results, run.seconds, run.reused)
+    return Cell(name, condition.name, mode, warning, run.outcome, run.results, run.seconds, run.reused, base_seed)
 
 
 def run_avoid(cfg: DictConfig) -> dict:
@@ -76,7 +77,7 @@ def run_avoid(cfg: DictConfig) -> dict:
             off = cells[condition.name, "off"] = run_cell(runner, cfg, settings, condition, "off", settings.warning)
             cells[condition.name, "on"] = run_cell(runner, cfg, settings, condition, "on", settings.warning, off)
         c, names = settings.calibration, [k.name for k in settings.conditions]
-        traces = traces_of([cells[name, "off"] for name in names], geometries)
+        traces = traces_of([cells[name, "off"] for name in names], geometries, settings.estimator.fixed_rollouts())
         calib = calibrate(
             traces,
             names,
@@ -85,9 +86,17 @@ def run_avoid(cfg: DictConfig) -> dict:
             list(c.taus),
             c.autonomy_target,
             c.gamma,
+            missed_limit=c.missed_limit,
+            calibration_fraction=c.calibration_fraction,
+            order=c.order,
             **settings.replay_args(),
         )
         calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
         for condition in settings.conditions:
-            cells[condition.name, "calibrated"] = run_cell(runner, cfg, settings, condition, "calibrated", calibrated)
+            fresh = cells[condition.name, "fresh_off"] = run_cell(
+                runner, cfg, settings, condition, "fresh_off", calibrated
+            )
+            cells[condition.name, "calibrated"] = run_cell(
+                runner, cfg, settings, condition, "calibrated", calibrated, fresh
+            )
     return write_outputs(cfg, settings, cells, calib, traces, geometries, time.perf_counter() - start)

@@ -13,13 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from uqdrive.files import atomic_path, write_csv
+from uqdrive.pipeline.records import WARNINGS_OFF, AvoidCell
 from uqdrive.safety.calibration import Calibration, Traces
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.warnings import LEVELS, WarningConfig, classify
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.uq import Estimate
-
-MODES = ("off", "on", "calibrated")  # warnings off (only counted), on (configured thresholds), calibrated
 
 
 @dataclasses.dataclass
@@ -34,12 +33,13 @@ class Cell:
     estimate: Estimate
     results: list[RolloutResult]
     seconds: float
-    reused: bool = False
+    reused: bool
+    base_seed: int
 
 
 def levels(cell: Cell, result: RolloutResult) -> np.ndarray:
     """Warning level per frame: as raised (warnings on) or as the cell's thresholds would have raised them (off)."""
-    if cell.mode != "off":
+    if cell.mode not in WARNINGS_OFF:
         return result.warning
     w = cell.warning
     return classify(result.eta2, result.mutual_information, w.delta1, w.delta2, w.tau)
@@ -63,7 +63,7 @@ def distances(result: RolloutResult, geometry: ScenarioGeometry) -> np.ndarray:
 
 def handover_distances(cell: Cell, geometry: ScenarioGeometry) -> list[float]:
     """Distance to the obstacle at the first hand-over frame of each run that handed over (warnings on)."""
-    if cell.mode == "off":
+    if cell.mode in WARNINGS_OFF:
         return []
     handover_levels = [lv for lv, a in zip(LEVELS, cell.warning.actions) if a.handover]
     out = []
@@ -74,12 +74,15 @@ def handover_distances(cell: Cell, geometry: ScenarioGeometry) -> list[float]:
     return out
 
 
-def cell_metrics(cell: Cell, cruise: float, geometry: ScenarioGeometry) -> dict:
-    """η̂1 with its interval, autonomy, passed and timeout rates, hand-over distances, warning counts."""
+def cell_metrics(
+    cell: Cell, cruise: float, geometry: ScenarioGeometry, fixed_rollouts: int, family_size: int
+) -> AvoidCell:
+    """η̂1 with its interval, autonomy, passed and timeout rates, hand-over distances, warning counts, and each
+    run's verdict in rollout order (``fixed_rollouts``: how many every cell runs whatever the outcomes)."""
     results, est = cell.results, cell.estimate
     handover_levels = [lv for lv, a in zip(LEVELS, cell.warning.actions) if a.handover]
     per_run = [levels(cell, r) for r in results]
-    handed = [cell.mode != "off" and bool(np.isin(lv, handover_levels).any()) for lv in per_run]
+    handed = [cell.mode not in WARNINGS_OFF and bool(np.isin(lv, handover_levels).any()) for lv in per_run]
     steps = sum(r.steps for r in results)
     full = sum(int(np.sum(r.command_speed >= cruise - 1e-9)) for r in results)
     where = handover_distances(cell, geometry)
@@ -108,22 +111,27 @@ def cell_metrics(cell: Cell, cruise: float, geometry: ScenarioGeometry) -> dict:
     for level in LEVELS:
         metrics[f"warning{level}_frames"] = int(sum(int(np.sum(lv == level)) for lv in per_run))
         metrics[f"warning{level}_runs"] = int(sum(bool(np.any(lv == level)) for lv in per_run))
-    return {
+    return AvoidCell(
         **metrics,
-        "terminations": dict(sorted(Counter(r.termination for r in results).items())),
-        "guaranteed": est.guaranteed,
-        "scheme": est.scheme,
-        "theta": est.theta,
-        "gamma": est.gamma,
-        "thresholds": {"delta1": cell.warning.delta1, "delta2": cell.warning.delta2, "tau": cell.warning.tau},
-    }
+        terminations=dict(sorted(Counter(r.termination for r in results).items())),
+        guaranteed=est.guaranteed,
+        scheme=est.scheme,
+        theta=est.theta,
+        gamma=est.gamma,
+        family_size=family_size,
+        fixed_rollouts=fixed_rollouts,
+        thresholds={"delta1": cell.warning.delta1, "delta2": cell.warning.delta2, "tau": cell.warning.tau},
+        base_seed=cell.base_seed,
+        outcomes="".join("1" if r.safe else "0" for r in results),
+    )
 
 
-def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry]) -> Traces:
-    """The warnings-off rollouts of ``cells`` as replay input; group g = the g-th cell's condition."""
+def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry], first: int) -> Traces:
+    """Rollouts 0 … ``first`` − 1 of the warnings-off ``cells`` as replay input (a number fixed in advance, so
+    exact tests on them hold whatever a sequential scheme did next); group g = the g-th cell's condition."""
     runs = []
     for g, cell in enumerate(cells):
-        for r in cell.results:
+        for r in cell.results[:first]:
             s, end = progress_along(geometries[cell.condition], r)
             runs.append((r.eta2, r.mutual_information, s, end, r.safe, g))
     return Traces.from_runs(runs)

@@ -5,20 +5,22 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from omegaconf import DictConfig
 from pydantic import Field
 
 from uqdrive.models.posterior import posterior_from_config
-from uqdrive.pipeline.configs import Executor, ModelStage
-from uqdrive.safety.calibration import min_known_runs
+from uqdrive.pipeline.configs import Executor, ModelStage, train_stage
+from uqdrive.pipeline.records import MODES
+from uqdrive.safety.calibration import min_calibration_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
 from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig
 from uqdrive.schema import (
+    Bool,
     ConfigError,
     NonNegative,
     OpenUnit,
@@ -52,15 +54,19 @@ class UnknownCondition:
 
 @schema(frozen=True)
 class CalibrationSettings:
-    """Threshold calibration: known-condition autonomy must have an exact lower bound (level 1 − ``gamma``)
-    ≥ ``autonomy_target``; among those, the most replayed unknown-condition safety. The candidate grids are
-    kept sorted and without repeats."""
+    """Threshold calibration by Learn-then-Test (`uqdrive.safety.calibration`): with probability ≥ 1 − ``gamma``
+    every certified candidate keeps the replayed known-condition autonomy ≥ ``autonomy_target`` (and, with
+    ``missed_limit``, each unknown condition's replayed missed-collision rate ≤ it); among the certified, the
+    most replayed unknown-condition safety. The candidate grids are kept sorted and without repeats."""
 
     autonomy_target: OpenUnit
-    gamma: OpenUnit
+    gamma: OpenUnit  # family-wise error over the candidate grid
     margin_m: NonNegative  # extra stopping distance a saved run must have kept before its collision point
     deltas: Annotated[tuple[Unit, ...], Field(min_length=1)]  # candidates for δ1 and δ2 (δ2 <= δ1)
     taus: Annotated[tuple[NonNegative, ...], Field(min_length=1)]  # candidates for τ
+    missed_limit: OpenUnit | None  # None: no constraint on the unknown conditions' missed collisions
+    calibration_fraction: Annotated[float, Field(gt=0, le=1)]  # share of run indices the tests use
+    order: Literal["firing", "learned"]  # the fixed sequence: a priori, or Pareto Testing on the other runs
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "deltas", tuple(sorted(set(self.deltas))))
@@ -73,11 +79,13 @@ class AvoidSection(EstimatorSettings):
     the calibration."""
 
     model_path: Str
+    name: Str  # <method>-<replicate>: the stage's cells, files and runs
     horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked)
     speed: Positive  # cruise speed (m/s), at most vehicle.max_speed
     eps: Positive
     validation_seed: Seed
     known_noise: NonNegative
+    family_wise: Bool  # spend γ over this controller's cells (conditions × modes): all of them at once
     unknown: Annotated[tuple[UnknownCondition, ...], Field(min_length=1)]
     calibration: CalibrationSettings
     out: Str
@@ -135,6 +143,8 @@ class AvoidSettings:
     """Everything a stage run needs, validated; ``spec`` is the warnings-off policy."""
 
     method: str
+    seed: int  # the replicate's training seed
+    name: str  # <method>-<replicate>
     spec: PolicySpec
     warning: WarningConfig
     estimator: EstimatorSettings
@@ -148,6 +158,7 @@ class AvoidSettings:
     horizon_s: float
     executor: Executor
     progress: bool
+    family_size: int  # cells the estimator's γ is spread over (1: per cell)
 
     @property
     def conditions(self) -> tuple[Condition, ...]:
@@ -223,23 +234,29 @@ def check_horizon(
 def build_settings(cfg: DictConfig) -> AvoidSettings:
     """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
     stage = validate(AvoidStage, cfg)
-    avoid, warning, estimator = stage.avoid, stage.warning, stage.avoid.estimator
+    avoid, warning = stage.avoid, stage.warning
+    family_size = (1 + len(avoid.unknown)) * len(MODES) if avoid.family_wise else 1
+    estimator = dataclasses.replace(avoid.estimator, gamma=avoid.gamma / family_size)
     method = posterior_from_config(stage.model).method
     horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
     calibration = avoid.calibration
-    needed = min_known_runs(calibration.autonomy_target, calibration.gamma)
-    if estimator.scheme != "sequential" and estimator.planned_rollouts() < needed:
+    needed = min_calibration_runs(calibration.autonomy_target, calibration.gamma, calibration.calibration_fraction)
+    if estimator.fixed_rollouts() < needed:
         raise ConfigError(
-            f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be shown with "
-            f"{estimator.planned_rollouts()} known-condition runs (it needs {needed}); lower it or "
-            "tighten avoid.theta"
+            f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be certified with "
+            f"{estimator.fixed_rollouts()} known-condition runs (it needs {needed}); lower it or tighten avoid.theta"
         )
+    if calibration.order == "learned" and calibration.calibration_fraction == 1:
+        raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
-    cell_posterior("avoid.model_path", model_path, method, bins, stage.experiment.train_stage(method))
+    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
     spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
     return AvoidSettings(
         method,
+        stage.seed,
+        avoid.name,
         spec,
         warning,
         estimator,
@@ -253,4 +270,5 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         horizon,
         stage.executor,
         stage.progress,
+        family_size,
     )

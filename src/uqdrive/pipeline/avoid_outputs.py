@@ -5,7 +5,6 @@ catches; metrics/avoid/<method>.json.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -13,9 +12,7 @@ import mlflow
 import numpy as np
 from omegaconf import DictConfig
 
-from uqdrive.files import write_json
 from uqdrive.pipeline.avoid_cells import (
-    MODES,
     Cell,
     cell_metrics,
     distances,
@@ -26,6 +23,15 @@ from uqdrive.pipeline.avoid_cells import (
     write_tradeoff,
 )
 from uqdrive.pipeline.avoid_config import AvoidSettings
+from uqdrive.pipeline.records import (
+    MODES,
+    AvoidCell,
+    AvoidResult,
+    CalibrationSummary,
+    Mixture,
+    as_dict,
+    write_record,
+)
 from uqdrive.plots import (
     avoid_signals_figure,
     avoid_tradeoff_figure,
@@ -39,19 +45,11 @@ from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq.pooled import pooled
 
 
-def unknown_mixture(cells: list[Cell], metrics: list[dict], gamma: float) -> dict:
+def unknown_mixture(cells: list[Cell], metrics: list[AvoidCell], gamma: float) -> Mixture:
     """η̂1 of the unknown conditions as one uniform mixture of their cells (Hoeffding interval, fixed n)."""
     p = pooled([sum(r.safe for r in c.results) for c in cells], [len(c.results) for c in cells], gamma)
-    return {
-        "eta1": p.value,
-        "eta1_low": p.low,
-        "eta1_high": p.high,
-        "theta": p.theta,
-        "gamma": gamma,
-        "n": p.n,
-        "autonomy": float(np.mean([m["autonomy"] for m in metrics])),
-        "interval": "hoeffding (uniform mixture of the condition cells)",
-    }
+    autonomy = float(np.mean([m.autonomy for m in metrics]))
+    return Mixture(p.value, p.low, p.high, p.theta, gamma, p.n, autonomy, "hoeffding (uniform mixture of the cells)")
 
 
 def uncaught_variants(calib: Calibration, cells: dict[tuple[str, str], Cell], names: list[str]) -> list[dict]:
@@ -88,37 +86,46 @@ def replay_check(
     out = replay(traces, np.array([w.delta1]), np.array([w.delta2]), np.array([w.tau]), w, **settings.replay_args())
     check = {}
     for g, name in enumerate(calib_groups):
-        members = traces.group == g
-        safe = np.array([r.safe for r in cells[name, "on"].results])
-        replayed = out.safe[0, members]
+        replayed = out.safe[0, traces.group == g]
+        safe = np.array([r.safe for r in cells[name, "on"].results[: len(replayed)]])
         check[name] = {
             "replayed_eta1": float(replayed.mean()),
             "closed_loop_eta1": float(safe.mean()),
-            "agreement": float(np.mean(replayed == safe)) if len(safe) == len(replayed) else math.nan,
+            "agreement": float(np.mean(replayed == safe)),
         }
     return check
 
 
-def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict) -> dict:
+def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict, fresh: dict) -> CalibrationSummary:
+    """The chosen thresholds, what Learn-then-Test certified (and in what words), the replay at them, and the
+    closed-loop check on fresh seeds (``fresh``)."""
     row = {
         k: (v[calib.chosen].item() if hasattr(v[calib.chosen], "item") else v[calib.chosen])
         for k, v in calib.table.items()
     }
-    return {
-        "delta1": calib.delta1,
-        "delta2": calib.delta2,
-        "tau": calib.tau,
-        "feasible": calib.feasible,
-        "autonomy_target": calib.target,
-        "gamma": calib.gamma,
-        "candidates": len(calib.table["delta1"]),
-        "replayed": {k: v for k, v in row.items() if k not in ("delta1", "delta2", "tau")},
-        "uncaught_variants": uncaught,
-        "replay_check": check,
-    }
+    return CalibrationSummary(
+        delta1=calib.delta1,
+        delta2=calib.delta2,
+        tau=calib.tau,
+        feasible=calib.feasible,
+        certified=calib.certified,
+        guarantee=calib.guarantee,
+        autonomy_target=calib.target,
+        max_certifiable_target=calib.max_target,
+        gamma=calib.gamma,
+        missed_limit=calib.missed_limit,
+        order=calib.order,
+        calibration_runs=calib.calibration_runs,
+        learn_runs=calib.learn_runs,
+        candidates=len(calib.table["delta1"]),
+        replayed={k: v for k, v in row.items() if k not in ("delta1", "delta2", "tau")},
+        fresh_seed_check=fresh,
+        uncaught_variants=uncaught,
+        replay_check=check,
+    )
 
 
-def _log_run(cfg: DictConfig, settings: AvoidSettings, cell: Cell, metrics: dict, artifacts: list[Path]) -> str:
+def _log_run(cfg: DictConfig, settings: AvoidSettings, cell: Cell, metrics: AvoidCell, artifacts: list[Path]) -> str:
     """The cell's run: the stage's config (`stage_run`) plus what is the cell's own (condition, warnings mode, the
     thresholds it drove with, n); tagged ``reused`` when nothing was simulated."""
     params = {
@@ -132,7 +139,7 @@ def _log_run(cfg: DictConfig, settings: AvoidSettings, cell: Cell, metrics: dict
     }
     with stage_run(cfg.paths.root, "avoid", cfg, run_name=cell.name, tags={"reused": str(cell.reused).lower()}) as run:
         mlflow.log_params(params)
-        mlflow.log_metrics(numeric_metrics(metrics))
+        mlflow.log_metrics(numeric_metrics(as_dict(metrics)))
         for path in artifacts:
             mlflow.log_artifact(str(path))
         return run.info.run_id
@@ -146,22 +153,24 @@ def write_outputs(
     traces: Traces,
     geometries: dict[str, ScenarioGeometry],
     seconds: float,
-) -> dict:
-    """Everything the stage writes, from its finished cells and calibration; returns metrics/avoid/<method>.json."""
+) -> AvoidResult:
+    """Everything the stage writes, from its finished cells and calibration; returns what metrics/avoid/<name>.json
+    holds."""
     data_dir, plots_dir = Path(cfg.avoid.data_dir), Path(cfg.avoid.plots_dir)
     names = [c.name for c in settings.conditions]
     unknown = names[1:]
-    table: dict[str, dict] = {name: {} for name in names}
-    run_ids = {}
+    table: dict[str, dict[str, AvoidCell]] = {name: {} for name in names}
+    run_ids: dict[str, str | None] = {}
+    fixed, family = settings.estimator.fixed_rollouts(), settings.family_size
     for (condition, mode), cell in cells.items():
         geometry = geometries[condition]
-        metrics = cell_metrics(cell, settings.spec.speed, geometry)
+        metrics = cell_metrics(cell, settings.spec.speed, geometry, fixed, family)
         csv_path = write_cell_table(plots_dir / "cells" / f"{cell.name}.csv", cell)
         write_cell_data(data_dir / "traces" / f"{cell.name}.npz", cell, geometry)
         fig, ax = plt.subplots(figsize=(8, 2.6))
         p = panel(cell, geometry)
         fig.colorbar(
-            avoid_trajectories(ax, p, f"{settings.method} · {condition}, warnings {mode}: {p['title']}"),
+            avoid_trajectories(ax, p, f"{settings.name} · {condition}, warnings {mode}: {p['title']}"),
             ax=ax,
             label="mutual information (nats)",
             extend="max",
@@ -175,8 +184,16 @@ def write_outputs(
         )
         for mode in MODES
     }
+    known = table[names[0]]["calibrated"]
     check = replay_check(cells, names, settings, traces)
-    calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check)
+    fresh = {
+        "known_autonomy": known.autonomy,
+        "known_eta1": known.eta1,
+        "unknown_eta1": mixture["calibrated"].eta1,
+        "base_seed": settings.validation_seed,
+        "target_met": known.autonomy >= calib.target,
+    }
+    calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check, fresh)
     calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
     configured = _configured_index(calib, settings)
     figures = [
@@ -185,7 +202,7 @@ def write_outputs(
                 {(c, m): panel(cells[c, m], geometries[c]) for c in names for m in MODES},
                 names,
                 list(MODES),
-                f"{settings.method}: paths coloured by mutual information",
+                f"{settings.name}: paths coloured by mutual information",
             ),
             plots_dir / "trajectories.png",
         ),
@@ -200,7 +217,7 @@ def write_outputs(
                 },
                 settings.warning,
                 calibrated,
-                f"{settings.method}, warnings off: uncertainty approaching the obstacle",
+                f"{settings.name}, warnings off: uncertainty approaching the obstacle",
             ),
             plots_dir / "warnings.png",
         ),
@@ -210,7 +227,7 @@ def write_outputs(
                 calib.chosen,
                 configured,
                 calib.target,
-                f"{settings.method}: unknown-condition safety against known autonomy (replayed)",
+                f"{settings.name}: unknown-condition safety against known autonomy (replayed)",
             ),
             plots_dir / "tradeoff.png",
         ),
@@ -219,36 +236,37 @@ def write_outputs(
         write_tradeoff(plots_dir / "tradeoff.csv", calib),
         write_signals(plots_dir / "signals.csv", [cells[c, "off"] for c in names], geometries),
     ]
-    with stage_run(cfg.paths.root, "avoid", cfg, run_name=f"{settings.method}-calibration") as run:
+    with stage_run(cfg.paths.root, "avoid", cfg, run_name=f"{settings.name}-calibration") as run:
         mlflow.log_params(
             {
                 "calibrated_delta1": calib.delta1,
                 "calibrated_delta2": calib.delta2,
                 "calibrated_tau": calib.tau,
                 "autonomy_target": calib.target,
-                "calibration_feasible": calib.feasible,
+                "calibration_certified": calib.certified,
             }
         )
-        mlflow.log_metrics({f"replayed_{k}": float(v) for k, v in calibration["replayed"].items()})
-        mlflow.log_metrics({f"unknown_{mode}_eta1": m["eta1"] for mode, m in mixture.items()})
+        mlflow.log_metrics({f"replayed_{k}": float(v) for k, v in calibration.replayed.items()})
+        mlflow.log_metrics({f"unknown_{mode}_eta1": m.eta1 for mode, m in mixture.items()})
         for path in [*figures, *data_files]:
             mlflow.log_artifact(str(path))
         run_ids["calibration"] = run.info.run_id
-    result = {
-        "method": settings.method,
-        "experiment": cfg.experiment.name,
-        "cells": table,
-        "unknown": mixture,
-        "calibration": calibration,
-        "warning": settings.warning.to_dict(),
-        "samples_per_frame": settings.warning.samples,
-        "conditions": names,
-        "horizon_s": settings.horizon_s,
-        "speed": settings.spec.speed,
-        "seconds": seconds,
-        "mlflow_run_ids": run_ids,
-    }
-    write_json(cfg.avoid.out, result)
+    result = AvoidResult(
+        method=settings.method,
+        replicate=settings.seed,
+        experiment=cfg.experiment.name,
+        cells=table,
+        unknown=mixture,
+        calibration=calibration,
+        warning=settings.warning.to_dict(),
+        samples_per_frame=settings.warning.samples,
+        conditions=names,
+        horizon_s=settings.horizon_s,
+        speed=settings.spec.speed,
+        seconds=seconds,
+        mlflow_run_ids=run_ids,
+    )
+    write_record(cfg.avoid.out, result)
     return result
 
 

@@ -1,40 +1,37 @@
-"""The `avoid_summary` stage: metrics/avoid.json (every method's cells, unknown mixtures and calibration
-beside the paper's numbers) and the paths of all methods coloured by uncertainty (the paper's Figure
-"coll_avoid_main")."""
+"""The `avoid_summary` stage: metrics/avoid.json (every method's answer over its replicates per condition × warnings
+mode and for the unknown mixture, beside the paper's numbers) and the paths of all methods coloured by uncertainty
+(the paper's Figure "coll_avoid_main")."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from omegaconf import DictConfig
 
 from uqdrive import paper
-from uqdrive.files import write_json
-from uqdrive.pipeline.configs import NonEmptyNames, Stage
+from uqdrive.pipeline.configs import NonEmptyNames, NonEmptySeeds, Stage
+from uqdrive.pipeline.methods import MethodAnswer, method_answer
+from uqdrive.pipeline.records import MODES, AvoidResult, read_avoid_results, record, write_record
 from uqdrive.plots import avoid_trajectories_figure, save_figure
 from uqdrive.schema import Str, schema, validate
 
-SUMMARY_KEYS = (
-    "eta1",
-    "eta1_low",
-    "eta1_high",
-    "n",
-    "autonomy",
-    "full_speed_fraction",
-    "collision_rate",
-    "off_road_rate",
-    "passed_rate",
-    "timeout_before_obstacle_rate",
-    "handover_distance_min",
-    "handover_distance_median",
-    "warning0_runs",
-    "warning1_runs",
-    "warning2_runs",
-    "thresholds",
-)
 COLUMNS = (("known", "on"), ("unknown", "off"), ("unknown", "on"), ("unknown", "calibrated"))
+UNKNOWN = "unknown mixture"
+
+
+@record
+class AvoidSummary:
+    """metrics/avoid.json: every method's answer over its replicates per condition × warnings mode (and for the
+    unknown conditions' mixture), which guarantee the cells carry, and the paper's numbers."""
+
+    answers: list[MethodAnswer]
+    family_size: int
+    paper: dict[str, Any]
+
+    def answer(self, method: str, condition: str, mode: str) -> MethodAnswer:
+        return next(a for a in self.answers if (a.method, a.condition) == (method, f"{condition}/{mode}"))
 
 
 @schema
@@ -48,48 +45,67 @@ class AvoidSummarySection:
 @schema(root=True)
 class AvoidSummaryStage(Stage):
     methods: NonEmptyNames
+    replicates: NonEmptySeeds
     summary: AvoidSummarySection
 
 
+def summarise_avoid(results: list[AvoidResult], methods: list[str]) -> AvoidSummary:
+    """Each method's answer over its replicates, per condition × mode and for the unknown mixture (the unknown
+    cells' first k runs each, one uniform mixture)."""
+    first = results[0]
+    gamma = first.cells[first.conditions[0]]["off"].gamma * first.cells[first.conditions[0]]["off"].family_size
+    answers = []
+    for method in methods:
+        mine = [r for r in results if r.method == method]
+        for mode in MODES:
+            for condition in first.conditions:
+                cells = [(r.replicate, r.cells[condition][mode]) for r in mine]
+                outcomes = [(replicate, c.safe[: c.fixed_rollouts]) for replicate, c in cells]
+                answers.append(method_answer(method, f"{condition}/{mode}", outcomes, gamma))
+            mixtures = [
+                (
+                    r.replicate,
+                    np.concatenate(
+                        [r.cells[c][mode].safe[: r.cells[c][mode].fixed_rollouts] for c in r.conditions[1:]]
+                    ),
+                )
+                for r in mine
+            ]
+            answers.append(method_answer(method, f"{UNKNOWN}/{mode}", mixtures, gamma))
+    family = first.cells[first.conditions[0]]["off"].family_size
+    return AvoidSummary(answers, family, paper.to_dict())
+
+
 def run_avoid_summary(cfg: DictConfig) -> dict:
-    """Every method's cells and calibration beside the paper's numbers, and one figure of all methods'
-    paths (known with warnings on; the unknown conditions off, on and calibrated)."""
-    validate(AvoidSummaryStage, cfg)
-    results_dir, data_dir = Path(cfg.summary.results_dir), Path(cfg.summary.data_dir)
-    table: dict = {"paper": paper.to_dict()}
+    """Every method's answers over its replicates beside the paper's numbers, and one figure of all methods'
+    paths, every replicate's (known with warnings on; the unknown conditions off, on and calibrated)."""
+    stage = validate(AvoidSummaryStage, cfg)
+    results = read_avoid_results(cfg.summary.results_dir, list(stage.methods), list(stage.replicates))
+    summary = summarise_avoid(results, list(stage.methods))
+    data_dir = Path(cfg.summary.data_dir)
     panels = {}
-    for method in cfg.methods:
-        path = results_dir / f"{method}.json"
-        if not path.exists():
-            raise FileNotFoundError(
-                f"{path} is missing; run `python stages/avoid.py model={method}` (or dvc repro) first"
-            )
-        result = json.loads(path.read_text())
-        table[method] = {
-            "cells": {
-                c: {m: {k: v for k, v in cell.items() if k in SUMMARY_KEYS} for m, cell in modes.items()}
-                for c, modes in result["cells"].items()
-            },
-            "unknown": result["unknown"],
-            "calibration": result["calibration"],
-            "samples_per_frame": result["samples_per_frame"],
-        }
-        unknown = result["conditions"][1:]
+    for method in stage.methods:
         for condition, mode in COLUMNS:
-            names = ["known"] if condition == "known" else unknown
-            panels[(method, f"{condition}, warnings {mode}")] = _panel_from_data(
-                [data_dir / method / "traces" / f"{method}-{name}-{mode}.npz" for name in names],
-                result["cells"]["known"][mode]["eta1"] if condition == "known" else result["unknown"][mode]["eta1"],
-            )
+            paths = [
+                data_dir
+                / f"{r.method}-seed{r.replicate}"
+                / "traces"
+                / f"{r.method}-seed{r.replicate}-{name}-{mode}.npz"
+                for r in results
+                if r.method == method
+                for name in (["known"] if condition == "known" else r.conditions[1:])
+            ]
+            answer = summary.answer(method, "known" if condition == "known" else UNKNOWN, mode)
+            panels[(method, f"{condition}, warnings {mode}")] = _panel_from_data(paths, answer.value)
     fig = avoid_trajectories_figure(
         panels,
-        list(cfg.methods),
+        list(stage.methods),
         [f"{c}, warnings {m}" for c, m in COLUMNS],
-        "Collision avoidance: paths coloured by mutual information",
+        "Collision avoidance: paths coloured by mutual information, every replicate",
     )
     figure = save_figure(fig, Path(cfg.summary.figures_dir) / "coll_avoid_main.png")
-    write_json(cfg.summary.out, table)
-    return {"table": table, "figures": [str(figure)]}
+    write_record(cfg.summary.out, summary)
+    return {"summary": summary, "figures": [str(figure)]}
 
 
 def _panel_from_data(paths: list[Path], eta1: float) -> dict:

@@ -23,6 +23,7 @@ Noises = tuple[NonNegative, ...]
 NonEmptyNames = Annotated[Names, Field(min_length=1)]
 NonEmptyMethodNames = Annotated[MethodNames, Field(min_length=1)]
 NonEmptyNoises = Annotated[Noises, Field(min_length=1)]
+NonEmptySeeds = Annotated[tuple[Seed, ...], Field(min_length=1)]  # training seeds: the replicates
 
 
 @schema
@@ -33,9 +34,10 @@ class Experiment:
     scenarios: NonEmptyNames
     bins: SteeringBins
 
-    def train_stage(self, method: str) -> str:
-        """The DVC stage that trains this experiment's ``method`` (MCD trains the trunk the heads sit on)."""
-        return f"train_mcd@{self.name}" if method == "mcd" else f"train@{self.name}-{method}"
+
+def train_stage(experiment: str, method: str, replicate: int) -> str:
+    """The DVC stage that trains ``experiment``'s ``method`` for one replicate (MCD: the trunk the heads sit on)."""
+    return f"train_mcd@{experiment}-{replicate}" if method == "mcd" else f"train@{experiment}-{method}-{replicate}"
 
 
 @schema
@@ -62,7 +64,8 @@ class Named:
 class Stage:
     """What every stage's config holds (conf/common.yaml)."""
 
-    seed: Seed
+    seed: Seed  # the training seed: the replicate
+    replicate: Str  # its name (seed<seed>)
     progress: Bool
 
 
@@ -86,4 +89,16 @@ class Sweep:
     weathers: NonEmptyNames
     noises: NonEmptyNoises
     methods: MethodNames = ()
+    replicates: tuple[Seed, ...] = ()  # training seeds
     locations: Names = ()
+
+
+@schema(root=True)
+class SafetyGrid(Stage):
+    """The offline-safety sweep's cells, as a stage that reads them names them (params.yaml's lists)."""
+
+    methods: NonEmptyNames
+    replicates: NonEmptySeeds
+    weathers: NonEmptyNames
+    noises: NonEmptyNoises
+    locations: NonEmptyNames

@@ -307,7 +307,7 @@ def run_evaluate(cfg: DictConfig) -> dict:
     ]
     runs = {}
     for m in methods:
-        with stage_run(cfg.paths.root, "evaluate", cfg, run_name=m) as run:
+        with stage_run(cfg.paths.root, "evaluate", cfg, run_name=f"{m}-{cfg.replicate}") as run:
             mlflow.log_param("method", m)
             mlflow.log_metrics(
                 {

@@ -1,7 +1,8 @@
-"""The `report` stage: every table and figure of this run beside the paper's numbers.
+"""The `report` stage: the findings first, then every table and figure of this run beside the paper's numbers.
 
-Reads only the stages' metrics JSON and figures (the DVC outputs), so the report is a pure
-function of what this run produced and `dvc repro` rebuilds it whenever any of them changes.
+Reads only the stages' metrics files (as typed records, `uqdrive.pipeline.records`) and figures (the DVC outputs),
+so the report is a pure function of what this run produced and `dvc repro` rebuilds it whenever any of them
+changes.
 Writes `reports/report.md` (figures linked) and a self-contained `reports/report.html`
 (figures embedded as data URIs), and logs both to MLflow.
 """
@@ -18,15 +19,22 @@ import mlflow
 from omegaconf import DictConfig
 
 from uqdrive.files import atomic_path, write_json
-from uqdrive.pipeline.configs import NonEmptyNames, NonEmptyNoises, Stage
+from uqdrive.pipeline.avoid_summary import UNKNOWN, AvoidSummary
+from uqdrive.pipeline.configs import NonEmptyNames, SafetyGrid
+from uqdrive.pipeline.findings import Findings
+from uqdrive.pipeline.methods import SafetySummary
+from uqdrive.pipeline.records import SafetyCell, read_avoid_results, read_record, read_safety_cells
 from uqdrive.pipeline.report_document import Report, fmt, read_json, table
 from uqdrive.pipeline.report_experiments import (
+    Run,
     avoid_section,
+    conditions_of,
     fidelity_section,
-    pooled_cells,
+    read_train_metrics,
     safety_section,
     training_section,
 )
+from uqdrive.pipeline.report_findings import findings_markdown
 from uqdrive.schema import Str, schema, validate
 from uqdrive.tracking import stage_run
 from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_scheme
@@ -52,15 +60,11 @@ class ReportSection:
 
 
 @schema(root=True)
-class ReportStage(Stage):
+class ReportStage(SafetyGrid):
     profile_name: Str
     experiments: NonEmptyNames
     train_weather: Str
     posteriors: NonEmptyNames
-    methods: NonEmptyNames
-    weathers: NonEmptyNames
-    noises: NonEmptyNoises
-    locations: NonEmptyNames
     report: ReportSection
 
 
@@ -84,40 +88,41 @@ def _versions() -> str:
     return ", ".join(found)
 
 
-def run_section(report: Report, cfg: DictConfig, safety_cells: list[dict], seeds: dict[str, list[int]]) -> None:
-    thetas = sorted({(c["scheme"], c["theta"], c["gamma"], c["n"]) for c in safety_cells})
-    estimation = "; ".join(f"{s} θ = {t:g}, γ = {g:g} → n = {n} rollouts per cell" for s, t, g, n in thetas)
+def run_section(report: Report, stage: ReportStage, run: Run) -> None:
+    schemes = sorted({(c.scheme, c.theta, c.gamma, c.n) for c in run.cells})
+    estimation = "; ".join(f"{s} θ = {t:g}, γ = {g:g} → n = {n} rollouts per cell" for s, t, g, n in schemes)
     built = f"{datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}, commit {_git_commit(report.root)}"
-    noises = ", ".join(f"{x:g}" for x in cfg.noises)
-    sweep = f"methods {', '.join(cfg.methods)} × weathers {', '.join(cfg.weathers)} × noise {noises}"
-    train_seeds = ", ".join(sorted({str(s) for s in seeds["train"]}))
-    safety_seeds = ", ".join(sorted({str(s) for s in seeds["safety"]}))
+    noises = ", ".join(f"{x:g}" for x in stage.noises)
+    sweep = f"methods {', '.join(stage.methods)} × weathers {', '.join(stage.weathers)} × noise {noises}"
+    base_seeds = ", ".join(sorted({str(c.base_seed) for c in run.cells}))
     report.add(f"""
 # uqdrive report
 
 Bayesian end-to-end driving controllers in pybullet and how safe they are, beside *Uncertainty
-Quantification with Statistical Guarantees in End-to-End Autonomous Driving Control* (CARLA).
-Built by `dvc repro` from this run's metrics files; every number below is read from them.
+Quantification with Statistical Guarantees in End-to-End Autonomous Driving Control* (Michelmore et al., ICRA 2020;
+CARLA). Built by `dvc repro` from this run's metrics files; every number below is read from them.
 
 | what was run | |
 |---|---|
-| profile | `{cfg.profile_name}` |
+| profile | `{stage.profile_name}` |
 | built | {built}, Python {platform.python_version()} |
 | versions | {_versions()} |
-| experiments | {", ".join(cfg.experiments)}: one controller per experiment × method, trained on its own \
-scenario(s) collected in `{cfg.train_weather}` |
-| safety sweep | {sweep} × locations {", ".join(cfg.locations)} |
+| experiments | {", ".join(stage.experiments)}: one controller per experiment × method × replicate, trained on its own \
+scenario(s) collected in `{stage.train_weather}` |
+| training replicates | seeds {", ".join(map(str, stage.replicates))} (each its own MCD trunk and heads) |
+| safety sweep | {sweep} × locations {", ".join(stage.locations)}, every replicate |
 | η1 estimation | {estimation or "–"} |
-| seeds | training {train_seeds}; safety rollouts {safety_seeds} + i for rollout i of a cell |
+| rollout seeds | {base_seeds} + i for rollout i of a cell: the same in every cell (paired) |
 """)
 
 
-def evaluate_section(report: Report, cfg: DictConfig, evaluated: dict) -> None:
-    report.add("""
+def evaluate_section(report: Report, cfg: ReportStage, evaluated: dict) -> None:
+    report.add(f"""
 ## Held-out uncertainty
 
 Frames the autopilot recorded at the roundabout in each weather × noise level, on episodes never used
-for training. AUROC: how well an uncertainty score ranks frames with a wrong class above right ones
+for training, predicted by the first replicate's controllers (seed{cfg.replicates[0]}). AUROC: how well an
+uncertainty score ranks frames with a wrong class above right ones
 (0.5 = chance); '–' where a condition has no mistakes or no right frames. The paper reports no such table.""")
     rows = []
     for method in cfg.posteriors:
@@ -166,7 +171,7 @@ for training. AUROC: how well an uncertainty score ranks frames with a wrong cla
     agreement_table(report, cfg, evaluated)
 
 
-def agreement_table(report: Report, cfg: DictConfig, evaluated: dict) -> None:
+def agreement_table(report: Report, cfg: ReportStage, evaluated: dict) -> None:
     """Each method against HMC's predictive on the same held-out frames (when HMC was evaluated)."""
     cells = {m: [evaluated[m][w][f"noise{x}"] for w in cfg.weathers for x in cfg.noises] for m in cfg.posteriors}
     if not all("hmc_tv_distance" in c for by_method in cells.values() for c in by_method):
@@ -200,9 +205,9 @@ two independent sets of HMC draws: the Monte-Carlo noise floor.""")
     )
 
 
-def sample_counts_section(report: Report, cells: list[dict], look_size: int = 4) -> None:
+def sample_counts_section(report: Report, cells: list[SafetyCell], look_size: int = 4) -> None:
     """What each scheme needs for this run's (θ, γ) and the paper's: why `sequential` exists."""
-    settings = sorted({(c["theta"], c["gamma"]) for c in cells} | {(0.05, 0.05)})
+    settings = sorted({(c.theta, c.gamma) for c in cells} | {(0.05, 0.05)})
     rows = []
     for theta, gamma in settings:
         scheme = sequential_scheme(theta, gamma, look_size)
@@ -232,59 +237,51 @@ def sample_counts_section(report: Report, cells: list[dict], look_size: int = 4)
     )
 
 
-def headline_metrics(cfg: DictConfig, metrics_dir: Path, summary: dict, avoided: dict, gamma: float) -> dict:
-    """metrics/summary.json: the few numbers an experiment is compared by (DVC's one metrics file), read from
-    the stages' own files: validation accuracy per controller, η̂1 pooled over every offline-safety cell
-    and its worst cell per method, and the avoid experiment's unknown mixture and known autonomy."""
-    controllers = {
-        e: {m: read_json(metrics_dir / e / "train" / f"{m}.json")["val_accuracy"] for m in cfg.posteriors}
-        for e in cfg.experiments
+def headline_metrics(stage: ReportStage, run: Run, findings: Findings) -> dict:
+    """metrics/summary.json, the numbers an experiment is compared by (DVC's one metrics file, `dvc exp show`):
+    mean validation accuracy per experiment × driven method, each method's offline η̂1 over every cell of the
+    sweep, its unknown-mixture η̂1 in collision avoidance with warnings off, on and calibrated, and how many
+    findings are supported."""
+    seeds = stage.replicates
+    accuracy = {
+        e: {m: sum(run.trained[e, m, r].val_accuracy for r in seeds) / len(seeds) for m in stage.methods}
+        for e in stage.experiments
     }
-    offline = {}
-    for method, locations in summary.items():
-        cells = [c for loc in locations.values() for w in loc.values() for c in w.values()]
-        offline[method] = {
-            "eta1_pooled": pooled_cells(cells, gamma).value,
-            "eta1_worst_cell": min(c["eta1"] for c in cells),
-        }
+    offline = {
+        m: sum(a.value for a in run.safety.answers if a.method == m) / sum(a.method == m for a in run.safety.answers)
+        for m in stage.methods
+    }
     avoid = {
-        m: {
-            "unknown_off_eta1": r["unknown"]["off"]["eta1"],
-            "unknown_on_eta1": r["unknown"]["on"]["eta1"],
-            "unknown_calibrated_eta1": r["unknown"]["calibrated"]["eta1"],
-            "known_calibrated_autonomy": r["cells"]["known"]["calibrated"]["autonomy"],
-        }
-        for m, r in avoided.items()
-        if m in cfg.methods
+        m: {mode: run.avoid.answer(m, UNKNOWN, mode).value for mode in ("off", "on", "calibrated")}
+        for m in stage.methods
     }
-    return {"val_accuracy": controllers, "offline_safety": offline, "avoid": avoid}
+    return {"accuracy": accuracy, "offline_eta1": offline, "avoid_unknown_eta1": avoid, "findings": findings.supported}
 
 
 def run_report(cfg: DictConfig) -> dict:
-    validate(ReportStage, cfg)
-    root = Path(cfg.paths.root)
-    metrics_dir = Path(cfg.paths.metrics)
-    out_dir = Path(cfg.report.out_dir)
-    summary = read_json(metrics_dir / "safety.json")
-    cells = [c for m in summary.values() for loc in m.values() for w in loc.values() for c in w.values()]
-    gamma = max(c["gamma"] for c in cells)
-    report = Report(root, out_dir)
-    seeds = {
-        "train": [
-            read_json(metrics_dir / e / "train" / f"{m}.json")["seed"] for e in cfg.experiments for m in cfg.posteriors
-        ],
-        "safety": [c["base_seed"] for c in cells],
-    }
-    avoided = read_json(metrics_dir / "avoid.json")
+    stage = validate(ReportStage, cfg)
+    root, metrics_dir, out_dir = Path(cfg.paths.root), Path(cfg.paths.metrics), Path(cfg.report.out_dir)
+    seeds = list(stage.replicates)
+    run = Run(
+        trained=read_train_metrics(metrics_dir, list(stage.experiments), list(stage.posteriors), seeds),
+        classes={e: read_json(metrics_dir / e / "preprocess.json")["num_classes"] for e in stage.experiments},
+        cells=read_safety_cells(metrics_dir / "safety", stage),
+        safety=read_record(SafetySummary, metrics_dir / "safety.json", "safety_summary"),
+        avoided=read_avoid_results(metrics_dir / "avoid", list(stage.methods), seeds),
+        avoid=read_record(AvoidSummary, metrics_dir / "avoid.json", "avoid_summary"),
+    )
+    findings = read_record(Findings, metrics_dir / "findings.json", "findings")
     evaluated = read_json(metrics_dir / "evaluate.json")
-    run_section(report, cfg, cells, seeds)
-    fidelity_section(report, cfg, summary, avoided, evaluated, gamma)
-    training_section(report, cfg, metrics_dir)
-    safety_section(report, cfg, summary, gamma)
-    avoid_section(report, cfg, avoided)
-    evaluate_section(report, cfg, evaluated)
-    sample_counts_section(report, cells)
-    write_json(Path(cfg.report.summary), headline_metrics(cfg, metrics_dir, summary, avoided, gamma))
+    report = Report(root, out_dir)
+    run_section(report, stage, run)
+    report.add("## What the run found\n\n" + findings_markdown(findings))
+    fidelity_section(report, run, list(stage.methods), list(stage.weathers), stage.locations[0])
+    training_section(report, run, list(stage.experiments), list(stage.posteriors), seeds)
+    safety_section(report, run, list(stage.methods), conditions_of(stage.locations, stage.weathers, stage.noises))
+    avoid_section(report, run, list(stage.methods))
+    evaluate_section(report, stage, evaluated)
+    sample_counts_section(report, run.cells)
+    write_json(Path(cfg.report.summary), headline_metrics(stage, run, findings))
     md_path, html_path = out_dir / "report.md", out_dir / "report.html"
     with atomic_path(md_path) as tmp:
         tmp.write_text(report.markdown)

@@ -1,5 +1,5 @@
-"""The `safety` stage: η1 of one offline controller in one sweep cell (method × location × weather × noise),
-and `safety_summary`, the table and offline-safety figures over all cells.
+"""The `safety` stage: η1 of one offline controller in one sweep cell (method × replicate × location × weather ×
+noise), each cell as the single-cell command composes it, the whole sweep in one process.
 
 Every cell drives the same rollout seeds (base_seed + i), so methods and conditions are compared
 on paired runs: the same start jitter, rain streaks and sensor noise.
@@ -10,7 +10,7 @@ first rollout. A cell whose result file already holds its config hash is not run
 
 from __future__ import annotations
 
-import json
+import dataclasses
 from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
 from pathlib import Path
@@ -20,18 +20,18 @@ import mlflow
 import numpy as np
 from omegaconf import DictConfig
 
-from uqdrive.files import atomic_path, write_csv, write_json
+from uqdrive.files import atomic_path, write_csv
 from uqdrive.models.posterior import posterior_from_config
-from uqdrive.pipeline.configs import Executor, ModelStage, NonEmptyNames, NonEmptyNoises, Stage, Sweep
+from uqdrive.pipeline.configs import Executor, ModelStage, Sweep, train_stage
+from uqdrive.pipeline.records import SafetyCell, as_dict, read_record, write_record
 from uqdrive.pipeline.sweeps import grid, run_cells
-from uqdrive.plots import safety_hexbin, safety_hexbin_grid, save_figure
-from uqdrive.resolvers import noise_label
+from uqdrive.plots import safety_hexbin, save_figure
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
-from uqdrive.schema import Count, NonNegative, Positive, Str, invalid, schema, validate
+from uqdrive.schema import Bool, Count, NonNegative, Positive, Str, invalid, schema, validate
 from uqdrive.sim import ScenarioGeometry, build_geometry
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
 from uqdrive.tracking import numeric_metrics, stage_run
@@ -49,6 +49,8 @@ class SafetySection(EstimatorSettings):
     speed: Positive  # m/s, at most vehicle.max_speed
     samples: Count  # posterior draws per frame
     eps: Positive  # η2's ball, steering units
+    family_wise: Bool  # the sweep spends γ over its cells: every cell within ±θ at once with probability ≥ 1 − γ
+    family_size: Count  # cells γ is spread over (the sweep sets it to its cell count); 1 unless family_wise
     half_width: Positive | None  # corridor half-width (m); None = the lane
     cell: Str
     out: Str
@@ -71,6 +73,14 @@ class SafetyStage(SimConfig, ModelStage):
         super().__post_init__()
         if self.safety.speed > self.vehicle.max_speed:
             raise invalid("safety.speed", self.safety.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
+        if self.safety.family_size != 1 and not self.safety.family_wise:
+            raise invalid("safety.family_size", self.safety.family_size, "must be 1 unless safety.family_wise")
+
+    @property
+    def estimator(self) -> EstimatorSettings:
+        """The cell's estimator: γ spread over the family's cells (Bonferroni) when family-wise."""
+        s = self.safety
+        return dataclasses.replace(s.estimator, gamma=s.gamma / s.family_size)
 
 
 @schema(root=True)
@@ -78,23 +88,6 @@ class SafetySweepStage(SafetyStage):
     """`stages/safety_sweep.py`: every cell of `sweep` (each cell is also checked as a `SafetyStage`)."""
 
     sweep: Sweep
-
-
-@schema
-class SafetySummarySection:
-    cells_dir: Str
-    positions_dir: Str
-    out: Str
-    figures_dir: Str
-
-
-@schema(root=True)
-class SafetySummaryStage(Stage):
-    methods: NonEmptyNames
-    weathers: NonEmptyNames
-    noises: NonEmptyNoises
-    locations: NonEmptyNames
-    summary: SafetySummarySection
 
 
 def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
@@ -108,7 +101,8 @@ def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
     model_path = Path(safety.model_path)
-    cell_posterior("safety.model_path", model_path, method, bins, stage.experiment.train_stage(method))
+    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    cell_posterior("safety.model_path", model_path, method, bins, trained_by)
     spec = PolicySpec("bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps)
     job = RolloutJob(
         policy=spec,
@@ -122,19 +116,17 @@ def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
         horizon_s=safety.horizon_s,
         half_width=safety.half_width,
     )
-    return stage, job, estimate_key(job, safety.estimator, __name__)
+    return stage, job, estimate_key(job, stage.estimator, __name__)
 
 
-def reusable_result(path: str | Path, key: str) -> dict | None:
-    """The finished result at ``path`` if it was computed for the cell with key ``key``."""
-    path = Path(path)
-    if not path.exists():
-        return None
+def reusable_result(path: str | Path, key: str) -> SafetyCell | None:
+    """The finished cell at ``path`` if it was computed for the cell with key ``key`` (by this code: a file of
+    another format is not reused)."""
     try:
-        result = json.loads(path.read_text())
-    except json.JSONDecodeError:
+        cell = read_record(SafetyCell, path, "safety")
+    except (FileNotFoundError, ValueError):
         return None
-    return result if isinstance(result, dict) and result.get("config_hash") == key else None
+    return cell if cell.config_hash == key else None
 
 
 def _positions(results: list[RolloutResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -198,10 +190,10 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> dict:
     previous = reusable_result(out, key)
     if previous is not None:
         log_cell(cfg, previous, [p for p in _cell_files(cfg) if p.exists()], reused=True)
-        return {**previous, "reused": True}
+        return {**as_dict(previous), "reused": True}
     with nullcontext(runner) if runner else CellRunner.of(stage.executor, stage.progress) as cells:
-        cell = cells.estimate(f"safety {cfg.safety.cell}", job, stage.safety.estimator, key, cfg.safety.rollout_log)
-    estimate, results = cell.outcome, cell.results
+        run = cells.estimate(f"safety {cfg.safety.cell}", job, stage.estimator, key, cfg.safety.rollout_log)
+    estimate, results = run.outcome, run.results
     geometry = build_geometry(job.scenario)
     safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
     title = (
@@ -209,40 +201,45 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> dict:
         f"η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
     )
     table, positions, figure = write_outputs(cfg, results, geometry, safe_set, estimate.value, title)
-    metrics = {
-        "eta1": estimate.value,
-        "eta1_low": estimate.low,
-        "eta1_high": estimate.high,
-        "rollouts": estimate.n,
-        "steps": int(sum(r.steps for r in results)),
-        "seconds": cell.seconds,
+    cell = SafetyCell(
+        method=cfg.model.name,
+        replicate=stage.seed,
+        experiment=cfg.experiment.name,
+        location=job.scenario.name,
+        weather=job.weather.name,
+        noise=job.noise,
+        theta=estimate.theta,
+        gamma=estimate.gamma,
+        scheme=estimate.scheme,
+        n=estimate.n,
+        base_seed=stage.safety.base_seed,
+        family_size=stage.safety.family_size,
+        fixed_rollouts=stage.estimator.fixed_rollouts(),
+        eta1=estimate.value,
+        eta1_low=estimate.low,
+        eta1_high=estimate.high,
+        rollouts=estimate.n,
+        steps=int(sum(r.steps for r in results)),
+        seconds=run.seconds,
         **rates(results),
-    }
-    record = {
-        "method": cfg.model.name,
-        "experiment": cfg.experiment.name,
-        "location": job.scenario.name,
-        "weather": job.weather.name,
-        "noise": job.noise,
-        "theta": estimate.theta,
-        "gamma": estimate.gamma,
-        "scheme": estimate.scheme,
-        "n": estimate.n,
-        "base_seed": stage.safety.base_seed,
-    }
-    result = {**record, **metrics, "guaranteed": estimate.guaranteed, "config_hash": key}
-    write_json(out, result)  # before logging: a tracking failure never loses the cell; its presence marks it done
-    log_cell(cfg, result, [figure, table], reused=cell.reused)
-    return {**result, "reused": cell.reused}
+        guaranteed=estimate.guaranteed,
+        outcomes="".join("1" if r.safe else "0" for r in results),  # by rollout index: paired across cells
+        config_hash=key,
+    )
+    write_record(out, cell)  # before logging: a tracking failure never loses the cell; its presence marks it done
+    log_cell(cfg, cell, [figure, table], reused=run.reused)
+    return {**as_dict(cell), "reused": run.reused}
 
 
 def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, dict]]:
-    """Every cell of ``cfg.sweep`` (methods × locations × weathers × noises) in this process, on one cell runner
-    (one pool of workers with the process backend); yields each cell's config and result as it finishes
-    (`uqdrive.pipeline.sweeps`)."""
+    """Every cell of ``cfg.sweep`` (methods × replicates × locations × weathers × noises) in this process, on one
+    cell runner (one pool of workers with the process backend); yields each cell's config and result as it
+    finishes (`uqdrive.pipeline.sweeps`)."""
     stage = validate(SafetySweepStage, cfg)
     s = cfg.sweep  # the values as written: a cell's override is what the single-cell command would be given
-    cells = grid(model=s.methods, scenario=s.locations, weather=s.weathers, noise=s.noises)
+    cells = grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
+    if stage.safety.family_wise:  # every cell at γ/m: the whole sweep within ±θ at once with probability ≥ 1 − γ
+        cells = [{**cell, "safety.family_size": len(cells)} for cell in cells]
     runner = CellRunner.of(stage.executor, stage.progress)
     yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress)
 
@@ -257,26 +254,20 @@ def describe(cell: str, result: dict) -> str:
     )
 
 
-SUMMARY_KEYS = (
-    "eta1",
-    "eta1_low",
-    "eta1_high",
+CELL_PARAMS = (
+    "method",
+    "replicate",
+    "experiment",
+    "location",
+    "weather",
+    "noise",
     "theta",
     "gamma",
-    "n",
     "scheme",
+    "n",
     "base_seed",
-    "collision_rate",
-    "off_road_rate",
-    "left_corridor_rate",
-    "reached_goal_rate",
-    "max_corridor_use",
-    "mean_corridor_use",
-    "mean_lateral_deviation",
-    "mean_eta2",
-    "mean_mutual_information",
+    "family_size",
 )
-CELL_PARAMS = ("method", "experiment", "location", "weather", "noise", "theta", "gamma", "scheme", "n", "base_seed")
 
 
 def _cell_files(cfg: DictConfig) -> list[Path]:
@@ -284,51 +275,17 @@ def _cell_files(cfg: DictConfig) -> list[Path]:
     return [plots / f"{cfg.safety.cell}.png", plots / f"{cfg.safety.cell}.csv"]
 
 
-def log_cell(cfg: DictConfig, result: dict, artifacts: list[Path], reused: bool = False) -> None:
+def log_cell(cfg: DictConfig, cell: SafetyCell, artifacts: list[Path], reused: bool = False) -> None:
     """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
-    metrics = numeric_metrics({k: v for k, v in result.items() if k not in CELL_PARAMS})
+    metrics = numeric_metrics({k: v for k, v in as_dict(cell).items() if k not in CELL_PARAMS})
     with stage_run(
         cfg.paths.root,
         "safety",
         cfg,
         run_name=cfg.safety.cell,
-        tags={"reused": str(reused).lower(), "config_hash": result["config_hash"]},
+        tags={"reused": str(reused).lower(), "config_hash": cell.config_hash},
     ):
-        mlflow.log_param("n", result["n"])  # the rest of the cell's keys are its config's (`stage_run`)
+        mlflow.log_params({"n": cell.n, "cell_gamma": cell.gamma})  # the rest: the cell's config (`stage_run`)
         mlflow.log_metrics(metrics)
         for path in artifacts:
             mlflow.log_artifact(str(path))
-
-
-def run_safety_summary(cfg: DictConfig) -> dict:
-    """Table of η̂1 over methods × locations × weathers × noises (metrics/safety.json: method → location →
-    weather → noise<σ>), and one method × weather hexbin grid per location and noise."""
-    validate(SafetySummaryStage, cfg)
-    cells = Path(cfg.summary.cells_dir)
-    table: dict = {}
-    figures = []
-    for location in cfg.locations:
-        for noise in map(noise_label, cfg.noises):  # as the cells name it: 0 and 0.0 are one level
-            panels = {}
-            for method in cfg.methods:
-                for weather in cfg.weathers:
-                    name = f"{method}-{location}-{weather}-noise{noise}"
-                    path = cells / f"{name}.json"
-                    if not path.exists():
-                        raise FileNotFoundError(
-                            f"{path} is missing; run `python stages/safety.py model={method} "
-                            f"scenario={location} weather={weather} noise={noise}` (or dvc repro) "
-                            "first"
-                        )
-                    result = json.loads(path.read_text())
-                    table.setdefault(method, {}).setdefault(location, {}).setdefault(weather, {})[f"noise{noise}"] = {
-                        k: result[k] for k in SUMMARY_KEYS
-                    }
-                    with np.load(Path(cfg.summary.positions_dir) / f"{name}.npz") as data:
-                        panels[(method, weather)] = {k: data[k] for k in data.files}
-            fig = safety_hexbin_grid(
-                panels, list(cfg.methods), list(cfg.weathers), f"Closed-loop paths at {location}, sensor noise {noise}"
-            )
-            figures.append(save_figure(fig, Path(cfg.summary.figures_dir) / f"hexbin_{location}_noise{noise}.png"))
-    write_json(cfg.summary.out, table)
-    return {"table": table, "figures": [str(f) for f in figures]}

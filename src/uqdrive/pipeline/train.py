@@ -90,13 +90,13 @@ def run_train(cfg: DictConfig) -> dict:
         **extra,
     }
     model_path = save_posterior(model, Path(cfg.paths.models) / f"{method}.pt", metadata={"metrics": metrics})
-    plots = Path(cfg.paths.plots) / "train"
+    plots = Path(cfg.paths.plots)
     curve_csv = write_csv(plots / f"{method}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
     curve_png = save_figure(curve_figure(curve, method, cls.curve_unit), plots / f"{method}_curve.png")
-    metrics_json = Path(cfg.paths.metrics) / "train" / f"{method}.json"
+    metrics_json = Path(cfg.paths.metrics) / f"{method}.json"
     write_json(metrics_json, metrics)
 
-    with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}"):
+    with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}-{cfg.replicate}"):
         mlflow.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float))})
         for row in curve:
             mlflow.log_metrics({f"curve_{k}": float(v) for k, v in row.items() if k != "step"}, step=int(row["step"]))
@@ -106,13 +106,14 @@ def run_train(cfg: DictConfig) -> dict:
 
 
 def curve_figure(rows: list[dict], method: str, unit: str) -> plt.Figure:
+    """Loss and validation accuracy per step; points are marked, so a curve of one step still shows."""
     step = [r["step"] for r in rows]
     fig, (loss_ax, acc_ax) = plt.subplots(1, 2, figsize=(9, 3.2))
-    loss_ax.plot(step, [r["train_loss"] for r in rows], label="train loss")
-    loss_ax.plot(step, [r["val_nll"] for r in rows], label="val NLL")
+    loss_ax.plot(step, [r["train_loss"] for r in rows], ".-", label="train loss")
+    loss_ax.plot(step, [r["val_nll"] for r in rows], ".-", label="val NLL")
     loss_ax.set_xlabel(unit)
     loss_ax.legend()
-    acc_ax.plot(step, [r["val_accuracy"] for r in rows])
+    acc_ax.plot(step, [r["val_accuracy"] for r in rows], ".-")
     acc_ax.set_xlabel(loss_ax.get_xlabel())
     acc_ax.set_ylabel("val accuracy")
     fig.suptitle(f"{method} learning curve")

@@ -204,14 +204,6 @@ def pareto(autonomy: np.ndarray, safety: np.ndarray) -> np.ndarray:
     return ~better.any(1)
 
 
-def min_known_runs(target: float, gamma: float) -> int:
-    """Fewest known-condition runs whose best case (no hand-over in any) has an exact lower bound ≥ target."""
-    n = 1
-    while clopper_pearson_interval(n, n, gamma)[0] < target:
-        n += 1
-    return n
-
-
 def min_calibration_runs(target: float, gamma: float, calibration_fraction: float = 1.0) -> int:
     """Fewest known-condition runs whose calibration share, with no hand-over in any, certifies ``target``:
     the p-value target^n must reach γ (n = 14 for 0.8 at γ = 0.05, 59 for 0.95)."""

@@ -53,6 +53,13 @@ class EstimatorSettings:
             return sequential_scheme(self.theta, self.gamma, self.look_size).max_n
         return _PLANNED[self.scheme][0](self.theta, self.gamma)
 
+    def fixed_rollouts(self) -> int:
+        """Rollouts every cell runs whatever its outcomes (a sequential scheme's earliest stop): a sample whose
+        size was fixed in advance, as exact tests on the recorded runs (threshold calibration) need."""
+        if self.scheme == "sequential":
+            return int(sequential_scheme(self.theta, self.gamma, self.look_size).stop_points[0].min())
+        return self.planned_rollouts()
+
     def estimate(self, draw: Callable[[int], np.ndarray]) -> Estimate:
         """η̂ from outcomes ``draw(count)`` pulls in index order, as many as the scheme asks for."""
         if self.scheme == "sequential":

@@ -1,4 +1,5 @@
-"""Uncertainty quantification: per-frame measures and Bernoulli-rate estimators with (θ, γ) guarantees.
+"""Uncertainty quantification: per-frame measures, Bernoulli-rate estimators with (θ, γ) guarantees and
+sequential threshold tests with exact error.
 
 Knows nothing of the simulator, data or models: it takes posterior class probabilities
 ``[n, B, C]`` and the class centres, or 0/1 outcomes.
@@ -51,12 +52,15 @@ from uqdrive.uq.paired import (
 )
 from uqdrive.uq.replicates import ReplicateInterval, replicate_bounded_interval, replicate_t_interval
 from uqdrive.uq.sequential import SequentialScheme, sequential_scheme
+from uqdrive.uq.threshold import ThresholdDecision, ThresholdTest, doubling_looks
 
 __all__ = [
     "Estimate",
     "FrameMeasures",
     "SPRTResult",
     "SequentialScheme",
+    "ThresholdDecision",
+    "ThresholdTest",
     "check_samples",
     "chernoff",
     "chernoff_n",
@@ -65,6 +69,7 @@ __all__ = [
     "clopper_pearson_n",
     "decision",
     "decision_confidence",
+    "doubling_looks",
     "expected_entropy",
     "frame_measures",
     "massart",

@@ -93,13 +93,11 @@ def clopper_pearson_interval(k: np.ndarray | int, n: int, gamma: float) -> tuple
 
 
 @lru_cache(maxsize=2048)
-def fit_levels(n: int, theta: float) -> np.ndarray:
-    """For each count k = 0..n: the smallest γ at which the exact interval lies inside [k/n ± θ].
+def fit_tails(n: int, theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each count k = 0..n: (P(Bin(n, k/n − θ) ≥ k), P(Bin(n, k/n + θ) ≤ k)), 0 where the rate leaves [0, 1].
 
-    The interval at level 1 − γ has low ≥ k/n − θ iff P(Bin(n, k/n − θ) ≥ k) ≤ γ/2, and
-    high ≤ k/n + θ iff P(Bin(n, k/n + θ) ≤ k) ≤ γ/2 (each tail is monotone in the rate), so
-    the count fits at every γ ≥ twice the larger tail. One table serves every γ, which is what
-    lets a sequential scheme's level be calibrated quickly. Read-only (cached).
+    How likely a count this high (low) would be if η sat at the lower (upper) edge of k/n ± θ.
+    Read-only (cached).
     """
     k = np.arange(n + 1)
     p = k / n
@@ -109,7 +107,21 @@ def fit_levels(n: int, theta: float) -> np.ndarray:
     lower = np.where(
         (k < n) & (p + theta < 1), special.betainc(np.maximum(n - k, 1), k + 1, np.clip(1 - p - theta, 0, 1)), 0.0
     )
-    levels = 2 * np.maximum(upper, lower)
+    upper.setflags(write=False)
+    lower.setflags(write=False)
+    return upper, lower
+
+
+@lru_cache(maxsize=2048)
+def fit_levels(n: int, theta: float) -> np.ndarray:
+    """For each count k = 0..n: the smallest γ at which the exact interval lies inside [k/n ± θ].
+
+    The interval at level 1 − γ has low ≥ k/n − θ iff P(Bin(n, k/n − θ) ≥ k) ≤ γ/2, and
+    high ≤ k/n + θ iff P(Bin(n, k/n + θ) ≤ k) ≤ γ/2 (each tail is monotone in the rate), so
+    the count fits at every γ ≥ twice the larger tail (:func:`fit_tails`). One table serves
+    every γ, which is what lets a sequential scheme's level be calibrated quickly. Read-only (cached).
+    """
+    levels = 2 * np.maximum(*fit_tails(n, theta))
     levels.setflags(write=False)
     return levels
 

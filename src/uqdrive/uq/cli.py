@@ -9,7 +9,7 @@ from uqdrive.uq.bounds import chernoff_n, clopper_pearson_n, massart_n
 from uqdrive.uq.estimators import sprt_cap
 from uqdrive.uq.sequential import sequential_scheme
 
-RATES = (0.5, 0.9, 0.99, 1.0)
+RATES = (0.5, 0.9, 0.95, 0.99, 1.0)
 
 
 def table(theta: float, gamma: float, rate_bounds: list[float], delta: float, look_size: int = 1) -> list[str]:
@@ -30,7 +30,7 @@ def table(theta: float, gamma: float, rate_bounds: list[float], delta: float, lo
     ]
     rows.append(
         (
-            f"sequential (calibrated Clopper-Pearson), a look every {scheme.look_size}",
+            f"sequential (calibrated fit and ball rules), a look every {scheme.look_size}",
             scheme.max_n,
             "worst case",
             "yes (exact error computed)",
@@ -48,9 +48,10 @@ def table(theta: float, gamma: float, rate_bounds: list[float], delta: float, lo
     ]
     out += [f"{name:<{width}}  {n:>7}  {kind:<10}  {g}" for name, n, kind, g in rows]
     mean_n, _ = scheme.operating_characteristics(RATES)
-    expected = ", ".join(f"{m:.0f} at eta={r:g}" for r, m in zip(RATES, mean_n))
+    expected = ", ".join(f"{m:.1f} at eta={r:g}" for r, m in zip(RATES, mean_n))
     out.append(
-        f"sequential: stops when the exact interval at level {1 - scheme.level:.5f} fits in +-theta; "
+        f"sequential: stops when the exact interval at level {1 - scheme.level:.5f} fits in k/n +-theta, or a ball "
+        f"c +-theta has edge tails sqrt(2(U^2 + L^2)) <= {scheme.ball_level:.5f} (reports c); "
         f"expected samples {expected}"
     )
     return out

@@ -125,12 +125,13 @@ def _outcomes(batch: np.ndarray, size: int) -> np.ndarray:
 
 
 def sequential(draw: Draw, theta: float, gamma: float, look_size: int = 1) -> Estimate:
-    """Sequential Clopper–Pearson estimate with the (θ, γ) guarantee (:mod:`uqdrive.uq.sequential`).
+    """Sequential estimate with the (θ, γ) guarantee (:mod:`uqdrive.uq.sequential`).
 
     Calls ``draw(look_size)`` once per look (each batch can run in parallel) and stops as soon as
-    the calibrated rule allows; at most ``sequential_scheme(θ, γ, look_size).max_n`` samples.
-    The interval is the ball [value ± θ] ∩ [0, 1], which covers η with probability ≥ 1 − γ:
-    the exact error computed when the level was calibrated.
+    the calibrated rule allows; at most ``sequential_scheme(θ, γ, look_size).max_n`` samples. The
+    value is k/n or, where a ball other than k/n ± θ settled first, that ball's centre; the interval
+    is the ball, value ± θ within [0, 1] (ends rounded to 12 decimals), and its exact coverage is
+    what the calibration computed: P(η ∉ [low, high]) ≤ γ for every η.
     """
     scheme = sequential_scheme(theta, gamma, look_size)
     k, n = 0, 0
@@ -138,7 +139,8 @@ def sequential(draw: Draw, theta: float, gamma: float, look_size: int = 1) -> Es
         k += int(_outcomes(draw(scheme.look_size), scheme.look_size).sum())
         n += scheme.look_size
         if scheme.stops(k, n):
-            return _ball(k, n, scheme.theta, scheme.gamma, "sequential", True)
+            value, low, high = scheme.report(k, n)
+            return Estimate(value, low, high, n, scheme.theta, scheme.gamma, "sequential", True)
 
 
 @dataclass(frozen=True)

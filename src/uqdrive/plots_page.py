@@ -1,0 +1,49 @@
+"""`uqdrive plots-page`: the page `dvc plots show` fills, with Vega, Vega-Lite and Vega-Embed inlined.
+
+DVC's own page loads those libraries from a CDN, so on a machine without internet access (ours reach only the
+package registries) every CSV plot stays blank. The page written here carries them (vl-convert's bundle, about
+0.9 MB), and `.dvc/config` names it (`plots.html_template`), so `dvc plots show` draws offline; `make install`
+writes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+VEGA_LITE = "v5.20"  # DVC's plot templates are Vega-Lite 5 specs
+PAGE = """<!DOCTYPE html>
+<html>
+<head>
+    {{refresh_tag}}
+    <title>DVC Plot</title>
+    <script type="text/javascript">
+{bundle}
+    </script>
+    <style>
+        table {{
+            border-spacing: 15px;
+        }}
+    </style>
+</head>
+<body>
+    {{plot_divs}}
+</body>
+</html>
+"""
+
+
+def write_page(path: Path) -> Path:
+    import vl_convert
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(PAGE.format(bundle=vl_convert.javascript_bundle(vl_version=VEGA_LITE)), encoding="utf8")
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="uqdrive plots-page", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path(".dvc/plots_page.html"), help="where to write the page")
+    args = parser.parse_args(argv)
+    print(f"wrote {write_page(args.out)}")
+    return 0

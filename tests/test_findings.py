@@ -1,0 +1,69 @@
+"""The findings stage: the family of paired comparisons over replicates, decided with Holm's correction."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_report import METHODS, N, avoid_result, safety_cell
+
+from uqdrive.pipeline.findings import avoid_comparisons, decide, safety_comparisons
+
+TRAINING = ("roundabout", "clear_noon", 0.0)
+
+
+def with_outcomes(cell, safe: str):
+    return dataclasses.replace(cell, outcomes=safe, eta1=safe.count("1") / N)
+
+
+def cells_where(rain: dict[int, tuple[str, str]]) -> list:
+    """mcd and vi at the training condition (always safe) and in rain, with given rain outcomes per replicate."""
+    rng = np.random.default_rng(0)
+    cells = []
+    for seed, (mcd, vi) in rain.items():
+        for method, safe in (("mcd", mcd), ("vi", vi)):
+            cells.append(with_outcomes(safety_cell(rng, method, seed, *TRAINING), "1" * N))
+            cells.append(with_outcomes(safety_cell(rng, method, seed, "roundabout", "rain", 0.0), safe))
+    return cells
+
+
+def named(findings, name: str):
+    return next(f for f in findings.findings if f.name == name)
+
+
+def test_a_difference_every_replicate_shows_is_supported_one_they_split_on_is_not():
+    good, bad = "1" * N, "0" * 12 + "1" * 7
+    agree = cells_where({0: (good, bad), 1: (good, bad), 2: (good, bad)})
+    findings = decide(list(safety_comparisons(agree, list(METHODS), TRAINING)), 0.05)
+    rain = named(findings, "mcd vs vi at roundabout-rain-noise0.0")
+    assert rain.supported and rain.effect == pytest.approx(12 / N) and rain.agreeing == [0, 1, 2]
+    assert rain.a_only == {0: 12, 1: 12, 2: 12} and rain.b_only == {0: 0, 1: 0, 2: 0} and rain.pairs == 3 * N
+    assert named(findings, "vi: roundabout-rain-noise0.0 vs the training condition").supported
+    assert not named(findings, "mcd: roundabout-rain-noise0.0 vs the training condition").supported  # both safe
+    # the pooled difference is large (24 runs against 12), but replicate 2 points the other way: not supported
+    split = cells_where({0: (good, bad), 1: (good, bad), 2: (bad, good)})
+    findings = decide(list(safety_comparisons(split, list(METHODS), TRAINING)), 0.05)
+    rain = named(findings, "mcd vs vi at roundabout-rain-noise0.0")
+    assert not rain.supported and rain.opposing == [2] and rain.agreeing == [0, 1]
+    # the grid's four comparisons: the methods at each condition, each method's rain against the training condition
+    assert findings.comparisons == 4 and findings.supported == 2  # each method's rain, where some replicate failed
+
+
+def test_without_the_training_condition_only_methods_are_compared():
+    cells = [c for c in cells_where({0: ("1" * N, "1" * N)}) if c.weather == "rain"]
+    family = list(safety_comparisons(cells, list(METHODS), TRAINING))
+    assert [kind for _, kind, *_ in family] == ["method"]
+
+
+def test_avoid_pairs_warnings_with_the_same_seeds_and_refuses_unpaired_cells():
+    rng = np.random.default_rng(1)
+    results = [avoid_result(rng, m, r) for m in METHODS for r in (0, 1)]
+    family = list(avoid_comparisons(results, list(METHODS)))
+    names = [c.name for *_, c in family]
+    assert "mcd: on vs off at fog" in names and "vi: calibrated vs fresh_off at known" in names
+    assert "mcd: fog vs known, warnings off" in names and "mcd vs vi at fog, warnings off" in names
+    assert len(family) == 2 + 2 + 2 * 2 * 2  # methods per condition, conditions per method, two pairs per condition
+    result = results[0]
+    cell = dataclasses.replace(result.cells["fog"]["on"], base_seed=300000)  # "on" moved to the fresh seeds
+    results[0] = dataclasses.replace(result, cells={**result.cells, "fog": {**result.cells["fog"], "on": cell}})
+    with pytest.raises(ValueError, match="cells on other rollout seeds"):
+        list(avoid_comparisons(results, list(METHODS)))
