@@ -20,8 +20,9 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.posterior import Posterior
-from uqdrive.safety.draws import DrawSettings, FrameDecision, fixed_frame
+from uqdrive.safety.draws import DrawSettings, FrameDecision, fixed_frame, sequential_frame
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
+from uqdrive.uq.tier import TierTest
 
 NO_WARNING = -1
 """Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.safety.warnings`)."""
@@ -82,6 +83,8 @@ class Controller:
 
     thresholds: tuple[float, float] | None = None
     """(δ1, δ2) whose η2 tier a frame decides: a controller that acts on no warning asks none."""
+    tau: float | None = None
+    """The MI threshold a warning acts on (sequential draws refine MI near it); None: MI is only measured."""
 
     def __init__(
         self,
@@ -97,6 +100,7 @@ class Controller:
         self.n_samples, self.eps, self.speed = n_samples, float(eps), float(speed)
         self.draws = draws or DrawSettings()
         self.generators = {0: torch.Generator()}
+        self.tier: TierTest | None = None  # sequential draws: the η2 tier test of a controller that acts on one
 
     def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
         self.generators.setdefault(slot, torch.Generator()).manual_seed(seed)
@@ -125,7 +129,9 @@ class Controller:
         def draw(m: int) -> torch.Tensor:
             return self.posterior.head_probs(features, m, generator)
 
-        return fixed_frame(draw, self.n_samples, self.centres, self.eps, self.thresholds)
+        if self.draws.scheme == "fixed":
+            return fixed_frame(draw, self.n_samples, self.centres, self.eps, self.thresholds)
+        return sequential_frame(draw, self.n_samples, self.centres, self.eps, self.draws, self.tier, self.tau)
 
     def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
         """Steer at π(o), at the cruise speed."""

@@ -72,6 +72,12 @@ class PolicySpec:
                 f"(chernoff_n of warning.theta, warning.gamma), got kind={self.kind!r}, "
                 f"samples={self.samples}"
             )
+        w = self.warnings
+        if w is not None and self.draws.scheme == "sequential" and not 0 < w.delta2 <= w.delta1 < 1:
+            raise ConfigError(
+                f"warning.delta1={w.delta1!r}, warning.delta2={w.delta2!r}: sequential draws test each threshold, "
+                "so they need 0 < delta2 <= delta1 < 1 (use draws.scheme=fixed for thresholds of 0 or 1)"
+            )
 
     def build(self, control_hz: float) -> Policy:
         if self.kind == "bnn":

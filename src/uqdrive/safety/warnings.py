@@ -20,9 +20,10 @@ import numpy as np
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Command, Controller
-from uqdrive.safety.draws import DOUBTFUL, UNSURE, DrawSettings, FrameDecision
+from uqdrive.safety.draws import DrawSettings, FrameDecision
 from uqdrive.schema import Bool, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
 from uqdrive.uq import chernoff_n
+from uqdrive.uq.tier import DOUBTFUL, UNSURE, TierTest
 
 LEVELS = (0, 1, 2)
 
@@ -195,6 +196,10 @@ class WarningController(Controller):
     ):
         super().__init__(posterior, bins, config.samples, eps, speed, draws)
         self.config = config
+        if self.draws.scheme == "sequential":
+            self.tier = TierTest(
+                config.delta1, config.delta2, self.draws.gamma, self.draws.theta, self.draws.look, self.n_samples
+            )
         self.hold_frames = round(config.hold_s * control_hz)
         self.actions = {0: WarningActions(config.actions, self.hold_frames)}
         self.held_steer: dict[int, float | None] = {0: None}
@@ -207,6 +212,10 @@ class WarningController(Controller):
     @property
     def thresholds(self) -> tuple[float, float]:
         return self.config.delta1, self.config.delta2
+
+    @property
+    def tau(self) -> float:
+        return self.config.tau
 
     def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
         """π(o) steers, the frame's warning level sets the speed (and may hand over)."""

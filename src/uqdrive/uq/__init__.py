@@ -31,6 +31,7 @@ from uqdrive.uq.measures import (
     check_samples,
     decision,
     decision_confidence,
+    draw_measures,
     expected_entropy,
     frame_measures,
     mutual_information,
@@ -39,6 +40,7 @@ from uqdrive.uq.measures import (
     predictive_probs,
     sample_decisions,
     steering_moments,
+    within_ball,
 )
 from uqdrive.uq.multiplicity import holm, per_cell_gamma
 from uqdrive.uq.paired import (
@@ -70,6 +72,7 @@ __all__ = [
     "decision",
     "decision_confidence",
     "doubling_looks",
+    "draw_measures",
     "expected_entropy",
     "frame_measures",
     "massart",
@@ -85,6 +88,7 @@ __all__ = [
     "sprt",
     "sprt_cap",
     "steering_moments",
+    "within_ball",
     "wilson",
     "Comparison",
     "Finding",
