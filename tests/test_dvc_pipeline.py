@@ -8,10 +8,16 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from test_report import markdown_rows
 
+from uqdrive.pipeline.avoid_summary import AvoidSummary
+from uqdrive.pipeline.findings import Findings
+from uqdrive.pipeline.methods import SafetySummary
+from uqdrive.pipeline.records import read_record
 from uqdrive.pipeline.report_document import fmt
+from uqdrive.pipeline.report_findings import findings_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,7 +61,8 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     params.update(
         profile="tiny",
         posteriors=["mcd", "vi", "hmc"],
-        methods=["mcd", "vi", "hmc"],
+        methods=["mcd", "vi"],
+        replicates=[0, 1],
         weathers=["rain"],
         noises=[0.0],
         locations=["roundabout"],
@@ -77,36 +84,42 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
             metrics["train_frames"] > 0 and metrics["num_classes"] == round((classes["high"] - classes["low"]) * 10) + 1
         )
         for method in ("mcd", "vi", "hmc"):
-            assert (project / f"models/{experiment}/{method}.pt").exists()
-            trained = json.loads((project / f"metrics/{experiment}/train/{method}.json").read_text())
-            assert trained["method"] == method and trained["val_frames"] == metrics["val_frames"]
-    safety = json.loads((project / "metrics/safety.json").read_text())
-    assert set(safety) == {"mcd", "vi", "hmc"} and set(safety["vi"]) == {"roundabout"}
-    cell = safety["vi"]["roundabout"]["rain"]["noise0.0"]
-    assert cell == {
-        k: v
-        for k, v in json.loads((project / "metrics/safety/vi-seed0-roundabout-rain-noise0.0.json").read_text()).items()
-        if k in cell
-    }
+            models = [torch.load(project / f"models/{experiment}/seed{r}/{method}.pt") for r in (0, 1)]
+            trained = [
+                json.loads((project / f"metrics/{experiment}/train/seed{r}/{method}.json").read_text()) for r in (0, 1)
+            ]
+            assert [t["seed"] for t in trained] == [0, 1] and trained[0]["val_frames"] == metrics["val_frames"]
+            # replicates differ by their seed only: same data, same settings, other weights
+            assert models[0]["init_kwargs"] == models[1]["init_kwargs"] and models[0]["arch"] == models[1]["arch"]
+            assert not all(torch.equal(models[0]["state"][k], models[1]["state"][k]) for k in models[0]["state"])
+    safety = read_record(SafetySummary, project / "metrics/safety.json", "safety_summary")
+    answer = safety.answer("vi", "roundabout", "rain", 0.0)
+    cells = [
+        json.loads((project / f"metrics/safety/vi-seed{r}-roundabout-rain-noise0.0.json").read_text()) for r in (0, 1)
+    ]
+    assert answer.replicates == [0, 1] and answer.estimates == [c["eta1"] for c in cells]
     assert (project / "plots/safety/summary/hexbin_roundabout_noise0.0.png").exists()
     assert (project / "data/heldout/roundabout-rain-noise0.0.parquet").exists()
     evaluated = json.loads((project / "metrics/evaluate.json").read_text())
     assert {m: list(t) for m, t in evaluated.items()} == {"mcd": ["rain"], "vi": ["rain"], "hmc": ["rain"]}
     assert evaluated["vi"]["rain"]["noise0.0"]["frames"] > 0
     assert (project / "plots/evaluate/figures/reliability_hmc.png").exists()
-    avoided = json.loads((project / "metrics/avoid.json").read_text())
-    assert set(avoided) >= {"mcd", "vi", "hmc"}
+    avoided = read_record(AvoidSummary, project / "metrics/avoid.json", "avoid_summary")
+    findings = read_record(Findings, project / "metrics/findings.json", "findings")
+    assert findings.comparisons == len(findings.findings) > 0 and {
+        f.replicates == [0, 1] for f in findings.findings
+    } == {True}
     assert (project / "mlflow.db").exists()
 
-    # the report's tables hold this run's numbers, as the report formats them
+    # the report's tables hold this run's numbers, as the report formats them, the findings first
     report = (project / "reports/report.md").read_text()
+    assert findings_markdown(findings) in report
     for row in markdown_rows(report, "method | location | weather"):
-        assert row["η̂1"] == fmt(safety[row["method"]][row["location"]][row["weather"]]["noise0.0"]["eta1"])
+        assert row["η̂1"] == fmt(safety.answer(row["method"], row["location"], row["weather"], 0.0).value, 2)
     for row in markdown_rows(report, "method | weather | noise | frames"):
         assert row["accuracy"] == fmt(evaluated[row["method"]][row["weather"]]["noise0.0"]["accuracy"])
     for row in markdown_rows(report, "method | condition"):
-        if "mixture" not in row["condition"]:
-            assert row["η̂1"] == fmt(avoided[row["method"]]["cells"][row["condition"]][row["warnings"]]["eta1"])
+        assert row["η̂1"] == fmt(avoided.answer(row["method"], row["condition"], row["warnings"]).value, 2)
     assert 'src="data:image/png;base64,' in (project / "reports/report.html").read_text()
 
     assert "Data and pipelines are up to date" in _dvc(project, "status")
@@ -142,15 +155,16 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     )
     assert ran == [
         "evaluate",
+        "findings",
         "heldout",  # one stage each, over every condition (safety replays the cells it has seen from its rollout log)
         "report",
         "safety",
         "safety_summary",
     ]
     # the safety stage simulated only the new weather's cells: the rain cells' logs are as they were
-    assert len(rain_logs) == 3
+    assert len(rain_logs) == 4  # 2 methods x 2 replicates
     assert {p.name: p.read_text() for p in (project / "cache/rollouts/safety").glob("*-rain-*.jsonl")} == rain_logs
-    assert len(list((project / "cache/rollouts/safety").glob("*-afternoon-*.jsonl"))) == 3
+    assert len(list((project / "cache/rollouts/safety").glob("*-afternoon-*.jsonl"))) == 4
     summaries = _metrics_of_experiments(json.loads(_dvc(project, "exp", "show", "--json")))
     assert len(summaries) >= 2  # the baseline and the experiment
-    assert all(isinstance(m["offline_safety"]["vi"]["eta1_pooled"], float) for m in summaries)
+    assert all(isinstance(m["safety_vi"], float) for m in summaries)

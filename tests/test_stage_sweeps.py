@@ -14,9 +14,11 @@ from uqdrive.pipeline.safety import run_safety, run_safety_sweep
 from uqdrive.pipeline.sweeps import cell_overrides, grid
 from uqdrive.schema import ConfigError
 from uqdrive.tracking import store_uris
+from uqdrive.uq import chernoff_n
 
 SWEEP = (
     "sweep.methods=[vi,mcd]",
+    "sweep.replicates=[0]",
     "sweep.locations=[roundabout]",
     "sweep.weathers=[clear_noon]",
     "sweep.noises=[0,0.1]",
@@ -103,14 +105,30 @@ def test_heldout_sweep_collects_every_condition_as_the_single_condition_command(
 
 
 def test_a_weather_without_a_config_fails_before_any_cell(tmp_path, models):
-    with pytest.raises(ConfigError, match=r"^sweep cell model=vi scenario=roundabout weather=foggy noise=0: .*foggy"):
+    with pytest.raises(
+        ConfigError, match=r"^sweep cell model=vi seed=0 scenario=roundabout weather=foggy noise=0: .*foggy"
+    ):
         sweep(
             run_safety_sweep,
             "safety_sweep",
             tmp_path,
             *models,
-            *SWEEP[:2],
+            *SWEEP[:3],
             "sweep.weathers=[clear_noon,foggy]",
             "sweep.noises=[0]",
         )
     assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()
+
+
+def test_a_family_wise_sweep_spends_gamma_over_its_cells(tmp_path, models, stage_config):
+    """Each of the m cells at γ/m (Bonferroni): every interval holds at once with probability ≥ 1 − γ. The cell
+    records say so, and the single-cell command given the same family reuses the sweep's cell."""
+    swept = sweep(run_safety_sweep, "safety_sweep", tmp_path, *models, *SWEEP, "safety.family_wise=true")
+    assert [(r["family_size"], r["gamma"]) for _, r in swept] == [(4, 0.05 / 4)] * 4
+    assert all(r["n"] == chernoff_n(0.7, 0.05 / 4) for _, r in swept)  # more runs per cell than at γ
+    single = stage_config(
+        "safety", *models, "model=mcd", "noise=0.1", "safety.family_wise=true", "safety.family_size=4"
+    )
+    assert run_safety(single)["reused"]
+    with pytest.raises(ValueError, match=r"^safety.family_size=4 must be 1 unless safety.family_wise$"):
+        run_safety(stage_config("safety", *models, "safety.family_size=4"))

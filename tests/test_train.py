@@ -24,7 +24,7 @@ from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.laplace import PRIOR_GRID
 from uqdrive.models.training import compute_features, evaluate
 from uqdrive.pipeline.train import run_train
-from uqdrive.tracking import store_uris
+from uqdrive.tracking import flatten, store_uris
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
@@ -181,3 +181,12 @@ def test_bad_input_fails_clearly(tmp_path):
     with pytest.raises(ValueError, match="model.members=1: input should be greater than or equal to 2"):
         run_train(compose_train(tmp_path, "model=ensemble", "model.members=1"))
     assert not (tmp_path / "models").exists()
+
+
+def test_replicates_differ_by_their_seed_only(stage_config):
+    """Two replicates' training configs: the same data, settings and architecture; the seed, and the folders
+    named after it, are all that differ."""
+    flat = [flatten(stage_config("train", "model=vi", f"seed={s}")) for s in (0, 1)]
+    differ = {k for k in flat[0] if flat[0][k] != flat[1][k]}
+    assert differ == {"seed", "replicate", "paths.models", "paths.metrics", "paths.plots", "train.base_model"}
+    assert all("seed0" in str(flat[0][k]) and "seed1" in str(flat[1][k]) for k in differ - {"seed"})

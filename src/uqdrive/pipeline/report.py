@@ -237,25 +237,22 @@ def sample_counts_section(report: Report, cells: list[SafetyCell], look_size: in
     )
 
 
-def headline_metrics(stage: ReportStage, run: Run, findings: Findings) -> dict:
-    """metrics/summary.json, the numbers an experiment is compared by (DVC's one metrics file, `dvc exp show`):
-    mean validation accuracy per experiment × driven method, each method's offline η̂1 over every cell of the
-    sweep, its unknown-mixture η̂1 in collision avoidance with warnings off, on and calibrated, and how many
-    findings are supported."""
+def headline_metrics(stage: ReportStage, run: Run, findings: Findings) -> dict[str, float]:
+    """metrics/summary.json, the numbers an experiment is compared by (DVC's one metrics file: `dvc exp show`),
+    flat and short-named so they fit a terminal: per driven method, the mean validation accuracy of each
+    experiment's replicates (`acc_<experiment>_<method>`), the offline η̂1 over every cell of the sweep
+    (`safety_<method>`), the unknown-mixture η̂1 in collision avoidance with warnings off, on and calibrated
+    (`avoid_off_<method>`, …), and how many findings are supported."""
     seeds = stage.replicates
-    accuracy = {
-        e: {m: sum(run.trained[e, m, r].val_accuracy for r in seeds) / len(seeds) for m in stage.methods}
-        for e in stage.experiments
-    }
-    offline = {
-        m: sum(a.value for a in run.safety.answers if a.method == m) / sum(a.method == m for a in run.safety.answers)
-        for m in stage.methods
-    }
-    avoid = {
-        m: {mode: run.avoid.answer(m, UNKNOWN, mode).value for mode in ("off", "on", "calibrated")}
-        for m in stage.methods
-    }
-    return {"accuracy": accuracy, "offline_eta1": offline, "avoid_unknown_eta1": avoid, "findings": findings.supported}
+    headline: dict[str, float] = {}
+    for m in stage.methods:
+        for e in stage.experiments:
+            headline[f"acc_{e}_{m}"] = sum(run.trained[e, m, r].val_accuracy for r in seeds) / len(seeds)
+        answers = [a.value for a in run.safety.answers if a.method == m]
+        headline[f"safety_{m}"] = sum(answers) / len(answers)
+        for mode, short in (("off", "off"), ("on", "on"), ("calibrated", "cal")):
+            headline[f"avoid_{short}_{m}"] = run.avoid.answer(m, UNKNOWN, mode).value
+    return {**headline, "findings": findings.supported}
 
 
 def run_report(cfg: DictConfig) -> dict:
