@@ -21,18 +21,19 @@ from uqdrive.safety import (
     run_rollout,
     run_rollouts,
 )
+from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import lockstep_chunks
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 
-TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed", "draws")
+TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed", "draws", "mutual_information_se")
 
 
 def assert_same_rollouts(a: list, b: list) -> None:
-    assert [r.summary() for r in a] == [r.summary() for r in b]
+    assert [repr(r.summary()) for r in a] == [repr(r.summary()) for r in b]  # repr: NaN (no η2 drawn) equals NaN
     for ra, rb in zip(a, b):
         for key in TRACES:
-            assert np.array_equal(getattr(ra, key), getattr(rb, key)), key
+            assert np.array_equal(getattr(ra, key), getattr(rb, key), equal_nan=True), key
 
 
 @pytest.mark.parametrize("method", ["mcd", "vi", "hmc", "ensemble", "laplace"])
@@ -58,13 +59,16 @@ def controllers(model_path) -> dict:
     bins = SteeringBins()
     posterior = load_posterior(model_path, expected_method="vi", expected_classes=bins)
     warning = WarningConfig(theta=0.3, delta1=0.45, delta2=0.12, tau=0.03)  # every level fires on random weights
+    sequential = DrawSettings("sequential", theta=0.3, gamma=0.1)
     return {
         "plain": Controller(posterior, bins, 20, 0.1, 6.0),
         "warnings": WarningController(posterior, bins, warning, 0.1, 6.0, 15.0),
+        "plain, sequential": Controller(posterior, bins, 40, 0.1, 6.0, sequential),
+        "warnings, sequential": WarningController(posterior, bins, warning, 0.1, 6.0, 15.0, sequential),
     }
 
 
-@pytest.mark.parametrize("kind", ["plain", "warnings"])
+@pytest.mark.parametrize("kind", ["plain", "warnings", "plain, sequential", "warnings, sequential"])
 def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
     """Five seeds, three slots: slots refill as rollouts end, and each frame batch mixes different rollouts."""
     seeds = [31, 32, 33, 34, 35]
@@ -79,8 +83,8 @@ def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
     assert [r.seed for r in batched] == seeds
     assert len({r.steps for r in alone}) > 1  # rollouts end at different steps: slots refill mid-batch
     assert_same_rollouts(alone, batched)
-    if kind == "warnings":
-        assert {0, 1, 2} <= set(np.concatenate([r.warning for r in alone]).tolist())
+    if kind.startswith("warnings"):
+        assert {1, 2} <= set(np.concatenate([r.warning for r in alone]).tolist())
 
 
 def test_executors_give_the_same_rollouts_at_any_lockstep_width(random_models, rain):

@@ -45,6 +45,7 @@ class Command:
     alert: bool = False
     handover: bool = False
     draws: int = 0  # posterior draws the frame took
+    mutual_information_se: float = math.nan  # jackknife standard error of the MI at those draws
 
 
 class Policy(Protocol):

@@ -28,7 +28,8 @@ def _empty() -> np.ndarray:
 class RolloutResult:
     """Outcome of one episode; ``x``, ``y`` are the body-centre positions at every control step
     (and the last pose). Per-decision traces (one value per step): ``eta2``, ``mutual_information``,
-    ``warning`` (level, -1 for none), ``command_speed`` and ``draws`` (posterior draws the step took)."""
+    ``warning`` (level, -1 for none), ``command_speed``, ``draws`` (posterior draws the step took) and
+    ``mutual_information_se`` (how precise the MI is at those draws: its jackknife standard error)."""
 
     seed: int
     safe: bool
@@ -49,6 +50,7 @@ class RolloutResult:
     warning: np.ndarray = field(default_factory=_empty)
     command_speed: np.ndarray = field(default_factory=_empty)
     draws: np.ndarray = field(default_factory=_empty)
+    mutual_information_se: np.ndarray = field(default_factory=_empty)
 
     def summary(self) -> dict:
         """The scalar fields (one row of the per-rollout table)."""
@@ -167,4 +169,5 @@ def _result(episode: _Episode, safe_set: SafeSet | None, half_width: float | Non
         warning=np.array([c.warning for c in commands], dtype=np.int8),
         command_speed=np.array([c.speed for c in commands], dtype=float),
         draws=np.array([c.draws for c in commands], dtype=np.int32),
+        mutual_information_se=np.array([c.mutual_information_se for c in commands], dtype=float),
     )
