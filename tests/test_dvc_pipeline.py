@@ -12,9 +12,8 @@ import torch
 import yaml
 from test_report import markdown_rows
 
-from uqdrive.pipeline.avoid_summary import AvoidSummary
 from uqdrive.pipeline.findings import Findings
-from uqdrive.pipeline.methods import SafetySummary
+from uqdrive.pipeline.methods import AvoidSummary, SafetySummary
 from uqdrive.pipeline.records import read_record
 from uqdrive.pipeline.report_document import fmt
 from uqdrive.pipeline.report_findings import findings_markdown

@@ -106,3 +106,50 @@ def test_settled_iteration_is_where_loss_and_nll_come_within_three_sd_of_their_k
     assert settled_iteration(curve) == 30  # 3.0 at step 20 is the last value outside the band
     curve[3]["val_nll"] = 9.0  # the predictive still drifting at step 40
     assert settled_iteration(curve) == 50
+
+
+def head_problem(frames: int = 120, seed: int = 0):
+    """TrainingData of a small random MCD model whose trunk features are given: labels from a random linear teacher."""
+    from pathlib import Path
+
+    from uqdrive.data.binning import SteeringBins
+    from uqdrive.data.datasets import FrameSet
+    from uqdrive.models.mcd import MCDPosterior
+    from uqdrive.models.pilotnet import Architecture, init_weights
+    from uqdrive.models.training import TrainingData
+
+    g = torch.Generator().manual_seed(seed)
+    bins = SteeringBins(low=-0.2, high=0.2)
+    arch = Architecture(conv=(2, 2, 2, 2, 2), features=8, hidden=(8, 6, 6))
+    base = init_weights(MCDPosterior(arch, bins), g).eval()
+    teacher = torch.randn((arch.features, bins.num_classes), generator=g)
+
+    def split(n: int, name: str) -> tuple[FrameSet, torch.Tensor]:
+        features = torch.rand((n, arch.features), generator=g)
+        labels = (features @ teacher + 0.3 * torch.randn((n, bins.num_classes), generator=g)).argmax(1)
+        return FrameSet(torch.zeros((n, 48, 64), dtype=torch.uint8), labels, bins.num_classes, name), features
+
+    (train, train_features), (val, val_features) = split(frames, "train"), split(frames // 2, "val")
+    data = TrainingData(train, val, bins, arch, Path("unused-mcd.pt"), eval_samples=5)
+    data.base, data.train_features, data.val_features = base, train_features, val_features  # the cached inputs
+    return data
+
+
+@pytest.mark.parametrize(("metric", "layers"), [("laplace", 1), ("diagonal", 2)])
+def test_hmc_fit_is_a_function_of_its_seed(metric, layers):
+    """Model files and cell identities rely on it: same seed, same samples, curve and metrics; another seed differs."""
+    from uqdrive.models.hmc import HMCPosterior, HMCSettings
+
+    data = head_problem()
+    settings = HMCSettings(chains=4, samples=4, warmup=6, metric=metric, bayesian_layers=layers, map_epochs=1)
+
+    def fit(seed: int):
+        fitted = HMCPosterior.fit(settings, data, torch.Generator().manual_seed(seed))
+        return fitted.posterior.state_dict(), fitted.curve, fitted.extra
+
+    (first, curve, extra), (again, curve_again, extra_again) = fit(0), fit(0)
+    assert first.keys() == again.keys() and all(torch.equal(first[k], again[k]) for k in first)
+    assert curve == curve_again and extra == extra_again
+    assert first["samples"].shape == (4 * 4, sum(i * o + o for i, o in data.arch.head_shapes(5)[-layers:]))
+    assert extra["kept_samples"] == 16 and extra["chains"] == 4 and curve[-1]["step"] == 6 + 4
+    assert not torch.equal(first["samples"], fit(1)[0]["samples"])

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from uqdrive.data.frames import encode_png
-from uqdrive.pipeline.avoid_summary import summarise_avoid
 from uqdrive.pipeline.findings import avoid_comparisons, decide, safety_comparisons
-from uqdrive.pipeline.methods import summarise_methods
+from uqdrive.pipeline.methods import summarise_avoid, summarise_methods
 from uqdrive.pipeline.records import (
     MODES,
     AvoidCell,

@@ -10,6 +10,7 @@ from uqdrive.pipeline.avoid import run_avoid
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.pipeline.collect import run_collect, run_heldout
 from uqdrive.pipeline.evaluate import run_evaluate
+from uqdrive.pipeline.findings import run_findings
 from uqdrive.pipeline.preprocess import run_preprocess
 from uqdrive.pipeline.report import run_report
 from uqdrive.pipeline.safety import run_safety, run_safety_sweep
@@ -37,6 +38,7 @@ STAGES = {
     "avoid": run_avoid,
     "safety_summary": run_safety_summary,
     "avoid_summary": run_avoid_summary,
+    "findings": run_findings,
     "report": run_report,
 }
 
@@ -99,6 +101,11 @@ BAD = {
         ("+summary.result_dir=x", "summary.result_dir: unknown key; did you mean 'results_dir'?"),
         ("methods=[1]", "methods[0]=1: input should be a valid string"),
         ("methods=[]", "methods=[]: tuple should have at least 1 item"),
+    ],
+    "findings": [
+        ("+findings.alhpa=0.1", "findings.alhpa: unknown key; did you mean 'alpha'?"),
+        ("replicates=[first]", "replicates[0]='first': input should be a valid integer"),
+        ("findings.alpha=0", "findings.alpha=0: input should be greater than 0"),
     ],
     "report": [
         ("+report.outdir=x", "report.outdir: unknown key; did you mean 'out_dir'?"),

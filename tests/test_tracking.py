@@ -41,7 +41,7 @@ def test_params_are_the_stage_section_and_the_compared_keys_with_project_paths_r
         "noise": "0.05",
         "location": "roundabout",
         "profile": "tiny",
-        "seed": "0",
+        "replicate": "0",  # the training seed
     }
 
 

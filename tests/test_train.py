@@ -78,23 +78,7 @@ def trained(tmp_path_factory):
     return root, metrics
 
 
-@pytest.mark.parametrize(
-    "method",
-    [
-        *[m for m in METHODS if m != "laplace"],
-        pytest.param(
-            "laplace",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason=(
-                    "known defect: on this trunk (MAP head accuracy 1.0) the evidence-chosen prior precision "
-                    "(~1.3) leaves a logit std of ~18 against a logit spread of ~7, so the sampled GLM predictive "
-                    "falls to 0.29-0.50"
-                ),
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("method", METHODS)
 def test_each_method_beats_the_majority_class_on_validation(trained, method):
     m = trained[1][method]
     assert m["val_accuracy"] > m["majority_baseline_accuracy"] + 0.05, (method, m)
@@ -113,8 +97,8 @@ def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
     assert sorted(r.data.params["method"] for r in runs) == sorted(METHODS)
     for run in runs:
         method = run.data.params["method"]
-        assert run.data.params["model.name"] == method
-        assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}"
+        assert "model.name" not in run.data.params  # logged once, as method (uqdrive.tracking.COMPARED_BY)
+        assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}-seed0"
         assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {f"{method}_curve.csv", f"{method}_curve.png", f"{method}.pt"} <= artefacts
@@ -134,7 +118,18 @@ def test_method_specific_diagnostics(trained):
     assert "function-space R̂" in hmc["diagnostics"]
     assert metrics["vi"]["posterior_sigma_mean"] > 0
     assert metrics["ensemble"]["members"] == 3
-    assert PRIOR_GRID[0] <= metrics["laplace"]["prior_precision"] <= PRIOR_GRID[-1]
+    laplace = metrics["laplace"]
+    assert PRIOR_GRID[0] <= laplace["prior_precision"] <= PRIOR_GRID[-1]
+    assert "by validation NLL" in laplace["diagnostics"] and laplace["evidence_prior_precision"] > 0
+
+
+def test_laplace_curve_has_the_map_epochs_then_the_laplace_step(trained):
+    root, metrics = trained
+    rows = list(csv.DictReader((root / "plots/joint/train/seed0/laplace_curve.csv").open()))
+    epochs = 2  # the tiny profile's
+    assert [int(r["step"]) for r in rows] == list(range(1, epochs + 2))
+    assert [int(r["laplace"]) for r in rows] == [0] * epochs + [1]
+    assert abs(float(rows[-1]["val_accuracy"]) - metrics["laplace"]["val_accuracy"]) < 0.05
 
 
 def test_saved_models_reload_with_the_reported_accuracy(trained):
@@ -180,6 +175,8 @@ def test_bad_input_fails_clearly(tmp_path):
         run_train(compose_train(tmp_path, "model=hmc", "model.chains=2"))
     with pytest.raises(ValueError, match="model.members=1: input should be greater than or equal to 2"):
         run_train(compose_train(tmp_path, "model=ensemble", "model.members=1"))
+    with pytest.raises(ValueError, match="model.prior_tuning='marglik': input should be 'validation', 'evidence'"):
+        run_train(compose_train(tmp_path, "model=laplace", "model.prior_tuning=marglik"))
     assert not (tmp_path / "models").exists()
 
 

@@ -16,9 +16,8 @@ def test_bound_table(capsys: pytest.CaptureFixture[str]) -> None:
     assert re.search(r"clopper_pearson .*\s404\s+planned\s+yes", out)
     assert re.search(r"massart, a priori min\(eta,1-eta\) <= 0.1\s+305", out)
     assert re.search(r"sequential \(calibrated fit and ball rules\), a look every 1\s+402\s+worst case\s+yes", out)
-    assert (
-        "expected samples 401.4 at eta=0.5, 174.0 at eta=0.9, 93.3 at eta=0.95, 44.6 at eta=0.99, 37.0 at eta=1" in out
-    )
+    expected = "401.4 at eta=0.5, 174.3 at eta=0.9, 93.7 at eta=0.95, 44.7 at eta=0.99, 37.0 at eta=1"
+    assert f"expected samples {expected}" in out
     assert re.search(r"sprt .*no \(decision only\)", out)
 
 
@@ -42,7 +41,7 @@ def test_bench_estimators_meets_its_targets(capsys: pytest.CaptureFixture[str]) 
     number = r"([\d.]+)"
     m = re.fullmatch(
         rf"RESULT estimators saving_at_0\.99={number} worst_vs_cp={number} en_at_0={number} en_at_1={number} "
-        rf"calibrate_s={number} calibrate_vs_fit_only={number}",
+        rf"calibrate_s={number} calibrate_cpu_s={number} calibrate_vs_fit_only={number}",
         last,
     )
     assert m, last

@@ -174,10 +174,7 @@ def test_the_fixed_n_check_sees_a_too_small_n() -> None:
     assert not clopper_pearson(0, 380, 0.05, 0.05).guaranteed
 
 
-SEQUENTIAL_CASES = [(theta, gamma, size) for theta, gamma in SETTINGS for size in (1, 4, 10)]
-
-
-@pytest.mark.parametrize(("theta", "gamma", "look_size"), SEQUENTIAL_CASES)
+@pytest.mark.parametrize(("theta", "gamma", "look_size"), sorted(CALIBRATED))
 def test_sequential_has_exact_error_at_most_gamma(theta: float, gamma: float, look_size: int) -> None:
     scheme = sequential_scheme(theta, gamma, look_size)
     rule = rule_of(scheme)
@@ -229,9 +226,9 @@ def test_the_rule_is_the_documented_one() -> None:
     assert balls >= 20
 
 
-@pytest.mark.parametrize(("factor_level", "factor_ball"), [(1.005, 1.0), (1.0, 1.005)])
+@pytest.mark.parametrize(("factor_level", "factor_ball"), [(1.01, 1.0), (1.0, 1.01)])
 def test_a_level_just_above_the_calibrated_one_is_seen_to_overshoot(factor_level: float, factor_ball: float) -> None:
-    """Calibration keeps the largest valid level on a 0.5 % grid: the next one up fails, and the check sees it."""
+    """Calibration keeps the largest valid level on a 1 % grid: the next one up fails, and the check sees it."""
     scheme = sequential_scheme(0.05, 0.05, 4)
     bigger = SequentialScheme(0.05, 0.05, 4, scheme.level * factor_level, scheme.ball_level * factor_ball)
     worst, _ = worst_by_paths(stop_paths(rule_of(bigger)))

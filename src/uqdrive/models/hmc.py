@@ -16,13 +16,15 @@ Full-batch HMC with the step size adapted in warm-up. Convergence is judged in f
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
 
 import torch
 from pydantic import Field
 
 from uqdrive.models.diagnostics import RHAT_OK, between_chain_mi_share, function_space_diagnostics
 from uqdrive.models.heads import (
+    Shapes,
     StoredHeadPosterior,
     fixed_layer_features,
     flatten_mcd_head,
@@ -33,7 +35,7 @@ from uqdrive.models.heads import (
     unflatten,
 )
 from uqdrive.models.laplace import last_layer_hessian, posterior_covariance, with_bias_input
-from uqdrive.models.mcmc import LogProbGrad, hmc, split_rhat, whitened
+from uqdrive.models.mcmc import HMCResult, LogProbGrad, hmc, split_rhat, whitened
 from uqdrive.models.metrics import classification_metrics
 from uqdrive.models.pilotnet import sampled_mlp_logits
 from uqdrive.models.posterior import Fitted
@@ -106,6 +108,227 @@ def settled_iteration(curve: list[dict]) -> int:
     return settled
 
 
+@dataclass(frozen=True)
+class SampledLayers:
+    """The head split for sampling: the MAP head (whose lower `fixed` layers stay put) and the inputs of the
+    sampled layers on train and validation, computed once because every leapfrog step reuses them."""
+
+    shapes: Shapes  # all head layers
+    fixed: int
+    head: torch.Tensor  # the MAP head, flat [D]
+    train_phi: torch.Tensor
+    val_phi: torch.Tensor
+    train_labels: torch.Tensor
+    val_labels: torch.Tensor
+
+    @property
+    def sampled_shapes(self) -> Shapes:
+        return self.shapes[self.fixed :]
+
+    @property
+    def fixed_head(self) -> torch.Tensor:
+        return self.head[: head_size(self.shapes[: self.fixed])]
+
+    @property
+    def sampled_head(self) -> torch.Tensor:
+        return self.head[head_size(self.shapes[: self.fixed]) :]
+
+    def log_posterior(self, prior_sigma: float) -> LogProbGrad:
+        """The sampled layers' log posterior on the training inputs, in head-weight coordinates."""
+        return head_log_posterior(self.train_phi, self.train_labels, self.sampled_shapes, prior_sigma)
+
+
+@dataclass(frozen=True)
+class ChainSpace:
+    """Where the chains move: the log posterior in sampler coordinates u, the chains' starts in them, and the
+    affine map u ↦ θ = centre + scale·u back to head weights (the identity when no metric whitens)."""
+
+    log_prob_grad: LogProbGrad
+    starts: torch.Tensor  # [chains, D_k]
+    centre: torch.Tensor | None = None
+    scale: torch.Tensor | None = None
+
+    def to_theta(self, u: torch.Tensor) -> torch.Tensor:
+        return u if self.scale is None else self.centre + u @ self.scale.T
+
+
+def sampled_layers(
+    settings: HMCSettings, data: TrainingData, generator: torch.Generator, progress: bool
+) -> SampledLayers:
+    """Train the MCD head towards its MAP when layers below the sampled ones are kept fixed (they must be a
+    good fit, as no chain moves them); with the whole head sampled the MCD head is only the centre."""
+    shapes = data.base.arch.head_shapes(data.base.num_classes)
+    fixed = len(shapes) - settings.bayesian_layers
+    train_labels, val_labels = data.train.labels, data.val.labels
+    head = flatten_mcd_head(data.base)
+    if fixed:
+        head = train_heads(
+            head.unsqueeze(0),
+            shapes,
+            data.train_features,
+            train_labels,
+            data.val_features,
+            val_labels,
+            epochs=settings.map_epochs,
+            batch_size=settings.map_batch_size,
+            lr=settings.map_lr,
+            prior_sigma=settings.prior_sigma,
+            generator=generator,
+            progress=progress,
+            desc="hmc map",
+        )[0][0]
+    return SampledLayers(
+        shapes,
+        fixed,
+        head,
+        fixed_layer_features(data.train_features, head, shapes, fixed),
+        fixed_layer_features(data.val_features, head, shapes, fixed),
+        train_labels,
+        val_labels,
+    )
+
+
+def laplace_space(settings: HMCSettings, layers: SampledLayers, generator: torch.Generator) -> ChainSpace:
+    """Whiten by the last layer's Laplace Gaussian at the MAP (its Cholesky factor), so that identity mass in u is
+    the dense Laplace precision in θ; chains start at `start_scale`× overdispersed draws of that Gaussian, so
+    chains that agree have found the posterior rather than inherited a common start."""
+    centre = layers.sampled_head  # the MAP's last layer, flat = W̃ [J, C] row-major
+    psi = with_bias_input(layers.train_phi).double()
+    weights = centre.double().view(psi.shape[1], -1)
+    hessian = last_layer_hessian(psi, torch.softmax(psi @ weights, -1))
+    scale = torch.linalg.cholesky(posterior_covariance(hessian, settings.prior_sigma**-2)).float()
+    starts = settings.start_scale * torch.randn((settings.chains, len(centre)), generator=generator)
+    return ChainSpace(whitened(layers.log_posterior(settings.prior_sigma), centre, scale), starts, centre, scale)
+
+
+def dispersed_space(
+    settings: HMCSettings, layers: SampledLayers, generator: torch.Generator, progress: bool
+) -> ChainSpace:
+    """Each chain starts from its own He initialisation trained `start_epochs` towards its own mode: dispersed,
+    but past the first steep descent that a random head would spend warm-up on."""
+    starts = train_heads(
+        he_init_heads(settings.chains, layers.sampled_shapes, generator),
+        layers.sampled_shapes,
+        layers.train_phi,
+        layers.train_labels,
+        layers.val_phi,
+        layers.val_labels,
+        epochs=settings.start_epochs,
+        batch_size=settings.map_batch_size,
+        lr=settings.map_lr,
+        prior_sigma=settings.prior_sigma,
+        generator=generator,
+        progress=progress,
+        desc="hmc starts",
+    )[0]
+    return ChainSpace(layers.log_posterior(settings.prior_sigma), starts)
+
+
+class CurveRecorder:
+    """The learning curve as HMC's callback: about 100 rows over the run (and the last iteration), each with the
+    chains' mean training loss per frame and the validation metrics of the chains' current mixture, so warm-up's
+    drift and the settled iteration can be read off."""
+
+    def __init__(self, settings: HMCSettings, layers: SampledLayers, space: ChainSpace) -> None:
+        self.layers, self.space, self.warmup = layers, space, settings.warmup
+        self.total = settings.warmup + settings.samples * settings.thin
+        self.every = max(1, self.total // 100)
+        self.rows: list[dict] = []
+
+    def __call__(self, it: int, theta: torch.Tensor, lp: torch.Tensor, accept_prob: torch.Tensor) -> None:
+        if (it + 1) % self.every and it + 1 != self.total:
+            return
+        layers = self.layers
+        heads = unflatten(self.space.to_theta(theta), layers.sampled_shapes)
+        probs = torch.softmax(sampled_mlp_logits(layers.val_phi, heads), -1).mean(0)
+        scores = classification_metrics(probs, layers.val_labels)
+        self.rows.append(
+            {
+                "step": it + 1,
+                "train_loss": float(-lp.mean()) / len(layers.train_labels),
+                "val_accuracy": scores["accuracy"],
+                "val_nll": scores["nll"],
+                "accept_prob": float(accept_prob.mean()),
+                "warmup": int(it < self.warmup),
+            }
+        )
+
+
+def run_chains(
+    settings: HMCSettings, space: ChainSpace, recorder: CurveRecorder, generator: torch.Generator, progress: bool
+) -> HMCResult:
+    """Warm-up (step size, and diagonal mass if asked, adapt) and sampling, all chains as one batch."""
+    return hmc(
+        space.log_prob_grad,
+        space.starts,
+        num_samples=settings.samples,
+        warmup=settings.warmup,
+        thin=settings.thin,
+        leapfrog_steps=settings.leapfrog_steps,
+        step_size=settings.step_size,
+        target_accept=settings.target_accept,
+        adapt_mass=settings.adapt_mass,
+        generator=generator,
+        callback=recorder,
+        progress=progress,
+        desc="hmc",
+    )
+
+
+def chain_predictives(settings: HMCSettings, layers: SampledLayers, samples: torch.Tensor, chains: int) -> torch.Tensor:
+    """Class probabilities [chains, kept, frames, C] of every kept sample on `diagnostic_frames` validation frames
+    spread evenly over the split: what convergence is judged on, since weights are not identifiable."""
+    labels = layers.val_labels
+    frames = torch.linspace(0, len(labels) - 1, min(settings.diagnostic_frames, len(labels))).long()
+    with torch.no_grad():
+        probs = torch.softmax(sampled_mlp_logits(layers.val_phi[frames], unflatten(samples, layers.sampled_shapes)), -1)
+    return probs.view(chains, len(samples) // chains, len(frames), -1)
+
+
+def fit_metrics(
+    settings: HMCSettings, result: HMCResult, samples: torch.Tensor, probs: torch.Tensor, curve: list[dict]
+) -> dict[str, Any]:
+    """The run's metrics for metrics/train: function-space R̂/ESS first (what the profile's target is on), then
+    warm-up's length against when the run settled, acceptance, step size and weight-space R̂ (secondary)."""
+    chains, kept = result.samples.shape[:2]
+    fs = function_space_diagnostics(probs)
+    weight_rhat = split_rhat(samples.view(chains, kept, -1))
+    extra = {
+        **fs,
+        "settled_iteration": settled_iteration(curve),
+        "warmup": settings.warmup,
+        "fs_rhat_target_share": settings.rhat_target_share,
+        "fs_rhat_target_met": int(fs["fs_rhat_share_ok"] >= settings.rhat_target_share),
+        "between_chain_mi_share": between_chain_mi_share(probs),
+        "chains": chains,
+        "bayesian_weights": result.samples.shape[2],
+        "accept_rate": float(result.accept_rate.mean()),
+        "accept_rate_min_chain": float(result.accept_rate.min()),
+        "step_size": float(result.step_size.mean()),
+        "rhat_max": float(weight_rhat.max()),
+        "rhat_median": float(weight_rhat.median()),
+        "rhat_log_prob": float(split_rhat(result.log_prob)),
+        "kept_samples": int(chains * kept),
+    }
+    extra["diagnostics"] = diagnostics_summary(settings, extra)
+    return extra
+
+
+def diagnostics_summary(settings: HMCSettings, extra: dict) -> str:
+    """One sentence for the report: the run's shape, then whether it converged, in the order a reader checks."""
+    return (
+        f"{extra['chains']} chains × {extra['kept_samples'] // extra['chains']} samples ({settings.metric} metric) "
+        f"over the last {settings.bayesian_layers} layer(s) "
+        f"({extra['bayesian_weights']} weights); function-space R̂ ≤ {RHAT_OK} for "
+        f"{100 * extra['fs_rhat_share_ok']:.0f}% of {extra['fs_pairs']} (frame, class) pairs "
+        f"(target {100 * settings.rhat_target_share:.0f}%), median {extra['fs_rhat_median']:.3f}, "
+        f"min bulk/tail ESS {extra['fs_ess_bulk_min']:.0f}/{extra['fs_ess_tail_min']:.0f}; MI R̂ max "
+        f"{extra['mi_rhat_max']:.2f}, min ESS {extra['mi_ess_bulk_min']:.0f}; loss and predictive settled by iteration "
+        f"{extra['settled_iteration']} of {settings.warmup} warm-up; acceptance {extra['accept_rate']:.2f}; "
+        f"weight-space split-R̂ median {extra['rhat_median']:.2f} (secondary)"
+    )
+
+
 class HMCPosterior(StoredHeadPosterior):
     """Draws index the stored samples: without replacement when n ≤ S, with replacement when n > S."""
 
@@ -123,127 +346,15 @@ class HMCPosterior(StoredHeadPosterior):
     def fit(
         cls, settings: HMCSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
     ) -> Fitted:
-        base = data.base
-        shapes = base.arch.head_shapes(base.num_classes)
-        fixed = len(shapes) - settings.bayesian_layers
-        sampled_shapes = shapes[fixed:]
-        train_labels, val_labels = data.train.labels, data.val.labels
-        head = flatten_mcd_head(base)
-        if fixed:
-            head = train_heads(
-                head.unsqueeze(0),
-                shapes,
-                data.train_features,
-                train_labels,
-                data.val_features,
-                val_labels,
-                epochs=settings.map_epochs,
-                batch_size=settings.map_batch_size,
-                lr=settings.map_lr,
-                prior_sigma=settings.prior_sigma,
-                generator=generator,
-                progress=progress,
-                desc="hmc map",
-            )[0][0]
-        train_phi = fixed_layer_features(data.train_features, head, shapes, fixed)
-        val_phi = fixed_layer_features(data.val_features, head, shapes, fixed)
-        log_prob_grad = head_log_posterior(train_phi, train_labels, sampled_shapes, settings.prior_sigma)
+        layers = sampled_layers(settings, data, generator, progress)
         if settings.metric == "laplace":
-            centre = head[head_size(shapes[:fixed]) :]  # the MAP's last layer, flat = W̃ [J, C] row-major
-            psi = with_bias_input(train_phi).double()
-            weights = centre.double().view(psi.shape[1], -1)
-            hessian = last_layer_hessian(psi, torch.softmax(psi @ weights, -1))
-            scale = torch.linalg.cholesky(posterior_covariance(hessian, settings.prior_sigma**-2)).float()
-            to_theta = lambda u: centre + u @ scale.T  # noqa: E731
-            log_prob_grad = whitened(log_prob_grad, centre, scale)
-            starts = settings.start_scale * torch.randn((settings.chains, len(centre)), generator=generator)
+            space = laplace_space(settings, layers, generator)
         else:
-            to_theta = lambda u: u  # noqa: E731
-            starts = train_heads(
-                he_init_heads(settings.chains, sampled_shapes, generator),
-                sampled_shapes,
-                train_phi,
-                train_labels,
-                val_phi,
-                val_labels,
-                epochs=settings.start_epochs,
-                batch_size=settings.map_batch_size,
-                lr=settings.map_lr,
-                prior_sigma=settings.prior_sigma,
-                generator=generator,
-                progress=progress,
-                desc="hmc starts",
-            )[0]
-        n_train = len(train_labels)
-        total = settings.warmup + settings.samples * settings.thin
-        every = max(1, total // 100)
-        curve: list[dict] = []
-
-        def record(it: int, theta: torch.Tensor, lp: torch.Tensor, accept_prob: torch.Tensor) -> None:
-            if (it + 1) % every and it + 1 != total:
-                return
-            probs = torch.softmax(sampled_mlp_logits(val_phi, unflatten(to_theta(theta), sampled_shapes)), -1).mean(0)
-            scores = classification_metrics(probs, val_labels)
-            curve.append(
-                {
-                    "step": it + 1,
-                    "train_loss": float(-lp.mean()) / n_train,
-                    "val_accuracy": scores["accuracy"],
-                    "val_nll": scores["nll"],
-                    "accept_prob": float(accept_prob.mean()),
-                    "warmup": int(it < settings.warmup),
-                }
-            )
-
-        result = hmc(
-            log_prob_grad,
-            starts,
-            num_samples=settings.samples,
-            warmup=settings.warmup,
-            thin=settings.thin,
-            leapfrog_steps=settings.leapfrog_steps,
-            step_size=settings.step_size,
-            target_accept=settings.target_accept,
-            adapt_mass=settings.adapt_mass,
-            generator=generator,
-            callback=record,
-            progress=progress,
-            desc="hmc",
-        )
-        chains, kept = result.samples.shape[:2]
-        samples = to_theta(result.samples.flatten(0, 1))  # [chains·kept, D_k], chain-major
-        frames = torch.linspace(0, len(val_labels) - 1, min(settings.diagnostic_frames, len(val_labels))).long()
-        with torch.no_grad():
-            probs = torch.softmax(sampled_mlp_logits(val_phi[frames], unflatten(samples, sampled_shapes)), -1)
-        probs = probs.view(chains, kept, len(frames), -1)
-        fs = function_space_diagnostics(probs)
-        weight_rhat = split_rhat(samples.view(chains, kept, -1))
-        extra = {
-            **fs,
-            "settled_iteration": settled_iteration(curve),
-            "warmup": settings.warmup,
-            "fs_rhat_target_share": settings.rhat_target_share,
-            "fs_rhat_target_met": int(fs["fs_rhat_share_ok"] >= settings.rhat_target_share),
-            "between_chain_mi_share": between_chain_mi_share(probs),
-            "chains": chains,
-            "bayesian_weights": result.samples.shape[2],
-            "accept_rate": float(result.accept_rate.mean()),
-            "accept_rate_min_chain": float(result.accept_rate.min()),
-            "step_size": float(result.step_size.mean()),
-            "rhat_max": float(weight_rhat.max()),
-            "rhat_median": float(weight_rhat.median()),
-            "rhat_log_prob": float(split_rhat(result.log_prob)),
-            "kept_samples": int(chains * kept),
-        }
-        extra["diagnostics"] = (
-            f"{chains} chains × {kept} samples ({settings.metric} metric) "
-            f"over the last {settings.bayesian_layers} layer(s) "
-            f"({extra['bayesian_weights']} weights); function-space R̂ ≤ {RHAT_OK} for "
-            f"{100 * fs['fs_rhat_share_ok']:.0f}% of {fs['fs_pairs']} (frame, class) pairs "
-            f"(target {100 * settings.rhat_target_share:.0f}%), median {fs['fs_rhat_median']:.3f}, "
-            f"min bulk/tail ESS {fs['fs_ess_bulk_min']:.0f}/{fs['fs_ess_tail_min']:.0f}; MI R̂ max "
-            f"{fs['mi_rhat_max']:.2f}, min ESS {fs['mi_ess_bulk_min']:.0f}; loss and predictive settled by iteration "
-            f"{extra['settled_iteration']} of {settings.warmup} warm-up; acceptance {extra['accept_rate']:.2f}; "
-            f"weight-space split-R̂ median {extra['rhat_median']:.2f} (secondary)"
-        )
-        return Fitted(cls.from_heads(base, samples, head[: head_size(shapes[:fixed])], fixed), curve, extra)
+            space = dispersed_space(settings, layers, generator, progress)
+        recorder = CurveRecorder(settings, layers, space)
+        result = run_chains(settings, space, recorder, generator, progress)
+        samples = space.to_theta(result.samples.flatten(0, 1))  # [chains·kept, D_k], chain-major
+        probs = chain_predictives(settings, layers, samples, chains=result.samples.shape[0])
+        extra = fit_metrics(settings, result, samples, probs, recorder.rows)
+        posterior = cls.from_heads(data.base, samples, layers.fixed_head, layers.fixed)
+        return Fitted(posterior, recorder.rows, extra)

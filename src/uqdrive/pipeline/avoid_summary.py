@@ -5,33 +5,17 @@ mode and for the unknown mixture, beside the paper's numbers) and the paths of a
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from omegaconf import DictConfig
 
-from uqdrive import paper
 from uqdrive.pipeline.configs import NonEmptyNames, NonEmptySeeds, Stage
-from uqdrive.pipeline.methods import MethodAnswer, method_answer
-from uqdrive.pipeline.records import MODES, AvoidResult, read_avoid_results, record, write_record
+from uqdrive.pipeline.methods import UNKNOWN, summarise_avoid
+from uqdrive.pipeline.records import read_avoid_results, write_record
 from uqdrive.plots import avoid_trajectories_figure, save_figure
 from uqdrive.schema import Str, schema, validate
 
 COLUMNS = (("known", "on"), ("unknown", "off"), ("unknown", "on"), ("unknown", "calibrated"))
-UNKNOWN = "unknown mixture"
-
-
-@record
-class AvoidSummary:
-    """metrics/avoid.json: every method's answer over its replicates per condition × warnings mode (and for the
-    unknown conditions' mixture), which guarantee the cells carry, and the paper's numbers."""
-
-    answers: list[MethodAnswer]
-    family_size: int
-    paper: dict[str, Any]
-
-    def answer(self, method: str, condition: str, mode: str) -> MethodAnswer:
-        return next(a for a in self.answers if (a.method, a.condition) == (method, f"{condition}/{mode}"))
 
 
 @schema
@@ -47,33 +31,6 @@ class AvoidSummaryStage(Stage):
     methods: NonEmptyNames
     replicates: NonEmptySeeds
     summary: AvoidSummarySection
-
-
-def summarise_avoid(results: list[AvoidResult], methods: list[str]) -> AvoidSummary:
-    """Each method's answer over its replicates, per condition × mode and for the unknown mixture (the unknown
-    cells' first k runs each, one uniform mixture)."""
-    first = results[0]
-    gamma = first.cells[first.conditions[0]]["off"].gamma * first.cells[first.conditions[0]]["off"].family_size
-    answers = []
-    for method in methods:
-        mine = [r for r in results if r.method == method]
-        for mode in MODES:
-            for condition in first.conditions:
-                cells = [(r.replicate, r.cells[condition][mode]) for r in mine]
-                outcomes = [(replicate, c.safe[: c.fixed_rollouts]) for replicate, c in cells]
-                answers.append(method_answer(method, f"{condition}/{mode}", outcomes, gamma))
-            mixtures = [
-                (
-                    r.replicate,
-                    np.concatenate(
-                        [r.cells[c][mode].safe[: r.cells[c][mode].fixed_rollouts] for c in r.conditions[1:]]
-                    ),
-                )
-                for r in mine
-            ]
-            answers.append(method_answer(method, f"{UNKNOWN}/{mode}", mixtures, gamma))
-    family = first.cells[first.conditions[0]]["off"].family_size
-    return AvoidSummary(answers, family, paper.to_dict())
 
 
 def run_avoid_summary(cfg: DictConfig) -> dict:

@@ -1,4 +1,5 @@
-"""A method's answer at one condition over its training replicates: what the posterior family does, not what one
+"""A method's answer at one condition (offline safety) or condition × warnings mode (collision avoidance) over its
+training replicates: what the posterior family does, not what one
 trained network did.
 
 Replicate r (training seed r) gives η̂_r from its cell's first k rollouts, k fixed in advance (all of them for a
@@ -12,10 +13,12 @@ each are both in it; with few replicates it is wide, and that is how much the tr
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
-from uqdrive.pipeline.records import SafetyCell, record
+from uqdrive import paper
+from uqdrive.pipeline.records import MODES, AvoidResult, SafetyCell, record
 from uqdrive.resolvers import noise_label
 from uqdrive.uq.replicates import replicate_bounded_interval
 
@@ -84,3 +87,46 @@ def summarise_methods(cells: Iterable[SafetyCell], methods: Sequence[str]) -> Sa
         for condition in conditions
     ]
     return SafetySummary(answers, max(c.family_size for c in cells), min(c.gamma for c in cells))
+
+
+UNKNOWN = "unknown mixture"
+
+
+@record
+class AvoidSummary:
+    """metrics/avoid.json: every method's answer over its replicates per condition × warnings mode (and for the
+    unknown conditions' mixture), which guarantee the cells carry, and the paper's numbers."""
+
+    answers: list[MethodAnswer]
+    family_size: int
+    paper: dict[str, Any]
+
+    def answer(self, method: str, condition: str, mode: str) -> MethodAnswer:
+        return next(a for a in self.answers if (a.method, a.condition) == (method, f"{condition}/{mode}"))
+
+
+def summarise_avoid(results: list[AvoidResult], methods: list[str]) -> AvoidSummary:
+    """Each method's answer over its replicates, per condition × mode and for the unknown mixture (the unknown
+    cells' first k runs each, one uniform mixture)."""
+    first = results[0]
+    gamma = first.cells[first.conditions[0]]["off"].gamma * first.cells[first.conditions[0]]["off"].family_size
+    answers = []
+    for method in methods:
+        mine = [r for r in results if r.method == method]
+        for mode in MODES:
+            for condition in first.conditions:
+                cells = [(r.replicate, r.cells[condition][mode]) for r in mine]
+                outcomes = [(replicate, c.safe[: c.fixed_rollouts]) for replicate, c in cells]
+                answers.append(method_answer(method, f"{condition}/{mode}", outcomes, gamma))
+            mixtures = [
+                (
+                    r.replicate,
+                    np.concatenate(
+                        [r.cells[c][mode].safe[: r.cells[c][mode].fixed_rollouts] for c in r.conditions[1:]]
+                    ),
+                )
+                for r in mine
+            ]
+            answers.append(method_answer(method, f"{UNKNOWN}/{mode}", mixtures, gamma))
+    family = first.cells[first.conditions[0]]["off"].family_size
+    return AvoidSummary(answers, family, paper.to_dict())

@@ -19,10 +19,9 @@ import mlflow
 from omegaconf import DictConfig
 
 from uqdrive.files import atomic_path, write_json
-from uqdrive.pipeline.avoid_summary import UNKNOWN, AvoidSummary
 from uqdrive.pipeline.configs import NonEmptyNames, SafetyGrid
 from uqdrive.pipeline.findings import Findings
-from uqdrive.pipeline.methods import SafetySummary
+from uqdrive.pipeline.methods import UNKNOWN, AvoidSummary, SafetySummary
 from uqdrive.pipeline.records import SafetyCell, read_avoid_results, read_record, read_safety_cells
 from uqdrive.pipeline.report_document import Report, fmt, read_json, table
 from uqdrive.pipeline.report_experiments import (
@@ -225,9 +224,9 @@ def sample_counts_section(report: Report, cells: list[SafetyCell], look_size: in
         )
     report.add(
         "## Samples per estimation scheme\n\nRollouts (or weight samples) for P(|η̂ − η| > θ) ≤ γ: Chernoff "
-        "(the paper, planned), exact Clopper–Pearson (planned) and the exactly calibrated sequential "
-        f"Clopper–Pearson scheme with a look every {look_size} rollouts (expected count at η = 0.5 and 0.99, "
-        "exact by dynamic programming). `uqdrive bound` prints more."
+        "(the paper, planned), exact Clopper–Pearson (planned) and the sequential scheme, whose stopping levels are "
+        f"calibrated by exact computation, with a look every {look_size} rollouts (expected count at η = 0.5 and "
+        "0.99, exact by dynamic programming over the stopping rule). `uqdrive bound` prints more."
     )
     report.add(
         table(

@@ -8,9 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from uqdrive import paper
-from uqdrive.pipeline.avoid_summary import UNKNOWN, AvoidSummary
 from uqdrive.pipeline.configs import train_stage
-from uqdrive.pipeline.methods import MethodAnswer, SafetySummary
+from uqdrive.pipeline.methods import UNKNOWN, AvoidSummary, MethodAnswer, SafetySummary
 from uqdrive.pipeline.records import MODES, AvoidResult, SafetyCell, TrainMetrics, read_record
 from uqdrive.pipeline.report_document import Report, fmt, table
 from uqdrive.uq.replicates import replicate_bounded_interval

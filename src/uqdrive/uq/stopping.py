@@ -12,8 +12,8 @@ a rule's guarantee needs — error probabilities, expected draws — is a sum ov
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from scipy import special
@@ -28,10 +28,9 @@ Weight = Callable[[np.ndarray, np.ndarray], np.ndarray]
 _CHUNK = 64  # rates evaluated at once, neighbours in η: each chunk skips the stop points far from it
 
 
-@dataclass(frozen=True)
-class StopPoints:
+class StopPoints(NamedTuple):
     """Every reachable stop (n, k) with ``log_mass`` = log(w · C(n, k)), so that
-    P(stop at (n, k) | η) = exp(log_mass) η^k (1 − η)^(n−k)."""
+    P(stop at (n, k) | η) = exp(log_mass) η^k (1 − η)^(n−k); ``labels``: what the rule reports there."""
 
     n: np.ndarray
     k: np.ndarray

@@ -126,7 +126,7 @@ def _stop_points(test: ThresholdTest, bounds: _Boundaries) -> StopPoints:
 
 
 def _errors(test: ThresholdTest, bounds: _Boundaries) -> tuple[float, float]:
-    """Exact (P(above | η = δ − θ), P(below | η = δ + θ)): the worst cases of the two errors."""
+    """Exact (P(above | η = low edge), P(below | η = high edge)): the worst cases of the two errors."""
     points = _stop_points(test, bounds)
     (code,) = points.labels
     above = points.mass([test.low_edge], lambda i, _: code[i, None] == _ABOVE)[0]
