@@ -1,8 +1,6 @@
 """Rollouts in lockstep: a rollout's result does not depend on which rollouts share its batch, nor on the
 lockstep width or the worker count (the same seeds alone and batched give the same outcomes and traces)."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 import torch
@@ -17,12 +15,13 @@ from uqdrive.safety import (
     RolloutJob,
     WarningConfig,
     WarningController,
+    executors,
     make_executor,
     run_rollout,
     run_rollouts,
 )
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import lockstep_chunks
+from uqdrive.safety.executors import RolloutWorker, lockstep_chunks
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 
@@ -116,12 +115,27 @@ def test_lockstep_width_must_be_a_positive_integer(random_models, rain, width):
         make_executor("process", RolloutJob(spec, *rain, 0.0, base_seed=0), 1, lockstep=width)
 
 
-def test_a_worker_builds_only_the_envs_its_chunk_needs(random_models, rain):
-    from uqdrive.safety.executors import RolloutWorker
-
-    spec = PolicySpec("constant", 6.0, steer=0.3)
-    worker = RolloutWorker(dataclasses.replace(RolloutJob(spec, *rain, 0.0, base_seed=0), horizon_s=0.5), width=8)
+def test_a_worker_builds_only_the_envs_its_chunk_needs_and_leaves_them_to_the_next_job(random_models, rain):
+    """A sweep's next cell (here another location and weather) takes the envs the last one left; its rollouts are
+    those of fresh envs."""
+    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    first = RolloutJob(spec, *rain, 0.05, base_seed=0, horizon_s=0.5)
+    scenario = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout_large.yaml")
+    second = RolloutJob(spec, scenario, WeatherConfig.from_yaml(CONF / "weather" / "fog.yaml"), 0.0, 40, horizon_s=0.5)
+    executors._spare_envs.clear()
+    fresh = RolloutWorker(second, width=8)
+    expected = fresh.run([1, 2, 3])
+    executors._spare_envs.clear()  # the fresh worker keeps its envs: the next one builds its own
+    worker = RolloutWorker(first, width=8)
     try:
         assert [r.seed for r in worker.run([3, 4])] == [3, 4] and len(worker.envs) == 2
+        envs = list(worker.envs)
     finally:
         worker.close()
+    reused = RolloutWorker(second, width=8)
+    try:
+        assert reused.envs == envs
+        assert_same_rollouts(reused.run([1, 2, 3]), expected)
+    finally:
+        reused.close()
+        fresh.close()
