@@ -144,7 +144,7 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
         (
             ("avoid.model_path=/nonexistent/vi.pt",),
             ValueError,
-            r"^avoid.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@avoid-vi-0$",
+            r"^avoid.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@avoid-vi$",
         ),
         (("avoid.theta=0",), ValueError, r"avoid.theta=0: input should be greater than 0"),
         (

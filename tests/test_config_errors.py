@@ -106,5 +106,5 @@ def test_an_empty_model_file_is_one_line_naming_the_key_and_the_stage_that_train
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.splitlines() == [
         f"error: safety.model_path={tmp_path}/vi.pt: is empty (0 bytes): not a uqdrive model file; "
-        "dvc repro train@offline-vi-0"
+        "dvc repro train@offline-vi"
     ]

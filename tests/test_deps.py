@@ -1,6 +1,8 @@
 """DVC deps that cannot go stale: every project file a stage's script imports is covered by the stage's deps."""
 
+import functools
 import shlex
+from dataclasses import dataclass
 from pathlib import Path
 
 from uqdrive.deps import SRC, files_digest, import_closure, stage_closure
@@ -47,20 +49,38 @@ def test_the_cell_digest_covers_the_rollout_code_the_stage_and_the_posterior_mod
     assert code_digest(["uqdrive.pipeline.safety", "uqdrive.models.vi"]) == files_digest(closure, SRC)
 
 
-def missing_deps() -> dict[str, list[str]]:
-    """Stage → project files its script imports that none of its deps covers (a folder covers what is under it)."""
+@dataclass(frozen=True)
+class StageCode:
+    """A DVC stage's listed deps and the project files its script imports."""
+
+    name: str
+    deps: list[Path]
+    imports: list[Path]
+
+    def covered(self, f: Path) -> bool:
+        return any(f == d or d in f.parents for d in self.deps)
+
+
+@functools.cache
+def stages() -> tuple[StageCode, ...]:
+    """Every stage of dvc.yaml, its closure computed once per distinct script (the matrix stages share one)."""
     from dvc.repo import Repo
 
-    missing: dict[str, list[str]] = {}
+    closures: dict[str, list[Path]] = {}
+    out = []
     with Repo(str(ROOT)) as repo:
         for stage in repo.index.stages:
             script = next(arg for arg in shlex.split(stage.cmd) if arg.endswith(".py"))
-            deps = [Path(d.def_path) for d in stage.deps]
-            files = [p.relative_to(ROOT) for p in stage_closure(ROOT / script, ROOT / "conf")]
-            uncovered = sorted(f.as_posix() for f in files if not any(f == d or d in f.parents for d in deps))
-            if uncovered:
-                missing[stage.addressing] = uncovered
-    return missing
+            if script not in closures:
+                closures[script] = [p.relative_to(ROOT) for p in stage_closure(ROOT / script, ROOT / "conf")]
+            out.append(StageCode(stage.addressing, [Path(d.def_path) for d in stage.deps], closures[script]))
+    return tuple(out)
+
+
+def missing_deps() -> dict[str, list[str]]:
+    """Stage → project files its script imports that none of its deps covers (a folder covers what is under it)."""
+    missing = {s.name: sorted(f.as_posix() for f in s.imports if not s.covered(f)) for s in stages()}
+    return {name: files for name, files in missing.items() if files}
 
 
 def test_every_stage_depends_on_every_project_file_it_imports():
@@ -70,24 +90,16 @@ def test_every_stage_depends_on_every_project_file_it_imports():
 
 def test_no_stage_depends_on_code_it_does_not_import():
     """A listed source file or folder the stage never imports would rerun it for nothing."""
-    from dvc.repo import Repo
-
-    with Repo(str(ROOT)) as repo:
-        for stage in repo.index.stages:
-            script = next(arg for arg in shlex.split(stage.cmd) if arg.endswith(".py"))
-            files = [p.relative_to(ROOT) for p in stage_closure(ROOT / script, ROOT / "conf")]
-            code = [Path(d.def_path) for d in stage.deps if d.def_path.split("/")[0] in ("src", "stages")]
-            unused = [d.as_posix() for d in code if not any(f == d or d in f.parents for f in files)]
-            assert not unused, f"{stage.addressing} depends on code it does not import: {unused}"
+    for stage in stages():
+        code = [d for d in stage.deps if d.parts[0] in ("src", "stages")]
+        unused = [d.as_posix() for d in code if not any(f == d or d in f.parents for f in stage.imports)]
+        assert not unused, f"{stage.name} depends on code it does not import: {unused}"
 
 
 def test_every_listed_dep_exists_once():
-    from dvc.repo import Repo
-
-    with Repo(str(ROOT)) as repo:
-        for stage in repo.index.stages:
-            paths = [d.def_path for d in stage.deps]
-            assert len(paths) == len(set(paths)), f"{stage.addressing} lists a dep twice"
-            code = [p for p in paths if p.split("/")[0] in ("src", "stages", "conf")]  # not other stages' outputs
-            absent = [p for p in code if not (ROOT / p).exists()]
-            assert not absent, f"{stage.addressing} depends on project files that do not exist: {absent}"
+    for stage in stages():
+        paths = [d.as_posix() for d in stage.deps]
+        assert len(paths) == len(set(paths)), f"{stage.name} lists a dep twice"
+        code = [p for p in paths if p.split("/")[0] in ("src", "stages", "conf")]  # not other stages' outputs
+        absent = [p for p in code if not (ROOT / p).exists()]
+        assert not absent, f"{stage.name} depends on project files that do not exist: {absent}"

@@ -83,9 +83,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
             metrics["train_frames"] > 0 and metrics["num_classes"] == round((classes["high"] - classes["low"]) * 10) + 1
         )
         for method in ("mcd", "vi", "hmc"):
-            models = [torch.load(project / f"models/{experiment}/seed{r}/{method}.pt") for r in (0, 1)]
+            models = [torch.load(project / f"models/{experiment}/{method}/seed{r}.pt") for r in (0, 1)]
             trained = [
-                json.loads((project / f"metrics/{experiment}/train/seed{r}/{method}.json").read_text()) for r in (0, 1)
+                json.loads((project / f"metrics/{experiment}/train/{method}/seed{r}.json").read_text()) for r in (0, 1)
             ]
             assert [t["seed"] for t in trained] == [0, 1] and trained[0]["val_frames"] == metrics["val_frames"]
             # replicates differ by their seed only: same data, same settings, other weights

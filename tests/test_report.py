@@ -122,9 +122,9 @@ def write_run(root):
                     diagnostics=f"{method} diagnostics",
                 )
                 trained[experiment, method, seed] = metrics
-                write_record(root / f"metrics/{experiment}/train/seed{seed}/{method}.json", metrics)
-            (root / f"plots/{experiment}/train/seed0").mkdir(parents=True, exist_ok=True)
-            (root / f"plots/{experiment}/train/seed0/{method}_curve.png").write_bytes(png)
+                write_record(root / f"metrics/{experiment}/train/{method}/seed{seed}.json", metrics)
+            (root / f"plots/{experiment}/train/{method}").mkdir(parents=True, exist_ok=True)
+            (root / f"plots/{experiment}/train/{method}/seed0_curve.png").write_bytes(png)
     cells = [
         safety_cell(rng, m, r, loc, w, x)
         for m in METHODS

@@ -164,7 +164,14 @@ def test_the_readme_ray_path_on_a_ray_cluster_agrees_with_the_process_backend(
     on_ray = tmp_path / "ray"
     on_ray.mkdir()
     run = subprocess.run(
-        [sys.executable, str(ROOT / "stages/safety.py"), *cell, "executor=ray", "executor.address=auto"],
+        [
+            sys.executable,
+            str(ROOT / "stages/safety.py"),
+            *cell,
+            "executor=ray",
+            "executor.address=auto",
+            "outputs=pipeline",
+        ],
         cwd=on_ray,
         env={**env, "PYTHONWARNINGS": "ignore"},
         capture_output=True,

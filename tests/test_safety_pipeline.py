@@ -159,7 +159,7 @@ def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
         (
             ("safety.model_path=/nonexistent/vi.pt",),
             ValueError,
-            r"^safety.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@offline-vi-0$",
+            r"^safety.model_path=/nonexistent/vi.pt does not exist; train it first: dvc repro train@offline-vi$",
         ),
         (("safety.theta=1.5",), ValueError, r"safety.theta=1.5: input should be less than 1"),
         (("safety.gamma=0",), ValueError, r"safety.gamma=0: input should be greater than 0"),

@@ -15,7 +15,7 @@ from uqdrive.pipeline.preprocess import run_preprocess
 from uqdrive.pipeline.report import run_report
 from uqdrive.pipeline.safety import run_safety, run_safety_sweep
 from uqdrive.pipeline.safety_summary import run_safety_summary
-from uqdrive.pipeline.train import run_train
+from uqdrive.pipeline.train import run_train, run_train_replicates
 from uqdrive.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,6 +32,7 @@ STAGES = {
     "heldout_sweep": first(run_heldout),
     "preprocess": run_preprocess,
     "train": run_train,
+    "train_replicates": lambda cfg: run_train_replicates(cfg, []),
     "safety": run_safety,
     "safety_sweep": first(run_safety_sweep),
     "evaluate": run_evaluate,
@@ -96,6 +97,11 @@ BAD = {
         ("+summary.figure_dir=x", "summary.figure_dir: unknown key; did you mean 'figures_dir'?"),
         ("noises=[none]", "noises[0]='none': input should be a valid number"),
         ("locations=[]", "locations=[]: tuple should have at least 1 item"),
+    ],
+    "train_replicates": [
+        ("+train.worker=2", "train.worker: unknown key; did you mean 'workers'?"),
+        ("replicates=[first]", "replicates[0]='first': input should be a valid integer"),
+        ("replicates=[]", "replicates=[]: tuple should have at least 1 item"),
     ],
     "avoid_summary": [
         ("+summary.result_dir=x", "summary.result_dir: unknown key; did you mean 'results_dir'?"),

@@ -158,7 +158,7 @@ def test_a_multirun_writes_under_its_sweep_folder_unless_asked(stage_config, tmp
     assert (swept.safety.out, swept.safety.positions, swept.safety.model_path) == (
         f"{sweep}/metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json",
         f"{sweep}/data/safety/mcd-seed0-roundabout-clear_noon-noise0.0.npz",
-        f"{tmp_path}/models/offline/seed0/mcd.pt",
+        f"{tmp_path}/models/offline/mcd/seed0.pt",
     )
     assert (
         stage_config("safety", "outputs=pipeline").safety.out
@@ -173,7 +173,7 @@ def test_a_single_run_writes_the_pipeline_outputs(stage_config, tmp_path):
     expected = {
         ("collect", "collect.out"): "data/raw/straight.parquet",
         ("preprocess", "paths.processed"): "data/processed/offline",
-        ("train", "paths.models"): "models/offline/seed0",
+        ("train", "paths.models"): "models/offline/mcd",
         ("safety", "safety.out"): "metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json",
         ("avoid", "avoid.out"): "metrics/avoid/mcd-seed0.json",
         ("report", "report.out_dir"): "reports",

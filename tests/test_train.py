@@ -23,7 +23,7 @@ from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.laplace import PRIOR_GRID
 from uqdrive.models.training import compute_features, evaluate
-from uqdrive.pipeline.train import run_train
+from uqdrive.pipeline.train import run_train, run_train_replicates
 from uqdrive.tracking import flatten, store_uris
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -88,10 +88,10 @@ def test_each_method_beats_the_majority_class_on_validation(trained, method):
 def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
     root, metrics = trained
     for method in METHODS:
-        assert json.loads((root / f"metrics/joint/train/seed0/{method}.json").read_text()) == metrics[method]
-        rows = list(csv.DictReader((root / f"plots/joint/train/seed0/{method}_curve.csv").open()))
+        assert json.loads((root / f"metrics/joint/train/{method}/seed0.json").read_text()) == metrics[method]
+        rows = list(csv.DictReader((root / f"plots/joint/train/{method}/seed0_curve.csv").open()))
         assert rows and {"step", "train_loss", "val_accuracy", "val_nll"} <= set(rows[0])
-        assert (root / f"plots/joint/train/seed0/{method}_curve.png").stat().st_size > 1000
+        assert (root / f"plots/joint/train/{method}/seed0_curve.png").stat().st_size > 1000
     client = MlflowClient(store_uris(root)[0])
     runs = client.search_runs([client.get_experiment_by_name("train").experiment_id])
     assert sorted(r.data.params["method"] for r in runs) == sorted(METHODS)
@@ -101,7 +101,7 @@ def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
         assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}-seed0"
         assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
-        assert {f"{method}_curve.csv", f"{method}_curve.png", f"{method}.pt"} <= artefacts
+        assert {"seed0_curve.csv", "seed0_curve.png", "seed0.pt", "seed0.json"} <= artefacts  # in the method's run
 
 
 def test_method_specific_diagnostics(trained):
@@ -125,7 +125,7 @@ def test_method_specific_diagnostics(trained):
 
 def test_laplace_curve_has_the_map_epochs_then_the_laplace_step(trained):
     root, metrics = trained
-    rows = list(csv.DictReader((root / "plots/joint/train/seed0/laplace_curve.csv").open()))
+    rows = list(csv.DictReader((root / "plots/joint/train/laplace/seed0_curve.csv").open()))
     epochs = 2  # the tiny profile's
     assert [int(r["step"]) for r in rows] == list(range(1, epochs + 2))
     assert [int(r["laplace"]) for r in rows] == [0] * epochs + [1]
@@ -138,7 +138,7 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
     val = load_frames(root / "data/processed/joint/val.parquet", bins.num_classes)
     for method in METHODS:
         posterior = load_posterior(
-            root / f"models/joint/seed0/{method}.pt", expected_method=method, expected_classes=bins
+            root / f"models/joint/{method}/seed0.pt", expected_method=method, expected_classes=bins
         )
         scores = evaluate(posterior, compute_features(posterior, val), val.labels, 20, torch.Generator().manual_seed(0))
         assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
@@ -146,7 +146,7 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
 
 def test_head_methods_share_the_mcd_trunk(trained):
     root, _ = trained
-    trunks = [load_posterior(root / f"models/joint/seed0/{m}.pt").trunk.state_dict() for m in METHODS]
+    trunks = [load_posterior(root / f"models/joint/{m}/seed0.pt").trunk.state_dict() for m in METHODS]
     for other in trunks[1:]:
         assert all(torch.equal(trunks[0][k], other[k]) for k in trunks[0])
 
@@ -165,7 +165,7 @@ def test_bad_input_fails_clearly(tmp_path):
     with pytest.raises(ValueError, match="0 frames"):
         run_train(compose_train(tmp_path))
     write_processed(tmp_path / "data/processed/joint/train.parquet", 20, seed=1)
-    with pytest.raises(FileNotFoundError, match="mcd.pt does not exist"):
+    with pytest.raises(FileNotFoundError, match="mcd/seed0.pt does not exist"):
         run_train(compose_train(tmp_path, "model=vi"))
     with pytest.raises(ValueError, match="model.epochs=0"):
         run_train(compose_train(tmp_path, "model.epochs=0"))
@@ -185,5 +185,23 @@ def test_replicates_differ_by_their_seed_only(stage_config):
     named after it, are all that differ."""
     flat = [flatten(stage_config("train", "model=vi", f"seed={s}")) for s in (0, 1)]
     differ = {k for k in flat[0] if flat[0][k] != flat[1][k]}
-    assert differ == {"seed", "replicate", "paths.models", "paths.metrics", "paths.plots", "train.base_model"}
+    assert differ == {"seed", "replicate", "train.base_model"}  # files: <method>/<replicate>.pt
     assert all("seed0" in str(flat[0][k]) and "seed1" in str(flat[1][k]) for k in differ - {"seed"})
+
+
+def test_the_replicates_stage_trains_each_seed_as_the_single_replicate_command(tmp_path):
+    """Two replicates side by side in worker processes: each file is what `python stages/train.py seed=r` writes."""
+    write_processed(tmp_path / "data/processed/joint/train.parquet", 160, seed=1)
+    write_processed(tmp_path / "data/processed/joint/val.parquet", 80, seed=2)
+    overrides = [f"paths.root={tmp_path}", "profile=tiny", "progress=false", "experiment=joint", "model=mcd"]
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        swept = run_train_replicates(compose("train_replicates", [*overrides, "replicates=[0,1]"]), overrides)
+    assert [m["seed"] for m in swept] == [0, 1] and swept[0]["val_nll"] != swept[1]["val_nll"]
+    single = run_train(
+        compose_train(tmp_path / "single", "model=mcd", "seed=1", f"paths.processed={tmp_path}/data/processed/joint")
+    )
+    assert {k: v for k, v in single.items() if k != "train_seconds"} == {
+        k: v for k, v in swept[1].items() if k != "train_seconds"
+    }
+    saved = [torch.load(root / "models/joint/mcd/seed1.pt")["state"] for root in (tmp_path, tmp_path / "single")]
+    assert all(torch.equal(saved[0][k], saved[1][k]) for k in saved[0])

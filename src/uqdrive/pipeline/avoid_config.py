@@ -250,7 +250,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
-    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    trained_by = train_stage(stage.experiment.name, method)
     cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
     spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
     return AvoidSettings(

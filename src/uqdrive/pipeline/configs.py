@@ -35,9 +35,9 @@ class Experiment:
     bins: SteeringBins
 
 
-def train_stage(experiment: str, method: str, replicate: int) -> str:
-    """The DVC stage that trains ``experiment``'s ``method`` for one replicate (MCD: the trunk the heads sit on)."""
-    return f"train_mcd@{experiment}-{replicate}" if method == "mcd" else f"train@{experiment}-{method}-{replicate}"
+def train_stage(experiment: str, method: str) -> str:
+    """The DVC stage that trains ``experiment``'s ``method``, every replicate (MCD: the trunk the heads sit on)."""
+    return f"train_mcd@{experiment}" if method == "mcd" else f"train@{experiment}-{method}"
 
 
 @schema

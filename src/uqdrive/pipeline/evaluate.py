@@ -101,9 +101,9 @@ def conditions_from(stage: EvaluateStage) -> list[Condition]:
 
 def check_inputs(cfg: DictConfig, methods: list[str], conditions: list[Condition]) -> dict[str, Path]:
     """Model file of each method; raises before any work, naming every missing file and how to make it."""
-    models = {m: Path(cfg.paths.models) / f"{m}.pt" for m in methods}
+    models = {m: Path(cfg.paths.models) / m / f"{cfg.replicate}.pt" for m in methods}
     missing = [
-        f"{path}: train it first (`python stages/train.py model={m}`, or dvc repro)"
+        f"{path}: train it first (`python stages/train.py model={m} seed={cfg.seed}`, or dvc repro)"
         for m, path in models.items()
         if not path.exists()
     ]

@@ -112,7 +112,7 @@ def training_section(report: Report, run: Run, experiments: list[str], methods: 
     for experiment in experiments:
         for method in methods:
             report.figure(
-                report.root / "plots" / experiment / "train" / f"seed{seeds[0]}" / f"{method}_curve.png",
+                report.root / "plots" / experiment / "train" / method / f"seed{seeds[0]}_curve.png",
                 f"{experiment} · {method} learning curve (replicate seed{seeds[0]})",
             )
 
@@ -330,7 +330,7 @@ def fidelity_section(report: Report, run: Run, methods: list[str], weathers: lis
 def read_train_metrics(metrics_dir: Path, experiments: list[str], methods: list[str], seeds: list[int]) -> dict:
     """Every controller's training metrics by (experiment, method, replicate)."""
     return {
-        (e, m, r): read_record(TrainMetrics, metrics_dir / e / "train" / f"seed{r}" / f"{m}.json", train_stage(e, m, r))
+        (e, m, r): read_record(TrainMetrics, metrics_dir / e / "train" / m / f"seed{r}.json", train_stage(e, m))
         for e in experiments
         for m in methods
         for r in seeds

@@ -101,7 +101,7 @@ def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
     model_path = Path(safety.model_path)
-    trained_by = train_stage(stage.experiment.name, method, stage.seed)
+    trained_by = train_stage(stage.experiment.name, method)
     cell_posterior("safety.model_path", model_path, method, bins, trained_by)
     spec = PolicySpec("bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps)
     job = RolloutJob(

@@ -1,20 +1,24 @@
-"""The `train` stage: fit one posterior (model=<conf/model yaml>), evaluate it on validation, save and log it.
+"""The `train` stages: fit one posterior (model=<conf/model yaml>) for one training seed (a replicate), evaluate it
+on validation, save and log it; the DVC stage trains every replicate of params.yaml side by side, each as the
+single-replicate command (`python stages/train.py model=M seed=r`) composes it.
 
-The model config names its Posterior class by `_target_`; the class checks its settings and fits
-itself (MCD end to end on the processed frames; the head methods on `models/mcd.pt`'s fixed trunk
-features), so this stage knows no method by name.
+The model config names its Posterior class by `_target_`; the class checks its settings and fits itself (MCD end
+to end on the processed frames; the head methods on the same replicate's MCD trunk features), so these stages
+know no method by name.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import matplotlib.pyplot as plt
 import mlflow
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from uqdrive.data.datasets import load_frames
 from uqdrive.files import write_csv, write_json
@@ -23,7 +27,9 @@ from uqdrive.models.metrics import majority_accuracy
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import posterior_settings
 from uqdrive.models.training import TrainingData, compute_features, evaluate
-from uqdrive.pipeline.configs import ModelStage
+from uqdrive.parallel import ProcessPool
+from uqdrive.pipeline.configs import ModelStage, NonEmptySeeds
+from uqdrive.pipeline.sweeps import compose_cell, grid
 from uqdrive.plots import save_figure
 from uqdrive.schema import Count, Str, schema, validate
 from uqdrive.tracking import stage_run
@@ -36,6 +42,7 @@ class TrainSection:
     base_model: Str
     eval_samples: Count
     threads: Count
+    workers: Count  # replicates trained side by side (`run_train_replicates`)
     mcd: dict[str, Any]
     vi: dict[str, Any]
     hmc: dict[str, Any]
@@ -89,11 +96,12 @@ def run_train(cfg: DictConfig) -> dict:
         "train_seconds": seconds,
         **extra,
     }
-    model_path = save_posterior(model, Path(cfg.paths.models) / f"{method}.pt", metadata={"metrics": metrics})
+    replicate = cfg.replicate
+    model_path = save_posterior(model, Path(cfg.paths.models) / f"{replicate}.pt", metadata={"metrics": metrics})
     plots = Path(cfg.paths.plots)
-    curve_csv = write_csv(plots / f"{method}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
-    curve_png = save_figure(curve_figure(curve, method, cls.curve_unit), plots / f"{method}_curve.png")
-    metrics_json = Path(cfg.paths.metrics) / f"{method}.json"
+    curve_csv = write_csv(plots / f"{replicate}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
+    curve_png = save_figure(curve_figure(curve, method, cls.curve_unit), plots / f"{replicate}_curve.png")
+    metrics_json = Path(cfg.paths.metrics) / f"{replicate}.json"
     write_json(metrics_json, metrics)
 
     with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}-{cfg.replicate}"):
@@ -103,6 +111,15 @@ def run_train(cfg: DictConfig) -> dict:
         for path in (curve_csv, curve_png, metrics_json, model_path):
             mlflow.log_artifact(str(path))
     return metrics
+
+
+def describe(m: dict) -> str:
+    """The line a stage prints for a trained replicate."""
+    return (
+        f"train {m['method']} seed {m['seed']}: val accuracy {m['val_accuracy']:.3f} (majority baseline "
+        f"{m['majority_baseline_accuracy']:.3f}), NLL {m['val_nll']:.3f}, ECE {m['val_ece']:.3f} "
+        f"in {m['train_seconds']:.0f} s"
+    )
 
 
 def curve_figure(rows: list[dict], method: str, unit: str) -> plt.Figure:
@@ -118,3 +135,40 @@ def curve_figure(rows: list[dict], method: str, unit: str) -> plt.Figure:
     acc_ax.set_ylabel("val accuracy")
     fig.suptitle(f"{method} learning curve")
     return fig
+
+
+@schema(root=True)
+class TrainReplicatesStage(TrainStage):
+    """`stages/train_replicates.py`: one posterior for every training seed of `replicates`."""
+
+    replicates: NonEmptySeeds
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """The replicates' configs, resolved (a spawned process has no Hydra): item i trains the i-th."""
+
+    configs: tuple[dict, ...]
+
+    def worker(self) -> TrainJob:
+        return self
+
+    def run(self, index: int) -> dict:
+        return run_train(OmegaConf.create(self.configs[index]))
+
+    def close(self) -> None:
+        """Nothing held between items."""
+
+
+def run_train_replicates(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
+    """Every replicate of ``cfg.replicates``, ``train.workers`` at a time (a process each); each replicate's config
+    checked before any trains. Returns their metrics in replicate order."""
+    stage = validate(TrainReplicatesStage, cfg)
+    cells = grid(seed=cfg.replicates)
+    configs = [compose_cell("train", overrides, cell) for cell in cells]
+    for config in configs:
+        validate(TrainStage, config)
+    job = TrainJob(tuple(OmegaConf.to_container(c, resolve=True) for c in configs))
+    with ProcessPool(min(stage.train.workers, len(configs))) as pool:
+        executor = pool.executor(job)
+        return list(executor.run(range(len(configs))))
