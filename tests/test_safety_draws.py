@@ -11,7 +11,7 @@ from conftest import CONF
 from scipy import stats
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.safety import NO_WARNING, Controller, PolicySpec, WarningConfig, WarningController
+from uqdrive.safety import NO_WARNING, Controller, PolicySpec, WarningConfig, WarningController, classify
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
@@ -19,6 +19,7 @@ from uqdrive.uq.tier import CONFIDENT, DOUBTFUL, UNSURE
 
 BINS = SteeringBins()  # 21 classes, centres -1.0 … 1.0
 SEQUENTIAL = DrawSettings("sequential")
+UNRECORDED = DrawSettings("sequential", unacted="skip")  # a controller without warnings that nothing replays
 WARNING = WarningConfig()  # δ1 0.7, δ2 0.6, τ 0.45; 738 draws per frame at θ = γ = 0.05
 
 
@@ -117,18 +118,41 @@ def test_frames_whose_draws_agree_settle_in_one_head_call_or_three(frame):
         assert {f.eta2 for f in frames} == {1.0} and all(f.mutual_information < WARNING.tau for f in frames)
 
 
-def test_a_controller_that_acts_on_no_warning_draws_no_eta2_set(frame):
+def test_a_controller_that_acts_on_no_warning_and_skips_draws_no_eta2_set(frame):
     posterior, _ = POSTERIORS["confident"]
-    controller = Controller(posterior, BINS, WARNING.samples, 0.1, 8.0, SEQUENTIAL)
+    controller = Controller(posterior, BINS, WARNING.samples, 0.1, 8.0, UNRECORDED)
     controller.reset(None, 3)
     command = controller.act(frame, {})
     assert command.draws == 16 and math.isnan(command.eta2) and command.warning == NO_WARNING
     assert command.steer == pytest.approx(BINS.centres[10])
 
 
+@pytest.mark.parametrize("name", ["mostly agreeing", "unsure"])
+def test_a_controller_that_acts_on_no_warning_records_what_calibration_replays(frame, name):
+    """The avoid stage's warnings-off cells (a policy without warnings, the same draws setting as the warnings-on
+    cells) are replayed by the threshold calibration over a grid of (δ1, δ2, τ): with sequential draws they still
+    record the fixed controller's η̂2 and MI, frame for frame, and every candidate threshold classifies them."""
+    posterior, _ = POSTERIORS[name]
+    recorded, fixed = (Controller(posterior, BINS, WARNING.samples, 0.1, 8.0, d) for d in (SEQUENTIAL, None))
+    commands = {}
+    for controller in (recorded, fixed):
+        commands[controller] = []
+        for seed in range(10):
+            controller.reset(None, seed)
+            commands[controller].append(controller.act(frame, {}))
+    assert commands[recorded] == commands[fixed]
+    eta2 = np.array([c.eta2 for c in commands[recorded]])
+    mi = np.array([c.mutual_information for c in commands[recorded]])
+    assert abs(eta2.mean() - posterior.eta2()) < WARNING.theta
+    assert all(c.draws == 2 * WARNING.samples and c.mutual_information_se > 0 for c in commands[recorded])
+    deltas = np.linspace(0.5, 0.95, 10)[:, None]
+    levels = classify(eta2, mi, deltas, deltas - 0.05, 0.3)
+    assert levels.shape == (10, 10) and len(np.unique(levels)) > 1  # the candidates tell the frames apart
+
+
 def test_split_posteriors_reach_the_cap_and_take_the_mode_of_all_its_draws(frame):
     posterior, _ = POSTERIORS["split"]
-    controller = Controller(posterior, BINS, WARNING.samples, 0.1, 8.0, SEQUENTIAL)
+    controller = Controller(posterior, BINS, WARNING.samples, 0.1, 8.0, UNRECORDED)
     frames = decisions(controller, frame, 20)
     unsettled = [f for f in frames if not f.settled]
     assert unsettled and all(f.draws == WARNING.samples for f in unsettled)
@@ -172,6 +196,7 @@ def test_sequential_tiers_refuse_thresholds_of_0_or_1_before_any_rollout(random_
         ({"scheme": "adaptive"}, "draws.scheme='adaptive': input should be 'fixed' or 'sequential'"),
         ({"theta": 0.0}, "draws.theta=0.0: input should be greater than 0"),
         ({"look": 0}, "draws.look=0: input should be greater than or equal to 1"),
+        ({"unacted": "drop"}, "draws.unacted='drop': input should be 'record' or 'skip'"),
         ({"gama": 0.1}, "draws.gama: unknown key; did you mean 'gamma'?"),
     ],
 )

@@ -58,7 +58,7 @@ def controllers(model_path) -> dict:
     bins = SteeringBins()
     posterior = load_posterior(model_path, expected_method="vi", expected_classes=bins)
     warning = WarningConfig(theta=0.3, delta1=0.45, delta2=0.12, tau=0.03)  # every level fires on random weights
-    sequential = DrawSettings("sequential", theta=0.3, gamma=0.1)
+    sequential = DrawSettings("sequential", theta=0.3, gamma=0.1, unacted="skip")
     return {
         "plain": Controller(posterior, bins, 20, 0.1, 6.0),
         "warnings": WarningController(posterior, bins, warning, 0.1, 6.0, 15.0),
@@ -82,6 +82,7 @@ def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
     assert [r.seed for r in batched] == seeds
     assert len({r.steps for r in alone}) > 1  # rollouts end at different steps: slots refill mid-batch
     assert_same_rollouts(alone, batched)
+    assert all(np.isfinite(r.mutual_information_se).all() for r in alone)  # the MI's precision is recorded
     if kind.startswith("warnings"):
         assert {1, 2} <= set(np.concatenate([r.warning for r in alone]).tolist())
 

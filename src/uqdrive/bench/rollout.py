@@ -3,8 +3,9 @@ controller, against env-only steps/s, against the same closed loop rendering 160
 against 1; then the controller's agreement with the paper's fixed 2 x 738 draws on recorded frames.
 
 Env-only = the same envs (camera rendering, collision and road checks) driven by the autopilot, whose per-step
-cost is negligible. Closed loop = the Bayesian controller steers every env from its rendered frame, the frames of
-all envs in one trunk pass per step. Workloads are fixed step counts (an episode that ends is restarted with the
+cost is negligible. Closed loop = the Bayesian controller of the offline-safety sweep (no warnings; with
+sequential draws no η2 set, as nothing replays its rollouts) steers every env from its rendered frame, the frames
+of all envs in one trunk pass per step. Workloads are fixed step counts (an episode that ends is restarted with the
 next seed), so the two are comparable whatever the controller does. The render comparison drives the experiment's
 camera (`conf/experiment/<name>.yaml`) and a 160x120 camera in alternating repeats, one process, one torch
 thread: CPU seconds per step; the median ratio is reported. The worker comparison runs chunks of closed-loop
@@ -196,7 +197,7 @@ def main(argv: list[str]) -> int:
     weather = WeatherConfig.from_yaml(CONF / "weather" / f"{args.weather}.yaml")
     camera = experiment_camera(args.experiment)
     baseline = dataclasses.replace(camera, width=BASELINE_CAMERA[0], height=BASELINE_CAMERA[1])
-    draws = DrawSettings(args.draws)
+    draws = DrawSettings(args.draws, unacted="skip")  # the offline-safety sweep's controller: nothing replays it
     with tempfile.TemporaryDirectory() as tmp:
         if args.models is None:
             model = save_posterior(

@@ -130,13 +130,24 @@ class Controller:
         def draw(m: int) -> torch.Tensor:
             return self.posterior.head_probs(features, m, generator)
 
-        if self.draws.scheme == "fixed":
+        if self.draws.fixed_for(acts_on_warnings=self.thresholds is not None):
             return fixed_frame(draw, self.n_samples, self.centres, self.eps, self.thresholds)
         return sequential_frame(draw, self.n_samples, self.centres, self.eps, self.draws, self.tier, self.tau)
 
     def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
         """Steer at π(o), at the cruise speed."""
-        return [Command(f.decision, self.speed, f.eta2, f.mutual_information, f.entropy, draws=f.draws) for f in frames]
+        return [
+            Command(
+                f.decision,
+                self.speed,
+                f.eta2,
+                f.mutual_information,
+                f.entropy,
+                draws=f.draws,
+                mutual_information_se=f.mutual_information_se,
+            )
+            for f in frames
+        ]
 
 
 class AutopilotPolicy:

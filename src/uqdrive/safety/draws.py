@@ -17,7 +17,14 @@ around that π(o) (Chernoff's n for the warning config's θ, γ: |η̂2 − η2|
   paper's fixed n.
 - η2 (a warning controller only): fresh draws, never those of π(o), so each is a Bernoulli draw of rate η2;
   sequential tests of η2 ≥ δ1 and η2 ≥ δ2 decide the tier with error ≤ γ when η2 is at least θ from both
-  thresholds (`uqdrive.uq.tier`). A controller that acts on no warning draws no η2 set.
+  thresholds (`uqdrive.uq.tier`).
+
+A controller that acts on no warning (``unacted``): its rollouts may be replayed by the threshold calibration
+(`uqdrive.safety.calibration`: the avoid stage's warnings-off cells), which classifies each step's η̂2 and MI
+against a grid of candidate thresholds, so it needs an η̂2 within θ of η2 whatever the thresholds and an MI as
+precise as the fixed controller's, not a tier decided for one pair. ``record`` (the default) keeps the paper's
+fixed draws for such a controller; ``skip``, for rollouts nobody replays (the offline-safety sweep never
+calibrates), draws no η2 set and takes π(o) and MI from the mode test's draws.
 """
 
 from __future__ import annotations
@@ -39,12 +46,19 @@ from uqdrive.uq.tier import CONFIDENT, DOUBTFUL, UNSURE, TierTest
 @schema(frozen=True)
 class DrawSettings:
     """A frame's posterior draws: ``fixed`` (the paper's n + n) or ``sequential`` (as many as its decisions need,
-    each decided with error ≤ ``gamma`` outside an indifference zone of ``theta``; ``look`` draws at a time)."""
+    each decided with error ≤ ``gamma`` outside an indifference zone of ``theta``; ``look`` draws at a time).
+    ``unacted``: what a controller that acts on no warning draws with ``sequential`` (module docstring): ``record``
+    the fixed draws calibration replays, ``skip`` no η2 set."""
 
     scheme: Literal["fixed", "sequential"] = "fixed"
     theta: OpenUnit = 0.05
     gamma: OpenUnit = 0.05
     look: Count = 8
+    unacted: Literal["record", "skip"] = "record"
+
+    def fixed_for(self, acts_on_warnings: bool) -> bool:
+        """Whether a controller that does (or does not) act on warnings takes the paper's fixed draws."""
+        return self.scheme == "fixed" or (not acts_on_warnings and self.unacted == "record")
 
 
 @dataclass(frozen=True)
