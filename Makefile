@@ -28,8 +28,9 @@ repro: $(STAMP)
 	@echo "Report: reports/report.html (and report.md). Metrics: metrics/, figures: plots/, data: data/, models: models/."
 	@echo "Runs in MLflow: make ui"
 
+# Two pytest workers (pytest-xdist): the end-to-end `dvc repro` test runs beside the rest of the suite.
 test: lint
-	pytest -q
+	pytest -q -n 2
 
 lint: $(TEST_STAMP)
 	ruff check src stages tests

@@ -59,7 +59,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     params = yaml.safe_load((project / "params.yaml").read_text())
     params.update(
         profile="tiny",
-        posteriors=["mcd", "vi", "hmc"],
+        heads=["vi", "hmc"],
         methods=["mcd", "vi"],
         replicates=[0, 1],
         weathers=["rain"],

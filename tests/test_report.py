@@ -104,7 +104,7 @@ def write_run(root):
     """Metrics and figures shaped like a finished pipeline's (random values, fixed seed), written as records."""
     rng = np.random.default_rng(0)
     (root / "params.yaml").write_text(
-        f"experiments: {list(EXPERIMENTS)}\ntrain_weather: clear_noon\nposteriors: {list(METHODS)}\n"
+        f"experiments: {list(EXPERIMENTS)}\ntrain_weather: clear_noon\nheads: {list(METHODS)[1:]}\n"
         f"methods: {list(METHODS)}\nreplicates: {list(SEEDS)}\nweathers: {list(WEATHERS)}\nnoises: {list(NOISES)}\n"
         f"locations: {list(LOCATIONS)}\n"
     )

@@ -3,6 +3,7 @@
 - `${params:KEY,ROOT}` reads a knob from the project's params.yaml. DVC cannot template a list into a
   command line, so stages that take the pipeline's lists (e.g. which scenarios to preprocess) read them
   from params.yaml, the single source of truth; a Hydra CLI override (`scenarios=[straight]`) still wins.
+- `${posteriors:ROOT}` is every trained posterior: `mcd` (the trunk every head sits on) and params.yaml's `heads`.
 - `${noise_label:NOISE}` is the one text of a noise level in cell names and paths: `noise=0` and
   `noise=0.0` are one cell.
 - `${output_root:ROOT,OUTPUTS}` is where a run writes: the project's pipeline folders when asked
@@ -35,6 +36,10 @@ def read_param(key: str, root: str) -> object:
     return params[key]
 
 
+def posteriors(root: str) -> list:
+    return ["mcd", *read_param("heads", root)]
+
+
 def noise_label(noise: object) -> str:
     """A noise sigma as DVC renders a float of params.yaml (0 and 0.0 → "0.0", 0.05 → "0.05"); a value that
     is not a number is left for the stage's check to reject."""
@@ -55,6 +60,6 @@ def output_root(root: str, outputs: str) -> str:
 
 
 def register_resolvers() -> None:
-    for name, resolver in (("params", read_param), ("noise_label", noise_label), ("output_root", output_root)):
+    for name, resolver in (("params", read_param), ("posteriors", posteriors), ("noise_label", noise_label), ("output_root", output_root)):
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, resolver)
