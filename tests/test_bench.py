@@ -1,4 +1,4 @@
-"""`uqdrive bench sim|posterior|rollout` run end to end on small sizes and end with their RESULT line.
+"""`uqdrive bench sim|posterior|controller|rollout` run end to end on small sizes and end with their RESULT line.
 
 Only the output contract is tested here; the speed targets are measured by running the
 benchmarks themselves (README), never asserted in timed tests.
@@ -23,6 +23,11 @@ from uqdrive.models.checkpoint import save_posterior
     [
         (["sim", "--steps", "30", "--repeats", "1"], r"RESULT sim step_over_render=[\d.]+"),
         (["posterior", "--samples", "50", "--repeats", "2"], r"RESULT posterior worst_ms=[\d.]+ min_speedup=[\d.]+"),
+        (
+            ["controller", "--frames", "1", "--methods", "vi"],
+            r"RESULT controller worst_ms=[\d.]+ worst_p95_ms=[\d.]+ fixed_worst_ms=[\d.]+ min_speedup=[\d.]+ "
+            r"median_draws=\d+",
+        ),
     ],
 )
 def test_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str], argv: list[str], pattern: str) -> None:
@@ -34,10 +39,14 @@ def test_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str], ar
 @pytest.mark.slow
 def test_rollout_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str]) -> None:
     """Spawns two worker processes (torch and pybullet start-up in each): tens of seconds."""
-    assert main(["bench", "rollout", "--samples", "20", "--steps", "15", "--repeats", "1", "--chunks", "4"]) == 0
+    argv = ["--samples", "20", "--steps", "15", "--repeats", "1", "--chunks", "4", "--lockstep", "2", "--frames", "1"]
+    assert main(["bench", "rollout", *argv]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert any(line.startswith("closed loop, 160x120:") for line in out)
-    pattern = r"RESULT rollout overhead=[\d.]+ speedup2=[\d.]+ render_speedup=[\d.]+ env_speedup=[\d.]+"
+    pattern = (
+        r"RESULT rollout overhead=[\d.]+ speedup2=[\d.]+ render_speedup=[\d.]+ env_speedup=[\d.]+ "
+        r"draws_per_frame=[\d.]+ agreement=[\d.]+"
+    )
     assert re.fullmatch(pattern, out[-1]), out[-1]
 
 
@@ -60,11 +69,11 @@ def test_benchmarks_drive_trained_models_of_an_experiments_class_set(
     bins = SteeringBins(10, -0.3, 0.3)
     for method, posterior in random_posteriors(torch.Generator().manual_seed(0), bins).items():
         save_posterior(posterior, tmp_path / f"{method}.pt")
-    assert main(["bench", "controller", "--models", str(tmp_path), "--frames", "20"]) == 0
+    assert main(["bench", "controller", "--models", str(tmp_path), "--frames", "2"]) == 0
     assert (
         main(
             ["bench", "rollout", "--models", str(tmp_path), "--samples", "20", "--steps", "15"]
-            + ["--repeats", "1", "--chunks", "4"]
+            + ["--repeats", "1", "--chunks", "4", "--lockstep", "2", "--frames", "1"]
         )
         == 0
     )

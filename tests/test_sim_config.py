@@ -91,3 +91,20 @@ def test_every_scenario_kind_has_a_layout_builder():
     from uqdrive.sim.layouts import LAYOUTS
 
     assert set(LAYOUTS) == set(SCENARIO_KINDS)
+
+
+@pytest.mark.parametrize(
+    ("stage", "overrides", "size"),
+    [
+        ("avoid", [], (96, 72)),  # conf/experiment/avoid.yaml's render size
+        ("safety", [], (64, 48)),  # the offline experiment's
+        ("safety", ["experiment=avoid"], (96, 72)),
+        ("avoid", ["render=160x120"], (160, 120)),  # another conf/render/ size
+        ("avoid", ["camera.width=80", "camera.height=60"], (80, 60)),  # the camera's own keys still win
+        ("collect", [], (64, 48)),  # no experiment: the network's own size
+        ("collect", ["+experiment=avoid"], (96, 72)),  # collected for an experiment: its size
+    ],
+)
+def test_the_camera_renders_at_the_experiments_size(stage_config, stage, overrides, size):
+    cfg = stage_config(stage, *overrides)
+    assert (cfg.camera.width, cfg.camera.height) == size

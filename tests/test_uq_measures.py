@@ -11,12 +11,15 @@ import torch
 from uqdrive.uq import (
     decision,
     decision_confidence,
+    draw_measures,
     expected_entropy,
     frame_measures,
     mutual_information,
+    mutual_information_se,
     predictive_entropy,
     sample_decisions,
     steering_moments,
+    within_ball,
 )
 
 CENTRES = torch.tensor([-0.2, -0.1, 0.0, 0.1, 0.2], dtype=torch.float64)
@@ -149,3 +152,35 @@ def test_bad_input_is_rejected_with_a_clear_message(probs, centres, eps, match: 
 
 def test_small_rounding_in_probabilities_is_accepted() -> None:
     assert decision_confidence(PROBS * (1 + 5e-5), CENTRES, 0.1).shape == (2,)
+
+
+def test_mutual_information_se_is_the_jackknife_of_the_plug_in_estimate() -> None:
+    """Leave each draw out in turn, by a plain loop over the single-function MI."""
+    probs = torch.softmax(torch.randn((9, 3, 5), generator=torch.Generator().manual_seed(4)), -1).double()
+    n = len(probs)
+    left_out = torch.stack([mutual_information(torch.cat([probs[:i], probs[i + 1 :]])) for i in range(n)])
+    expected = ((n - 1) / n * ((left_out - left_out.mean(0)) ** 2).sum(0)).sqrt()
+    assert torch.allclose(mutual_information_se(probs), expected, atol=1e-12)
+    assert torch.equal(mutual_information_se(probs[:1, :1].expand(4, 1, 5)), torch.zeros(1, dtype=probs.dtype))
+    assert torch.isnan(mutual_information_se(probs[:1])).all()
+
+
+def test_within_ball_counts_what_eta2_counts_in_numpy_and_torch() -> None:
+    probs = peaked([[0, 2], [1, 2], [4, 2]])
+    pi = torch.tensor([-0.2, 0.0])
+    inside = within_ball(CENTRES[probs.argmax(-1)], pi, 0.1)
+    assert inside.tolist() == [[True, True], [True, True], [False, True]]
+    assert torch.equal(inside.double().mean(0), decision_confidence(probs, CENTRES, 0.1, pi))
+    assert within_ball(CENTRES.numpy()[probs.numpy().argmax(-1)], pi.numpy(), 0.1).tolist() == inside.tolist()
+
+
+@pytest.mark.parametrize("n", [1, 2, 30])
+def test_draw_measures_in_numpy_are_those_of_frame_measures(n: int) -> None:
+    probs = torch.softmax(3 * torch.randn((n, 1, 5), generator=torch.Generator().manual_seed(n)), -1).double()
+    m = frame_measures(probs, CENTRES, 0.1)
+    mi, se, entropy = draw_measures(probs[:, 0].numpy())
+    assert mi == pytest.approx(float(m.mutual_information[0]), abs=1e-12)
+    assert entropy == pytest.approx(float(m.entropy[0]), abs=1e-12)
+    assert (math.isnan(se) and n == 1) or se == pytest.approx(float(m.mutual_information_se[0]), abs=1e-12)
+    with pytest.raises(ValueError, match="sum to 1"):
+        draw_measures(probs[:, 0].numpy() * 0.5)

@@ -37,9 +37,12 @@ class FixedPosterior:
     def eval(self) -> "FixedPosterior":
         return self
 
-    def sample_probs(self, x: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    def features_each(self, x: torch.Tensor) -> torch.Tensor:
+        return x.flatten(1)
+
+    def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         assert n % len(self.probs) == 0
-        return self.probs.repeat(n // len(self.probs), 1)[:, None, :].expand(n, x.shape[0], -1)
+        return self.probs.repeat(n // len(self.probs), 1)[:, None, :].expand(n, features.shape[0], -1)
 
 
 def samples(classes: list[int]) -> np.ndarray:

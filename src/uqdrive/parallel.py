@@ -2,8 +2,9 @@
 (`collect`, `heldout`) and closed-loop rollouts (`safety`, `avoid`).
 
 A *job* is a picklable recipe whose ``worker()`` builds the expensive per-process state once (a pybullet
-client and its world, a policy); ``worker().run(i)`` does item i, which carries its own seed, so results
-are the same whatever the worker count. A pool lives as long as its caller wants (a cell, or a whole
+client and its world, a policy); ``worker().run(item)`` does one item (an episode's index, or a chunk of
+rollout indices run in lockstep), which carries its own seeds, so results are the same whatever the worker
+count. A pool lives as long as its caller wants (a cell, or a whole
 stage of many cells), so spawned processes pay their imports once.
 """
 
@@ -17,8 +18,8 @@ from typing import Any, Protocol
 
 
 class Worker(Protocol):
-    def run(self, index: int) -> Any:
-        """Item ``index`` of the job."""
+    def run(self, item: Any) -> Any:
+        """One item of the job (an index, or a chunk of them)."""
 
     def close(self) -> None:
         """Release what the worker holds (its pybullet client)."""
@@ -33,17 +34,17 @@ _keyed: dict[int, Worker] = {}  # this process's worker, by job key
 _job_keys = itertools.count()  # unique in the process, so two pools never share a key
 
 
-def _run_keyed(item: tuple[int, Job, int]) -> Any:
-    """Item ``index`` of a job on this process's worker for it. A process keeps the worker of the job it met
+def _run_keyed(keyed: tuple[int, Job, Any]) -> Any:
+    """One item of a job on this process's worker for it. A process keeps the worker of the job it met
     last only: a pool's jobs come one after another (the cells of a sweep, the conditions of an avoid
     stage), so an earlier job's world is done with, and a stage of 36 cells does not hold 36 worlds per
     process. (A job met again is rebuilt; its items do not depend on the worker's history.)"""
-    key, job, index = item
+    key, job, item = keyed
     if key not in _keyed:
         for stale in list(_keyed):
             _keyed.pop(stale).close()
         _keyed[key] = job.worker()
-    return _keyed[key].run(index)
+    return _keyed[key].run(item)
 
 
 class ProcessPool:
@@ -67,9 +68,9 @@ class ProcessPool:
         self._keys.append(key)
         return PooledExecutor(self, key, job, owns_pool)
 
-    def run(self, key: int, job: Job, indices: Sequence[int]) -> Iterator[Any]:
-        items = [(key, job, i) for i in indices]
-        yield from map(_run_keyed, items) if self._pool is None else self._pool.map(_run_keyed, items)
+    def run(self, key: int, job: Job, items: Sequence[Any]) -> Iterator[Any]:
+        keyed = [(key, job, item) for item in items]
+        yield from map(_run_keyed, keyed) if self._pool is None else self._pool.map(_run_keyed, keyed)
 
     def release(self, key: int) -> None:
         """Close an in-process job's worker (spawned processes drop theirs at the next job, or at close)."""
@@ -91,13 +92,13 @@ class ProcessPool:
 
 
 class PooledExecutor:
-    """The items of one job on a `ProcessPool`, in index order; closing it closes the pool only if it owns it."""
+    """The items of one job on a `ProcessPool`, results in item order; closing it closes the pool only if it owns it."""
 
     def __init__(self, pool: ProcessPool, key: int, job: Job, owns_pool: bool = False):
         self.pool, self.key, self.job, self.owns_pool = pool, key, job, owns_pool
 
-    def run(self, indices: Sequence[int]) -> Iterator[Any]:
-        yield from self.pool.run(self.key, self.job, indices)
+    def run(self, items: Sequence[Any]) -> Iterator[Any]:
+        yield from self.pool.run(self.key, self.job, items)
 
     def close(self) -> None:
         self.pool.close() if self.owns_pool else self.pool.release(self.key)

@@ -12,6 +12,10 @@ Draws are only promised to be exact *per frame*: MCD and HMC share draw s across
 of a batch, VI draws its pre-activations per frame (local reparameterisation, same per-frame
 distribution, ~100x fewer random numbers). No consumer may rely on draw s being the same
 network for two frames.
+
+Closed-loop controllers step many rollouts in lockstep and need each rollout's numbers to be its own:
+`features_each` runs the trunk once for a batch of frames from different rollouts with each frame's
+features bit for bit those of the frame alone.
 """
 
 from __future__ import annotations
@@ -24,9 +28,10 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
 from torch import nn
+from torch.nn.functional import unfold
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.models.pilotnet import Architecture, Trunk
+from uqdrive.models.pilotnet import INPUT_SHAPE, Architecture, Trunk
 from uqdrive.schema import METHOD_NAME as METHOD_NAME_PATTERN
 from uqdrive.schema import ConfigError, plain, validate
 
@@ -77,6 +82,29 @@ class Posterior(nn.Module, ABC):
         """Deterministic trunk: frames [B, 1, 48, 64] in [0, 1] → features [B, F]."""
         return self.trunk(x)
 
+    @torch.no_grad()
+    def features_each(self, x: torch.Tensor) -> torch.Tensor:
+        """The trunk's features [B, F] of frames x [B, 1, 48, 64], each row bit for bit what the frame alone gives.
+
+        `features` of a batch differs from the frames one at a time in the last bits (oneDNN and MKL pick
+        kernels by batch size), so a rollout stepped in lockstep with others would not be the rollout run
+        alone. Here the three strided 5x5 convolutions, ~90 % of the work, stay batched (oneDNN computes each
+        frame of them alike at any batch size: `tests/test_models_lockstep.py` checks it), and the two 3x3
+        convolutions and the dense layer, whose batched kernels mix rows, are one same-shaped GEMM per frame
+        (`bmm`). Equal to `features` within float rounding (~1e-6).
+        """
+        if x.shape[1:] != INPUT_SHAPE:
+            raise ValueError(f"expected frames [B, {', '.join(map(str, INPUT_SHAPE))}], got {list(x.shape)}")
+        h = x
+        for layer in self.trunk.convs:
+            if isinstance(layer, nn.Conv2d) and layer.stride == (1, 1):
+                h = _conv_per_frame(h, layer)
+            elif not isinstance(layer, nn.Flatten):
+                h = layer(h)
+        h = h.flatten(1).unsqueeze(1)  # [B, 1, F]
+        fc = self.trunk.fc
+        return torch.relu(torch.baddbmm(fc.bias.expand(len(h), 1, -1), h, fc.weight.T.expand(len(h), -1, -1))[:, 0])
+
     @abstractmethod
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """Softmax class probabilities [n, B, C] for n posterior draws of the head."""
@@ -85,6 +113,17 @@ class Posterior(nn.Module, ABC):
     def sample_probs(self, x: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """Softmax class probabilities [n, B, C] of n posterior draws for frames x [B, 1, 48, 64]."""
         return self.head_probs(self.features(x), n, generator)
+
+
+def _conv_per_frame(h: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
+    """``conv(h)`` as one GEMM of the same shape per frame (im2col, then `bmm` over the frames)."""
+    frames, _, height, width = h.shape
+    (kh, kw), (sh, sw), (ph, pw) = conv.kernel_size, conv.stride, conv.padding
+    rows, cols = (height + 2 * ph - kh) // sh + 1, (width + 2 * pw - kw) // sw + 1
+    patches = unfold(h, conv.kernel_size, padding=conv.padding, stride=conv.stride).transpose(1, 2)  # [B, L, CK]
+    weight = conv.weight.reshape(conv.out_channels, -1).T  # [CK, O]
+    out = torch.baddbmm(conv.bias.expand(frames, 1, -1), patches, weight.expand(frames, -1, -1))  # [B, L, O]
+    return out.transpose(1, 2).reshape(frames, conv.out_channels, rows, cols)
 
 
 def check_draws(n: int) -> int:

@@ -9,14 +9,15 @@ from uqdrive.safety.controller import NO_WARNING, AutopilotPolicy, Command, Cons
 from uqdrive.safety.executors import (
     BACKENDS,
     Executor,
+    LockstepExecutor,
+    LockstepJob,
     PolicySpec,
     ProcessPool,
-    RayExecutor,
     RolloutJob,
     RolloutWorker,
     make_executor,
 )
-from uqdrive.safety.rollout import RolloutResult, run_rollout
+from uqdrive.safety.rollout import RolloutResult, run_rollout, run_rollouts
 from uqdrive.safety.runner import CellRun, CellRunner
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, Verdict, safe_set_for
 from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
@@ -36,7 +37,8 @@ __all__ = [
     "Policy",
     "PolicySpec",
     "ProcessPool",
-    "RayExecutor",
+    "LockstepExecutor",
+    "LockstepJob",
     "RolloutJob",
     "RolloutResult",
     "RolloutWorker",
@@ -50,5 +52,6 @@ __all__ = [
     "estimate_safety",
     "make_executor",
     "run_rollout",
+    "run_rollouts",
     "safe_set_for",
 ]

@@ -9,6 +9,7 @@ sets can be checked against controllers whose safety is known (η1 ≈ 1 and ≈
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -19,8 +20,9 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.posterior import Posterior
+from uqdrive.safety.draws import DrawSettings, FrameDecision, fixed_frame, sequential_frame
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
-from uqdrive.uq import frame_measures
+from uqdrive.uq.tier import TierTest
 
 NO_WARNING = -1
 """Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.safety.warnings`)."""
@@ -42,18 +44,23 @@ class Command:
     warning: int = NO_WARNING
     alert: bool = False
     handover: bool = False
+    draws: int = 0  # posterior draws the frame took
+    mutual_information_se: float = math.nan  # jackknife standard error of the MI at those draws
 
 
 class Policy(Protocol):
-    """What a rollout drives with. ``needs_camera``: False lets the rollout skip rendering."""
+    """What rollouts drive with, one or several in lockstep: each rollout has a ``slot``, and `act_batch` decides
+    the current frame of every slot in ``slots`` at once. ``needs_camera``: False lets the rollout skip rendering."""
 
     needs_camera: bool
 
-    def reset(self, env: DrivingEnv, seed: int) -> None:
-        """Start an episode (env already reset); every random draw of the episode comes from ``seed``."""
+    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
+        """Start the episode in ``slot`` (env already reset); every random draw of the episode comes from ``seed``."""
 
-    def act(self, obs: np.ndarray | None, info: dict) -> Command:
-        """Command for the current frame ``obs`` and state ``info``."""
+    def act_batch(
+        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
+    ) -> list[Command]:
+        """Commands for the current frame and state of each of ``slots``."""
 
 
 class Controller:
@@ -67,9 +74,18 @@ class Controller:
     union bound over the 21 class centres, needs ln(2·21/γ)/(2θ²) = 1347 draws (1.8×) at
     θ = γ = 0.05, nearly the same cost, and grows with the class count. Cost: one batched
     head evaluation of 2n instead of n (`uqdrive bench controller`, budget 10 ms per frame).
+
+    Rollouts in lockstep share one trunk pass per step (`Posterior.features_each`, each frame's features
+    those of the frame alone) and each slot draws from its own generator, seeded by its episode's seed,
+    so a rollout's commands do not depend on the rollouts beside it.
     """
 
     needs_camera = True
+
+    thresholds: tuple[float, float] | None = None
+    """(δ1, δ2) whose η2 tier a frame decides: a controller that acts on no warning asks none."""
+    tau: float | None = None
+    """The MI threshold a warning acts on (sequential draws refine MI near it); None: MI is only measured."""
 
     def __init__(
         self,
@@ -78,26 +94,60 @@ class Controller:
         n_samples: int,
         eps: float,
         speed: float,
-        generator: torch.Generator | None = None,
+        draws: DrawSettings | None = None,
     ):
         self.posterior = posterior.eval()
         self.centres = torch.as_tensor(bins.centres, dtype=torch.float32)
         self.n_samples, self.eps, self.speed = n_samples, float(eps), float(speed)
-        self.generator = generator if generator is not None else torch.Generator()
+        self.draws = draws or DrawSettings()
+        self.generators = {0: torch.Generator()}
+        self.tier: TierTest | None = None  # sequential draws: the η2 tier test of a controller that acts on one
 
-    def reset(self, env: DrivingEnv, seed: int) -> None:
-        self.generator.manual_seed(seed)
+    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
+        self.generators.setdefault(slot, torch.Generator()).manual_seed(seed)
+
+    def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
+        """The command for one frame, in slot 0."""
+        return self.act_batch([0], [obs], [info or {}])[0]
 
     @torch.inference_mode()  # no autograd bookkeeping on the frame's ~100 small tensor ops
-    def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
-        if obs is None:
+    def act_batch(
+        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
+    ) -> list[Command]:
+        if any(frame is None for frame in frames):
             raise ValueError("Controller needs a camera frame; reset the env with render=True")
-        x = to_inputs(preprocess_frame(obs)[None])  # exactly what the network was trained on
-        n = self.n_samples
-        m = frame_measures(self.posterior.sample_probs(x, 2 * n, self.generator), self.centres, self.eps, split=n)
-        return Command(
-            float(m.decision[0]), self.speed, float(m.eta2[0]), float(m.mutual_information[0]), float(m.entropy[0])
-        )
+        x = to_inputs(
+            np.stack([preprocess_frame(frame) for frame in frames])
+        )  # exactly what the network was trained on
+        features = self.posterior.features_each(x)
+        frames = [self.decide(features[b : b + 1], self.generators[slot]) for b, slot in enumerate(slots)]
+        return self.commands(slots, frames, infos)
+
+    def decide(self, features: torch.Tensor, generator: torch.Generator) -> FrameDecision:
+        """One frame's decisions from its features [1, F], its draws from its slot's ``generator``; every step is
+        the frame alone's (a reduction over a batch of frames could round differently)."""
+
+        def draw(m: int) -> torch.Tensor:
+            return self.posterior.head_probs(features, m, generator)
+
+        if self.draws.fixed_for(acts_on_warnings=self.thresholds is not None):
+            return fixed_frame(draw, self.n_samples, self.centres, self.eps, self.thresholds)
+        return sequential_frame(draw, self.n_samples, self.centres, self.eps, self.draws, self.tier, self.tau)
+
+    def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
+        """Steer at π(o), at the cruise speed."""
+        return [
+            Command(
+                f.decision,
+                self.speed,
+                f.eta2,
+                f.mutual_information,
+                f.entropy,
+                draws=f.draws,
+                mutual_information_se=f.mutual_information_se,
+            )
+            for f in frames
+        ]
 
 
 class AutopilotPolicy:
@@ -107,14 +157,16 @@ class AutopilotPolicy:
 
     def __init__(self, config: AutopilotConfig | None = None):
         self.config = config or AutopilotConfig()
-        self._autopilot: Autopilot | None = None
+        self._autopilots: dict[int, Autopilot] = {}
 
-    def reset(self, env: DrivingEnv, seed: int) -> None:
-        self._autopilot = Autopilot(env.route, env.vehicle_config, self.config, env.control_hz, seed=seed)
+    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
+        self._autopilots[slot] = Autopilot(env.route, env.vehicle_config, self.config, env.control_hz, seed=seed)
 
-    def act(self, obs: np.ndarray | None, info: dict) -> Command:
-        action = self._autopilot.act(info)
-        return Command(action.steer, action.speed)
+    def act_batch(
+        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
+    ) -> list[Command]:
+        actions = [self._autopilots[slot].act(info) for slot, info in zip(slots, infos)]
+        return [Command(action.steer, action.speed) for action in actions]
 
 
 class ConstantPolicy:
@@ -125,8 +177,10 @@ class ConstantPolicy:
     def __init__(self, steer: float, speed: float):
         self.steer, self.speed = float(steer), float(speed)
 
-    def reset(self, env: DrivingEnv, seed: int) -> None:
+    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
         """Nothing random to seed."""
 
-    def act(self, obs: np.ndarray | None, info: dict) -> Command:
-        return Command(self.steer, self.speed)
+    def act_batch(
+        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
+    ) -> list[Command]:
+        return [Command(self.steer, self.speed) for _ in slots]

@@ -1,15 +1,19 @@
 """Run many rollouts in parallel: the project's process pool (`uqdrive.parallel`, default) or Ray actors
-(``executor=ray``).
+(``executor=ray``), each worker stepping several rollouts in lockstep.
 
-Each worker owns one `DrivingEnv` (its own pybullet client) and one policy for its whole life;
-a rollout is named only by its index i and uses seed ``base_seed + i``, and results come back
-in index order, so η̂1 and every per-rollout outcome are the same whatever the backend and
-worker count.
+Each worker owns up to ``lockstep`` `DrivingEnv`s (each its own pybullet client) and one policy with a
+slot per env for its whole life. A request's indices are dealt to the workers in chunks of consecutive
+indices; a worker runs its chunk ``lockstep`` rollouts at a time, one batched network forward per control
+step (`run_rollouts`). A rollout is named only by its index i and uses seed ``base_seed + i``, its draws
+come from its own slot's generator and its frame features do not depend on the frames beside it, and
+results come back in index order, so η̂1 and every per-rollout outcome are the same whatever the
+backend, worker count and lockstep width.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -20,7 +24,8 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
-from uqdrive.safety.rollout import RolloutResult, run_rollout
+from uqdrive.safety.draws import DrawSettings
+from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningConfig, WarningController
 from uqdrive.schema import ConfigError
@@ -28,6 +33,12 @@ from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfi
 
 BACKENDS = ("process", "ray")
 POLICIES = ("bnn", "autopilot", "constant")
+LOCKSTEP = 8
+"""Rollouts a worker steps at once by default: the trunk's cost per frame at batch 8 is about half its cost
+alone (`uqdrive bench rollout --lockstep`), and 8 envs per worker stay small (pybullet clients of one world)."""
+CHUNK_WIDTHS = 4
+"""A worker's chunk holds at most this many lockstep widths: enough rollouts that slots freed by short
+rollouts refill, few enough that results come back (and are logged) every few seconds."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,7 +47,8 @@ class PolicySpec:
 
     kind: ``bnn`` (posterior from ``model_path``), ``autopilot`` or ``constant`` (``steer``).
     ``warnings``: a ``bnn`` policy with the warning system (its ``samples`` must be the warning
-    config's Chernoff n).
+    config's Chernoff n). ``draws``: how many posterior draws a ``bnn`` frame takes (`DrawSettings`:
+    the paper's fixed ``samples`` + ``samples``, or sequential with ``samples`` as the cap).
     """
 
     kind: str
@@ -49,6 +61,7 @@ class PolicySpec:
     steer: float = 0.0
     autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
     warnings: WarningConfig | None = None
+    draws: DrawSettings = dataclasses.field(default_factory=DrawSettings)
 
     def __post_init__(self) -> None:
         if self.kind not in POLICIES:
@@ -59,13 +72,21 @@ class PolicySpec:
                 f"(chernoff_n of warning.theta, warning.gamma), got kind={self.kind!r}, "
                 f"samples={self.samples}"
             )
+        w = self.warnings
+        if w is not None and self.draws.scheme == "sequential" and not 0 < w.delta2 <= w.delta1 < 1:
+            raise ConfigError(
+                f"warning.delta1={w.delta1!r}, warning.delta2={w.delta2!r}: sequential draws test each threshold, "
+                "so they need 0 < delta2 <= delta1 < 1 (use draws.scheme=fixed for thresholds of 0 or 1)"
+            )
 
     def build(self, control_hz: float) -> Policy:
         if self.kind == "bnn":
             posterior = load_posterior(Path(self.model_path), expected_method=self.method, expected_classes=self.bins)
             if self.warnings is not None:
-                return WarningController(posterior, self.bins, self.warnings, self.eps, self.speed, control_hz)
-            return Controller(posterior, self.bins, self.samples, self.eps, self.speed)
+                return WarningController(
+                    posterior, self.bins, self.warnings, self.eps, self.speed, control_hz, self.draws
+                )
+            return Controller(posterior, self.bins, self.samples, self.eps, self.speed, self.draws)
         if self.kind == "autopilot":
             return AutopilotPolicy(self.autopilot)
         return ConstantPolicy(self.steer, self.speed)
@@ -86,29 +107,101 @@ class RolloutJob:
     horizon_s: float = 40.0
     half_width: float | None = None
 
+
+@dataclasses.dataclass(frozen=True)
+class LockstepJob:
+    """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time."""
+
+    job: RolloutJob
+    width: int = 1
+
     def worker(self) -> RolloutWorker:
-        return RolloutWorker(self)
+        return RolloutWorker(self.job, self.width)
+
+
+_spare_envs: dict[str, list[DrivingEnv]] = {}
+"""Envs a closed worker left in this process, by the settings they were built with (camera, car, control rate,
+horizon): the next job with the same settings takes them, since a sweep's cells differ in weather, noise and
+location, each a reset away (a new location rebuilds the world on the same pybullet client). A stage of many
+cells so builds each env once per process instead of once per cell (≈ 0.15 s each); only the last settings'
+envs are kept."""
 
 
 class RolloutWorker:
-    """One env + one policy, reused for every rollout the worker runs (one torch thread: the
-    parallelism is across workers, and a second intra-op thread only adds contention)."""
+    """Up to ``width`` envs and one policy, reused for every chunk the worker runs (one torch thread: the
+    parallelism is across workers, and a second intra-op thread only adds contention). Envs come from the
+    process's spares (`_spare_envs`) or are built as a chunk first needs them, so a worker given 2 rollouts
+    builds 2 worlds, not ``width``. An env's state is set by each rollout's reset alone, so where it came from
+    changes no result."""
 
-    def __init__(self, job: RolloutJob):
+    def __init__(self, job: RolloutJob, width: int = 1):
+        if width < 1:
+            raise ValueError(f"lockstep width={width!r} must be >= 1")
         torch.set_num_threads(1)
-        self.job = job
-        self.env = DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
+        self.job, self.width = job, width
         self.policy = job.policy.build(job.control_hz)
-        self.env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
-        self.safe_set: SafeSet = safe_set_for(self.env.geometry, job.vehicle.width, job.vehicle.length, job.half_width)
+        self.key = repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))
+        self.envs: list[DrivingEnv] = _spare_envs.pop(self.key, [])
+        self.ready = 0  # envs reset to this job's world
+        self.safe_set: SafeSet | None = None
 
-    def run(self, index: int) -> RolloutResult:
+    def environments(self, count: int) -> list[DrivingEnv]:
+        """The first ``count`` envs (at most ``width``), each with this job's world built."""
         job = self.job
-        seed = job.base_seed + index
-        return run_rollout(self.env, self.policy, seed, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
+        while self.ready < min(count, self.width):
+            if self.ready == len(self.envs):
+                self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
+            env = self.envs[self.ready]
+            env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
+            self.safe_set = self.safe_set or safe_set_for(
+                env.geometry, job.vehicle.width, job.vehicle.length, job.half_width
+            )
+            self.ready += 1
+        return self.envs[: min(count, self.width)]
+
+    def run(self, indices: Sequence[int]) -> list[RolloutResult]:
+        """Rollouts ``indices`` (seeds base_seed + i), in that order."""
+        job = self.job
+        envs = self.environments(len(indices))
+        seeds = [job.base_seed + i for i in indices]
+        return run_rollouts(envs, self.policy, seeds, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
 
     def close(self) -> None:
-        self.env.close()
+        """Leave the envs to the next job of this process (closing those an earlier one left)."""
+        for envs in _spare_envs.values():
+            for env in envs:
+                env.close()
+        _spare_envs.clear()
+        _spare_envs[self.key], self.envs = self.envs, []
+
+
+def lockstep_chunks(indices: Sequence[int], workers: int, width: int) -> list[tuple[int, ...]]:
+    """``indices`` cut into consecutive chunks: one per worker when they are few (4 rollouts on 2 workers: 2 each),
+    at most `CHUNK_WIDTHS` lockstep widths each when they are many."""
+    size = max(1, min(CHUNK_WIDTHS * width, math.ceil(len(indices) / workers)))
+    return [tuple(indices[i : i + size]) for i in range(0, len(indices), size)]
+
+
+class ChunkRunner(Protocol):
+    def run(self, items: Sequence[tuple[int, ...]]) -> Iterator[list[RolloutResult]]:
+        """Each chunk's results, chunk by chunk in order."""
+
+    def close(self) -> None:
+        """Release workers."""
+
+
+class LockstepExecutor:
+    """Deals each request's indices to ``runner``'s workers in chunks and yields the results in index order."""
+
+    def __init__(self, runner: ChunkRunner, workers: int, width: int):
+        self.runner, self.workers, self.width = runner, workers, width
+
+    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
+        for results in self.runner.run(lockstep_chunks(list(indices), self.workers, self.width)):
+            yield from results
+
+    def close(self) -> None:
+        self.runner.close()
 
 
 class Executor(Protocol):
@@ -119,14 +212,14 @@ class Executor(Protocol):
         """Release workers."""
 
 
-class RayExecutor:
-    """One Ray actor per worker, each a `RolloutWorker`.
+class RayRunner:
+    """One Ray actor per worker, each a `RolloutWorker` of ``width`` envs running chunks.
 
     ``address=None`` starts a private local Ray with ``workers`` CPUs (and shuts it down on
     close); otherwise joins that cluster. (Ray 2.60 has no ``local_mode`` any more.)
     """
 
-    def __init__(self, job: RolloutJob, workers: int, address: str | None = None):
+    def __init__(self, job: RolloutJob, workers: int, width: int, address: str | None = None):
         try:
             import ray
             from ray.util import ActorPool
@@ -144,11 +237,11 @@ class RayExecutor:
                 configure_logging=False,
             )
         actor = ray.remote(num_cpus=1)(RolloutWorker)
-        self._actors = [actor.remote(job) for _ in range(workers)]
+        self._actors = [actor.remote(job, width) for _ in range(workers)]
         self._pool = ActorPool(self._actors)
 
-    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
-        yield from self._pool.map(lambda a, i: a.run.remote(i), list(indices))
+    def run(self, items: Sequence[tuple[int, ...]]) -> Iterator[list[RolloutResult]]:
+        yield from self._pool.map(lambda a, chunk: a.run.remote(chunk), list(items))
 
     def close(self) -> None:
         for a in self._actors:
@@ -159,14 +252,24 @@ class RayExecutor:
 
 
 def make_executor(
-    backend: str, job: RolloutJob, workers: int, pool: ProcessPool | None = None, **options: Any
+    backend: str,
+    job: RolloutJob,
+    workers: int,
+    pool: ProcessPool | None = None,
+    *,
+    lockstep: int = LOCKSTEP,
+    **options: Any,
 ) -> Executor:
-    """``process`` (default; on ``pool`` if given, else on a pool of its own) or ``ray``; ``options`` go to
-    the Ray backend (address)."""
+    """``process`` (default; on ``pool`` if given, else on a pool of its own) or ``ray``; each worker steps up to
+    ``lockstep`` rollouts at once (results do not depend on it); other ``options`` go to the Ray backend (address).
+    """
+    if isinstance(lockstep, bool) or not isinstance(lockstep, int) or lockstep < 1:
+        raise ConfigError(f"executor.lockstep={lockstep!r}: must be an integer >= 1 (rollouts a worker steps at once)")
     if backend == "process":
         if options:
             raise ConfigError(f"executor options {sorted(options)} apply only to executor.name=ray")
-        return (pool or ProcessPool(workers)).executor(job, owns_pool=pool is None)
+        runner = (pool or ProcessPool(workers)).executor(LockstepJob(job, lockstep), owns_pool=pool is None)
+        return LockstepExecutor(runner, (pool.workers if pool else workers), lockstep)
     if backend == "ray":
-        return RayExecutor(job, workers, **options)
+        return LockstepExecutor(RayRunner(job, workers, lockstep, **options), workers, lockstep)
     raise ConfigError(f"executor.name={backend!r} is not a known backend; choose one of {list(BACKENDS)}")

@@ -8,11 +8,12 @@ to the operator (``Command.handover``) brakes to a stop; the rollout then ends w
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from uqdrive.safety.controller import Policy
+from uqdrive.safety.controller import Command, Policy
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, safe_set_for
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 
@@ -27,7 +28,8 @@ def _empty() -> np.ndarray:
 class RolloutResult:
     """Outcome of one episode; ``x``, ``y`` are the body-centre positions at every control step
     (and the last pose). Per-decision traces (one value per step): ``eta2``, ``mutual_information``,
-    ``warning`` (level, -1 for none) and ``command_speed``."""
+    ``warning`` (level, -1 for none), ``command_speed``, ``draws`` (posterior draws the step took) and
+    ``mutual_information_se`` (how precise the MI is at those draws: its jackknife standard error)."""
 
     seed: int
     safe: bool
@@ -47,6 +49,8 @@ class RolloutResult:
     mutual_information: np.ndarray = field(default_factory=_empty)
     warning: np.ndarray = field(default_factory=_empty)
     command_speed: np.ndarray = field(default_factory=_empty)
+    draws: np.ndarray = field(default_factory=_empty)
+    mutual_information_se: np.ndarray = field(default_factory=_empty)
 
     def summary(self) -> dict:
         """The scalar fields (one row of the per-rollout table)."""
@@ -69,29 +73,86 @@ def run_rollout(
     The episode runs to its end even after the car leaves the corridor, so collision and
     off-road rates and the visited positions describe the whole path.
     """
-    obs = env.reset(seed, scenario, weather, noise, render=policy.needs_camera)
-    policy.reset(env, seed)
+    return run_rollouts([env], policy, [seed], scenario, weather, noise, half_width, safe_set)[0]
+
+
+@dataclass
+class _Episode:
+    """A rollout under way in one lockstep slot."""
+
+    index: int
+    seed: int
+    env: DrivingEnv
+    obs: np.ndarray | None
+    info: dict
+    termination: str
+    commands: list[Command] = field(default_factory=list)
+
+
+def run_rollouts(
+    envs: Sequence[DrivingEnv],
+    policy: Policy,
+    seeds: Sequence[int],
+    scenario: ScenarioConfig,
+    weather: WeatherConfig,
+    noise: float,
+    half_width: float | None = None,
+    safe_set: SafeSet | None = None,
+) -> list[RolloutResult]:
+    """The rollouts of ``seeds`` (in that order), ``len(envs)`` at a time in lockstep: each control step asks the
+    policy for the commands of every running slot at once, and a slot whose rollout ends starts the next seed.
+
+    Each rollout is what `run_rollout` gives it alone: its env is reset with its own seed and the policy's slot
+    draws from it only (`Controller`: the frames' features and draws do not depend on the other slots).
+    """
+    results: list[RolloutResult | None] = [None] * len(seeds)
+    queue = iter(enumerate(seeds))
+    running: dict[int, _Episode] = {}
+
+    def start(slot: int) -> None:
+        env = envs[slot]
+        for index, seed in queue:
+            obs = env.reset(seed, scenario, weather, noise, render=policy.needs_camera)
+            policy.reset(env, seed, slot)
+            episode = _Episode(index, seed, env, obs, env.last_info, env.last_info["termination"])
+            if not env.done:
+                running[slot] = episode
+                return
+            results[index] = _result(episode, safe_set, half_width)
+
+    for slot in range(len(envs)):
+        start(slot)
+    while running:
+        slots = list(running)
+        episodes = [running[slot] for slot in slots]
+        commands = policy.act_batch(slots, [e.obs for e in episodes], [e.info for e in episodes])
+        for slot, episode, command in zip(slots, episodes, commands):
+            episode.commands.append(command)
+            episode.obs, episode.info = episode.env.step(command.steer, command.speed)
+            episode.termination = episode.info["termination"]
+            stopped = not episode.termination and command.handover and episode.info["speed"] <= STOPPED_SPEED
+            if stopped:
+                episode.termination = HANDOVER
+            if stopped or episode.env.done:
+                results[episode.index] = _result(episode, safe_set, half_width)
+                del running[slot]
+                start(slot)
+    return results
+
+
+def _result(episode: _Episode, safe_set: SafeSet | None, half_width: float | None) -> RolloutResult:
+    """Judge a finished episode (before its env starts another)."""
+    env, commands = episode.env, episode.commands
     safe_set = safe_set or safe_set_for(env.geometry, env.vehicle_config.width, env.vehicle_config.length, half_width)
-    info = env.last_info
-    termination = info["termination"]
-    commands = []
-    while not env.done:
-        command = policy.act(obs, info)
-        commands.append(command)
-        obs, info = env.step(command.steer, command.speed)
-        termination = info["termination"]
-        if not termination and command.handover and info["speed"] <= STOPPED_SPEED:
-            termination = HANDOVER
-            break
     eta2 = [c.eta2 for c in commands]
     mi = [c.mutual_information for c in commands]
     log = env.trajectory
-    verdict = safe_set.judge(env.geometry, log["x"], log["y"], log["yaw"], termination)
+    verdict = safe_set.judge(env.geometry, log["x"], log["y"], log["yaw"], episode.termination)
     lateral = env.geometry.lateral_deviation(np.stack([log["x"], log["y"]], axis=1))
     return RolloutResult(
-        seed=seed,
+        seed=episode.seed,
         safe=verdict.safe,
-        termination=termination,
+        termination=episode.termination,
         collision=verdict.collision,
         off_road=verdict.off_road,
         left_corridor=verdict.left_corridor,
@@ -107,4 +168,6 @@ def run_rollout(
         mutual_information=np.array(mi, dtype=float),
         warning=np.array([c.warning for c in commands], dtype=np.int8),
         command_speed=np.array([c.speed for c in commands], dtype=float),
+        draws=np.array([c.draws for c in commands], dtype=np.int32),
+        mutual_information_se=np.array([c.mutual_information_se for c in commands], dtype=float),
     )

@@ -12,17 +12,18 @@ the same code.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-import torch
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Command, Controller
+from uqdrive.safety.draws import DrawSettings, FrameDecision
 from uqdrive.schema import Bool, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
 from uqdrive.uq import chernoff_n
+from uqdrive.uq.tier import DOUBTFUL, UNSURE, TierTest
 
 LEVELS = (0, 1, 2)
 
@@ -138,6 +139,16 @@ def classify(
     return np.where(eta2 < delta2, 2, np.where(eta2 < delta1, 1, np.where(mi > tau, 0, NO_WARNING))).astype(np.int8)
 
 
+def warning_level(tier: int, mutual_information: float, tau: float) -> int:
+    """One frame's level from its η2 tier (`uqdrive.safety.draws`: decided by the frame's draws) and its MI: what
+    `classify` gives from η2 itself."""
+    if tier == DOUBTFUL:
+        return 2
+    if tier == UNSURE:
+        return 1
+    return 0 if mutual_information > tau else NO_WARNING
+
+
 class WarningActions:
     """The actions' state over a batch of systems: slow-downs held ``hold_frames``, hand-over latched.
 
@@ -170,6 +181,7 @@ class WarningController(Controller):
     Draws ``config.samples`` weight samples per frame (Chernoff's n for the config's θ, γ).
     A hand-over brakes with the steering wheel held where it was when it fired (the network is
     not trusted any more), at speed 0 with ``handover`` set; the rollout ends once the car has stopped.
+    Each lockstep slot keeps its own actions' state.
     """
 
     def __init__(
@@ -180,32 +192,47 @@ class WarningController(Controller):
         eps: float,
         speed: float,
         control_hz: float,
-        generator: torch.Generator | None = None,
+        draws: DrawSettings | None = None,
     ):
-        super().__init__(posterior, bins, config.samples, eps, speed, generator)
+        super().__init__(posterior, bins, config.samples, eps, speed, draws)
         self.config = config
+        if self.draws.scheme == "sequential":
+            self.tier = TierTest(
+                config.delta1, config.delta2, self.draws.gamma, self.draws.theta, self.draws.look, self.n_samples
+            )
         self.hold_frames = round(config.hold_s * control_hz)
-        self.actions = WarningActions(config.actions, self.hold_frames)
-        self.held_steer: float | None = None
+        self.actions = {0: WarningActions(config.actions, self.hold_frames)}
+        self.held_steer: dict[int, float | None] = {0: None}
 
-    def reset(self, env, seed: int) -> None:
-        super().reset(env, seed)
-        self.actions = WarningActions(self.config.actions, self.hold_frames)
-        self.held_steer = None
+    def reset(self, env, seed: int, slot: int = 0) -> None:
+        super().reset(env, seed, slot)
+        self.actions[slot] = WarningActions(self.config.actions, self.hold_frames)
+        self.held_steer[slot] = None
 
-    def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
-        command = super().act(obs, info)
-        cfg = self.config
-        level = classify(command.eta2, command.mutual_information, cfg.delta1, cfg.delta2, cfg.tau)
-        factor, alert, handover = self.actions.step(level)
-        if handover and self.held_steer is None:
-            self.held_steer = float((info or {}).get("steering", 0.0))
-        steer = command.steer if self.held_steer is None else self.held_steer
+    @property
+    def thresholds(self) -> tuple[float, float]:
+        return self.config.delta1, self.config.delta2
+
+    @property
+    def tau(self) -> float:
+        return self.config.tau
+
+    def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
+        """π(o) steers, the frame's warning level sets the speed (and may hand over)."""
+        commands = super().commands(slots, frames, infos)
+        levels = [warning_level(f.tier, f.mutual_information, self.config.tau) for f in frames]
+        return [self._act_on(*args) for args in zip(slots, commands, levels, infos)]
+
+    def _act_on(self, slot: int, command: Command, level: int, info: dict) -> Command:
+        factor, alert, handover = self.actions[slot].step(level)
+        if handover and self.held_steer[slot] is None:
+            self.held_steer[slot] = float(info.get("steering", 0.0))
+        held = self.held_steer[slot]
         return dataclasses.replace(
             command,
-            steer=steer,
+            steer=command.steer if held is None else held,
             speed=self.speed * float(factor),
-            warning=int(level),
+            warning=level,
             alert=bool(alert),
             handover=bool(handover),
         )

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy import special
 
 PROB_SUM_TOL = 1e-4
 """How far ``probs.sum(-1)`` may stray from 1 before the input is rejected."""
@@ -31,6 +32,7 @@ class FrameMeasures:
     decision: torch.Tensor
     eta2: torch.Tensor
     mutual_information: torch.Tensor
+    mutual_information_se: torch.Tensor
     entropy: torch.Tensor
     steering_mean: torch.Tensor
     steering_var: torch.Tensor
@@ -96,9 +98,17 @@ def _check_eps(eps: float) -> float:
     return e
 
 
+def within_ball(decisions: ArrayLike, pi: ArrayLike | float, eps: float) -> ArrayLike:
+    """Is each decision within ``eps`` of ``pi`` (closed ball, with `_BALL_TOL`)? numpy or torch, as given."""
+    return abs(decisions - pi) <= eps * (1 + _BALL_TOL)
+
+
+def _inside(p: torch.Tensor, c: torch.Tensor, pi: torch.Tensor, eps: float) -> torch.Tensor:
+    return within_ball(c[p.argmax(-1)], pi, eps)
+
+
 def _eta2(p: torch.Tensor, c: torch.Tensor, pi: torch.Tensor, eps: float) -> torch.Tensor:
-    inside = (c[p.argmax(-1)] - pi).abs() <= eps * (1 + _BALL_TOL)
-    return inside.to(p.dtype).mean(0)
+    return _inside(p, c, pi, eps).to(p.dtype).mean(0)
 
 
 def _entropy(p: torch.Tensor) -> torch.Tensor:
@@ -164,6 +174,46 @@ def mutual_information(probs: ArrayLike) -> torch.Tensor:
     return (_entropy(p.mean(0)) - _entropy(p).mean(0)).clamp_min(0)
 
 
+def mutual_information_se(probs: ArrayLike) -> torch.Tensor:
+    """Jackknife standard error ``[B]`` of :func:`mutual_information` from these n draws: how precise the plug-in
+    MI is at the draws made (0 when all draws agree exactly; NaN for a single draw). An approximate standard
+    error, not a bound: the plug-in MI is biased low at small n, by more than this where the draws disagree.
+    """
+    p, _ = check_samples(probs)
+    return _mutual_information_se(p, _entropy(p))
+
+
+def _mutual_information_se(p: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+    """The jackknife from draws ``p`` [n, B, C] and their entropies ``h`` [n, B]."""
+    n = len(p)
+    if n < 2:
+        return torch.full(p.shape[1:2], math.nan, dtype=p.dtype)
+    q_without = (p.sum(0) - p) / (n - 1)  # [n, B, C]: the predictive without draw i
+    mi_without = _entropy(q_without) - (h.sum(0) - h) / (n - 1)
+    return ((n - 1) / n * (mi_without - mi_without.mean(0)).square().sum(0)).sqrt()
+
+
+def draw_measures(probs: np.ndarray) -> tuple[float, float, float]:
+    """(mutual information, its jackknife standard error, predictive entropy) of one frame's draws [n, C], in
+    numpy: a controller's sequential draws take these per frame on a few dozen draws, where a numpy call costs
+    a fraction of a torch call. The numbers of :func:`frame_measures` within float rounding (a test checks it).
+    Raises ``ValueError`` for draws that are not probabilities, as :func:`check_samples` does."""
+    p = np.asarray(probs, dtype=np.float64)
+    if p.ndim != 2 or not (p.min() >= 0 and np.abs(p.sum(-1) - 1).max() <= PROB_SUM_TOL):
+        check_samples(p[:, None] if p.ndim == 2 else p)  # names the failing check
+    n = len(p)
+    h = -special.xlogy(p, p).sum(-1)  # [n]
+    total = p.sum(0)
+    q = total / n
+    entropy = float(-special.xlogy(q, q).sum())
+    mi = max(entropy - float(h.mean()), 0.0)
+    if n < 2:
+        return mi, math.nan, entropy
+    q_without = (total - p) / (n - 1)
+    mi_without = -special.xlogy(q_without, q_without).sum(-1) - (h.sum() - h) / (n - 1)
+    return mi, float(np.sqrt((n - 1) / n * np.square(mi_without - mi_without.mean()).sum())), entropy
+
+
 def steering_moments(probs: ArrayLike, centres: ArrayLike) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and variance ``[B]`` of steering under the posterior *predictive* (mixture over samples).
 
@@ -180,9 +230,10 @@ def steering_moments(probs: ArrayLike, centres: ArrayLike) -> tuple[torch.Tensor
 def frame_measures(probs: ArrayLike, centres: ArrayLike, eps: float, split: int | None = None) -> FrameMeasures:
     """All per-frame measures at once (validates the input once, shares the predictive).
 
-    ``split``: draws ``[:split]`` give π(o) and every other measure, draws ``[split:]`` give η2 around
-    that π(o) (as :func:`decision_confidence` with ``pi``): the controller's separate draws, which make
-    η̂2 a binomial mean given π(o). The same numbers as the two calls, from one check of the input.
+    ``split``: draws ``[:split]`` give π(o) and every other measure (the MI's standard error:
+    :func:`mutual_information_se`), draws ``[split:]`` give η2 around that π(o) (as :func:`decision_confidence`
+    with ``pi``): the controller's separate draws, which make η̂2 a binomial mean given π(o). The same numbers as
+    the single functions, from one check of the input.
     """
     e = _check_eps(eps)
     p, c = check_samples(probs, centres)
@@ -192,11 +243,13 @@ def frame_measures(probs: ArrayLike, centres: ArrayLike, eps: float, split: int 
     q = p.mean(0)
     pi = c[q.argmax(-1)]
     h = _entropy(q)
+    each = _entropy(p)
     mean = q @ c
     return FrameMeasures(
         decision=pi,
         eta2=_eta2(confidence, c, pi, e),
-        mutual_information=(h - _entropy(p).mean(0)).clamp_min(0),
+        mutual_information=(h - each.mean(0)).clamp_min(0),
+        mutual_information_se=_mutual_information_se(p, each),
         entropy=h,
         steering_mean=mean,
         steering_var=(q * (c - mean[:, None]) ** 2).sum(-1),

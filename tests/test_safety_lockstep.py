@@ -1,0 +1,142 @@
+"""Rollouts in lockstep: a rollout's result does not depend on which rollouts share its batch, nor on the
+lockstep width or the worker count (the same seeds alone and batched give the same outcomes and traces)."""
+
+import numpy as np
+import pytest
+import torch
+from conftest import CONF
+
+from uqdrive.bench.posterior import random_posteriors
+from uqdrive.data.binning import SteeringBins
+from uqdrive.models import load_posterior
+from uqdrive.safety import (
+    Controller,
+    PolicySpec,
+    RolloutJob,
+    WarningConfig,
+    WarningController,
+    executors,
+    make_executor,
+    run_rollout,
+    run_rollouts,
+)
+from uqdrive.safety.draws import DrawSettings
+from uqdrive.safety.executors import RolloutWorker, lockstep_chunks
+from uqdrive.schema import ConfigError
+from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+
+TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed", "draws", "mutual_information_se")
+
+
+def assert_same_rollouts(a: list, b: list) -> None:
+    assert [repr(r.summary()) for r in a] == [repr(r.summary()) for r in b]  # repr: NaN (no η2 drawn) equals NaN
+    for ra, rb in zip(a, b):
+        for key in TRACES:
+            assert np.array_equal(getattr(ra, key), getattr(rb, key), equal_nan=True), key
+
+
+@pytest.mark.parametrize("method", ["mcd", "vi", "hmc", "ensemble", "laplace"])
+def test_each_frames_features_are_those_of_the_frame_alone_in_any_batch(method):
+    posterior = random_posteriors(torch.Generator().manual_seed(0))[method]
+    frames = torch.rand((12, 1, 48, 64), generator=torch.Generator().manual_seed(1))
+    alone = torch.cat([posterior.features_each(frames[i : i + 1]) for i in range(len(frames))])
+    for size in (2, 3, 5, 8, 12):
+        assert torch.equal(posterior.features_each(frames[:size]), alone[:size])
+    order = torch.randperm(len(frames), generator=torch.Generator().manual_seed(2))
+    assert torch.equal(posterior.features_each(frames[order]), alone[order])
+    assert torch.allclose(alone, posterior.features(frames), atol=1e-5)  # the trunk's features within rounding
+
+
+@pytest.fixture(scope="module")
+def rain():
+    return ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"), WeatherConfig.from_yaml(
+        CONF / "weather" / "rain.yaml"
+    )
+
+
+def controllers(model_path) -> dict:
+    bins = SteeringBins()
+    posterior = load_posterior(model_path, expected_method="vi", expected_classes=bins)
+    warning = WarningConfig(theta=0.3, delta1=0.45, delta2=0.12, tau=0.03)  # every level fires on random weights
+    sequential = DrawSettings("sequential", theta=0.3, gamma=0.1, unacted="skip")
+    return {
+        "plain": Controller(posterior, bins, 20, 0.1, 6.0),
+        "warnings": WarningController(posterior, bins, warning, 0.1, 6.0, 15.0),
+        "plain, sequential": Controller(posterior, bins, 40, 0.1, 6.0, sequential),
+        "warnings, sequential": WarningController(posterior, bins, warning, 0.1, 6.0, 15.0, sequential),
+    }
+
+
+@pytest.mark.parametrize("kind", ["plain", "warnings", "plain, sequential", "warnings, sequential"])
+def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
+    """Five seeds, three slots: slots refill as rollouts end, and each frame batch mixes different rollouts."""
+    seeds = [31, 32, 33, 34, 35]
+    with DrivingEnv(horizon_s=1.5) as env:
+        alone = [run_rollout(env, controllers(random_models["vi"])[kind], seed, *rain, 0.05) for seed in seeds]
+    envs = [DrivingEnv(horizon_s=1.5) for _ in range(3)]
+    try:
+        batched = run_rollouts(envs, controllers(random_models["vi"])[kind], seeds, *rain, 0.05)
+    finally:
+        for env in envs:
+            env.close()
+    assert [r.seed for r in batched] == seeds
+    assert len({r.steps for r in alone}) > 1  # rollouts end at different steps: slots refill mid-batch
+    assert_same_rollouts(alone, batched)
+    assert all(np.isfinite(r.mutual_information_se).all() for r in alone)  # the MI's precision is recorded
+    if kind.startswith("warnings"):
+        assert {1, 2} <= set(np.concatenate([r.warning for r in alone]).tolist())
+
+
+def test_executors_give_the_same_rollouts_at_any_lockstep_width(random_models, rain):
+    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    job = RolloutJob(spec, *rain, 0.05, base_seed=700, horizon_s=1.0)
+    runs = []
+    for lockstep in (1, 4):
+        executor = make_executor("process", job, 1, lockstep=lockstep)
+        try:
+            runs.append(list(executor.run(range(2, 7))))
+        finally:
+            executor.close()
+    assert [r.seed for r in runs[0]] == list(range(702, 707))
+    assert_same_rollouts(*runs)
+
+
+def test_chunks_keep_the_order_and_feed_every_worker():
+    assert lockstep_chunks(list(range(4)), 2, 8) == [(0, 1), (2, 3)]  # a sequential look of 4 on 2 workers
+    assert lockstep_chunks(list(range(19)), 2, 8) == [tuple(range(10)), tuple(range(10, 19))]
+    chunks = lockstep_chunks(list(range(738)), 2, 8)
+    assert {len(c) for c in chunks[:-1]} == {32} and sum(chunks, ()) == tuple(range(738))
+    assert lockstep_chunks([5], 3, 8) == [(5,)]
+
+
+@pytest.mark.parametrize("width", [0, 2.5, True])
+def test_lockstep_width_must_be_a_positive_integer(random_models, rain, width):
+    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    with pytest.raises(ConfigError, match=rf"executor.lockstep={width!r}: must be an integer >= 1"):
+        make_executor("process", RolloutJob(spec, *rain, 0.0, base_seed=0), 1, lockstep=width)
+
+
+def test_a_worker_builds_only_the_envs_its_chunk_needs_and_leaves_them_to_the_next_job(random_models, rain):
+    """A sweep's next cell (here another location and weather) takes the envs the last one left; its rollouts are
+    those of fresh envs."""
+    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    first = RolloutJob(spec, *rain, 0.05, base_seed=0, horizon_s=0.5)
+    scenario = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout_large.yaml")
+    second = RolloutJob(spec, scenario, WeatherConfig.from_yaml(CONF / "weather" / "fog.yaml"), 0.0, 40, horizon_s=0.5)
+    executors._spare_envs.clear()
+    fresh = RolloutWorker(second, width=8)
+    expected = fresh.run([1, 2, 3])
+    executors._spare_envs.clear()  # the fresh worker keeps its envs: the next one builds its own
+    worker = RolloutWorker(first, width=8)
+    try:
+        assert [r.seed for r in worker.run([3, 4])] == [3, 4] and len(worker.envs) == 2
+        envs = list(worker.envs)
+    finally:
+        worker.close()
+    reused = RolloutWorker(second, width=8)
+    try:
+        assert reused.envs == envs
+        assert_same_rollouts(reused.run([1, 2, 3]), expected)
+    finally:
+        reused.close()
+        fresh.close()
