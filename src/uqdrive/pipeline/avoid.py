@@ -50,7 +50,8 @@ def run_cell(
     """η̂1 of one cell; the rollouts its log already holds (same identity) are replayed, not rerun, so a finished
     cell costs nothing on a rerun and an interrupted one resumes. The modes off and fresh_off drive without
     warnings (``warning``'s are only counted); fresh_off and calibrated drive the validation seeds. ``off``: the
-    warnings-off cell on the same seeds, whose rollouts no warning would change are reused exactly."""
+    warnings-off cell on the same seeds, whose rollouts no warning would change are reused exactly (with fixed
+    draws only: sequential draws differ between a controller that acts on warnings and one that does not)."""
     base_seed = settings.validation_seed if mode in FRESH else settings.estimator.base_seed
     estimator = dataclasses.replace(settings.estimator, base_seed=base_seed)
     job = settings.job(condition, None if mode in WARNINGS_OFF else warning, base_seed)
@@ -61,7 +62,7 @@ def run_cell(
         estimator,
         estimate_key(job, estimator, __name__),
         Path(cfg.avoid.rollout_log) / f"{name}.jsonl",
-        reuse=unchanged_by(warning, off) if off is not None else None,
+        reuse=unchanged_by(warning, off) if off is not None and settings.spec.draws.scheme == "fixed" else None,
     )
     return Cell(name, condition.name, mode, warning, run.outcome, run.results, run.seconds, run.reused, base_seed)
 

@@ -16,6 +16,7 @@ from uqdrive.pipeline.configs import Executor, ModelStage, train_stage
 from uqdrive.pipeline.records import MODES
 from uqdrive.safety.calibration import min_calibration_runs
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
+from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig
@@ -83,6 +84,7 @@ class AvoidSection(EstimatorSettings):
     horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked)
     speed: Positive  # cruise speed (m/s), at most vehicle.max_speed
     eps: Positive
+    draws: DrawSettings  # fixed (the paper's) or sequential; warnings-off cells record what calibration replays
     validation_seed: Seed
     known_noise: NonNegative
     family_wise: Bool  # spend γ over this controller's cells (conditions × modes): all of them at once
@@ -252,7 +254,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     model_path = Path(avoid.model_path)
     trained_by = train_stage(stage.experiment.name, method)
     cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
-    spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps)
+    spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)
     return AvoidSettings(
         method,
         stage.seed,

@@ -18,6 +18,7 @@ from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, Con
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.pipeline.configs import Executor, ModelStage, train_stage
 from uqdrive.safety.cells import cell_posterior
+from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import PolicySpec
 from uqdrive.schema import ConfigError, Count, NonNegative, Positive, Seed, Str, invalid, schema, validate
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
@@ -39,6 +40,7 @@ class EnvelopeSection(CertifySettings):
     horizon_s: Positive
     speed: Positive
     samples: Count
+    draws: DrawSettings
     eps: Positive
     half_width: Positive | None
     out: Str
@@ -121,7 +123,7 @@ def build_envelope(cfg: DictConfig) -> Envelope:
         raise ConfigError(str(err)) from None
     space.check()
     _check_budget(env, len(axes))
-    policy = PolicySpec("bnn", env.speed, env.model_path, method, bins, env.samples, env.eps)
+    policy = PolicySpec("bnn", env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
     return Envelope(stage, method, space, policy)
 
 

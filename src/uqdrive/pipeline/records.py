@@ -93,9 +93,9 @@ class SafetyCell:
     left_corridor_rate: float
     reached_goal_rate: float
     max_corridor_use: float
-    mean_corridor_use: float
+    mean_corridor_use: float | None
     mean_lateral_deviation: float
-    mean_eta2: float
+    mean_eta2: float | None  # None: the controller drew no η2 set (sequential draws acting on no warning)
     mean_mutual_information: float
     guaranteed: bool
     outcomes: str

@@ -27,6 +27,7 @@ from uqdrive.pipeline.records import SafetyCell, as_dict, read_record, write_rec
 from uqdrive.pipeline.sweeps import grid, run_cells
 from uqdrive.plots import safety_hexbin, save_figure
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
+from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
@@ -47,7 +48,8 @@ class SafetySection(EstimatorSettings):
     model_path: Str
     horizon_s: Positive  # T
     speed: Positive  # m/s, at most vehicle.max_speed
-    samples: Count  # posterior draws per frame
+    samples: Count  # posterior draws per frame (the cap, with sequential draws)
+    draws: DrawSettings  # fixed (the paper's) or sequential draws per frame
     eps: Positive  # η2's ball, steering units
     family_wise: Bool  # the sweep spends γ over its cells: every cell within ±θ at once with probability ≥ 1 − γ
     family_size: Count  # cells γ is spread over (the sweep sets it to its cell count); 1 unless family_wise
@@ -103,7 +105,9 @@ def build_job(cfg: DictConfig) -> tuple[SafetyStage, RolloutJob, str]:
     model_path = Path(safety.model_path)
     trained_by = train_stage(stage.experiment.name, method)
     cell_posterior("safety.model_path", model_path, method, bins, trained_by)
-    spec = PolicySpec("bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps)
+    spec = PolicySpec(
+        "bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws
+    )
     job = RolloutJob(
         policy=spec,
         scenario=stage.scenario,

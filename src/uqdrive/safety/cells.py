@@ -139,12 +139,13 @@ def file_digest(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-def rates(results: Sequence[RolloutResult]) -> dict[str, float]:
+def rates(results: Sequence[RolloutResult]) -> dict[str, float | None]:
     """Per-cell summaries beside η̂1: how paths failed and how well they tracked the route."""
 
-    def mean(values: list[float]) -> float:
+    def mean(values: list[float]) -> float | None:
+        """None where no rollout measured it (e.g. η2 when the controller drew no η2 set): JSON has no NaN."""
         finite = [v for v in values if not math.isnan(v)]
-        return float(np.mean(finite)) if finite else float("nan")
+        return float(np.mean(finite)) if finite else None
 
     return {
         "collision_rate": mean([r.collision for r in results]),

@@ -108,15 +108,47 @@ class RolloutJob:
     half_width: float | None = None
 
 
+class RolloutsJob(Protocol):
+    """A job whose worker runs one rollout at a time (e.g. an envelope cell's, each rollout in its own world)."""
+
+    def worker(self) -> Any: ...
+
+
 @dataclasses.dataclass(frozen=True)
 class LockstepJob:
-    """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time."""
+    """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time (a `RolloutJob`;
+    any other job's worker runs a chunk's rollouts one after another)."""
 
-    job: RolloutJob
+    job: RolloutJob | RolloutsJob
     width: int = 1
 
-    def worker(self) -> RolloutWorker:
-        return RolloutWorker(self.job, self.width)
+    def worker(self) -> RolloutWorker | OneAtATime:
+        if isinstance(self.job, RolloutJob):
+            return RolloutWorker(self.job, self.width)
+        return OneAtATime(self.job.worker())
+
+
+class OneAtATime:
+    """A chunk runner over a worker of single rollouts (``run(index)``)."""
+
+    def __init__(self, worker: Any):
+        self.worker = worker
+
+    def run(self, indices: Sequence[int]) -> list[RolloutResult]:
+        return [self.worker.run(i) for i in indices]
+
+    def close(self) -> None:
+        self.worker.close()
+
+
+class ChunkActor:
+    """A Ray actor: one `LockstepJob` worker for all the chunks it is given."""
+
+    def __init__(self, job: LockstepJob):
+        self.worker = job.worker()
+
+    def run(self, indices: Sequence[int]) -> list[RolloutResult]:
+        return self.worker.run(indices)
 
 
 _spare_envs: dict[str, list[DrivingEnv]] = {}
@@ -236,8 +268,8 @@ class RayRunner:
                 log_to_driver=False,
                 configure_logging=False,
             )
-        actor = ray.remote(num_cpus=1)(RolloutWorker)
-        self._actors = [actor.remote(job, width) for _ in range(workers)]
+        actor = ray.remote(num_cpus=1)(ChunkActor)
+        self._actors = [actor.remote(LockstepJob(job, width)) for _ in range(workers)]
         self._pool = ActorPool(self._actors)
 
     def run(self, items: Sequence[tuple[int, ...]]) -> Iterator[list[RolloutResult]]:
