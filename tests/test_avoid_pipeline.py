@@ -1,6 +1,7 @@
 """The `avoid` stage on the tiny profile: cells per condition, calibration, reuse, outputs, MLflow runs, the
 summary, clear errors."""
 
+import dataclasses
 import json
 
 import pytest
@@ -212,3 +213,15 @@ def test_bad_input_fails_before_any_rollout(avoid_config, tmp_path, monkeypatch,
     with pytest.raises(error, match=match):
         run_avoid(avoid_config("model=vi", *overrides))
     assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()
+
+
+def test_thresholds_at_0_or_1_take_the_fixed_draws_and_others_the_configured_sequential_ones(avoid_config):
+    """The calibration may choose a never- or always-warning candidate; sequential tiers cannot test 0 or 1."""
+    settings = build_settings(avoid_config("model=vi"))
+    w = settings.warning
+    assert settings.spec.draws.scheme == "sequential"
+    assert settings.job(settings.known, w, 0).policy.draws.scheme == "sequential"
+    for delta1, delta2 in ((0.0, 0.0), (1.0, 0.6), (1.0, 1.0)):
+        edge = dataclasses.replace(w, delta1=delta1, delta2=delta2)
+        policy = settings.job(settings.known, edge, 0).policy
+        assert policy.draws.scheme == "fixed" and isinstance(policy.build(15.0), WarningController)

@@ -42,7 +42,7 @@ def _metrics_of_experiments(shown: object) -> list[dict]:
 def _dvc(project: Path, *args: str) -> str:
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
     result = subprocess.run(
-        [sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True, text=True, timeout=900
+        [sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True, text=True, timeout=1800
     )
     assert result.returncode == 0, result.stdout + result.stderr
     return result.stdout
@@ -108,6 +108,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert findings.comparisons == len(findings.findings) > 0 and {
         f.replicates == [0, 1] for f in findings.findings
     } == {True}
+    for method in ("mcd", "vi"):  # each driven method's certified map of its first replicate
+        envelope = json.loads((project / f"metrics/envelope/{method}-seed0.json").read_text())
+        assert envelope["method"] == method and envelope["regions"]
     assert (project / "mlflow.db").exists()
 
     # the report's tables hold this run's numbers, as the report formats them, the findings first

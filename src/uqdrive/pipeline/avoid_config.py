@@ -167,9 +167,14 @@ class AvoidSettings:
         return (self.known, *self.unknown)
 
     def job(self, condition: Condition, warning: WarningConfig | None, base_seed: int) -> RolloutJob:
-        """The rollouts of one cell: ``warning`` None drives without the warning system."""
+        """The rollouts of one cell: ``warning`` None drives without the warning system. Sequential draws test
+        each threshold inside (0, 1); thresholds the calibration may choose at 0 or 1 (never or always warning)
+        have no indifference zone to test in, so such a cell takes the paper's fixed draws."""
+        draws = self.spec.draws
+        if warning is not None and not 0 < warning.delta2 <= warning.delta1 < 1:
+            draws = dataclasses.replace(draws, scheme="fixed")
         return RolloutJob(
-            policy=dataclasses.replace(self.spec, warnings=warning),
+            policy=dataclasses.replace(self.spec, warnings=warning, draws=draws),
             scenario=condition.scenario,
             weather=condition.weather,
             noise=condition.noise,
