@@ -30,7 +30,7 @@ repro: $(STAMP)
 
 # Two pytest workers (pytest-xdist): the end-to-end `dvc repro` test runs beside the rest of the suite.
 test: lint
-	pytest -q -n 2
+	pytest -q -n 2 --durations=20
 
 lint: $(TEST_STAMP)
 	ruff check src stages tests
