@@ -2,6 +2,7 @@
 synthetic held-out files (the real collection runs in test_dvc_pipeline)."""
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -68,8 +69,12 @@ def store_root(tmp_path_factory):
 
 
 def evaluate_config(stage_config, random_models, store_root, out, *overrides: str):
-    """The evaluate config on the random models, inputs and outputs under `out`, MLflow runs in `store_root`."""
-    models = next(iter(random_models.values())).parent
+    """The evaluate config on the random models (as replicate 0: models/<method>/seed0.pt), inputs and outputs under
+    `out`, MLflow runs in `store_root`."""
+    models = out / "models"
+    for method, path in random_models.items():
+        (models / method).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, models / method / "seed0.pt")
     return stage_config(
         "evaluate",
         f"paths.root={store_root}",
@@ -210,7 +215,9 @@ def test_missing_inputs_name_the_file_and_how_to_make_it(stage_config, tmp_path,
             )
         )
     write_heldout(tmp_path, "rain", 0.0)
-    with pytest.raises(FileNotFoundError, match=r"vi.pt: train it first \(`python stages/train.py model=vi`"):
+    with pytest.raises(
+        FileNotFoundError, match=r"vi/seed0.pt: train it first \(`python stages/train.py model=vi seed=0`"
+    ):
         run_evaluate(stage_config("evaluate", "methods=[vi]", "weathers=[rain]", "noises=[0.0]"))
     assert not (tmp_path / "metrics").exists()
 
