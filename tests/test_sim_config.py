@@ -96,13 +96,13 @@ def test_every_scenario_kind_has_a_layout_builder():
 @pytest.mark.parametrize(
     ("stage", "overrides", "size"),
     [
-        ("avoid", [], (96, 72)),  # conf/experiment/avoid.yaml's render size
+        ("avoid", [], (64, 48)),  # conf/experiment/avoid.yaml's render size (its training data's: collect's)
         ("safety", [], (64, 48)),  # the offline experiment's
-        ("safety", ["experiment=avoid"], (96, 72)),
+        ("safety", ["experiment=avoid", "render=96x72"], (96, 72)),
         ("avoid", ["render=160x120"], (160, 120)),  # another conf/render/ size
         ("avoid", ["camera.width=80", "camera.height=60"], (80, 60)),  # the camera's own keys still win
         ("collect", [], (64, 48)),  # no experiment: the network's own size
-        ("collect", ["+experiment=avoid"], (96, 72)),  # collected for an experiment: its size
+        ("collect", ["+experiment=avoid", "render=96x72"], (96, 72)),  # collected for an experiment: its size
     ],
 )
 def test_the_camera_renders_at_the_experiments_size(stage_config, stage, overrides, size):
