@@ -28,9 +28,9 @@ repro: $(STAMP)
 	@echo "Report: reports/report.html (and report.md). Metrics: metrics/, figures: plots/, data: data/, models: models/."
 	@echo "Runs in MLflow: make ui"
 
-# Two pytest workers (pytest-xdist): the end-to-end `dvc repro` test runs beside the rest of the suite.
+# Two pytest workers, a test file to each in turn (pyproject addopts): the `dvc repro` test runs beside the rest.
 test: lint
-	pytest -q -n 2 --durations=20
+	pytest -q --durations=20
 
 lint: $(TEST_STAMP)
 	ruff check src stages tests

@@ -1,3 +1,4 @@
+import functools
 from pathlib import Path
 
 import pytest
@@ -15,15 +16,16 @@ for register in (register_world, register_warning, register_models):  # the conf
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
+def compose_stage(root: Path, stage: str, *overrides: str):
+    """A stage's config on the tiny profile with every output under ``root``."""
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(stage, overrides=[f"paths.root={root}", "profile=tiny", "progress=false", *overrides])
+
+
 @pytest.fixture
 def stage_config(tmp_path):
     """Compose a stage's config on the tiny profile with every output under tmp_path."""
-
-    def make(stage: str, *overrides: str):
-        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-            return compose(stage, overrides=[f"paths.root={tmp_path}", "profile=tiny", "progress=false", *overrides])
-
-    return make
+    return functools.partial(compose_stage, tmp_path)
 
 
 @pytest.fixture(autouse=True)

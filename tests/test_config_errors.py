@@ -13,6 +13,7 @@ from uqdrive.stage import stage_main
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("stage", "overrides", "message"),
     [
@@ -90,6 +91,7 @@ def run_script(stage: str, *args: str, cwd: Path) -> subprocess.CompletedProcess
     )
 
 
+@pytest.mark.slow
 def test_the_resolved_job_config_and_the_help_print_without_running(tmp_path):
     shown = run_script("safety", "model=vi", "--cfg", "job", "--resolve", cwd=tmp_path)
     assert shown.returncode == 0, shown.stderr
@@ -100,6 +102,7 @@ def test_the_resolved_job_config_and_the_help_print_without_running(tmp_path):
     assert "schema" not in helped.stdout.split("== Config ==")[0]
 
 
+@pytest.mark.slow
 def test_an_empty_model_file_is_one_line_naming_the_key_and_the_stage_that_trains_it(tmp_path):
     (tmp_path / "vi.pt").write_bytes(b"")
     result = run_script("safety", "profile=tiny", "model=vi", f"safety.model_path={tmp_path}/vi.pt", cwd=tmp_path)

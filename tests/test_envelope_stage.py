@@ -39,6 +39,7 @@ class Replaying:
         pass
 
 
+@pytest.mark.slow
 def test_the_stage_writes_its_map_logs_a_run_and_a_rerun_replays_every_rollout(envelope_config, tmp_path, monkeypatch):
     record = run_envelope(envelope_config("model=vi"))
     saved = json.loads((tmp_path / "metrics/envelope/vi-seed0.json").read_text())
@@ -84,6 +85,7 @@ def test_the_stage_writes_its_map_logs_a_run_and_a_rerun_replays_every_rollout(e
     assert again["reused"] and {**again, "seconds": 0, "reused": 0} == {**record, "seconds": 0, "reused": 0}
 
 
+@pytest.mark.slow
 def test_any_numbers_of_the_world_are_axes(envelope_config):
     axes = (
         "[{key:scenario.ring_radius,range:[10,24]},{key:noise,range:[0,0.2]},{key:weather.fog_density,range:[0,0.05]}]"

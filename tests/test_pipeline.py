@@ -1,10 +1,12 @@
 """The collect and preprocess stages on the tiny profile, called as DVC would call them (minus the shell)."""
 
 import json
+import shutil
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import compose_stage
 from mlflow.tracking import MlflowClient
 
 from uqdrive.data.binning import SteeringBins
@@ -14,10 +16,18 @@ from uqdrive.pipeline.preprocess import run_preprocess
 from uqdrive.tracking import store_uris
 
 
-@pytest.fixture
-def collected(stage_config, tmp_path):
+@pytest.fixture(scope="module")
+def collected_once(tmp_path_factory):
+    root = tmp_path_factory.mktemp("collected")
     for scenario in ("straight", "roundabout"):
-        run_collect(stage_config("collect", f"scenario={scenario}", "collect.workers=1"))
+        run_collect(compose_stage(root, "collect", f"scenario={scenario}", "collect.workers=1"))
+    return root
+
+
+@pytest.fixture
+def collected(collected_once, tmp_path):
+    """A copy of the module's collected frames (and their runs): each test writes its outputs beside its own."""
+    shutil.copytree(collected_once, tmp_path, dirs_exist_ok=True)
     return tmp_path
 
 

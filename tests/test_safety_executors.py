@@ -54,6 +54,7 @@ def one_worker(random_models):
     return outcomes("process", 1, random_models["vi"])
 
 
+@pytest.mark.slow
 def test_one_and_two_worker_processes_agree(one_worker, random_models):
     assert [r.seed for r in one_worker[1]] == list(range(500, 506))
     assert len({r.steps for r in one_worker[1]} | {len(r.x) for r in one_worker[1]}) > 1  # paths differ by seed

@@ -191,6 +191,7 @@ def test_model_of_another_method_is_refused(safety_config, random_models):
         run_safety(safety_config("model=vi", f"safety.model_path={random_models['mcd']}"))
 
 
+@pytest.mark.slow
 def test_summary_answers_per_method_over_replicates_and_draws_one_grid_per_location_and_noise(
     safety_config, stage_config, tmp_path
 ):

@@ -59,6 +59,7 @@ def test_grid_varies_the_last_axis_fastest_and_a_cell_overrides_the_sweep():
     ]
 
 
+@pytest.mark.slow
 def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, models, stage_config):
     swept = sweep(run_safety_sweep, "safety_sweep", tmp_path, *models, "executor.workers=2", *SWEEP)
     assert [cell.safety.cell for cell, _ in swept] == [
@@ -90,6 +91,7 @@ def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, model
     assert sorted(r.data.tags["reused"] for r in logged) == ["false"] * 4 + ["true"] * 5  # and the single-cell reuse
 
 
+@pytest.mark.slow
 def test_heldout_sweep_collects_every_condition_as_the_single_condition_command(tmp_path, stage_config):
     swept = sweep(run_heldout, "heldout_sweep", tmp_path, "sweep.weathers=[clear_noon,rain]", "sweep.noises=[0.1]")
     assert [cell.collect.name for cell, _ in swept] == [
@@ -120,6 +122,7 @@ def test_a_weather_without_a_config_fails_before_any_cell(tmp_path, models):
     assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()
 
 
+@pytest.mark.slow
 def test_a_family_wise_sweep_spends_gamma_over_its_cells(tmp_path, models, stage_config):
     """Each of the m cells at γ/m (Bonferroni): every interval holds at once with probability ≥ 1 − γ. The cell
     records say so, and the single-cell command given the same family reuses the sweep's cell."""

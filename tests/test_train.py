@@ -189,6 +189,7 @@ def test_replicates_differ_by_their_seed_only(stage_config):
     assert all("seed0" in str(flat[0][k]) and "seed1" in str(flat[1][k]) for k in differ - {"seed"})
 
 
+@pytest.mark.slow
 def test_the_replicates_stage_trains_each_seed_as_the_single_replicate_command(tmp_path):
     """Two replicates side by side in worker processes: each file is what `python stages/train.py seed=r` writes."""
     write_processed(tmp_path / "data/processed/joint/train.parquet", 160, seed=1)

@@ -10,6 +10,7 @@ them by reading the source (`ast`), not by running it; third-party imports are i
 from __future__ import annotations
 
 import ast
+import functools
 import hashlib
 from collections.abc import Iterable
 from pathlib import Path
@@ -38,9 +39,16 @@ def _module_name(path: Path, src: Path) -> str | None:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def imported_names(path: Path, src: Path) -> set[str]:
+def imported_names(path: Path, src: Path) -> frozenset[str]:
     """Every module name a file imports anywhere in it, with relative imports made absolute; for
-    ``from a import b`` both ``a`` and ``a.b`` (``b`` may be a submodule)."""
+    ``from a import b`` both ``a`` and ``a.b`` (``b`` may be a submodule). Parsed once per version of the file:
+    a stage asks for the same closure once per cell."""
+    stat = path.stat()
+    return _parsed_imports(path, src, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=4096)
+def _parsed_imports(path: Path, src: Path, mtime_ns: int, size: int) -> frozenset[str]:
     tree = ast.parse(path.read_text(), filename=str(path))
     here = _module_name(path, src)
     package = here if path.name == "__init__.py" else (here.rpartition(".")[0] if here else "")
@@ -56,7 +64,7 @@ def imported_names(path: Path, src: Path) -> set[str]:
                 base = node.module or ""
             names.add(base)
             names.update(f"{base}.{alias.name}" for alias in node.names if alias.name != "*")
-    return {n for n in names if n == PACKAGE or n.startswith(f"{PACKAGE}.")}
+    return frozenset(n for n in names if n == PACKAGE or n.startswith(f"{PACKAGE}."))
 
 
 def _with_parents(name: str) -> list[str]:
