@@ -8,6 +8,8 @@ from conftest import CONF
 
 from uqdrive.bench.posterior import random_posteriors
 from uqdrive.data.binning import SteeringBins
+from uqdrive.envelope.rollouts import ConditionJob, UniformIn
+from uqdrive.envelope.space import Axis, AxisSettings, ConditionSpace, World
 from uqdrive.models import load_posterior
 from uqdrive.safety import (
     Controller,
@@ -22,7 +24,7 @@ from uqdrive.safety import (
 )
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import RolloutWorker, lockstep_chunks
-from uqdrive.schema import ConfigError
+from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 
 TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed", "draws", "mutual_information_se")
@@ -140,3 +142,30 @@ def test_a_worker_builds_only_the_envs_its_chunk_needs_and_leaves_them_to_the_ne
     finally:
         reused.close()
         fresh.close()
+
+
+@pytest.mark.parametrize("axes", [("noise", "weather.blend"), ("noise", "scenario.ring_radius")])
+def test_envelope_conditions_in_lockstep_are_the_rollouts_alone(random_models, rain, axes):
+    """Each rollout in its own world (noise, weather, a ring's radius): batched, each is what it is alone."""
+    ranges = {"noise": (0.0, 0.2), "weather.blend": (0.0, 1.0), "scenario.ring_radius": (10.0, 24.0)}
+    space = ConditionSpace(
+        tuple(Axis.of(validate(AxisSettings, {"key": k, "range": list(ranges[k])})) for k in axes),
+        World(rain[0], WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"), 0.0),
+        (WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"), rain[1]) if "weather.blend" in axes else None,
+    )
+    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    job = ConditionJob(spec, space, UniformIn((0.0, 0.0), (1.0, 1.0)), base_seed=900, horizon_s=1.0)
+    worlds = [job.world(i) for i in range(5)]
+    assert len({repr(w) for w in worlds}) == 5
+    with DrivingEnv(horizon_s=1.0) as env:
+        policy = spec.build(job.control_hz)
+        runs = [[run_rollout(env, policy, 900 + i, w.scenario, w.weather, w.noise) for i, w in enumerate(worlds)]]
+    for lockstep in (1, 3):
+        executor = make_executor("process", job, 1, lockstep=lockstep)
+        try:
+            runs.append(list(executor.run(range(5))))
+        finally:
+            executor.close()
+    assert [r.seed for r in runs[1]] == list(range(900, 905))
+    assert_same_rollouts(runs[0], runs[1])
+    assert_same_rollouts(runs[0], runs[2])

@@ -9,15 +9,16 @@ any order, and when a rerun replays it from the cell's log.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 
 from uqdrive.envelope.space import ConditionSpace, World
-from uqdrive.safety.executors import PolicySpec
-from uqdrive.safety.rollout import RolloutResult, run_rollout
+from uqdrive.safety.executors import PolicySpec, env_key, leave_envs, take_envs
+from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
-from uqdrive.sim import CameraConfig, DrivingEnv, VehicleConfig, build_geometry
+from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, build_geometry
 
 CONDITION_STREAM = 0xE17E  # the condition's own random stream of a rollout seed, apart from the episode's
 
@@ -65,33 +66,51 @@ class ConditionJob:
     def world(self, index: int) -> World:
         return self.space.world(self.point(index))
 
-    def worker(self) -> ConditionWorker:
-        return ConditionWorker(self)
+    def worker(self, width: int = 1) -> ConditionWorker:
+        return ConditionWorker(self, width)
 
 
 class ConditionWorker:
-    """One env and one policy for all of a job's rollouts (one torch thread: the parallelism is across
-    workers); the safe set is rebuilt only when a rollout's location differs from the last one's."""
+    """Up to ``width`` envs and one policy for all of a job's chunks, run in lockstep (`run_rollouts`), each
+    rollout reset to its own world (one torch thread: the parallelism is across workers). Envs come from and go
+    back to the process's spares, as a `RolloutWorker`'s; the safe set is rebuilt only for a new location."""
 
-    def __init__(self, job: ConditionJob):
+    def __init__(self, job: ConditionJob, width: int = 1):
+        if width < 1:
+            raise ValueError(f"lockstep width={width!r} must be >= 1")
         torch.set_num_threads(1)
-        self.job = job
-        self.env = DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
+        self.job, self.width = job, width
         self.policy = job.policy.build(job.control_hz)
-        self._scenario = None
+        self.key = env_key(job)
+        self.envs = take_envs(self.key)
+        self._scenario: ScenarioConfig | None = None
         self._safe_set: SafeSet | None = None
 
-    def run(self, index: int) -> RolloutResult:
+    def safe_set(self, scenario: ScenarioConfig) -> SafeSet:
+        if self._safe_set is None or scenario != self._scenario:
+            vehicle = self.job.vehicle
+            self._safe_set = safe_set_for(build_geometry(scenario), vehicle.width, vehicle.length, self.job.half_width)
+            self._scenario = scenario
+        return self._safe_set
+
+    def run(self, indices: Sequence[int]) -> list[RolloutResult]:
+        """Rollouts ``indices`` (seeds base_seed + i, each at its condition), in that order."""
         job = self.job
-        world = job.world(index)
-        if world.scenario != self._scenario:
-            geometry = build_geometry(world.scenario)
-            self._safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
-            self._scenario = world.scenario
-        seed = job.base_seed + index
-        return run_rollout(
-            self.env, self.policy, seed, world.scenario, world.weather, world.noise, safe_set=self._safe_set
+        worlds = [job.world(i) for i in indices]
+        width = min(len(indices), self.width)
+        while len(self.envs) < width:
+            self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
+        one_location = all(w.scenario == worlds[0].scenario for w in worlds)
+        return run_rollouts(
+            self.envs[:width],
+            self.policy,
+            [job.base_seed + i for i in indices],
+            *dataclasses.astuple(worlds[0]),
+            job.half_width,
+            self.safe_set(worlds[0].scenario) if one_location else None,  # else judged on each rollout's own
+            worlds=[(w.scenario, w.weather, w.noise) for w in worlds],
         )
 
     def close(self) -> None:
-        self.env.close()
+        leave_envs(self.key, self.envs)
+        self.envs = []

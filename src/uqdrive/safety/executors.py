@@ -109,36 +109,22 @@ class RolloutJob:
 
 
 class RolloutsJob(Protocol):
-    """A job whose worker runs one rollout at a time (e.g. an envelope cell's, each rollout in its own world)."""
+    """A job whose worker runs chunks of rollouts in lockstep, each rollout in its own world (an envelope's)."""
 
-    def worker(self) -> Any: ...
+    def worker(self, width: int) -> Any: ...
 
 
 @dataclasses.dataclass(frozen=True)
 class LockstepJob:
-    """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time (a `RolloutJob`;
-    any other job's worker runs a chunk's rollouts one after another)."""
+    """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time."""
 
     job: RolloutJob | RolloutsJob
     width: int = 1
 
-    def worker(self) -> RolloutWorker | OneAtATime:
+    def worker(self) -> Any:
         if isinstance(self.job, RolloutJob):
             return RolloutWorker(self.job, self.width)
-        return OneAtATime(self.job.worker())
-
-
-class OneAtATime:
-    """A chunk runner over a worker of single rollouts (``run(index)``)."""
-
-    def __init__(self, worker: Any):
-        self.worker = worker
-
-    def run(self, indices: Sequence[int]) -> list[RolloutResult]:
-        return [self.worker.run(i) for i in indices]
-
-    def close(self) -> None:
-        self.worker.close()
+        return self.job.worker(self.width)
 
 
 class ChunkActor:
@@ -172,8 +158,8 @@ class RolloutWorker:
         torch.set_num_threads(1)
         self.job, self.width = job, width
         self.policy = job.policy.build(job.control_hz)
-        self.key = repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))
-        self.envs: list[DrivingEnv] = _spare_envs.pop(self.key, [])
+        self.key = env_key(job)
+        self.envs = take_envs(self.key)
         self.ready = 0  # envs reset to this job's world
         self.safe_set: SafeSet | None = None
 
@@ -199,12 +185,27 @@ class RolloutWorker:
         return run_rollouts(envs, self.policy, seeds, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
 
     def close(self) -> None:
-        """Leave the envs to the next job of this process (closing those an earlier one left)."""
-        for envs in _spare_envs.values():
-            for env in envs:
-                env.close()
-        _spare_envs.clear()
-        _spare_envs[self.key], self.envs = self.envs, []
+        leave_envs(self.key, self.envs)
+        self.envs = []
+
+
+def env_key(job: Any) -> str:
+    """The settings an env is built with (camera, car, control rate, horizon): envs of one key are interchangeable."""
+    return repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))
+
+
+def take_envs(key: str) -> list[DrivingEnv]:
+    """The envs a closed worker of this process left with settings ``key`` (none if another's were left last)."""
+    return _spare_envs.pop(key, [])
+
+
+def leave_envs(key: str, envs: list[DrivingEnv]) -> None:
+    """Leave a closing worker's envs to the next job of this process (closing those an earlier one left)."""
+    for spare in _spare_envs.values():
+        for env in spare:
+            env.close()
+    _spare_envs.clear()
+    _spare_envs[key] = envs
 
 
 def lockstep_chunks(indices: Sequence[int], workers: int, width: int) -> list[tuple[int, ...]]:

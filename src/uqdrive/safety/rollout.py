@@ -98,9 +98,12 @@ def run_rollouts(
     noise: float,
     half_width: float | None = None,
     safe_set: SafeSet | None = None,
+    worlds: Sequence[tuple[ScenarioConfig, WeatherConfig, float]] | None = None,
 ) -> list[RolloutResult]:
     """The rollouts of ``seeds`` (in that order), ``len(envs)`` at a time in lockstep: each control step asks the
     policy for the commands of every running slot at once, and a slot whose rollout ends starts the next seed.
+    ``worlds``: each rollout's own (scenario, weather, noise), where they differ (an envelope's conditions); a
+    ``safe_set`` given must then hold for every one's scenario.
 
     Each rollout is what `run_rollout` gives it alone: its env is reset with its own seed and the policy's slot
     draws from it only (`Controller`: the frames' features and draws do not depend on the other slots).
@@ -112,7 +115,8 @@ def run_rollouts(
     def start(slot: int) -> None:
         env = envs[slot]
         for index, seed in queue:
-            obs = env.reset(seed, scenario, weather, noise, render=policy.needs_camera)
+            world = worlds[index] if worlds is not None else (scenario, weather, noise)
+            obs = env.reset(seed, *world, render=policy.needs_camera)
             policy.reset(env, seed, slot)
             episode = _Episode(index, seed, env, obs, env.last_info, env.last_info["termination"])
             if not env.done:
