@@ -51,3 +51,10 @@ def random_models(tmp_path_factory):
     folder = tmp_path_factory.mktemp("random-models")
     posteriors = random_posteriors(torch.Generator().manual_seed(0))
     return {method: save_posterior(post, folder / f"{method}.pt") for method, post in posteriors.items()}
+
+
+def pytest_collection_modifyitems(items):
+    """The longest test first, the `dvc repro` one, then the other end-to-end tests (stable otherwise): each
+    pytest-xdist worker takes the next test file in this order, so the longest runs beside the rest of the suite
+    instead of after most of it."""
+    items.sort(key=lambda item: (item.path.name != "test_dvc_pipeline.py", item.get_closest_marker("slow") is None))
