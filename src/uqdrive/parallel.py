@@ -5,7 +5,7 @@ A *job* is a picklable recipe whose ``worker()`` builds the expensive per-proces
 client and its world, a policy); ``worker().run(item)`` does one item (an episode's index, or a chunk of
 rollout indices run in lockstep), which carries its own seeds, so results are the same whatever the worker
 count. A pool lives as long as its caller wants (a cell, or a whole
-stage of many cells), so spawned processes pay their imports once.
+stage of many cells), so worker processes build their state once.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ PRELOAD = ["torch", "pybullet", "uqdrive.safety.executors", "uqdrive.pipeline.co
 
 
 class ProcessPool:
-    """Spawned processes kept for as long as the pool: each builds a job's worker when it meets the job,
+    """Worker processes kept for as long as the pool: each builds a job's worker when it meets the job,
     so the start-up (imports, model, world) is paid once per process and job, not once per item.
     ``executor(job)`` runs one job's items; with 1 worker everything runs in this process.
     """
@@ -83,7 +83,7 @@ class ProcessPool:
         yield from map(_run_keyed, keyed) if self._pool is None else self._pool.map(_run_keyed, keyed)
 
     def release(self, key: int) -> None:
-        """Close an in-process job's worker (spawned processes drop theirs at the next job, or at close)."""
+        """Close an in-process job's worker (worker processes drop theirs at the next job, or at close)."""
         if key in _keyed and self._pool is None:
             _keyed.pop(key).close()
 

@@ -146,7 +146,7 @@ class TrainReplicatesStage(TrainStage):
 
 @dataclass(frozen=True)
 class TrainJob:
-    """The replicates' configs, resolved (a spawned process has no Hydra): item i trains the i-th."""
+    """The replicates' configs, resolved (a worker process has no Hydra): item i trains the i-th."""
 
     configs: tuple[dict, ...]
 
