@@ -131,13 +131,13 @@ def test_a_worker_builds_only_the_envs_its_chunk_needs_and_leaves_them_to_the_ne
     executors._spare_envs.clear()  # the fresh worker keeps its envs: the next one builds its own
     worker = RolloutWorker(first, width=8)
     try:
-        assert [r.seed for r in worker.run([3, 4])] == [3, 4] and len(worker.envs) == 2
-        envs = list(worker.envs)
+        assert [r.seed for r in worker.run([3, 4])] == [3, 4] and len(worker.slots.envs) == 2
+        envs = list(worker.slots.envs)
     finally:
         worker.close()
     reused = RolloutWorker(second, width=8)
     try:
-        assert reused.envs == envs
+        assert reused.slots.envs == envs
         assert_same_rollouts(reused.run([1, 2, 3]), expected)
     finally:
         reused.close()

@@ -47,6 +47,9 @@ def _run_keyed(keyed: tuple[int, Job, Any]) -> Any:
     return _keyed[key].run(item)
 
 
+PRELOAD = ["torch", "pybullet", "uqdrive.safety.executors", "uqdrive.pipeline.collect", "uqdrive.pipeline.train"]
+
+
 def _forkserver() -> multiprocessing.context.ForkServerContext:
     """Workers forked from one server process that imported the heavy modules once (torch, pybullet, the
     project's workers): a new pool's processes start in milliseconds, where spawned ones paid ~5 s of imports
@@ -54,9 +57,6 @@ def _forkserver() -> multiprocessing.context.ForkServerContext:
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(PRELOAD)
     return context
-
-
-PRELOAD = ["torch", "pybullet", "uqdrive.safety.executors", "uqdrive.pipeline.collect", "uqdrive.pipeline.train"]
 
 
 class ProcessPool:

@@ -15,10 +15,10 @@ import numpy as np
 import torch
 
 from uqdrive.envelope.space import ConditionSpace, World
-from uqdrive.safety.executors import PolicySpec, env_key, leave_envs, take_envs
+from uqdrive.safety.executors import PolicySpec, WorkerEnvs
 from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
-from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, build_geometry
+from uqdrive.sim import CameraConfig, ScenarioConfig, VehicleConfig, build_geometry
 
 CONDITION_STREAM = 0xE17E  # the condition's own random stream of a rollout seed, apart from the episode's
 
@@ -71,18 +71,15 @@ class ConditionJob:
 
 
 class ConditionWorker:
-    """Up to ``width`` envs and one policy for all of a job's chunks, run in lockstep (`run_rollouts`), each
-    rollout reset to its own world (one torch thread: the parallelism is across workers). Envs come from and go
-    back to the process's spares, as a `RolloutWorker`'s; the safe set is rebuilt only for a new location."""
+    """Up to ``width`` envs (`WorkerEnvs`) and one policy for all of a job's chunks, run in lockstep
+    (`run_rollouts`), each rollout reset to its own world (one torch thread: the parallelism is across workers);
+    the safe set is rebuilt only for a new location."""
 
     def __init__(self, job: ConditionJob, width: int = 1):
-        if width < 1:
-            raise ValueError(f"lockstep width={width!r} must be >= 1")
+        self.slots = WorkerEnvs(job, width)
         torch.set_num_threads(1)
-        self.job, self.width = job, width
+        self.job = job
         self.policy = job.policy.build(job.control_hz)
-        self.key = env_key(job)
-        self.envs = take_envs(self.key)
         self._scenario: ScenarioConfig | None = None
         self._safe_set: SafeSet | None = None
 
@@ -97,20 +94,19 @@ class ConditionWorker:
         """Rollouts ``indices`` (seeds base_seed + i, each at its condition), in that order."""
         job = self.job
         worlds = [job.world(i) for i in indices]
-        width = min(len(indices), self.width)
-        while len(self.envs) < width:
-            self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
-        one_location = all(w.scenario == worlds[0].scenario for w in worlds)
+        first = worlds[0]
+        one_location = all(w.scenario == first.scenario for w in worlds)
         return run_rollouts(
-            self.envs[:width],
+            self.slots.first(len(indices)),
             self.policy,
             [job.base_seed + i for i in indices],
-            *dataclasses.astuple(worlds[0]),
+            first.scenario,
+            first.weather,
+            first.noise,
             job.half_width,
-            self.safe_set(worlds[0].scenario) if one_location else None,  # else judged on each rollout's own
+            self.safe_set(first.scenario) if one_location else None,  # else judged on each rollout's own
             worlds=[(w.scenario, w.weather, w.noise) for w in worlds],
         )
 
     def close(self) -> None:
-        leave_envs(self.key, self.envs)
-        self.envs = []
+        self.slots.close()

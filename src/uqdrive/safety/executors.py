@@ -145,37 +145,57 @@ cells so builds each env once per process instead of once per cell (≈ 0.15 s e
 envs are kept."""
 
 
-class RolloutWorker:
-    """Up to ``width`` envs and one policy, reused for every chunk the worker runs (one torch thread: the
-    parallelism is across workers, and a second intra-op thread only adds contention). Envs come from the
-    process's spares (`_spare_envs`) or are built as a chunk first needs them, so a worker given 2 rollouts
-    builds 2 worlds, not ``width``. An env's state is set by each rollout's reset alone, so where it came from
-    changes no result."""
+class WorkerEnvs:
+    """A worker's envs for its whole life, at most ``width``: taken from the process's spares (`_spare_envs`), built
+    as a chunk first needs them (a worker given 2 rollouts builds 2 worlds, not ``width``), left to the next job of
+    the process at close. An env's state is set by each rollout's reset alone, so where it came from changes no
+    result."""
 
-    def __init__(self, job: RolloutJob, width: int = 1):
+    def __init__(self, job: Any, width: int):
         if width < 1:
             raise ValueError(f"lockstep width={width!r} must be >= 1")
-        torch.set_num_threads(1)
         self.job, self.width = job, width
+        self.key = repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))  # envs of one key interchange
+        self.envs: list[DrivingEnv] = _spare_envs.pop(self.key, [])
+
+    def first(self, count: int) -> list[DrivingEnv]:
+        """The first ``count`` envs (at most ``width``), built where missing."""
+        count, job = min(count, self.width), self.job
+        while len(self.envs) < count:
+            self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
+        return self.envs[:count]
+
+    def close(self) -> None:
+        """Leave the envs to the next job of this process (closing those an earlier one left)."""
+        for spare in _spare_envs.values():
+            for env in spare:
+                env.close()
+        _spare_envs.clear()
+        _spare_envs[self.key], self.envs = self.envs, []
+
+
+class RolloutWorker:
+    """Up to ``width`` envs (`WorkerEnvs`) and one policy, reused for every chunk the worker runs (one torch thread:
+    the parallelism is across workers, and a second intra-op thread only adds contention)."""
+
+    def __init__(self, job: RolloutJob, width: int = 1):
+        self.slots = WorkerEnvs(job, width)
+        torch.set_num_threads(1)
+        self.job = job
         self.policy = job.policy.build(job.control_hz)
-        self.key = env_key(job)
-        self.envs = take_envs(self.key)
         self.ready = 0  # envs reset to this job's world
         self.safe_set: SafeSet | None = None
 
     def environments(self, count: int) -> list[DrivingEnv]:
-        """The first ``count`` envs (at most ``width``), each with this job's world built."""
-        job = self.job
-        while self.ready < min(count, self.width):
-            if self.ready == len(self.envs):
-                self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
-            env = self.envs[self.ready]
+        """The first ``count`` envs (at most the width), each with this job's world built."""
+        job, envs = self.job, self.slots.first(count)
+        for env in envs[self.ready :]:
             env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
             self.safe_set = self.safe_set or safe_set_for(
                 env.geometry, job.vehicle.width, job.vehicle.length, job.half_width
             )
-            self.ready += 1
-        return self.envs[: min(count, self.width)]
+        self.ready = max(self.ready, len(envs))
+        return envs
 
     def run(self, indices: Sequence[int]) -> list[RolloutResult]:
         """Rollouts ``indices`` (seeds base_seed + i), in that order."""
@@ -185,27 +205,7 @@ class RolloutWorker:
         return run_rollouts(envs, self.policy, seeds, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
 
     def close(self) -> None:
-        leave_envs(self.key, self.envs)
-        self.envs = []
-
-
-def env_key(job: Any) -> str:
-    """The settings an env is built with (camera, car, control rate, horizon): envs of one key are interchangeable."""
-    return repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))
-
-
-def take_envs(key: str) -> list[DrivingEnv]:
-    """The envs a closed worker of this process left with settings ``key`` (none if another's were left last)."""
-    return _spare_envs.pop(key, [])
-
-
-def leave_envs(key: str, envs: list[DrivingEnv]) -> None:
-    """Leave a closing worker's envs to the next job of this process (closing those an earlier one left)."""
-    for spare in _spare_envs.values():
-        for env in spare:
-            env.close()
-    _spare_envs.clear()
-    _spare_envs[key] = envs
+        self.slots.close()
 
 
 def lockstep_chunks(indices: Sequence[int], workers: int, width: int) -> list[tuple[int, ...]]:
