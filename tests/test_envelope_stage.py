@@ -62,6 +62,7 @@ def test_the_stage_writes_its_map_logs_a_run_and_a_rerun_replays_every_rollout(e
         read_record(EnvelopeResult, tmp_path / "metrics/envelope/vi-seed0.json", "envelope@vi").regions[1].name == "r1"
     )
     assert record["rollouts"]["certify"] == sum(r["rollouts"] for r in regions)
+    assert record["rollouts"]["unread"] == 0  # every test decided at its first look: nothing was run ahead of it
     assert record["rollouts"]["total"] == 8 + record["rollouts"]["certify"]
     assert record["grid"]["cells"] == 4 and record["grid"]["rollouts"] == 4 * record["grid"]["per_cell"]
     plots = tmp_path / "plots/envelope/vi-seed0"

@@ -120,7 +120,7 @@ def envelope_result(rng, method) -> EnvelopeResult:
         verdicts={"safe": 1, "unsafe": 0, "undecided": 1},
         volume={"safe": 0.5, "unsafe": 0.0, "undecided": 0.5},
         search=EnvelopeSearch(rollouts=8, failures=3, rounds=[8], points=[[0.1, 0.5]] * 8, outcomes="11100011"),
-        rollouts={"search": 8, "certify": certified, "total": 8 + certified},
+        rollouts={"search": 8, "certify": certified, "unread": 3, "total": 11 + certified},
         grid=GridCost(
             theta=0.05, cells=16, gamma_per_cell=0.003125, per_cell=1000, rollouts=16000, rollouts_per_cell_gamma=9000
         ),
@@ -261,7 +261,7 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         row = envelope_rows[envelope.method]
         n = envelope.rollouts
         assert row["safe regions (box)"] == "1 (50%)" and row["undecided"] == "1 (50%)" and row["unsafe"] == "0 (0%)"
-        assert row["rollouts"] == f"8 + {n['certify']} = {n['total']}" and row["grid"] == "16000"
+        assert row["rollouts"] == f"8 + {n['certify']} + 3 = {n['total']}" and row["grid"] == "16000"
         assert row["seconds"] == fmt(envelope.seconds, 0)
     assert "weather.blend (clear_noon → rain) ∈ [0, 1]" in text
     assert "Figure missing: `plots/envelope/mcd-seed0/map.png`" in text

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uqdrive.safety.cells import EstimatorSettings, estimate_safety
+from uqdrive.safety.cells import Draws, EstimatorSettings, estimate_safety
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.schema import ConfigError, validate
@@ -89,6 +89,49 @@ def test_interrupted_cell_resumes_to_the_uninterrupted_result(
     assert estimate == reference
     assert len(results) == len(ref_results) and all(same(a, b) for a, b in zip(results, ref_results))
     assert resumed_executor.ran == list(range(interrupt_after, len(ref_results)))  # nothing kept was rerun
+
+
+class BatchRecorder(FakeExecutor):
+    """A `FakeExecutor` that also records each request's indices."""
+
+    def __init__(self):
+        super().__init__()
+        self.requests: list[list[int]] = []
+
+    def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
+        self.requests.append(list(indices))
+        return super().run(indices)
+
+
+@pytest.mark.parametrize("theta", [0.1, 0.05])
+def test_running_ahead_fills_batches_and_changes_no_estimate(tmp_path: Path, theta: float) -> None:
+    settings = EstimatorSettings("sequential", theta, 0.05, BASE_SEED, look_size=4)
+    reference, ref_results = estimate_safety(FakeExecutor(), settings)
+    limit = settings.planned_rollouts()
+
+    executor, log = BatchRecorder(), RolloutLog(tmp_path / "cell.jsonl", "hash-a", BASE_SEED)
+    draws = Draws(executor, log, ahead=16, limit=limit)
+    assert settings.estimate(draws) == reference
+    assert len(draws.results) == len(ref_results) and all(same(a, b) for a, b in zip(draws.results, ref_results))
+    first, *rest = executor.requests
+    assert first == list(range(len(first))) and rest  # the first look runs only what it asks for
+    for before, request in zip(executor.requests, rest):  # then batches doubling up to 16, never past the limit
+        assert request[0] == before[-1] + 1
+        assert len(request) >= min(request[0], 16) or request[-1] == limit - 1
+    assert 16 in map(len, executor.requests) and max(executor.ran) < limit
+    assert draws.unread == len(draws.kept) - len(ref_results) < 16
+
+    replay = BatchRecorder()  # the unread rollouts were logged too: a rerun simulates nothing
+    again = Draws(replay, RolloutLog(tmp_path / "cell.jsonl", "hash-a", BASE_SEED), ahead=16, limit=limit)
+    assert settings.estimate(again) == reference and replay.ran == [] and again.fresh == 0
+
+
+def test_running_ahead_stops_at_the_limit() -> None:
+    executor = BatchRecorder()
+    draws = Draws(executor, ahead=16, limit=10)
+    for count in (4, 4, 2):
+        draws(count)
+    assert executor.requests == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9]] and draws.unread == 0
 
 
 def test_a_cut_line_is_dropped_and_another_config_starts_afresh(tmp_path: Path) -> None:

@@ -62,7 +62,8 @@ def _region_test(
         log = Path(env.rollout_log) / f"{region.name}.jsonl"
         consume = lambda draws: threshold_decision(env, gamma, draws, cap)  # noqa: E731
         total = env.region_budget if cap is None else min(cap, env.region_budget)
-        cells.append(runner.run(f"envelope {envelope.method} {region.name}", job, key, log, base_seed, consume, total))
+        name = f"envelope {envelope.method} {region.name}"
+        cells.append(runner.run(name, job, key, log, base_seed, consume, total, ahead=runner.batch))
         return cells[-1].outcome
 
     return decide
@@ -83,6 +84,7 @@ def run_envelope(cfg: DictConfig) -> dict:
         order = decision_order(regions, model, env)
         decide = _region_test(envelope, runner, certified)
         results = certify(regions, env.gamma, decide, order, env.certify_budget, env.looks[0])
-    result = envelope_result(envelope, found, results, order, time.perf_counter() - start)
+    unread = sum(c.unread for c in certified)
+    result = envelope_result(envelope, found, results, order, time.perf_counter() - start, unread)
     log_envelope(cfg, result, write_outputs(envelope, result, found, results))
     return {**as_dict(result), "reused": all(c.reused for c in [*searched, *certified])}

@@ -59,9 +59,15 @@ def _region(space: ConditionSpace, r: RegionResult, order: int, region_budget: i
 
 
 def envelope_result(
-    envelope: Envelope, found: SearchResult, results: list[RegionResult], order: list[int], seconds: float
+    envelope: Envelope,
+    found: SearchResult,
+    results: list[RegionResult],
+    order: list[int],
+    seconds: float,
+    unread: int = 0,
 ) -> EnvelopeResult:
-    """The stage's record: ``results`` in depth-first order, ``order`` the order phase two took them in."""
+    """The stage's record: ``results`` in depth-first order, ``order`` the order phase two took them in;
+    ``unread``: rollouts the regions' cells ran ahead of their tests, which the tests never read."""
     env, space, stage = envelope.settings, envelope.space, envelope.stage
     regions = [_region(space, r, order.index(i), env.region_budget) for i, r in enumerate(results)]
     searched, certified = len(found.outcomes), sum(r.rollouts for r in results)
@@ -89,7 +95,7 @@ def envelope_result(
             points=[_values(space, p) for p in found.points],
             outcomes="".join(str(int(y)) for y in found.outcomes),
         ),
-        rollouts={"search": searched, "certify": certified, "total": searched + certified},
+        rollouts={"search": searched, "certify": certified, "unread": unread, "total": searched + certified + unread},
         grid=GridCost(theta=env.grid_theta, **grid_cost(space.dim, env.partition.max_depth, env.grid_theta, env.gamma)),
         seconds=seconds,
     )
@@ -153,7 +159,8 @@ def describe(result: dict) -> str:
     return (
         f"envelope {result['method']} seed{result['replicate']}: {len(result['regions'])} regions, safe {v['safe']} "
         f"({x['safe']:.0%} of the box), unsafe {v['unsafe']} ({x['unsafe']:.0%}), undecided {v['undecided']} "
-        f"({x['undecided']:.0%}); {n['total']} rollouts ({n['search']} search, {n['certify']} certify; a grid of "
+        f"({x['undecided']:.0%}); {n['total']} rollouts ({n['search']} search, {n['certify']} certify, "
+        f"{n['unread']} run ahead unread; a grid of "
         f"the finest regions with per-cell intervals needs {result['grid']['rollouts']}) in {result['seconds']:.0f} s"
         f"{' (reused: every rollout replayed)' if result['reused'] else ''}"
     )

@@ -68,7 +68,8 @@ class GridCost:
 @record
 class EnvelopeResult:
     """One controller's certified map: ``regions`` with their verdicts, which hold together as ``guarantee`` says;
-    ``verdicts`` and ``volume`` count them and their share of the box; ``rollouts``: search, certify, total."""
+    ``verdicts`` and ``volume`` count them and their share of the box; ``rollouts``: search, certify (what the
+    regions' tests read), unread (run ahead of a test and not read, `uqdrive.safety.cells.Draws`), total."""
 
     method: str
     replicate: int

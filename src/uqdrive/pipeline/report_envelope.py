@@ -40,13 +40,14 @@ rollouts; their outcomes alone choose a partition, finer along that boundary; ph
 region ends safe (η1 ≥ τ certified), unsafe (η1 < τ certified) or undecided (its budget spent). **Guarantee:
 family-wise.** With probability ≥ 1 − {first.gamma:g}, every verdict of a map holds at once. `grid`: the rollouts a
 grid of the finest regions would need with a per-cell exact interval of half-width {first.grid.theta:g},
-family-wise at the same γ.""")
+family-wise at the same γ. `rollouts`: search + the tests' + run ahead of a test and never read (a region's
+rollouts are simulated a full lockstep batch at a time; a test reads only what it asks for, in order).""")
     rows = [
         [
             e.method,
             *(f"{e.verdicts[v]} ({e.volume[v]:.0%})" for v in ("safe", "unsafe", "undecided")),
             str(e.search.failures),
-            f"{e.rollouts['search']} + {e.rollouts['certify']} = {e.rollouts['total']}",
+            f"{e.rollouts['search']} + {e.rollouts['certify']} + {e.rollouts['unread']} = {e.rollouts['total']}",
             str(e.grid.rollouts),
             fmt(e.seconds, 0),
         ]

@@ -75,7 +75,11 @@ class Draws:
     not read from the log is appended to it as it finishes, so an interrupted cell resumes where it stopped
     and ends exactly as an uninterrupted one (rollout i always has seed base_seed + i, and consumers read
     outcomes in index order). ``fresh`` counts the rollouts simulated or reused, not replayed from the log.
-    """
+
+    ``ahead``: after the first look, simulate up to this many rollouts at a time (never past ``limit``), so a
+    sequential test that looks every few rollouts still keeps every worker's lockstep slots full. The test
+    reads only the outcomes it asks for, in order, so its decision is the same; the rollouts it did not read
+    (``unread``) are logged like the rest, and cost time, not error."""
 
     def __init__(
         self,
@@ -83,27 +87,41 @@ class Draws:
         log: RolloutLog | None = None,
         reuse: Mapping[int, RolloutResult] | None = None,
         progress: Callable[[Iterator[RolloutResult]], Iterator[RolloutResult]] = iter,
+        ahead: int = 0,
+        limit: int | None = None,
     ):
         self.executor, self.log, self.reuse, self.progress = executor, log, dict(reuse or {}), progress
-        self.kept = log.load() if log is not None else []
+        self.ahead, self.limit = ahead, limit
+        self.kept = log.load() if log is not None else []  # every rollout known, read or not: a prefix of 0, 1, …
         self.results: list[RolloutResult] = []
         self.fresh = 0
+
+    @property
+    def unread(self) -> int:
+        return len(self.kept) - len(self.results)
 
     def _run(self, indices: range) -> Iterator[RolloutResult]:
         simulated = self.executor.run([i for i in indices if i not in self.reuse])
         for i in indices:
             yield self.reuse[i] if i in self.reuse else next(simulated)
 
+    def _end(self, needed: int) -> int:
+        """Where the next batch of simulation stops: ``needed``, or further after the first look, the batch
+        doubling up to ``ahead`` (a test that decides at its second look wastes nothing; a long one soon runs
+        full batches)."""
+        known = len(self.kept)
+        end = max(needed, known + min(known, self.ahead))
+        return end if self.limit is None else max(needed, min(end, self.limit))
+
     def __call__(self, count: int) -> np.ndarray:
         start = len(self.results)
-        replayed = self.kept[start : start + count]
-        self.results.extend(replayed)
-        if len(replayed) < count:
-            for result in self.progress(self._run(range(start + len(replayed), start + count))):
+        if len(self.kept) < start + count:
+            for result in self.progress(self._run(range(len(self.kept), self._end(start + count)))):
                 if self.log is not None:
                     self.log.append(result)
                 self.fresh += 1
-                self.results.append(result)
+                self.kept.append(result)
+        self.results.extend(self.kept[start : start + count])
         return np.array([r.safe for r in self.results[start:]], dtype=np.int64)
 
 

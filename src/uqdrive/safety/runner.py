@@ -26,7 +26,7 @@ from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.models.checkpoint import read_checkpoint
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.cells import Draws, EstimatorSettings, file_digest
-from uqdrive.safety.executors import RolloutJob, make_executor
+from uqdrive.safety.executors import LOCKSTEP, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.uq import Estimate
@@ -76,8 +76,9 @@ def estimate_key(job: RolloutJob, settings: EstimatorSettings, stage_module: str
 
 @dataclasses.dataclass(frozen=True)
 class CellRun(Generic[T]):
-    """A finished cell: what its consumer concluded, its rollouts in index order, wall time, identity.
-    ``reused``: every rollout was replayed from the cell's log (nothing simulated)."""
+    """A finished cell: what its consumer concluded, the rollouts it read in index order, wall time, identity.
+    ``reused``: every rollout was replayed from the cell's log (nothing simulated); ``unread``: rollouts run ahead
+    of the consumer that it never asked for (`Draws`)."""
 
     name: str
     key: str
@@ -85,6 +86,7 @@ class CellRun(Generic[T]):
     results: list[RolloutResult]
     seconds: float
     reused: bool
+    unread: int = 0
 
 
 class CellRunner:
@@ -94,6 +96,11 @@ class CellRunner:
     def __init__(self, backend: str, workers: int, options: Mapping[str, Any] | None = None, progress: bool = True):
         self.backend, self.workers, self.options, self.progress = backend, workers, dict(options or {}), progress
         self.pool = ProcessPool(workers) if backend == "process" else None
+
+    @property
+    def batch(self) -> int:
+        """Rollouts that fill every worker's lockstep slots once."""
+        return self.workers * self.options.get("lockstep", LOCKSTEP)
 
     @classmethod
     def of(cls, executor: Any, progress: bool = True) -> CellRunner:
@@ -110,9 +117,11 @@ class CellRunner:
         consume: Callable[[Draws], T],
         total: int,
         reuse: Mapping[int, RolloutResult] | None = None,
+        ahead: int = 0,
     ) -> CellRun[T]:
         """``consume(draw)`` over the cell's rollouts (``draw(count)``: the next count outcomes, 0/1, in index
-        order); ``total``: the most rollouts it may ask for (the progress bar's length)."""
+        order); ``total``: the most rollouts it may ask for (the progress bar's length, and the most run);
+        ``ahead``: run at least that many at a time after the consumer's first look (`Draws`)."""
         executor = make_executor(self.backend, job, self.workers, self.pool, **self.options)
         bar = tqdm(total=total, desc=name, unit="rollout", disable=not self.progress, leave=False)
 
@@ -123,13 +132,14 @@ class CellRunner:
 
         start = time.perf_counter()
         try:
-            draws = Draws(executor, RolloutLog(log_path, key, base_seed), reuse, progress)
+            draws = Draws(executor, RolloutLog(log_path, key, base_seed), reuse, progress, ahead, total)
             bar.update(len(draws.kept))
             outcome = consume(draws)
         finally:
             bar.close()
             executor.close()
-        return CellRun(name, key, outcome, draws.results, time.perf_counter() - start, reused=draws.fresh == 0)
+        seconds = time.perf_counter() - start
+        return CellRun(name, key, outcome, draws.results, seconds, reused=draws.fresh == 0, unread=draws.unread)
 
     def estimate(
         self,
