@@ -94,37 +94,40 @@ import mlflow
 from omegaconf import OmegaConf
 from uqdrive.files import write_json
 from uqdrive.tracking import stage_run
-root, name = Path(sys.argv[1]), sys.argv[2]
-(root / f"ready-{name}").touch()
-while len(list(root.glob("ready-*"))) < 2:  # both processes imported everything: go at the same moment
-    time.sleep(0.002)
-write_json(root / f"{name}.json", {"eta1": 1.0})
-with stage_run(root, "safety", OmegaConf.create({"safety": {"cell": name}}), run_name=name):
-    mlflow.log_metric("eta1", 1.0)
+name, roots = sys.argv[1], [Path(p) for p in sys.argv[2:]]
+for root in roots:  # each attempt a new store: both processes create it at the same moment
+    (root / f"ready-{name}").touch()
+    while len(list(root.glob("ready-*"))) < 2:
+        time.sleep(0.002)
+    write_json(root / f"{name}.json", {"eta1": 1.0})
+    with stage_run(root, "safety", OmegaConf.create({"safety": {"cell": name}}), run_name=name):
+        mlflow.log_metric("eta1", 1.0)
 """
 
 
 @pytest.mark.slow
 def test_two_processes_creating_the_store_at_once_both_log(tmp_path):
     """Separate jobs (not one multirun) on a new store: without the lock, MLflow 3.17's migration races
-    ('duplicate column name: step', 'Online migration expected to match one row')."""
+    ('duplicate column name: step', 'Online migration expected to match one row'). Two processes race on five
+    new stores in turn (each process imports MLflow once)."""
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src"), "PYTHONWARNINGS": "default"}
-    for attempt in range(5):
-        root = tmp_path / f"attempt{attempt}"
+    roots = [tmp_path / f"attempt{attempt}" for attempt in range(5)]
+    for root in roots:
         root.mkdir()
-        children = [
-            subprocess.Popen(
-                [sys.executable, "-c", CHILD, str(root), name],
-                env=env,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-                text=True,
-            )
-            for name in ("a", "b")
-        ]
-        outputs = [child.communicate(timeout=300) for child in children]
-        for child, (_, err) in zip(children, outputs):
-            assert child.returncode == 0 and "MLflow:" not in err, err[-3000:]
+    children = [
+        subprocess.Popen(
+            [sys.executable, "-c", CHILD, name, *map(str, roots)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for name in ("a", "b")
+    ]
+    outputs = [child.communicate(timeout=300) for child in children]
+    for child, (_, err) in zip(children, outputs):
+        assert child.returncode == 0 and "MLflow:" not in err, err[-3000:]
+    for root in roots:
         client = MlflowClient(store_uris(root)[0])
         runs = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
         assert sorted(r.info.run_name for r in runs) == ["eta1=1 · a", "eta1=1 · b"]
