@@ -64,7 +64,7 @@ def envelope_result(
     results: list[RegionResult],
     order: list[int],
     seconds: float,
-    unread: int = 0,
+    unread: int,
 ) -> EnvelopeResult:
     """The stage's record: ``results`` in depth-first order, ``order`` the order phase two took them in;
     ``unread``: rollouts the regions' cells ran ahead of their tests, which the tests never read."""

@@ -100,7 +100,7 @@ class CellRunner:
     @property
     def batch(self) -> int:
         """Rollouts that fill every worker's lockstep slots once."""
-        return self.workers * self.options.get("lockstep", LOCKSTEP)
+        return self.workers * LOCKSTEP
 
     @classmethod
     def of(cls, executor: Any, progress: bool = True) -> CellRunner:
@@ -121,7 +121,7 @@ class CellRunner:
     ) -> CellRun[T]:
         """``consume(draw)`` over the cell's rollouts (``draw(count)``: the next count outcomes, 0/1, in index
         order); ``total``: the most rollouts it may ask for (the progress bar's length, and the most run);
-        ``ahead``: run at least that many at a time after the consumer's first look (`Draws`)."""
+        ``ahead``: after the consumer's first look, run batches doubling up to that many (`Draws`)."""
         executor = make_executor(self.backend, job, self.workers, self.pool, **self.options)
         bar = tqdm(total=total, desc=name, unit="rollout", disable=not self.progress, leave=False)
 
