@@ -5,6 +5,9 @@ Accuracy, ECE and AUROC come from torchmetrics, so binning, tie and edge convent
 library's. torchmetrics has no NLL or Brier score on probabilities: NLL is torch's `nll_loss` on the
 log-probabilities, Brier the one-line definition (sum over classes, range [0, 2], as scikit-learn's
 multiclass `brier_score_loss`).
+
+torchmetrics is imported where a metric is computed: the import takes about 1 s, and every closed-loop stage and
+rollout worker imports this module (through the posterior classes) without computing a metric.
 """
 
 from __future__ import annotations
@@ -13,7 +16,6 @@ import math
 
 import torch
 from torch.nn.functional import nll_loss, one_hot
-from torchmetrics.functional.classification import binary_auroc, multiclass_accuracy, multiclass_calibration_error
 
 ECE_BINS = 15
 PROB_FLOOR = 1e-12
@@ -26,6 +28,8 @@ def classification_metrics(probs: torch.Tensor, labels: torch.Tensor) -> dict[st
 
     probs: predictive class probabilities [B, C] (the mean over posterior draws); labels [B].
     """
+    from torchmetrics.functional.classification import multiclass_accuracy, multiclass_calibration_error
+
     probs, labels = probs.double(), labels.long()
     num_classes = probs.shape[1]
     return {
@@ -46,6 +50,8 @@ def mistake_auroc(uncertainty: torch.Tensor, wrong: torch.Tensor) -> float:
     wrong = wrong.bool()
     if wrong.all() or not wrong.any():
         return math.nan
+    from torchmetrics.functional.classification import binary_auroc
+
     return float(binary_auroc(uncertainty.double(), wrong.long(), thresholds=None))
 
 
