@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from uqdrive.safety import runner as runner_module
 from uqdrive.safety.cells import Draws, EstimatorSettings, estimate_safety
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
@@ -124,6 +125,25 @@ def test_running_ahead_fills_batches_and_changes_no_estimate(tmp_path: Path, the
     replay = BatchRecorder()  # the unread rollouts were logged too: a rerun simulates nothing
     again = Draws(replay, RolloutLog(tmp_path / "cell.jsonl", "hash-a", BASE_SEED), ahead=16, limit=limit)
     assert settings.estimate(again) == reference and replay.ran == [] and again.fresh == 0
+
+
+@pytest.mark.parametrize("scheme", ["sequential", "clopper_pearson"])
+def test_a_sequential_cell_runs_ahead_to_fill_the_workers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, scheme: str
+) -> None:
+    settings = EstimatorSettings(scheme, 0.1, 0.05, BASE_SEED, look_size=4)
+    reference, ref_results = estimate_safety(FakeExecutor(), settings)
+    executor = BatchRecorder()
+    monkeypatch.setattr(runner_module, "make_executor", lambda *args, **kwargs: executor)
+    with runner_module.CellRunner("ray", 2, progress=False) as runner:  # the executor is the fake: nothing starts
+        run = runner.estimate("cell", None, settings, "hash-a", tmp_path / "cell.jsonl")
+    assert run.outcome == reference
+    assert len(run.results) == len(ref_results) and all(same(a, b) for a, b in zip(run.results, ref_results))
+    assert run.unread == len(executor.ran) - len(ref_results)
+    if scheme == "sequential":  # looks of 4 rollouts, run in batches that fill both workers' lockstep slots
+        assert max(map(len, executor.requests)) == runner.batch and run.unread > 0
+    else:  # a fixed-n scheme asks for all its rollouts at once
+        assert executor.requests == [list(range(settings.planned_rollouts()))] and run.unread == 0
 
 
 def test_running_ahead_stops_at_the_limit() -> None:

@@ -100,6 +100,7 @@ class SafetyCell:
     guaranteed: bool
     outcomes: str
     config_hash: str
+    unread: int = 0  # rollouts run ahead of a sequential estimator that it never read: time spent, not error
 
     @property
     def condition(self) -> tuple[str, str, float]:

@@ -229,6 +229,7 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> dict:
         guaranteed=estimate.guaranteed,
         outcomes="".join("1" if r.safe else "0" for r in results),  # by rollout index: paired across cells
         config_hash=key,
+        unread=run.unread,
     )
     write_record(out, cell)  # before logging: a tracking failure never loses the cell; its presence marks it done
     log_cell(cfg, cell, [figure, table], reused=run.reused)

@@ -158,9 +158,21 @@ class CellRunner:
         log_path: str | Path,
         reuse: Mapping[int, RolloutResult] | None = None,
     ) -> CellRun[Estimate]:
-        """η̂1 of one cell of a `RolloutJob` by ``settings``' scheme (``key``: `estimate_key`)."""
+        """η̂1 of one cell of a `RolloutJob` by ``settings``' scheme (``key``: `estimate_key`). A sequential scheme
+        looks every few rollouts (``look_size``), fewer than the workers' lockstep slots, so its cell runs ahead
+        (`Draws`): the estimate reads the same outcomes in the same order, the rollouts it never reads are counted
+        in the run's ``unread``."""
+        ahead = self.batch if settings.scheme == "sequential" else 0
         return self.run(
-            name, job, key, log_path, settings.base_seed, settings.estimate, settings.planned_rollouts(), reuse
+            name,
+            job,
+            key,
+            log_path,
+            settings.base_seed,
+            settings.estimate,
+            settings.planned_rollouts(),
+            reuse,
+            ahead,
         )
 
     def close(self) -> None:
