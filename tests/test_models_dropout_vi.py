@@ -78,3 +78,29 @@ def test_vi_local_reparameterisation_matches_sampling_the_weights():
     scale = weights.std(0)
     assert torch.all((lrt.mean(0) - weights.mean(0)).abs() < 0.05 * scale)
     torch.testing.assert_close(lrt.std(0), scale, rtol=0.05, atol=0)
+
+
+@pytest.mark.parametrize("change", ["optimiser step", "loaded state"])
+def test_vi_inference_moments_follow_every_change_of_the_parameters(change):
+    """head_probs reuses the variances softplus(ρ)² between calls; after the parameters change in place (a training
+    step, a loaded checkpoint) it must draw what the uncached computation draws, bit for bit."""
+    vi = VIPosterior(SMALL, THREE, init_sigma=0.1)
+    features = torch.randn((2, SMALL.features), generator=torch.Generator().manual_seed(1))
+
+    def both(seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+        cached = vi.head_probs(features, 5, torch.Generator().manual_seed(seed))
+        with torch.no_grad():
+            fresh = torch.softmax(vi.head_logits(features, 5, torch.Generator().manual_seed(seed)), -1)
+        return cached, fresh
+
+    cached, fresh = both(0)
+    assert torch.equal(cached, fresh)
+    if change == "optimiser step":
+        optimizer = torch.optim.SGD(vi.head_parameters(), lr=1.0)
+        vi.head_logits(features, 1, torch.Generator().manual_seed(2)).sum().backward()
+        optimizer.step()
+    else:
+        state = {k: v + 0.5 if "rho" in k else v for k, v in vi.state_dict().items()}
+        vi.load_state_dict(state)
+    after, fresh_after = both(0)
+    assert torch.equal(after, fresh_after) and not torch.equal(after, cached)

@@ -64,8 +64,9 @@ class MCDPosterior(Posterior):
     @torch.no_grad()
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         n = check_draws(n)
-        h = torch.relu(self.head[0](features))  # no dropout before it: computed once, not n times
-        for k, (drop, layer) in enumerate(zip(self.dropout, self.head[1:])):
+        first, *layers = self.head  # (slicing a ModuleList builds a new one: a tenth of a closed-loop head call)
+        h = torch.relu(first(features))  # no dropout before it: computed once, not n times
+        for k, (drop, layer) in enumerate(zip(self.dropout, layers)):
             h = torch.matmul(h * drop.sample_masks(n, generator), layer.weight.T) + layer.bias
             if k < len(self.dropout) - 1:
                 h = torch.relu(h)

@@ -59,6 +59,8 @@ class VIPosterior(Posterior):
         self.b_mu = nn.ParameterList(nn.Parameter(torch.zeros(o)) for _, o in shapes)
         self.w_rho = nn.ParameterList(nn.Parameter(torch.full((i, o), rho)) for i, o in shapes)
         self.b_rho = nn.ParameterList(nn.Parameter(torch.full((o,), rho)) for _, o in shapes)
+        self._layers = list(zip(self.w_mu, self.b_mu, self.w_rho, self.b_rho))  # the same Parameters, per layer
+        self._frozen: tuple[tuple, list] | None = None  # (parameter versions, moments): see `_inference_moments`
 
     @classmethod
     def from_mcd(cls, mcd: Posterior, prior_sigma: float, init_sigma: float) -> VIPosterior:
@@ -103,20 +105,42 @@ class VIPosterior(Posterior):
     def head_parameters(self) -> list[nn.Parameter]:
         return [*self.w_mu, *self.b_mu, *self.w_rho, *self.b_rho]
 
-    def head_logits(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        """Logits [n, B, C] of n draws (differentiable in the variational parameters)."""
+    def _moments(self) -> list[tuple[torch.Tensor, ...]]:
+        """Per head layer: the means of weights and biases and their variances softplus(ρ)²."""
+        return [
+            (w_mu, b_mu, softplus(w_rho).square(), softplus(b_rho).square())
+            for w_mu, b_mu, w_rho, b_rho in self._layers
+        ]
+
+    def _inference_moments(self) -> list[tuple[torch.Tensor, ...]]:
+        """`_moments`, worked out again only when a parameter changed (in place, as an optimiser step or a loaded
+        checkpoint changes it): a closed-loop frame calls the head once or twice, and recomputing the variances
+        and walking four ParameterLists was a third of each call. The same values, so the same draws."""
+        key = tuple((p._version, p.data_ptr()) for layer in self._layers for p in layer)
+        if self._frozen is None or self._frozen[0] != key:
+            self._frozen = key, self._moments()
+        return self._frozen[1]
+
+    def head_logits(
+        self,
+        features: torch.Tensor,
+        n: int,
+        generator: torch.Generator | None = None,
+        moments: list[tuple[torch.Tensor, ...]] | None = None,
+    ) -> torch.Tensor:
+        """Logits [n, B, C] of n draws (differentiable in the variational parameters unless ``moments`` are given)."""
         h = features
-        for k, (w_mu, b_mu, w_rho, b_rho) in enumerate(zip(self.w_mu, self.b_mu, self.w_rho, self.b_rho)):
+        for k, (w_mu, b_mu, w_var, b_var) in enumerate(moments or self._moments()):
             a = h if k == 0 else torch.relu(h)
             mean = torch.matmul(a, w_mu) + b_mu
-            var = torch.matmul(a * a, softplus(w_rho).square()) + softplus(b_rho).square()
+            var = torch.matmul(a * a, w_var) + b_var
             shape = (n, *mean.shape) if k == 0 else mean.shape  # the first layer's input is shared by all draws
             h = mean + var.sqrt() * torch.randn(shape, generator=generator)
         return h
 
     @torch.no_grad()
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        return torch.softmax(self.head_logits(features, check_draws(n), generator), dim=-1)
+        return torch.softmax(self.head_logits(features, check_draws(n), generator, self._inference_moments()), dim=-1)
 
     def kl(self) -> torch.Tensor:
         """KL(q || p) in closed form, summed over every head weight and bias; prior N(0, prior_sigma²)."""
