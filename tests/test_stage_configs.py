@@ -145,3 +145,20 @@ def test_a_bad_key_type_or_value_in_any_stage_is_one_line_naming_the_key_and_not
 
 def test_every_stage_config_is_covered():
     assert set(STAGES) == {p.stem for p in (ROOT / "conf").glob("*.yaml")} - {"common", "sim"}
+
+
+def test_the_paper_profile_keeps_the_papers_guarantee_in_fewer_rollouts(stage_config):
+    """θ = γ = 0.05 in every cell, as the paper's Chernoff n = 738 gives it: the safety sweep by the sequential
+    scheme (36 rollouts where η1 is 0 or 1), avoidance by a fixed exact sample large enough to calibrate on."""
+    from uqdrive.pipeline.avoid_config import AvoidStage
+    from uqdrive.pipeline.safety import SafetyStage
+    from uqdrive.safety.calibration import min_calibration_runs
+    from uqdrive.schema import validate
+
+    safety = validate(SafetyStage, stage_config("safety", "profile=paper")).estimator
+    assert (safety.scheme, safety.theta, safety.gamma) == ("sequential", 0.05, 0.05)
+    assert safety.fixed_rollouts() == 36 and safety.planned_rollouts() < 738
+    avoid = validate(AvoidStage, stage_config("avoid", "profile=paper")).avoid
+    assert (avoid.theta, avoid.gamma) == (0.05, 0.05) and avoid.estimator.planned_rollouts() == 404
+    calibration = avoid.calibration
+    assert avoid.estimator.fixed_rollouts() >= min_calibration_runs(calibration.autonomy_target, calibration.gamma)
