@@ -13,7 +13,6 @@ started afresh.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 import time
@@ -43,13 +42,6 @@ def code_digest(modules: Sequence[str] = (), src: Path | None = None) -> str:
     return files_digest(import_closure(src / RUNNER, modules, src), src)
 
 
-@functools.cache
-def _running_code_digest(modules: tuple[str, ...]) -> str:
-    """`code_digest` of the code this process runs, once per module set: a stage keys every cell by it (108 in
-    the quick sweep, each parsing ~90 files for the closure), and the code a process imported cannot change."""
-    return code_digest(modules)
-
-
 def model_module(model_path: str | Path) -> str:
     """The module of the posterior class a model file names (`target`): code no static import reaches."""
     return str(read_checkpoint(model_path)["target"]).rpartition(".")[0]
@@ -70,7 +62,7 @@ def cell_key(job: Any, consumer: Mapping[str, Any], model_path: str | Path | Non
     modules = [stage_module, *([model_module(model_path)] if model_path else [])]
     identity = {
         "model_sha256": file_digest(model_path) if model_path else None,
-        "code": _running_code_digest(tuple(modules)),
+        "code": code_digest(modules),
         "job": job_identity(job),
         "consumer": dict(consumer),
     }
