@@ -150,11 +150,10 @@ class CellRunner:
         log_path: str | Path,
         reuse: Mapping[int, RolloutResult] | None = None,
     ) -> CellRun[Estimate]:
-        """η̂1 of one cell of a `RolloutJob` by ``settings``' scheme (``key``: `estimate_key`). A sequential scheme
-        looks every few rollouts (``look_size``), fewer than the workers' lockstep slots, so its cell runs ahead
-        (`Draws`): the estimate reads the same outcomes in the same order, the rollouts it never reads are counted
-        in the run's ``unread``."""
-        ahead = self.batch if settings.scheme == "sequential" else 0
+        """η̂1 of one cell of a `RolloutJob` by ``settings``' scheme (``key``: `estimate_key`). The cell runs ahead
+        of the estimator (`Draws`), which matters for a sequential scheme: it looks every few rollouts, fewer than
+        the workers' lockstep slots; the estimate reads the same outcomes in the same order (a fixed-n scheme asks
+        for all of them at once, so nothing runs ahead of it)."""
         return self.run(
             name,
             job,
@@ -164,7 +163,7 @@ class CellRunner:
             settings.estimate,
             settings.planned_rollouts(),
             reuse,
-            ahead,
+            self.batch,
         )
 
     def close(self) -> None:
