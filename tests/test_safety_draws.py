@@ -11,6 +11,7 @@ from conftest import CONF
 from scipy import stats
 
 from uqdrive.data.binning import SteeringBins
+from uqdrive.models.posterior import Posterior
 from uqdrive.safety import NO_WARNING, Controller, PolicySpec, WarningConfig, WarningController, classify
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.schema import ConfigError
@@ -40,6 +41,8 @@ class MixturePosterior:
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         index = torch.multinomial(self.weights, n, replacement=True, generator=generator)
         return self.vectors[index][:, None, :].expand(n, len(features), -1)
+
+    head_probs_each = Posterior.head_probs_each  # one head_probs call per frame, as every posterior can
 
     def mode(self) -> int:
         return int((self.weights.float() @ self.vectors).argmax())
@@ -84,7 +87,9 @@ def decisions(controller: Controller, frame, frames: int) -> list:
     out = []
     for seed in range(frames):
         controller.reset(None, seed)
-        out.append(controller.decide(controller.posterior.features_each(x.view(1, 1, -1)), controller.generators[0]))
+        out.append(
+            controller.decide(controller.posterior.features_each(x.view(1, 1, -1)), [controller.generators[0]])[0]
+        )
     return out
 
 

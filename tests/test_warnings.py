@@ -8,6 +8,7 @@ from conftest import CONF
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
+from uqdrive.models.posterior import Posterior
 from uqdrive.safety import (
     HANDOVER,
     NO_WARNING,
@@ -43,6 +44,8 @@ class FixedPosterior:
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         assert n % len(self.probs) == 0
         return self.probs.repeat(n // len(self.probs), 1)[:, None, :].expand(n, features.shape[0], -1)
+
+    head_probs_each = Posterior.head_probs_each  # one head_probs call per frame, as every posterior can
 
 
 def samples(classes: list[int]) -> np.ndarray:

@@ -9,6 +9,7 @@ per layer.
 from __future__ import annotations
 
 from abc import abstractmethod
+from collections.abc import Sequence
 
 import torch
 from torch.nn.functional import cross_entropy
@@ -16,7 +17,7 @@ from tqdm import trange
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture, sampled_mlp_logits
-from uqdrive.models.posterior import Posterior, check_draws
+from uqdrive.models.posterior import Posterior, check_draws, per_frame_linear
 from uqdrive.models.training import curve_row, evaluate
 
 Shapes = list[tuple[int, int]]
@@ -168,6 +169,21 @@ class StoredHeadPosterior(Posterior):
         if n >= len(self.samples):
             return torch.softmax(sampled_mlp_logits(inputs, unflatten(self.samples, self.shapes)), -1)[index]
         return torch.softmax(sampled_mlp_logits(inputs, unflatten(self.samples[index], self.shapes)), -1)
+
+    @torch.no_grad()
+    def head_probs_each(self, features: torch.Tensor, n: int, generators: Sequence[torch.Generator]) -> torch.Tensor:
+        """`head_probs` of each frame alone, [K, n, C]: the shared layers one same-shaped GEMM per frame, then every
+        frame's n gathered heads as n GEMMs of one row each. With n ≥ S, frame by frame (a gathered copy of S heads
+        per frame would cost more than it saves)."""
+        n = check_draws(n)
+        if n >= len(self.samples):
+            return super().head_probs_each(features, n, generators)
+        h = features.unsqueeze(1)  # [K, 1, F]
+        for w, b in unflatten(self.fixed_head.unsqueeze(0), self.fixed_shapes):
+            h = torch.relu(per_frame_linear(h, w[0], b[0]))
+        index = torch.cat([self.draw_index(n, g) for g in generators])  # [K·n]: frame k's draws, its generator's
+        logits = sampled_mlp_logits(h.repeat_interleave(n, 0), unflatten(self.samples[index], self.shapes))
+        return torch.softmax(logits.view(len(generators), n, -1), -1)
 
     @torch.no_grad()
     def stored_probs(self, features: torch.Tensor) -> torch.Tensor:

@@ -6,6 +6,8 @@ plain; dropout rates are learned (concrete dropout) rather than tuned by grid se
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import nn
 from torch.nn.functional import cross_entropy
@@ -14,7 +16,7 @@ from tqdm import trange
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.concrete_dropout import ConcreteDropout
 from uqdrive.models.pilotnet import Architecture, init_weights
-from uqdrive.models.posterior import Fitted, Posterior, check_draws
+from uqdrive.models.posterior import Fitted, Posterior, check_draws, per_frame_linear
 from uqdrive.models.training import TrainingData, compute_features, curve_row, evaluate
 from uqdrive.schema import Count, NonNegative, OpenUnit, Positive, schema
 
@@ -68,6 +70,19 @@ class MCDPosterior(Posterior):
         h = torch.relu(first(features))  # no dropout before it: computed once, not n times
         for k, (drop, layer) in enumerate(zip(self.dropout, layers)):
             h = torch.matmul(h * drop.sample_masks(n, generator), layer.weight.T) + layer.bias
+            if k < len(self.dropout) - 1:
+                h = torch.relu(h)
+        return torch.softmax(h, dim=-1)
+
+    @torch.no_grad()
+    def head_probs_each(self, features: torch.Tensor, n: int, generators: Sequence[torch.Generator]) -> torch.Tensor:
+        """`head_probs` of each frame alone, every layer one same-shaped GEMM per frame: [K, n, C]."""
+        n = check_draws(n)
+        first, *layers = self.head
+        h = torch.relu(per_frame_linear(features.unsqueeze(1), first.weight.T, first.bias))  # [K, 1, width]
+        for k, (drop, layer) in enumerate(zip(self.dropout, layers)):
+            masks = torch.stack([drop.sample_masks(n, g)[:, 0] for g in generators])  # [K, n, width]
+            h = per_frame_linear(h * masks, layer.weight.T, layer.bias)
             if k < len(self.dropout) - 1:
                 h = torch.relu(h)
         return torch.softmax(h, dim=-1)

@@ -14,8 +14,9 @@ distribution, ~100x fewer random numbers). No consumer may rely on draw s being 
 network for two frames.
 
 Closed-loop controllers step many rollouts in lockstep and need each rollout's numbers to be its own:
-`features_each` runs the trunk once for a batch of frames from different rollouts with each frame's
-features bit for bit those of the frame alone.
+`features_each` runs the trunk once for a batch of frames from different rollouts, and `head_probs_each` draws
+every frame's head samples in one call, each frame from its own generator, with each frame's numbers bit for bit
+those of the frame alone.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 import importlib
 import re
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -110,6 +112,16 @@ class Posterior(nn.Module, ABC):
         """Softmax class probabilities [n, B, C] for n posterior draws of the head."""
 
     @torch.no_grad()
+    def head_probs_each(self, features: torch.Tensor, n: int, generators: Sequence[torch.Generator]) -> torch.Tensor:
+        """Probabilities [K, n, C] (frame-major) of n head draws for each of K frames (features [K, F]), frame k's
+        from ``generators[k]`` as `head_probs` of the frame alone draws them, each frame's bit for bit what it gets
+        alone (K = 1). Here one `head_probs` call per frame; a method whose head is a few GEMMs overrides it with
+        one same-shaped GEMM per frame (`bmm`, as `features_each`), so lockstep frames share each layer's call."""
+        return torch.cat([self.head_probs(features[k : k + 1], n, g) for k, g in enumerate(generators)], 1).transpose(
+            0, 1
+        )
+
+    @torch.no_grad()
     def sample_probs(self, x: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """Softmax class probabilities [n, B, C] of n posterior draws for frames x [B, 1, 48, 64]."""
         return self.head_probs(self.features(x), n, generator)
@@ -124,6 +136,12 @@ def _conv_per_frame(h: torch.Tensor, conv: nn.Conv2d) -> torch.Tensor:
     weight = conv.weight.reshape(conv.out_channels, -1).T  # [CK, O]
     out = torch.baddbmm(conv.bias.expand(frames, 1, -1), patches, weight.expand(frames, -1, -1))  # [B, L, O]
     return out.transpose(1, 2).reshape(frames, conv.out_channels, rows, cols)
+
+
+def per_frame_linear(h: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``h @ weight + bias`` for each frame's rows h [K, m, in] (weight [in, out]) as one GEMM of the same shape per
+    frame: what ``h[k] @ weight + bias`` of the frame alone gives, bit for bit, whatever K (`head_probs_each`)."""
+    return torch.bmm(h, weight.expand(len(h), *weight.shape)) + bias
 
 
 def check_draws(n: int) -> int:

@@ -12,6 +12,7 @@ W ~ N(μ, σ²) is N(aμ, a²σ²) per unit, so we draw n·B·units normals inst
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from torch import nn
@@ -20,7 +21,7 @@ from tqdm import trange
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture
-from uqdrive.models.posterior import Fitted, Posterior, check_draws
+from uqdrive.models.posterior import Fitted, Posterior, check_draws, per_frame_linear
 from uqdrive.models.training import TrainingData, curve_row, evaluate
 from uqdrive.schema import ConfigError, Count, Positive, schema
 
@@ -141,6 +142,18 @@ class VIPosterior(Posterior):
     @torch.no_grad()
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         return torch.softmax(self.head_logits(features, check_draws(n), generator, self._inference_moments()), dim=-1)
+
+    @torch.no_grad()
+    def head_probs_each(self, features: torch.Tensor, n: int, generators: Sequence[torch.Generator]) -> torch.Tensor:
+        """`head_logits` of each frame alone, every layer one same-shaped GEMM per frame: [K, n, C]."""
+        n = check_draws(n)
+        h = features.unsqueeze(1)  # [K, 1, F]: the first layer's input is shared by all of a frame's draws
+        for k, (w_mu, b_mu, w_var, b_var) in enumerate(self._inference_moments()):
+            a = h if k == 0 else torch.relu(h)
+            mean, var = per_frame_linear(a, w_mu, b_mu), per_frame_linear(a * a, w_var, b_var)
+            noise = torch.stack([torch.randn((n, mean.shape[-1]), generator=g) for g in generators])
+            h = mean + var.sqrt() * noise
+        return torch.softmax(h, dim=-1)
 
     def kl(self) -> torch.Tensor:
         """KL(q || p) in closed form, summed over every head weight and bias; prior N(0, prior_sigma²)."""

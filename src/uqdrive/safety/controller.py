@@ -20,7 +20,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.posterior import Posterior
-from uqdrive.safety.draws import DrawSettings, FrameDecision, fixed_frame, sequential_frame
+from uqdrive.safety.draws import DrawSettings, FrameDecision, first_draws, fixed_frame, sequential_frame
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
 from uqdrive.uq.tier import TierTest
 
@@ -120,19 +120,35 @@ class Controller:
             np.stack([preprocess_frame(frame) for frame in frames])
         )  # exactly what the network was trained on
         features = self.posterior.features_each(x)
-        frames = [self.decide(features[b : b + 1], self.generators[slot]) for b, slot in enumerate(slots)]
-        return self.commands(slots, frames, infos)
+        return self.commands(slots, self.decide(features, [self.generators[slot] for slot in slots]), infos)
 
-    def decide(self, features: torch.Tensor, generator: torch.Generator) -> FrameDecision:
-        """One frame's decisions from its features [1, F], its draws from its slot's ``generator``; every step is
-        the frame alone's (a reduction over a batch of frames could round differently)."""
+    def decide(self, features: torch.Tensor, generators: Sequence[torch.Generator]) -> list[FrameDecision]:
+        """Each frame's decisions from its features (a row of [K, F]) and draws from its slot's generator: the
+        first draws of every frame in one head call (`Posterior.head_probs_each`), more for a frame that needs them
+        from that frame alone, and every step each frame's own (a reduction over a batch of frames could round
+        differently), so a frame's decisions are those it takes alone."""
+        fixed = self.draws.fixed_for(acts_on_warnings=self.thresholds is not None)
+        first = 2 * self.n_samples if fixed else first_draws(self.n_samples, self.draws, self.tier, self.tau)
+        probs = self.posterior.head_probs_each(features, first, generators)
+        if fixed:
+            return [fixed_frame(p, self.centres, self.eps, self.thresholds) for p in probs]
+        return [
+            sequential_frame(
+                self._more_draws(features[k : k + 1], generator),
+                p.numpy(),
+                self.n_samples,
+                self.centres,
+                self.eps,
+                self.draws,
+                self.tier,
+                self.tau,
+            )
+            for k, (p, generator) in enumerate(zip(probs, generators))
+        ]
 
-        def draw(m: int) -> torch.Tensor:
-            return self.posterior.head_probs(features, m, generator)
-
-        if self.draws.fixed_for(acts_on_warnings=self.thresholds is not None):
-            return fixed_frame(draw, self.n_samples, self.centres, self.eps, self.thresholds)
-        return sequential_frame(draw, self.n_samples, self.centres, self.eps, self.draws, self.tier, self.tau)
+    def _more_draws(self, features: torch.Tensor, generator: torch.Generator):
+        """``draw(m)``: m more draws [m, C] of the frame whose features are ``features`` [1, F]."""
+        return lambda m: self.posterior.head_probs_each(features, m, [generator])[0].numpy()
 
     def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
         """Steer at π(o), at the cruise speed."""

@@ -78,10 +78,9 @@ class FrameDecision:
     settled: bool = False
 
 
-Draw = Callable[[int], torch.Tensor]
-"""``draw(m)``: m more posterior draws of one frame, class probabilities [m, 1, C], from the frame's generator."""
 Draws = Callable[[int], np.ndarray]
-"""The same as [m, C] numpy arrays: the sequential path's few dozen draws per frame cost less in numpy."""
+"""``draw(m)``: m more posterior draws of one frame, class probabilities [m, C] from the frame's generator, in
+numpy: the sequential path's few dozen draws per frame cost less in numpy than in torch."""
 
 
 MI_Z = 3.0
@@ -104,8 +103,17 @@ def mi_draws(tau: float, look: int, cap: int) -> int:
     return min(m, cap)
 
 
+def first_draws(cap: int, settings: DrawSettings, tier: TierTest | None = None, tau: float | None = None) -> int:
+    """The draws of a frame's first head call under ``sequential``: the pilot, the first test look and η2's first
+    looks (``tier``: None for no η2 set; ``tau``: the MI threshold a warning acts on, None if none). Every frame of
+    a controller draws the same number first, so lockstep frames share that call."""
+    pi = 2 * settings.look if tau is None else mi_draws(tau, settings.look, cap)
+    return pi + (tier.first_draws if tier is not None else 0)
+
+
 def sequential_frame(
-    draw: Draw,
+    draw: Draws,
+    first: np.ndarray,
     cap: int,
     centres: torch.Tensor,
     eps: float,
@@ -113,26 +121,21 @@ def sequential_frame(
     tier: TierTest | None = None,
     tau: float | None = None,
 ) -> FrameDecision:
-    """One frame with ``sequential`` draws (module docstring): ``tier`` decides η2's tier (None: no η2 set),
-    ``tau`` is the MI threshold a warning acts on (None: MI is only measured). The first head call draws the
-    pilot, the first test look and η2's first looks; looks then double, so a frame whose draws disagree reaches
-    the cap in a handful of calls."""
+    """One frame with ``sequential`` draws (module docstring) from its first head call's draws ``first``
+    [`first_draws`, C]; ``draw`` makes more. ``tier`` decides η2's tier (None: no η2 set), ``tau`` is the MI
+    threshold a warning acts on (None: MI is only measured). Looks then double, so a frame whose draws disagree
+    reaches the cap in a handful of calls."""
     look = settings.look
-    first_pi = 2 * look if tau is None else mi_draws(tau, look, cap)
-
-    def more(m: int) -> np.ndarray:
-        return draw(m)[:, 0].numpy()
-
-    first = more(first_pi + (tier.first_draws if tier is not None else 0))
-    pi_probs, choice, settled = _settle_mode(more, first[:look], first[look:first_pi], cap, settings.gamma)
+    first_pi = len(first) - (tier.first_draws if tier is not None else 0)
+    pi_probs, choice, settled = _settle_mode(draw, first[:look], first[look:first_pi], cap, settings.gamma)
     decision = float(centres[choice])
     level, eta2, eta2_draws = None, math.nan, 0
     if tier is not None:
-        outcomes = _Eta2Outcomes(more, first[first_pi:], centres.numpy(), decision, eps)
+        outcomes = _Eta2Outcomes(draw, first[first_pi:], centres.numpy(), decision, eps)
         result = tier.run(outcomes)
         level, eta2, eta2_draws = result.tier, result.k / result.n, outcomes.drawn
     acts_on_mi = tau is not None and level in (None, CONFIDENT)  # warning 0 needs η2 ≥ δ1
-    pi_probs, (mi, se, entropy) = _refine_mutual_information(more, pi_probs, cap, tau if acts_on_mi else None)
+    pi_probs, (mi, se, entropy) = _refine_mutual_information(draw, pi_probs, cap, tau if acts_on_mi else None)
     return FrameDecision(decision, eta2, level, mi, se, entropy, len(pi_probs) + eta2_draws, settled)
 
 
@@ -198,10 +201,12 @@ def eta2_tier(eta2: float, delta1: float, delta2: float) -> int:
 
 
 def fixed_frame(
-    draw: Draw, n: int, centres: torch.Tensor, eps: float, thresholds: tuple[float, float] | None = None
+    probs: torch.Tensor, centres: torch.Tensor, eps: float, thresholds: tuple[float, float] | None = None
 ) -> FrameDecision:
-    """The paper's frame: 2n draws in one head call, π(o), MI and entropy from the first n, η̂2 from the others."""
-    m = frame_measures(draw(2 * n), centres, eps, split=n)
+    """The paper's frame from its 2n draws ``probs`` [2n, C] (one head call): π(o), MI and entropy from the first n,
+    η̂2 from the others."""
+    n = len(probs) // 2
+    m = frame_measures(probs.unsqueeze(1), centres, eps, split=n)
     eta2 = float(m.eta2[0])
     return FrameDecision(
         float(m.decision[0]),
