@@ -1,6 +1,7 @@
 from pathlib import Path
 
 import pytest
+import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -96,15 +97,30 @@ def test_every_scenario_kind_has_a_layout_builder():
 @pytest.mark.parametrize(
     ("stage", "overrides", "size"),
     [
-        ("avoid", [], (64, 48)),  # conf/experiment/avoid.yaml's render size (its training data's: collect's)
+        ("avoid", [], (96, 72)),  # conf/experiment/avoid.yaml's render size (docs/render_size.md)
         ("safety", [], (64, 48)),  # the offline experiment's
-        ("safety", ["experiment=avoid", "render=96x72"], (96, 72)),
+        ("safety", ["experiment=avoid"], (96, 72)),
         ("avoid", ["render=160x120"], (160, 120)),  # another conf/render/ size
         ("avoid", ["camera.width=80", "camera.height=60"], (80, 60)),  # the camera's own keys still win
         ("collect", [], (64, 48)),  # no experiment: the network's own size
-        ("collect", ["+experiment=avoid", "render=96x72"], (96, 72)),  # collected for an experiment: its size
+        ("collect", ["+experiment=avoid"], (96, 72)),  # collected for an experiment: its size
+        ("collect", ["+experiment=offline"], (64, 48)),
     ],
 )
 def test_the_camera_renders_at_the_experiments_size(stage_config, stage, overrides, size):
     cfg = stage_config(stage, *overrides)
     assert (cfg.camera.width, cfg.camera.height) == size
+
+
+def test_every_experiment_is_trained_on_frames_collected_at_its_render_size(stage_config):
+    """params.yaml's scenarios name the experiment each is collected for (collect@<scenario> composes it): every
+    scenario of every pipeline experiment is collected at that experiment's render size."""
+    params = yaml.safe_load((CONF.parent / "params.yaml").read_text())
+    camera = {}
+    for experiment in params["experiments"]:
+        cfg = stage_config("avoid", f"experiment={experiment}")
+        camera[experiment] = (cfg.camera.width, cfg.camera.height)
+        for scenario in cfg.experiment.scenarios:
+            collected = stage_config("collect", f"scenario={scenario}", f"+experiment={params['scenarios'][scenario]}")
+            assert (collected.camera.width, collected.camera.height) == camera[experiment], (experiment, scenario)
+    assert camera == {"avoid": (96, 72), "offline": (64, 48)}

@@ -176,6 +176,8 @@ def run_collect(cfg: DictConfig, pool: ProcessPool | None = None) -> dict:
         "frames": frames,
         "route_complete_fraction": outcomes["route_complete"] / episodes,
         **{f"episodes_{reason}": outcomes[reason] for reason in ("collision", "off_road", "timeout")},
+        "render_width": stage.camera.width,  # the camera's render size (every frame is delivered at 64x48)
+        "render_height": stage.camera.height,
     }
     write_json(stage.collect.metrics, metrics)
     mosaic_path = Path(stage.collect.mosaic)
@@ -200,5 +202,6 @@ def describe(result: dict) -> str:
     """The line a stage prints for a finished collection."""
     return (
         f"collect: {result['frames']} frames from {result['episodes']} episodes "
-        f"(route completed in {result['route_complete_fraction']:.0%}) -> {result['path']}"
+        f"(route completed in {result['route_complete_fraction']:.0%}, rendered at "
+        f"{result['render_width']}x{result['render_height']}) -> {result['path']}"
     )
