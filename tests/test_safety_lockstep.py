@@ -49,6 +49,30 @@ def test_each_frames_features_are_those_of_the_frame_alone_in_any_batch(method):
     assert torch.allclose(alone, posterior.features(frames), atol=1e-5)  # the trunk's features within rounding
 
 
+@pytest.mark.parametrize("method", ["mcd", "vi", "hmc", "ensemble", "laplace"])
+def test_each_frames_head_draws_are_those_of_the_frame_alone_in_any_batch(method):
+    """One head call for every lockstep frame (`head_probs_each`), each frame drawing from its own generator: its
+    draws are bit for bit those of the frame alone, at a few draws (HMC: a gathered subset of its store) and at
+    more draws than the store holds; and they are `head_probs`'s draws of the frame, within rounding."""
+    posterior = random_posteriors(torch.Generator().manual_seed(0))[method]
+    features = posterior.features_each(torch.rand((8, 1, 48, 64), generator=torch.Generator().manual_seed(1)))
+
+    def generators(seeds) -> list:
+        return [torch.Generator().manual_seed(int(seed)) for seed in seeds]
+
+    for n in (16, 40, 1476):
+        alone = torch.cat([posterior.head_probs_each(features[i : i + 1], n, generators([i])) for i in range(8)])
+        assert alone.shape == (8, n, 21)
+        for size in (3, 8):
+            assert torch.equal(posterior.head_probs_each(features[:size], n, generators(range(size))), alone[:size])
+        order = torch.randperm(8, generator=torch.Generator().manual_seed(2))
+        assert torch.equal(posterior.head_probs_each(features[order], n, generators(order)), alone[order])
+        single = torch.cat(
+            [posterior.head_probs(features[i : i + 1], n, g) for i, g in enumerate(generators(range(8)))], 1
+        )
+        torch.testing.assert_close(alone, single.transpose(0, 1), rtol=0, atol=1e-6)
+
+
 @pytest.fixture(scope="module")
 def rain():
     return ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"), WeatherConfig.from_yaml(
