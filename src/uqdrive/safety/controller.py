@@ -75,9 +75,9 @@ class Controller:
     θ = γ = 0.05, nearly the same cost, and grows with the class count. Cost: one batched
     head evaluation of 2n instead of n (`uqdrive bench controller`, budget 10 ms per frame).
 
-    Rollouts in lockstep share one trunk pass per step (`Posterior.features_each`, each frame's features
-    those of the frame alone) and each slot draws from its own generator, seeded by its episode's seed,
-    so a rollout's commands do not depend on the rollouts beside it.
+    Rollouts in lockstep share one trunk pass and one first head call per step (`Posterior.features_each`,
+    `Posterior.head_probs_each`: each frame's numbers those of the frame alone), each slot drawing from its own
+    generator, seeded by its episode's seed, so a rollout's commands do not depend on the rollouts beside it.
     """
 
     needs_camera = True
