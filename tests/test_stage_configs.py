@@ -5,6 +5,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from conftest import ALL_TENTHS
 
 from uqdrive.pipeline.avoid import run_avoid
 from uqdrive.pipeline.avoid_summary import run_avoid_summary
@@ -147,10 +148,11 @@ def test_every_stage_config_is_covered():
     assert set(STAGES) == {p.stem for p in (ROOT / "conf").glob("*.yaml")} - {"common", "sim"}
 
 
-def test_the_paper_profile_keeps_the_papers_guarantee_in_fewer_rollouts(stage_config):
-    """θ = γ = 0.05 in every cell, as the paper's Chernoff n = 738 gives it: the safety sweep by the sequential
-    scheme (36 rollouts where η1 is 0 or 1), avoidance by a fixed exact sample large enough to calibrate on."""
-    from uqdrive.pipeline.avoid_config import AvoidStage
+def test_the_paper_profile_keeps_the_papers_guarantee_in_fewer_rollouts(stage_config, random_models):
+    """θ = γ = 0.05 in every cell, as the paper's Chernoff n = 738 gives it, by the sequential scheme (36 rollouts
+    where η1 is 0 or 1): the safety sweep, and avoidance on the paper's cells (the known condition, the unknown ones
+    as one mixture cell), each running a fixed sample large enough to calibrate on."""
+    from uqdrive.pipeline.avoid_config import KNOWN, UNKNOWN, build_settings
     from uqdrive.pipeline.safety import SafetyStage
     from uqdrive.safety.calibration import min_calibration_runs
     from uqdrive.schema import validate
@@ -158,7 +160,9 @@ def test_the_paper_profile_keeps_the_papers_guarantee_in_fewer_rollouts(stage_co
     safety = validate(SafetyStage, stage_config("safety", "profile=paper")).estimator
     assert (safety.scheme, safety.theta, safety.gamma) == ("sequential", 0.05, 0.05)
     assert safety.fixed_rollouts() == 36 and safety.planned_rollouts() < 738
-    avoid = validate(AvoidStage, stage_config("avoid", "profile=paper")).avoid
-    assert (avoid.theta, avoid.gamma) == (0.05, 0.05) and avoid.estimator.planned_rollouts() == 404
+    model = f"avoid.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    avoid = build_settings(stage_config("avoid", "profile=paper", model, *ALL_TENTHS))
+    assert (avoid.estimator.scheme, avoid.estimator.theta, avoid.estimator.gamma) == ("sequential", 0.05, 0.05)
+    assert [c.name for c in avoid.conditions] == [KNOWN, UNKNOWN] and len(avoid.unknown[0].variants) == 4
     calibration = avoid.calibration
-    assert avoid.estimator.fixed_rollouts() >= min_calibration_runs(calibration.autonomy_target, calibration.gamma)
+    assert avoid.fixed_rollouts() == 100 >= min_calibration_runs(calibration.autonomy_target, calibration.gamma)

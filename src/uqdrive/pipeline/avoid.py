@@ -63,6 +63,7 @@ def run_cell(
         estimate_key(job, estimator, __name__),
         Path(cfg.avoid.rollout_log) / f"{name}.jsonl",
         reuse=unchanged_by(warning, off) if off is not None and settings.spec.draws.scheme == "fixed" else None,
+        floor=settings.min_rollouts,
     )
     return Cell(name, condition.name, mode, warning, run.outcome, run.results, run.seconds, run.reused, base_seed)
 
@@ -78,7 +79,7 @@ def run_avoid(cfg: DictConfig) -> dict:
             off = cells[condition.name, "off"] = run_cell(runner, cfg, settings, condition, "off", settings.warning)
             cells[condition.name, "on"] = run_cell(runner, cfg, settings, condition, "on", settings.warning, off)
         c, names = settings.calibration, [k.name for k in settings.conditions]
-        traces = traces_of([cells[name, "off"] for name in names], geometries, settings.estimator.fixed_rollouts())
+        traces = traces_of([cells[name, "off"] for name in names], geometries, settings.fixed_rollouts())
         calib = calibrate(
             traces,
             names,

@@ -11,7 +11,9 @@ import numpy as np
 from omegaconf import DictConfig
 from pydantic import Field
 
+from uqdrive.envelope.space import World
 from uqdrive.models.posterior import posterior_from_config
+from uqdrive.pipeline.avoid_mixture import MixtureJob
 from uqdrive.pipeline.configs import Executor, ModelStage, train_stage
 from uqdrive.pipeline.records import MODES
 from uqdrive.safety.calibration import min_calibration_runs
@@ -37,6 +39,7 @@ from uqdrive.sim import CameraConfig, ScenarioGeometry, VehicleConfig, build_geo
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
 
 KNOWN = "known"
+UNKNOWN = "unknown"  # the mixture cell's condition (avoid.unknown_as=mixture)
 
 
 @schema
@@ -49,8 +52,8 @@ class UnknownCondition:
     scenario: dict[str, Any] = Field(default_factory=dict)  # fields of the obstacle scenario to change
 
     def __post_init__(self) -> None:
-        if self.name == KNOWN:
-            raise invalid("name", self.name, "is the training condition's name; choose another")
+        if self.name in (KNOWN, UNKNOWN):
+            raise invalid("name", self.name, "is the training condition's or the unknown mixture's; choose another")
 
 
 @schema(frozen=True)
@@ -89,6 +92,8 @@ class AvoidSection(EstimatorSettings):
     known_noise: NonNegative
     family_wise: Bool  # spend γ over this controller's cells (conditions × modes): all of them at once
     unknown: Annotated[tuple[UnknownCondition, ...], Field(min_length=1)]
+    unknown_as: Literal["cells", "mixture"]  # a cell per variant, or one whose rollouts draw theirs (avoid_mixture)
+    min_rollouts: Seed  # every cell runs at least this many (the sample paired tests and the calibration use)
     calibration: CalibrationSettings
     out: Str
     data_dir: Str
@@ -138,6 +143,7 @@ class Condition:
     scenario: ScenarioConfig
     weather: WeatherConfig
     noise: float = 0.0
+    variants: tuple[Condition, ...] = ()  # a mixture cell's: rollout i drives the one its seed draws (avoid_mixture)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -161,20 +167,29 @@ class AvoidSettings:
     executor: Executor
     progress: bool
     family_size: int  # cells the estimator's γ is spread over (1: per cell)
+    min_rollouts: int  # every cell runs at least this many, whatever its estimator reads
 
     @property
     def conditions(self) -> tuple[Condition, ...]:
         return (self.known, *self.unknown)
 
-    def job(self, condition: Condition, warning: WarningConfig | None, base_seed: int) -> RolloutJob:
+    def fixed_rollouts(self) -> int:
+        """Rollouts every cell runs whatever its outcomes: the prefix paired tests and the calibration may use."""
+        return max(self.estimator.fixed_rollouts(), self.min_rollouts)
+
+    def job(self, condition: Condition, warning: WarningConfig | None, base_seed: int) -> RolloutJob | MixtureJob:
         """The rollouts of one cell: ``warning`` None drives without the warning system. Sequential draws test
         each threshold inside (0, 1); thresholds the calibration may choose at 0 or 1 (never or always warning)
         have no indifference zone to test in, so such a cell takes the paper's fixed draws."""
         draws = self.spec.draws
         if warning is not None and not 0 < warning.delta2 <= warning.delta1 < 1:
             draws = dataclasses.replace(draws, scheme="fixed")
+        policy = dataclasses.replace(self.spec, warnings=warning, draws=draws)
+        if condition.variants:
+            worlds = tuple(World(v.scenario, v.weather, v.noise) for v in condition.variants)
+            return MixtureJob(policy, worlds, base_seed, self.camera, self.vehicle, self.control_hz, self.horizon_s)
         return RolloutJob(
-            policy=dataclasses.replace(self.spec, warnings=warning, draws=draws),
+            policy=policy,
             scenario=condition.scenario,
             weather=condition.weather,
             noise=condition.noise,
@@ -202,9 +217,10 @@ class AvoidSettings:
 
 
 def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...]:
-    """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather."""
+    """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather;
+    with ``unknown_as: mixture``, one condition whose rollouts draw among them (roads and obstacle places alike)."""
     weathers = {stage.weather.name: stage.weather, **stage.weathers}
-    return tuple(
+    each = tuple(
         Condition(
             item.name,
             ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
@@ -213,6 +229,9 @@ def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...]:
         )
         for item in stage.avoid.unknown
     )
+    if stage.avoid.unknown_as == "cells":
+        return each
+    return (Condition(UNKNOWN, stage.scenario, stage.weather, stage.avoid.known_noise, each),)
 
 
 def check_horizon(
@@ -242,16 +261,19 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
     stage = validate(AvoidStage, cfg)
     avoid, warning = stage.avoid, stage.warning
-    family_size = (1 + len(avoid.unknown)) * len(MODES) if avoid.family_wise else 1
+    cells = 1 + (len(avoid.unknown) if avoid.unknown_as == "cells" else 1)
+    family_size = cells * len(MODES) if avoid.family_wise else 1
     estimator = dataclasses.replace(avoid.estimator, gamma=avoid.gamma / family_size)
     method = posterior_from_config(stage.model).method
     horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
     calibration = avoid.calibration
     needed = min_calibration_runs(calibration.autonomy_target, calibration.gamma, calibration.calibration_fraction)
-    if estimator.fixed_rollouts() < needed:
+    fixed = max(estimator.fixed_rollouts(), avoid.min_rollouts)
+    if fixed < needed:
         raise ConfigError(
             f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be certified with "
-            f"{estimator.fixed_rollouts()} known-condition runs (it needs {needed}); lower it or tighten avoid.theta"
+            f"{fixed} known-condition runs (it needs {needed}); lower it, raise avoid.min_rollouts or tighten "
+            "avoid.theta"
         )
     if calibration.order == "learned" and calibration.calibration_fraction == 1:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
@@ -278,4 +300,5 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         stage.executor,
         stage.progress,
         family_size,
+        avoid.min_rollouts,
     )

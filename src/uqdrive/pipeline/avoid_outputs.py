@@ -23,6 +23,7 @@ from uqdrive.pipeline.avoid_cells import (
     write_tradeoff,
 )
 from uqdrive.pipeline.avoid_config import AvoidSettings
+from uqdrive.pipeline.avoid_mixture import variant_of
 from uqdrive.pipeline.records import (
     MODES,
     AvoidCell,
@@ -45,8 +46,20 @@ from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq.pooled import pooled
 
 
-def unknown_mixture(cells: list[Cell], metrics: list[AvoidCell], gamma: float) -> Mixture:
-    """η̂1 of the unknown conditions as one uniform mixture of their cells (Hoeffding interval, fixed n)."""
+def unknown_mixture(cells: list[Cell], metrics: list[AvoidCell], gamma: float, settings: AvoidSettings) -> Mixture:
+    """η̂1 of the unknown conditions as one uniform mixture: of their cells (Hoeffding interval, fixed n), or the
+    mixture cell's own estimate (its rollouts drew their variant) with each variant's share of its fixed sample."""
+    variants = settings.unknown[0].variants
+    if variants:
+        (cell,), est = cells, cells[0].estimate
+        first = cell.results[: settings.fixed_rollouts()]
+        drawn = [variant_of(cell.base_seed + i, len(variants)) for i in range(len(first))]
+        shares = {
+            item.name: {"runs": drawn.count(v), "safe": sum(r.safe for r, d in zip(first, drawn) if d == v)}
+            for v, item in enumerate(variants)
+        }
+        interval = f"{est.scheme} (one cell, each rollout's variant drawn from its seed)"
+        return Mixture(est.value, est.low, est.high, est.theta, est.gamma, est.n, metrics[0].autonomy, interval, shares)
     p = pooled([sum(r.safe for r in c.results) for c in cells], [len(c.results) for c in cells], gamma)
     autonomy = float(np.mean([m.autonomy for m in metrics]))
     return Mixture(p.value, p.low, p.high, p.theta, gamma, p.n, autonomy, "hoeffding (uniform mixture of the cells)")
@@ -161,7 +174,7 @@ def write_outputs(
     unknown = names[1:]
     table: dict[str, dict[str, AvoidCell]] = {name: {} for name in names}
     run_ids: dict[str, str | None] = {}
-    fixed, family = settings.estimator.fixed_rollouts(), settings.family_size
+    fixed, family = settings.fixed_rollouts(), settings.family_size
     for (condition, mode), cell in cells.items():
         geometry = geometries[condition]
         metrics = cell_metrics(cell, settings.spec.speed, geometry, fixed, family)
@@ -180,7 +193,10 @@ def write_outputs(
         table[condition][mode] = metrics
     mixture = {
         mode: unknown_mixture(
-            [cells[name, mode] for name in unknown], [table[name][mode] for name in unknown], settings.estimator.gamma
+            [cells[name, mode] for name in unknown],
+            [table[name][mode] for name in unknown],
+            settings.estimator.gamma,
+            settings,
         )
         for mode in MODES
     }

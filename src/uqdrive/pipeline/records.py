@@ -168,7 +168,9 @@ class AvoidCell:
 
 @record
 class Mixture:
-    """The unknown conditions as one uniform mixture of their cells (Hoeffding's interval, fixed n)."""
+    """The unknown conditions as one uniform mixture: of their cells (Hoeffding's interval, fixed n), or the one
+    cell whose rollouts drew their variant (its own estimate; ``variants``: each variant's runs and safe runs in
+    the cell's fixed sample, where it has one)."""
 
     eta1: float
     eta1_low: float
@@ -178,6 +180,7 @@ class Mixture:
     n: int
     autonomy: float
     interval: str
+    variants: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
 
 
 @record

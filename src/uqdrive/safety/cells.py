@@ -113,14 +113,19 @@ class Draws:
         end = max(needed, known + min(known, self.ahead))
         return end if self.limit is None else max(needed, min(end, self.limit))
 
-    def __call__(self, count: int) -> np.ndarray:
-        start = len(self.results)
-        if len(self.kept) < start + count:
-            for result in self.progress(self._run(range(len(self.kept), self._end(start + count)))):
+    def run_to(self, count: int) -> None:
+        """Rollouts 0 … ``count`` − 1 known (simulated where missing), whether or not anyone reads them."""
+        if len(self.kept) < count:
+            for result in self.progress(self._run(range(len(self.kept), count))):
                 if self.log is not None:
                     self.log.append(result)
                 self.fresh += 1
                 self.kept.append(result)
+
+    def __call__(self, count: int) -> np.ndarray:
+        start = len(self.results)
+        if len(self.kept) < start + count:
+            self.run_to(self._end(start + count))
         self.results.extend(self.kept[start : start + count])
         return np.array([r.safe for r in self.results[start:]], dtype=np.int64)
 

@@ -118,10 +118,13 @@ class CellRunner:
         total: int,
         reuse: Mapping[int, RolloutResult] | None = None,
         ahead: int = 0,
+        floor: int = 0,
     ) -> CellRun[T]:
         """``consume(draw)`` over the cell's rollouts (``draw(count)``: the next count outcomes, 0/1, in index
         order); ``total``: the most rollouts it may ask for (the progress bar's length, and the most run);
-        ``ahead``: after the consumer's first look, run batches doubling up to that many (`Draws`)."""
+        ``ahead``: after the consumer's first look, run batches doubling up to that many (`Draws`); ``floor``:
+        rollouts the cell runs whatever the consumer reads (a sample fixed in advance, for paired tests and
+        replays): its results are the first max(read, floor), the consumer's conclusion only what it read."""
         executor = make_executor(self.backend, job, self.workers, self.pool, **self.options)
         bar = tqdm(total=total, desc=name, unit="rollout", disable=not self.progress, leave=False)
 
@@ -132,14 +135,17 @@ class CellRunner:
 
         start = time.perf_counter()
         try:
-            draws = Draws(executor, RolloutLog(log_path, key, base_seed), reuse, progress, ahead, total)
+            draws = Draws(executor, RolloutLog(log_path, key, base_seed), reuse, progress, ahead, max(total, floor))
             bar.update(len(draws.kept))
             outcome = consume(draws)
+            draws.run_to(floor)
         finally:
             bar.close()
             executor.close()
         seconds = time.perf_counter() - start
-        return CellRun(name, key, outcome, draws.results, seconds, reused=draws.fresh == 0, unread=draws.unread)
+        results = draws.kept[: max(len(draws.results), floor)]
+        unread = len(draws.kept) - len(results)
+        return CellRun(name, key, outcome, results, seconds, reused=draws.fresh == 0, unread=unread)
 
     def estimate(
         self,
@@ -149,11 +155,12 @@ class CellRunner:
         key: str,
         log_path: str | Path,
         reuse: Mapping[int, RolloutResult] | None = None,
+        floor: int = 0,
     ) -> CellRun[Estimate]:
         """η̂1 of one cell of a `RolloutJob` by ``settings``' scheme (``key``: `estimate_key`). The cell runs ahead
         of the estimator (`Draws`), which matters for a sequential scheme: it looks every few rollouts, fewer than
         the workers' lockstep slots; the estimate reads the same outcomes in the same order (a fixed-n scheme asks
-        for all of them at once, so nothing runs ahead of it)."""
+        for all of them at once, so nothing runs ahead of it). ``floor``: see `run`."""
         return self.run(
             name,
             job,
@@ -164,6 +171,7 @@ class CellRunner:
             settings.planned_rollouts(),
             reuse,
             self.batch,
+            floor,
         )
 
     def close(self) -> None:
