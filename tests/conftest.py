@@ -53,6 +53,17 @@ def random_models(tmp_path_factory):
     return {method: save_posterior(post, folder / f"{method}.pt") for method, post in posteriors.items()}
 
 
+@pytest.fixture
+def avoid_config(stage_config, random_models):
+    """An avoid stage config driving the random-weight models (overrides appended)."""
+
+    def make(*overrides: str):
+        folder = random_models["mcd"].parent
+        return stage_config("avoid", *ALL_TENTHS, f"avoid.model_path={folder}/${{model.name}}.pt", *overrides)
+
+    return make
+
+
 def pytest_collection_modifyitems(items):
     """The longest test first, the `dvc repro` one, then the other end-to-end tests (stable otherwise): each
     pytest-xdist worker takes the next test file in this order, so the longest runs beside the rest of the suite

@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-from conftest import ALL_TENTHS
 from scipy import stats
 
 from uqdrive.pipeline.avoid import run_avoid
@@ -18,15 +17,6 @@ from uqdrive.safety.executors import LockstepJob
 
 VAN = "{name: van, weather: '${weather.name}', scenario: {obstacle_size: [5.2, 2.0, 2.2]}}"
 TWO_UNKNOWN = f"avoid.unknown=[{{name: fog, weather: fog}},{VAN}]"
-
-
-@pytest.fixture
-def avoid_config(stage_config, random_models):
-    def make(*overrides: str):
-        folder = random_models["mcd"].parent
-        return stage_config("avoid", *ALL_TENTHS, f"avoid.model_path={folder}/${{model.name}}.pt", *overrides)
-
-    return make
 
 
 def _within_exact_band(counts: np.ndarray, n: int, p: float, alpha: float) -> bool:

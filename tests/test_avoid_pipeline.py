@@ -5,7 +5,6 @@ import dataclasses
 import json
 
 import pytest
-from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
@@ -15,15 +14,6 @@ from uqdrive.pipeline.avoid_summary import run_avoid_summary
 from uqdrive.pipeline.records import MODES, as_dict
 from uqdrive.safety import WarningController
 from uqdrive.tracking import store_uris
-
-
-@pytest.fixture
-def avoid_config(stage_config, random_models):
-    def make(*overrides: str):
-        folder = random_models["mcd"].parent
-        return stage_config("avoid", *ALL_TENTHS, f"avoid.model_path={folder}/${{model.name}}.pt", *overrides)
-
-    return make
 
 
 @pytest.mark.slow
