@@ -10,20 +10,20 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.avoid import run_avoid  # not at the top: spawned workers re-import this script
-    from uqdrive.pipeline.records import MODES
+    from uqdrive.pipeline.avoid_stage import run_avoid  # not at the top: spawned workers re-import this script
+    from uqdrive.safety.cell_records import Mode
 
     r = run_avoid(cfg)
     for condition in r.conditions:
-        for mode in MODES:
-            c = r.cells[condition][mode]
+        for mode in Mode:
+            c = r.cell(condition, mode)
             print(
                 f"avoid {cfg.avoid.name} {condition:>12} warnings {mode:>10}: eta1 = {c.eta1:.2f} "
                 f"[{c.eta1_low:.2f}, {c.eta1_high:.2f}] n={c.n}, autonomy {c.autonomy:.2f}, "
                 f"passed {c.passed_rate:.2f}, "
                 f"warnings 0/1/2 in {c.warning0_runs}/{c.warning1_runs}/{c.warning2_runs} runs"
             )
-    for mode in MODES:
+    for mode in Mode:
         u = r.unknown[mode]
         print(
             f"avoid {cfg.avoid.name} unknown mixture warnings {mode:>10}: eta1 = {u.eta1:.2f} "

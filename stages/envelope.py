@@ -12,8 +12,7 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="envelope")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.envelope import run_envelope  # not at the top: spawned workers re-import this script
-    from uqdrive.pipeline.envelope_outputs import describe
+    from uqdrive.pipeline.envelope_stage import describe, run_envelope  # not at the top: workers re-import this script
 
     print(f"{describe(run_envelope(cfg))} -> {cfg.envelope.out}")
 

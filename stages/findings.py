@@ -10,7 +10,7 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="findings")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.findings import run_findings
+    from uqdrive.pipeline.findings_stage import run_findings
 
     findings = run_findings(cfg)
     for f in findings.findings:

@@ -11,10 +11,11 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="heldout_sweep")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.collect import describe, run_heldout  # not at the top: workers re-import this script
+    from uqdrive.pipeline.collect_stage import describe  # not at the top: workers re-import this script
+    from uqdrive.pipeline.heldout_stage import run_heldout
 
-    for _, result in run_heldout(cfg, list(HydraConfig.get().overrides.task)):
-        print(describe(result))
+    for condition, collection in run_heldout(cfg, list(HydraConfig.get().overrides.task)):
+        print(describe(collection, condition.collect.out))
 
 
 if __name__ == "__main__":  # the config groups it composes take their defaults from these schemas

@@ -3,7 +3,7 @@
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.pipeline.preprocess import run_preprocess
+from uqdrive.pipeline.preprocess_stage import run_preprocess
 from uqdrive.stage import run_stage, stage_main
 
 
@@ -12,8 +12,8 @@ from uqdrive.stage import run_stage, stage_main
 def main(cfg: DictConfig) -> None:
     metrics = run_preprocess(cfg)
     print(
-        f"preprocess: {metrics['train_frames']} train / {metrics['val_frames']} val frames, "
-        f"{metrics['num_classes']} classes -> {cfg.paths.processed}"
+        f"preprocess: {metrics.train_frames} train / {metrics.val_frames} val frames, "
+        f"{metrics.num_classes} classes -> {cfg.paths.processed}"
     )
 
 

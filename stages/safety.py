@@ -10,7 +10,10 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="safety")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.safety import describe, run_safety  # not at the top: spawned workers re-import this script
+    from uqdrive.pipeline.safety_stage import (  # not at the top: spawned workers re-import this script
+        describe,
+        run_safety,
+    )
 
     print(f"{describe(cfg.safety.cell, run_safety(cfg))} -> {cfg.safety.out}")
 

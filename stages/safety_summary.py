@@ -4,15 +4,15 @@ the offline-safety figures."""
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.pipeline.safety_summary import run_safety_summary
+from uqdrive.pipeline.safety_summary_stage import run_safety_summary
 from uqdrive.stage import run_stage, stage_main
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="safety_summary")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    result = run_safety_summary(cfg)
-    print(f"safety summary -> {cfg.summary.out}, figures {', '.join(result['figures'])}")
+    summary = run_safety_summary(cfg)
+    print(f"safety summary: {len(summary.answers)} answers -> {cfg.summary.out}, figures {cfg.summary.figures_dir}")
 
 
 if __name__ == "__main__":

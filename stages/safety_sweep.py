@@ -11,7 +11,10 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="safety_sweep")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.safety import describe, run_safety_sweep  # not at the top: workers re-import this script
+    from uqdrive.pipeline.safety_stage import (  # not at the top: workers re-import this script
+        describe,
+        run_safety_sweep,
+    )
 
     for cell, result in run_safety_sweep(cfg, list(HydraConfig.get().overrides.task)):
         print(f"{describe(cell.safety.cell, result)} -> {cell.safety.out}")

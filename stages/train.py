@@ -4,7 +4,7 @@ seed (replicate); all but MCD need the replicate's models/<E>/mcd/seed<r>.pt (th
 import hydra
 from omegaconf import DictConfig
 
-from uqdrive.pipeline.train import describe, run_train
+from uqdrive.pipeline.train_stage import describe, run_train
 from uqdrive.stage import run_stage, stage_main
 
 

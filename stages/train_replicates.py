@@ -11,7 +11,10 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train_replicates")
 @stage_main
 def main(cfg: DictConfig) -> None:
-    from uqdrive.pipeline.train import describe, run_train_replicates  # not at the top: workers re-import this script
+    from uqdrive.pipeline.train_stage import (  # not at the top: workers re-import this script
+        describe,
+        run_train_replicates,
+    )
 
     for metrics in run_train_replicates(cfg, list(HydraConfig.get().overrides.task)):
         print(describe(metrics))

@@ -45,7 +45,7 @@ ALL_TENTHS = ("experiment.bins.low=-1.0", "experiment.bins.high=1.0")
 @pytest.fixture(scope="session")
 def random_models(tmp_path_factory):
     """models/{mcd,vi,hmc}.pt with seeded random weights: closed-loop plumbing needs a posterior, not a good one."""
-    from uqdrive.bench.posterior import random_posteriors
+    from uqdrive.bench.posterior_bench import random_posteriors
     from uqdrive.models import save_posterior
 
     folder = tmp_path_factory.mktemp("random-models")

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from uqdrive.pipeline.avoid import run_avoid
-from uqdrive.pipeline.avoid_config import KNOWN, UNKNOWN, build_settings
-from uqdrive.pipeline.avoid_mixture import variant_of
-from uqdrive.pipeline.records import MODES
+from uqdrive.pipeline.avoid_stage import run_avoid
+from uqdrive.safety.avoidance import KNOWN, UNKNOWN, build_settings
+from uqdrive.safety.cell_records import Mode
 from uqdrive.safety.executors import LockstepJob
+from uqdrive.sim.condition import variant_of
 
 VAN = "{name: van, weather: '${weather.name}', scenario: {obstacle_size: [5.2, 2.0, 2.2]}}"
 TWO_UNKNOWN = f"avoid.unknown=[{{name: fog, weather: fog}},{VAN}]"
@@ -43,7 +43,7 @@ def test_mixture_rollout_i_is_rollout_i_of_its_variants_own_cell(avoid_config):
     assert [c.name for c in mixture.conditions] == [KNOWN, UNKNOWN]
     job = mixture.job(mixture.unknown[0], None, 200000)
     indices = list(range(6))
-    drawn = [job.variant(i) for i in indices]
+    drawn = [job.where.variant(job.base_seed + i) for i in indices]
     assert len(set(drawn)) == 2, "the seeds should reach both variants"
     worker = LockstepJob(job, 3).worker()
     together = worker.run(indices)
@@ -63,17 +63,17 @@ def test_the_mixture_stage_runs_every_cell_to_its_floor_and_reports_the_mixture_
     result = run_avoid(avoid_config("model=mcd", TWO_UNKNOWN, "avoid.unknown_as=mixture", "avoid.min_rollouts=6"))
     saved = json.loads((tmp_path / "metrics/avoid/mcd-seed0.json").read_text())
     assert saved["conditions"] == [KNOWN, UNKNOWN] and result.conditions == [KNOWN, UNKNOWN]
-    for condition, mode in itertools.product(saved["conditions"], MODES):
+    for condition, mode in itertools.product(saved["conditions"], Mode):
         cell = saved["cells"][condition][mode]
         # the estimator (chernoff_n(0.7, 0.05) = 4) reads 4; the cell runs 6, the sample the pairs use
         assert cell["n"] == 4 and len(cell["outcomes"]) == 6 and cell["fixed_rollouts"] == 6
     assert saved["calibration"]["calibration_runs"] == {KNOWN: 6, UNKNOWN: 6}
-    for mode in MODES:
+    for mode in Mode:
         mixture, cell = saved["unknown"][mode], saved["cells"][UNKNOWN][mode]
         assert (mixture["eta1"], mixture["eta1_low"], mixture["n"]) == (cell["eta1"], cell["eta1_low"], 4)
         assert set(mixture["variants"]) == {"fog", "van"}
         assert sum(v["runs"] for v in mixture["variants"].values()) == 6
         assert sum(v["safe"] for v in mixture["variants"].values()) == cell["outcomes"].count("1")
-    base = {mode: saved["cells"][UNKNOWN][mode]["base_seed"] for mode in MODES}
-    shares = {mode: {k: v["runs"] for k, v in saved["unknown"][mode]["variants"].items()} for mode in MODES}
+    base = {mode: saved["cells"][UNKNOWN][mode]["base_seed"] for mode in Mode}
+    shares = {mode: {k: v["runs"] for k, v in saved["unknown"][mode]["variants"].items()} for mode in Mode}
     assert shares["off"] == shares["on"] and base["off"] == base["on"]  # the same seeds drive the same variants

@@ -8,11 +8,12 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
-from uqdrive.pipeline.avoid import run_avoid
-from uqdrive.pipeline.avoid_config import KNOWN, build_settings
-from uqdrive.pipeline.avoid_summary import run_avoid_summary
-from uqdrive.pipeline.records import MODES, as_dict
-from uqdrive.safety import WarningController
+from uqdrive.pipeline.avoid_stage import run_avoid
+from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
+from uqdrive.records import as_dict
+from uqdrive.safety.avoidance import KNOWN, build_settings
+from uqdrive.safety.cell_records import Mode
+from uqdrive.safety.warnings import WarningController
 from uqdrive.tracking import store_uris
 
 
@@ -25,7 +26,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     assert saved == as_dict(result) and saved["samples_per_frame"] == 21  # chernoff_n(0.3, 0.05), the tiny profile
     assert saved["conditions"] == [KNOWN, "fog"]  # the tiny profile's one unknown condition
     for condition in saved["conditions"]:
-        for mode in MODES:
+        for mode in Mode:
             cell = saved["cells"][condition][mode]
             # every condition gets exactly the scheme's runs: chernoff_n(0.7, 0.05) = 4, never a random share
             assert cell["n"] == 4 and cell["scheme"] == "chernoff" and cell["guaranteed"] and not cell["reused"]
@@ -40,8 +41,8 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
         for mode in ("off", "fresh_off"):  # warnings off: only counted
             assert saved["cells"][condition][mode]["handover_rate"] == 0
         # fresh_off and calibrated run the validation seeds, the others the stage's
-        assert [saved["cells"][condition][m]["base_seed"] for m in MODES] == [200000, 200000, 300000, 300000]
-    for mode in MODES:  # one unknown condition: its mixture is that cell
+        assert [saved["cells"][condition][m]["base_seed"] for m in Mode] == [200000, 200000, 300000, 300000]
+    for mode in Mode:  # one unknown condition: its mixture is that cell
         assert saved["unknown"][mode]["eta1"] == saved["cells"]["fog"][mode]["eta1"]
     assert saved["cells"][KNOWN]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
     calibration = saved["calibration"]
@@ -67,7 +68,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     client = MlflowClient(store_uris(tmp_path)[0])
     runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
     by_name = {r.info.run_name.split(" · ")[-1]: r for r in runs}  # the name starts with η̂1
-    assert set(by_name) == {f"mcd-seed0-{c}-{m}" for c in (KNOWN, "fog") for m in MODES} | {"mcd-seed0-calibration"}
+    assert set(by_name) == {f"mcd-seed0-{c}-{m}" for c in (KNOWN, "fog") for m in Mode} | {"mcd-seed0-calibration"}
     run = by_name["mcd-seed0-fog-on"]
     params = run.data.params
     assert {k: params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n", "theta")} == {
@@ -87,13 +88,13 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     }
 
     again = run_avoid(avoid_config("model=mcd"))  # every cell is reused, with the same numbers
-    assert all(again.cells[c][m].reused for c in again.conditions for m in MODES)
-    assert {c: {m: again.cells[c][m].eta1 for m in MODES} for c in again.conditions} == {
-        c: {m: saved["cells"][c][m]["eta1"] for m in MODES} for c in saved["conditions"]
+    assert all(again.cells[c][m].reused for c in again.conditions for m in Mode)
+    assert {c: {m: again.cells[c][m].eta1 for m in Mode} for c in again.conditions} == {
+        c: {m: saved["cells"][c][m]["eta1"] for m in Mode} for c in saved["conditions"]
     }
 
     run_avoid(avoid_config("model=mcd", "seed=1"))  # a second replicate (here the same network: plumbing)
-    summary = run_avoid_summary(stage_config("avoid_summary", "methods=[mcd]", "replicates=[0,1]"))["summary"]
+    summary = run_avoid_summary(stage_config("avoid_summary", "methods=[mcd]", "replicates=[0,1]"))
     assert json.loads((tmp_path / "metrics/avoid.json").read_text()) == as_dict(summary)
     on = summary.answer("mcd", "unknown mixture", "on")
     second = json.loads((tmp_path / "metrics/avoid/mcd-seed1.json").read_text())

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from uqdrive.bench.posterior import random_posteriors
+from uqdrive.bench.posterior_bench import random_posteriors
 from uqdrive.cli import main
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import save_posterior
@@ -25,7 +25,8 @@ from uqdrive.models.checkpoint import save_posterior
         (["posterior", "--samples", "50", "--repeats", "2"], r"RESULT posterior worst_ms=[\d.]+ min_speedup=[\d.]+"),
         (
             ["controller", "--frames", "1", "--methods", "vi"],
-            r"RESULT controller worst_ms=[\d.]+ worst_p95_ms=[\d.]+ fixed_worst_ms=[\d.]+ min_speedup=[\d.]+ "
+            r"RESULT controller controller=(trained|random) worst_ms=[\d.]+ worst_p95_ms=[\d.]+ fixed_worst_ms=[\d.]+ "
+            r"min_speedup=[\d.]+ "
             r"median_draws=\d+",
         ),
     ],
@@ -44,7 +45,8 @@ def test_rollout_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[
     out = capsys.readouterr().out.strip().splitlines()
     assert any(line.startswith("closed loop, 160x120:") for line in out)
     pattern = (
-        r"RESULT rollout overhead=[\d.]+ speedup2=[\d.]+ render_speedup=[\d.]+ env_speedup=[\d.]+ "
+        r"RESULT rollout controller=(trained|random) overhead=[\d.]+ speedup2=[\d.]+ render_speedup=[\d.]+ "
+        r"env_speedup=[\d.]+ "
         r"draws_per_frame=[\d.]+ agreement=[\d.]+"
     )
     assert re.fullmatch(pattern, out[-1]), out[-1]
@@ -65,10 +67,12 @@ def test_unknown_benchmark_is_named_with_the_choices(capsys: pytest.CaptureFixtu
 def test_benchmarks_drive_trained_models_of_an_experiments_class_set(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    """--models: the checkpoints' own class set (here the avoid experiment's 7 classes), not the default 21."""
+    """--models: the pipeline's models folder; the checkpoints' own class set (here 7 classes), not the default 21;
+    the RESULT lines say the controllers were trained ones."""
     bins = SteeringBins(10, -0.3, 0.3)
     for method, posterior in random_posteriors(torch.Generator().manual_seed(0), bins).items():
-        save_posterior(posterior, tmp_path / f"{method}.pt")
+        for experiment in ("avoid", "offline"):
+            save_posterior(posterior, tmp_path / experiment / method / "seed0.pt")
     assert main(["bench", "controller", "--models", str(tmp_path), "--frames", "2"]) == 0
     assert (
         main(
@@ -78,4 +82,5 @@ def test_benchmarks_drive_trained_models_of_an_experiments_class_set(
         == 0
     )
     out = capsys.readouterr().out
-    assert re.search(r"^RESULT controller ", out, re.M) and re.search(r"^RESULT rollout ", out, re.M), out[-2000:]
+    assert re.search(r"^RESULT controller controller=trained ", out, re.M), out[-2000:]
+    assert re.search(r"^RESULT rollout controller=trained ", out, re.M), out[-2000:]

@@ -43,10 +43,10 @@ def test_hydra_targets_in_the_configs_are_part_of_every_stage():
 def test_the_cell_digest_covers_the_rollout_code_the_stage_and_the_posterior_module():
     from uqdrive.safety.runner import code_digest
 
-    closure = import_closure(SRC / "uqdrive/safety/runner.py", ["uqdrive.pipeline.safety", "uqdrive.models.vi"])
+    closure = import_closure(SRC / "uqdrive/safety/runner.py", ["uqdrive.pipeline.safety_stage", "uqdrive.models.vi"])
     assert {SRC / f"uqdrive/{f}" for f in ("plots.py", "sim/world.py", "models/vi.py", "uq/sequential.py")} <= closure
     assert SRC / "uqdrive/models/hmc.py" not in closure
-    assert code_digest(["uqdrive.pipeline.safety", "uqdrive.models.vi"]) == files_digest(closure, SRC)
+    assert code_digest(["uqdrive.pipeline.safety_stage", "uqdrive.models.vi"]) == files_digest(closure, SRC)
 
 
 @dataclass(frozen=True)

@@ -12,11 +12,12 @@ import torch
 import yaml
 from test_report import markdown_rows
 
-from uqdrive.pipeline.findings import Findings
-from uqdrive.pipeline.methods import AvoidSummary, SafetySummary
-from uqdrive.pipeline.records import read_record
-from uqdrive.pipeline.report_document import fmt
-from uqdrive.pipeline.report_findings import findings_markdown
+from uqdrive.analysis.method_answers import AvoidSummary, SafetySummary
+from uqdrive.pipeline.findings_stage import Findings
+from uqdrive.models.heldout_eval import HeldoutTable
+from uqdrive.records import read_record
+from uqdrive.report.document import fmt
+from uqdrive.report.findings_text import findings_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,9 +100,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert answer.replicates == [0, 1] and answer.estimates == [c["eta1"] for c in cells]
     assert (project / "plots/safety/summary/hexbin_roundabout_noise0.0.png").exists()
     assert (project / "data/heldout/roundabout-rain-noise0.0.parquet").exists()
-    evaluated = json.loads((project / "metrics/evaluate.json").read_text())
-    assert {m: list(t) for m, t in evaluated.items()} == {"mcd": ["rain"], "vi": ["rain"]}
-    assert evaluated["vi"]["rain"]["noise0.0"]["frames"] > 0
+    evaluated = read_record(HeldoutTable, project / "metrics/evaluate.json", "evaluate")
+    assert {m: list(t) for m, t in evaluated.cells.items()} == {"mcd": ["rain"], "vi": ["rain"]}
+    assert evaluated.cell("vi", "rain", 0.0).frames > 0
     assert (project / "plots/evaluate/figures/reliability_vi.png").exists()
     avoided = read_record(AvoidSummary, project / "metrics/avoid.json", "avoid_summary")
     findings = read_record(Findings, project / "metrics/findings.json", "findings")

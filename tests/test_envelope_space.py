@@ -6,8 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uqdrive.envelope.space import Axis, AxisSettings, BlendSettings, ConditionSpace, World
+from uqdrive.envelope.space import Axis, AxisSettings, BlendSettings, ConditionSpace
 from uqdrive.schema import ConfigError, validate
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import ScenarioConfig, WeatherConfig, blend_weather
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -68,7 +69,7 @@ def axis(key: str, low: float, high: float) -> Axis:
 
 
 def space(*axes: Axis, blend: bool = False) -> ConditionSpace:
-    base = World(ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"), weather("clear_noon"), 0.0)
+    base = Condition(ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"), weather("clear_noon"), 0.0)
     return ConditionSpace(axes, base, (weather("clear_noon"), weather("rain")) if blend else None)
 
 
@@ -79,11 +80,11 @@ def test_a_condition_sets_each_axis_key_of_the_world():
         axis("scenario.ring_radius", 10.0, 24.0),
         blend=True,
     )
-    world = s.world(np.array([0.25, 1.0, 0.5]))
+    world = s.condition(np.array([0.25, 1.0, 0.5]))
     assert world.noise == pytest.approx(0.05)
     assert numbers(world.weather) == numbers(weather("rain"))
     assert world.scenario.ring_radius == pytest.approx(17.0) and world.scenario.kind == "roundabout"
-    streaks = space(axis("weather.rain_streaks", 0.0, 10.0)).world([0.33])
+    streaks = space(axis("weather.rain_streaks", 0.0, 10.0)).condition([0.33])
     assert streaks.weather.rain_streaks == 3  # a whole-number key: rounded
 
 

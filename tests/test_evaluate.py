@@ -12,8 +12,11 @@ from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 from uqdrive.data.frames import encode_png
+from uqdrive.data.heldout import heldout_path
 from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
-from uqdrive.pipeline.evaluate import Condition, cell_metrics, run_evaluate
+from uqdrive.models.heldout_eval import heldout_cell as cell_metrics
+from uqdrive.pipeline.evaluate_stage import run_evaluate
+from uqdrive.records import as_dict
 from uqdrive.tracking import store_uris
 
 METRIC_KEYS = {
@@ -91,7 +94,7 @@ def test_heldout_config_writes_what_evaluate_reads(stage_config, tmp_path):
     heldout = stage_config("heldout", "weather=rain", "noise=0.05")
     evaluate = stage_config("evaluate", "weathers=[rain]", "noises=[0.05]")
     assert heldout.scenario.name == evaluate.scenario.name == "roundabout"
-    expected = Condition("rain", 0.05).heldout_path(Path(evaluate.evaluate.heldout_dir), evaluate.scenario.name)
+    expected = heldout_path(evaluate.evaluate.heldout_dir, evaluate.scenario.name, "rain", 0.05)
     assert Path(heldout.collect.out) == expected == tmp_path / "data/heldout/roundabout-rain-noise0.05.parquet"
     # its metrics JSON, mosaic and MLflow run are named after the condition and kept apart from the training
     # collection's (metrics/collect/roundabout.json): the heldout stage's outputs are folders of their own
@@ -126,8 +129,8 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
             "noises=[0.0,0.05]",
         )
     )
-    table = json.loads((tmp_path / "metrics/evaluate.json").read_text())
-    assert table == result["table"]
+    table = json.loads((tmp_path / "metrics/evaluate.json").read_text())["cells"]
+    assert table == as_dict(result)["cells"]
     assert {m: {w: sorted(c) for w, c in t.items()} for m, t in table.items()} == {
         m: {"clear_noon": ["noise0.0", "noise0.05"], "rain": ["noise0.0", "noise0.05"]} for m in ("mcd", "hmc")
     }
@@ -156,7 +159,8 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     ]
 
     client = MlflowClient(store_uris(store_root)[0])
-    runs = {m: client.get_run(run_id) for m, run_id in result["mlflow_runs"].items()}
+    experiment = client.get_experiment_by_name("evaluate")
+    runs = {r.data.params["method"]: r for r in client.search_runs([experiment.experiment_id])}
     assert {m: r.info.run_name for m, r in runs.items()} == {"mcd": "mcd-seed0", "hmc": "hmc-seed0"}
     assert {client.get_experiment(r.info.experiment_id).name for r in runs.values()} == {"evaluate"}
     hmc = runs["hmc"]
@@ -182,10 +186,10 @@ def test_a_cell_does_not_change_when_another_condition_is_added(stage_config, tm
         overrides = ("methods=[vi]", f"weathers={weathers}", "noises=[0.0]")
         return evaluate_config(stage_config, random_models, store_root, tmp_path, *overrides)
 
-    alone = run_evaluate(config("[rain]"))["table"]
-    both = run_evaluate(config("[afternoon,rain]"))["table"]
-    assert both["vi"]["rain"] == alone["vi"]["rain"]
-    assert not any(k.startswith("hmc_") for k in both["vi"]["rain"]["noise0.0"])  # no reference, no agreement
+    alone = run_evaluate(config("[rain]"))
+    both = run_evaluate(config("[afternoon,rain]"))
+    assert both.cells["vi"]["rain"] == alone.cells["vi"]["rain"]
+    assert both.cell("vi", "rain", 0.0).hmc_tv_distance is None  # no reference, no agreement
 
 
 def test_auroc_without_mistakes_is_null_with_the_reason():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_report import METHODS, N, avoid_result, safety_cell
 
-from uqdrive.pipeline.findings import avoid_comparisons, decide, safety_comparisons
+from uqdrive.pipeline.findings_stage import avoid_comparisons, decide, safety_comparisons
 
 TRAINING = ("roundabout", "clear_noon", 0.0)
 

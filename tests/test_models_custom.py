@@ -18,8 +18,8 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
 from uqdrive.models.training import TrainingData, curve_row, evaluate
-from uqdrive.pipeline.evaluate import run_evaluate
-from uqdrive.pipeline.train import run_train
+from uqdrive.pipeline.evaluate_stage import run_evaluate
+from uqdrive.pipeline.train_stage import run_train
 
 
 @dataclass(frozen=True)
@@ -100,8 +100,8 @@ def test_a_user_posterior_trains_and_evaluates_through_the_pipeline(tmp_path):
     loaded = load_posterior(tmp_path / "models/joint/noisy_head/seed0.pt", expected_method="noisy_head")
     assert isinstance(loaded, NoisyHeadPosterior) and loaded.scale == 0.3
     result = run_evaluate(config("evaluate", "methods=[mcd,noisy_head]", "weathers=[clear_noon,rain]", "noises=[0.0]"))
-    cell = result["table"]["noisy_head"]["rain"]["noise0.0"]
-    assert cell["frames"] == 12 and cell["mean_mutual_information"] > 0
+    cell = result.cell("noisy_head", "rain", 0.0)
+    assert cell.frames == 12 and cell.mean_mutual_information > 0
     assert (tmp_path / "plots/evaluate/figures/reliability_noisy_head.png").exists()
     with pytest.raises(ValueError, match="model.scale=0.0 is invalid"):
         run_train(config("train", "model=noisy_head", "model.scale=0.0"))

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from uqdrive.bench.posterior import random_posteriors
+from uqdrive.bench.posterior_bench import random_posteriors
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet, to_inputs
 from uqdrive.models.checkpoint import load_posterior, save_posterior

@@ -11,8 +11,9 @@ from mlflow.tracking import MlflowClient
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, images_to_array
-from uqdrive.pipeline.collect import run_collect
-from uqdrive.pipeline.preprocess import run_preprocess
+from uqdrive.pipeline.collect_stage import run_collect
+from uqdrive.pipeline.preprocess_stage import run_preprocess
+from uqdrive.records import as_dict
 from uqdrive.tracking import store_uris
 
 
@@ -65,7 +66,7 @@ def test_preprocess_outputs_frames_labels_and_histogram(collected, stage_config)
     train = pq.read_table(collected / "data/processed/joint/train.parquet")
     val = pq.read_table(collected / "data/processed/joint/val.parquet")
     assert train.schema.equals(PROCESSED_SCHEMA)
-    assert metrics["train_frames"] == train.num_rows and metrics["val_frames"] == val.num_rows
+    assert metrics.train_frames == train.num_rows and metrics.val_frames == val.num_rows
     raw_rows = sum(pq.read_table(collected / f"data/raw/{s}.parquet").num_rows for s in ("straight", "roundabout"))
     assert train.num_rows + val.num_rows == raw_rows
     keys = lambda t: set(zip(t.column("scenario").to_pylist(), t.column("episode").to_pylist()))  # noqa: E731
@@ -77,8 +78,8 @@ def test_preprocess_outputs_frames_labels_and_histogram(collected, stage_config)
     )
     histogram = (collected / "plots/joint/class_histogram.csv").read_text().splitlines()
     assert histogram[0] == "class,steering,split,frames" and len(histogram) == 1 + 2 * 21
-    assert json.loads((collected / "metrics/joint/preprocess.json").read_text()) == metrics
-    assert metrics["clipped_label_fraction"] == 0.0  # the joint class set spans every tenth
+    assert json.loads((collected / "metrics/joint/preprocess.json").read_text()) == as_dict(metrics)
+    assert metrics.clipped_label_fraction == 0.0  # the joint class set spans every tenth
 
 
 def test_an_experiment_keeps_only_its_class_set_and_reports_what_it_clips(collected, stage_config):
@@ -93,10 +94,10 @@ def test_an_experiment_keeps_only_its_class_set_and_reports_what_it_clips(collec
     )
     train = pq.read_table(collected / "data/processed/offline/train.parquet")
     labels, steering = train.column("label").to_numpy(), train.column("steering").to_numpy()
-    assert metrics["num_classes"] == 5 and labels.min() >= 0 and labels.max() <= 4
+    assert metrics.num_classes == 5 and labels.min() >= 0 and labels.max() <= 4
     np.testing.assert_array_equal(labels, SteeringBins(low=-0.2, high=0.2).to_class(steering))
     raw = pq.read_table(collected / "data/raw/roundabout.parquet").column("steering").to_numpy()
-    assert metrics["clipped_label_fraction"] == pytest.approx(np.mean((raw < -0.25) | (raw >= 0.25)))
+    assert metrics.clipped_label_fraction == pytest.approx(np.mean((raw < -0.25) | (raw >= 0.25)))
 
 
 def test_bad_values_fail_before_any_work(stage_config, tmp_path):

@@ -7,23 +7,18 @@ import re
 import numpy as np
 import pytest
 
+from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_comparisons
+from uqdrive.analysis.method_answers import summarise_avoid, summarise_methods
 from uqdrive.data.frames import encode_png
-from uqdrive.pipeline.envelope_records import EnvelopeAxis, EnvelopeRegion, EnvelopeResult, EnvelopeSearch, GridCost
-from uqdrive.pipeline.findings import avoid_comparisons, decide, safety_comparisons
-from uqdrive.pipeline.methods import summarise_avoid, summarise_methods
-from uqdrive.pipeline.records import (
-    MODES,
-    AvoidCell,
-    AvoidResult,
-    CalibrationSummary,
-    Mixture,
-    SafetyCell,
-    TrainMetrics,
-    write_record,
-)
-from uqdrive.pipeline.report import run_report
-from uqdrive.pipeline.report_document import fmt
-from uqdrive.pipeline.report_findings import findings_markdown
+from uqdrive.data.preprocess import Preprocessed
+from uqdrive.envelope.map_records import EnvelopeAxis, EnvelopeRegion, EnvelopeResult, EnvelopeSearch, GridCost
+from uqdrive.models.heldout_eval import HeldoutCell, HeldoutTable
+from uqdrive.models.trained_record import TrainMetrics
+from uqdrive.pipeline.report_stage import run_report
+from uqdrive.records import write_record
+from uqdrive.report.document import fmt
+from uqdrive.report.findings_text import findings_markdown
+from uqdrive.safety.cell_records import AvoidCell, AvoidResult, CalibrationSummary, MixtureEstimate, Mode, SafetyCell
 
 METHODS, WEATHERS, NOISES, SEEDS = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05), (0, 1)
 EXPERIMENTS, LOCATIONS, CONDITIONS = ("avoid", "offline"), ("roundabout", "roundabout_large"), ("known", "fog")
@@ -77,8 +72,8 @@ def avoid_cell(rng, mode) -> AvoidCell:
 
 
 def avoid_result(rng, method, seed) -> AvoidResult:
-    cells = {c: {m: avoid_cell(rng, m) for m in MODES} for c in CONDITIONS}
-    unknown = {m: Mixture(cells["fog"][m].eta1, 0.0, 1.0, 0.3, 0.05, N, 0.5, "hoeffding") for m in MODES}
+    cells = {c: {m: avoid_cell(rng, m) for m in Mode} for c in CONDITIONS}
+    unknown = {m: MixtureEstimate(cells["fog"][m].eta1, 0.0, 1.0, 0.3, 0.05, N, 0.5, "hoeffding") for m in Mode}
     calibration = CalibrationSummary(
         **dict(delta1=0.9, delta2=0.8, tau=0.45, feasible=True, certified=12, guarantee=f"{method} certified"),
         **dict(autonomy_target=0.8, max_certifiable_target=0.85, gamma=0.05, missed_limit=None, order="firing"),
@@ -97,7 +92,6 @@ def avoid_result(rng, method, seed) -> AvoidResult:
             method=method, replicate=seed, experiment="avoid", cells=cells, unknown=unknown, calibration=calibration
         ),
         **dict(warning={}, samples_per_frame=738, conditions=list(CONDITIONS), horizon_s=14.0, speed=8.0, seconds=1.0),
-        mlflow_run_ids={},
     )
 
 
@@ -140,7 +134,8 @@ def write_run(root):
     trained = {}
     for experiment in EXPERIMENTS:
         (root / f"metrics/{experiment}").mkdir(parents=True, exist_ok=True)
-        (root / f"metrics/{experiment}/preprocess.json").write_text(json.dumps({"num_classes": 7}))
+        preprocessed = Preprocessed(experiment, 7, 0.0, -0.5, 0.5, 100, 40, 0.3)
+        write_record(root / f"metrics/{experiment}/preprocess.json", preprocessed)
         for method in METHODS:
             for seed in SEEDS:
                 metrics = TrainMetrics(
@@ -173,30 +168,25 @@ def write_run(root):
     family = [*safety_comparisons(cells, list(METHODS), ("roundabout", "clear_noon", 0.0))]
     findings = decide([*family, *avoid_comparisons(results, list(METHODS))], 0.05)
     write_record(root / "metrics/findings.json", findings)
-    evaluated = {
-        m: {
-            w: {
-                f"noise{x}": {
-                    "frames": 50,
-                    "accuracy": rng.random(),
-                    "nll": 0.4,
-                    "ece": rng.random(),
-                    "brier": 0.2,
-                    "mean_mutual_information": rng.random(),
-                    "mean_eta2": 0.97,
-                    "auroc_mi": rng.random(),
-                    "auroc_one_minus_eta2": None,
-                    "hmc_tv_distance": rng.random(),
-                    "hmc_argmax_agreement": rng.random(),
-                    "hmc_mi_spearman": None if m == "vi" else rng.random(),
+    evaluated = HeldoutTable(
+        {
+            m: {
+                w: {
+                    f"noise{x}": HeldoutCell(
+                        **dict(frames=50, mistakes=5, accuracy=rng.random(), nll=0.4, ece=rng.random(), brier=0.2),
+                        **dict(mean_mutual_information=rng.random(), mean_eta2=0.97, auroc_mi=rng.random()),
+                        **dict(auroc_one_minus_eta2=None, auroc_note=None, hmc_tv_distance=rng.random()),
+                        hmc_argmax_agreement=rng.random(),
+                        hmc_mi_spearman=None if m == "vi" else rng.random(),
+                    )
+                    for x in NOISES
                 }
-                for x in NOISES
+                for w in WEATHERS
             }
-            for w in WEATHERS
+            for m in METHODS
         }
-        for m in METHODS
-    }
-    (root / "metrics/evaluate.json").write_text(json.dumps(evaluated))
+    )
+    write_record(root / "metrics/evaluate.json", evaluated)
     envelopes = [envelope_result(rng, m) for m in METHODS]
     for envelope in envelopes:
         write_record(root / f"metrics/envelope/{envelope.method}-seed0.json", envelope)
@@ -240,13 +230,13 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert training[("avoid", "vi")]["per replicate"] == " / ".join(fmt(a) for a in accuracy)
     assert training[("offline", "mcd")]["diagnostics (first replicate)"] == "mcd diagnostics"
     agreement = {r["method"]: r for r in markdown_rows(text, "method | mean TV to HMC")}
-    mcd_cells = [evaluated["mcd"][w][f"noise{x}"] for w in WEATHERS for x in NOISES]
-    assert agreement["mcd"]["mean TV to HMC"] == fmt(sum(c["hmc_tv_distance"] for c in mcd_cells) / 4)
+    mcd_cells = [evaluated.cell("mcd", w, x) for w in WEATHERS for x in NOISES]
+    assert agreement["mcd"]["mean TV to HMC"] == fmt(sum(c.hmc_tv_distance for c in mcd_cells) / 4)
     assert agreement["vi"]["MI Spearman ρ"] == "–"
     held_out = markdown_rows(text, "method | weather | noise | frames")
     assert len(held_out) == len(METHODS) * len(WEATHERS) * len(NOISES)
     avoid_rows = markdown_rows(text, "method | condition")
-    assert len(avoid_rows) == len(METHODS) * (len(CONDITIONS) + 1) * len(MODES)
+    assert len(avoid_rows) == len(METHODS) * (len(CONDITIONS) + 1) * len(Mode)
     for row in avoid_rows:
         answer = avoid.answer(row["method"], row["condition"], row["warnings"])
         assert row["η̂1"] == fmt(answer.value, 2) and row["per replicate"] == " / ".join(
@@ -275,7 +265,7 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
 
     html = (tmp_path / "reports/report.html").read_text()
     figures = len(EXPERIMENTS) * len(METHODS) + 2  # learning curves, one hexbin, vi's map; the rest are missing
-    assert result["figures"] == figures and html.count('src="data:image/png;base64,') == figures
+    assert result.figures == figures and html.count('src="data:image/png;base64,') == figures
     assert not re.search(r'src="(?!data:)', html)  # self-contained: no file links left
 
 

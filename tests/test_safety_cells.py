@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from uqdrive.safety import runner as runner_module
-from uqdrive.safety.cells import Draws, EstimatorSettings, estimate_safety
+from uqdrive.safety.cells import EstimatorSettings, OutcomeStream
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.schema import ConfigError, validate
@@ -62,6 +62,12 @@ class FakeExecutor:
         """Nothing to release."""
 
 
+def estimate_safety(executor, settings: EstimatorSettings, log: RolloutLog | None = None):
+    """What `CellRunner.run` does with a cell's executor and log: the estimator reads an `OutcomeStream`."""
+    stream = OutcomeStream(executor, log)
+    return settings.estimate(stream), stream.results
+
+
 def same(a: RolloutResult, b: RolloutResult) -> bool:
     for f in dataclasses.fields(a):
         x, y = getattr(a, f.name), getattr(b, f.name)
@@ -111,7 +117,7 @@ def test_running_ahead_fills_batches_and_changes_no_estimate(tmp_path: Path, the
     limit = settings.planned_rollouts()
 
     executor, log = BatchRecorder(), RolloutLog(tmp_path / "cell.jsonl", "hash-a", BASE_SEED)
-    draws = Draws(executor, log, ahead=16, limit=limit)
+    draws = OutcomeStream(executor, log, ahead=16, limit=limit)
     assert settings.estimate(draws) == reference
     assert len(draws.results) == len(ref_results) and all(same(a, b) for a, b in zip(draws.results, ref_results))
     first, *rest = executor.requests
@@ -123,7 +129,7 @@ def test_running_ahead_fills_batches_and_changes_no_estimate(tmp_path: Path, the
     assert draws.unread == len(draws.kept) - len(ref_results) < 16
 
     replay = BatchRecorder()  # the unread rollouts were logged too: a rerun simulates nothing
-    again = Draws(replay, RolloutLog(tmp_path / "cell.jsonl", "hash-a", BASE_SEED), ahead=16, limit=limit)
+    again = OutcomeStream(replay, RolloutLog(tmp_path / "cell.jsonl", "hash-a", BASE_SEED), ahead=16, limit=limit)
     assert settings.estimate(again) == reference and replay.ran == [] and again.fresh == 0
 
 
@@ -148,7 +154,7 @@ def test_a_sequential_cell_runs_ahead_to_fill_the_workers(
 
 def test_running_ahead_stops_at_the_limit() -> None:
     executor = BatchRecorder()
-    draws = Draws(executor, ahead=16, limit=10)
+    draws = OutcomeStream(executor, ahead=16, limit=10)
     for count in (4, 4, 2):
         draws(count)
     assert executor.requests == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9]] and draws.unread == 0

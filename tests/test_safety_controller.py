@@ -8,7 +8,7 @@ from conftest import CONF
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.models import load_posterior
-from uqdrive.safety import Controller
+from uqdrive.safety.controller import Controller
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.uq import decision_confidence, frame_measures
 

@@ -12,8 +12,10 @@ from scipy import stats
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
-from uqdrive.safety import NO_WARNING, Controller, PolicySpec, WarningConfig, WarningController, classify
+from uqdrive.safety.controller import NO_WARNING, Controller
 from uqdrive.safety.draws import DrawSettings
+from uqdrive.safety.executors import PolicySpec
+from uqdrive.safety.warnings import WarningConfig, WarningController, classify
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.uq.tier import CONFIDENT, DOUBTFUL, UNSURE

@@ -17,8 +17,11 @@ import pytest
 from conftest import ALL_TENTHS, CONF
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.safety import EstimatorSettings, PolicySpec, RolloutJob, estimate_safety, make_executor
+from uqdrive.safety.cells import EstimatorSettings
+from uqdrive.safety.executors import PolicySpec, RolloutJob, make_executor
+from uqdrive.safety.runner import CellRunner
 from uqdrive.sim import ScenarioConfig, WeatherConfig
+from uqdrive.sim.condition import Condition
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,18 +31,15 @@ SETTINGS = EstimatorSettings("chernoff", 0.6, 0.05, 500)  # 6 rollouts, seeds 50
 def job(model_path) -> RolloutJob:
     """The BNN controller in rain with sensor noise: every seeded source of randomness is in play."""
     spec = PolicySpec("bnn", 6.0, str(model_path), "vi", SteeringBins(), samples=20, eps=0.1)
-    return RolloutJob(
-        spec,
-        ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
-        WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"),
-        0.05,
-        base_seed=SETTINGS.base_seed,
-    )
+    roundabout = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml")
+    rain = WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml")
+    return RolloutJob(spec, Condition(roundabout, rain, 0.05), base_seed=SETTINGS.base_seed)
 
 
 def outcomes(backend: str, workers: int, model_path) -> tuple[float, list]:
-    estimate, results = estimate_safety(make_executor(backend, job(model_path), workers), SETTINGS)
-    return estimate.value, results
+    with tempfile.TemporaryDirectory() as log, CellRunner(backend, workers, progress=False) as runner:
+        run = runner.estimate("cell", job(model_path), SETTINGS, "key", Path(log) / "cell.jsonl")
+    return run.outcome.value, run.results
 
 
 def assert_same(a: tuple[float, list], b: tuple[float, list]) -> None:
@@ -181,13 +181,12 @@ def test_the_readme_ray_path_on_a_ray_cluster_agrees_with_the_process_backend(
     )
     assert run.returncode == 0, run.stderr[-3000:]
     name = "vi-seed0-roundabout-rain-noise0.05"
-    from uqdrive.pipeline.safety import run_safety
+    from uqdrive.pipeline.safety_stage import run_safety
+    from uqdrive.records import as_dict
 
-    local = run_safety(stage_config("safety", *cell[2:], "executor=process", "executor.workers=2"))
+    local = as_dict(run_safety(stage_config("safety", *cell[2:], "executor=process", "executor.workers=2")).cell)
     remote = json.loads((on_ray / f"metrics/safety/{name}.json").read_text())
-    assert {k: v for k, v in remote.items() if k != "seconds"} == {
-        k: v for k, v in local.items() if k not in ("seconds", "reused")
-    }
+    assert {k: v for k, v in remote.items() if k != "seconds"} == {k: v for k, v in local.items() if k != "seconds"}
     assert (on_ray / f"plots/safety/cells/{name}.csv").read_text() == (
         tmp_path / f"plots/safety/cells/{name}.csv"
     ).read_text()

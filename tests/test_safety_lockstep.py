@@ -6,26 +6,20 @@ import pytest
 import torch
 from conftest import CONF
 
-from uqdrive.bench.posterior import random_posteriors
+from uqdrive.bench.posterior_bench import random_posteriors
 from uqdrive.data.binning import SteeringBins
-from uqdrive.envelope.rollouts import ConditionJob, UniformIn
-from uqdrive.envelope.space import Axis, AxisSettings, ConditionSpace, World
+from uqdrive.envelope.sources import UniformIn
+from uqdrive.envelope.space import Axis, AxisSettings, ConditionSpace
 from uqdrive.models import load_posterior
-from uqdrive.safety import (
-    Controller,
-    PolicySpec,
-    RolloutJob,
-    WarningConfig,
-    WarningController,
-    executors,
-    make_executor,
-    run_rollout,
-    run_rollouts,
-)
+from uqdrive.safety import executors
+from uqdrive.safety.controller import Controller
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import RolloutWorker, lockstep_chunks
+from uqdrive.safety.executors import PolicySpec, RolloutJob, RolloutWorker, lockstep_chunks, make_executor
+from uqdrive.safety.rollout import run_rollout, run_rollouts
+from uqdrive.safety.warnings import WarningConfig, WarningController
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.condition import Condition
 
 TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed", "draws", "mutual_information_se")
 
@@ -98,10 +92,14 @@ def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
     """Five seeds, three slots: slots refill as rollouts end, and each frame batch mixes different rollouts."""
     seeds = [31, 32, 33, 34, 35]
     with DrivingEnv(horizon_s=1.5) as env:
-        alone = [run_rollout(env, controllers(random_models["vi"])[kind], seed, *rain, 0.05) for seed in seeds]
+        alone = [
+            run_rollout(env, controllers(random_models["vi"])[kind], seed, Condition(*rain, 0.05)) for seed in seeds
+        ]
     envs = [DrivingEnv(horizon_s=1.5) for _ in range(3)]
     try:
-        batched = run_rollouts(envs, controllers(random_models["vi"])[kind], seeds, *rain, 0.05)
+        batched = run_rollouts(
+            envs, controllers(random_models["vi"])[kind], seeds, [Condition(*rain, 0.05)] * len(seeds)
+        )
     finally:
         for env in envs:
             env.close()
@@ -115,7 +113,7 @@ def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
 
 def test_executors_give_the_same_rollouts_at_any_lockstep_width(random_models, rain):
     spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
-    job = RolloutJob(spec, *rain, 0.05, base_seed=700, horizon_s=1.0)
+    job = RolloutJob(spec, Condition(*rain, 0.05), base_seed=700, horizon_s=1.0)
     runs = []
     for lockstep in (1, 4):
         executor = make_executor("process", job, 1, lockstep=lockstep)
@@ -139,16 +137,17 @@ def test_chunks_keep_the_order_and_feed_every_worker():
 def test_lockstep_width_must_be_a_positive_integer(random_models, rain, width):
     spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
     with pytest.raises(ConfigError, match=rf"executor.lockstep={width!r}: must be an integer >= 1"):
-        make_executor("process", RolloutJob(spec, *rain, 0.0, base_seed=0), 1, lockstep=width)
+        make_executor("process", RolloutJob(spec, Condition(*rain, 0.0), base_seed=0), 1, lockstep=width)
 
 
 def test_a_worker_builds_only_the_envs_its_chunk_needs_and_leaves_them_to_the_next_job(random_models, rain):
     """A sweep's next cell (here another location and weather) takes the envs the last one left; its rollouts are
     those of fresh envs."""
     spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
-    first = RolloutJob(spec, *rain, 0.05, base_seed=0, horizon_s=0.5)
+    first = RolloutJob(spec, Condition(*rain, 0.05), base_seed=0, horizon_s=0.5)
     scenario = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout_large.yaml")
-    second = RolloutJob(spec, scenario, WeatherConfig.from_yaml(CONF / "weather" / "fog.yaml"), 0.0, 40, horizon_s=0.5)
+    fog = WeatherConfig.from_yaml(CONF / "weather" / "fog.yaml")
+    second = RolloutJob(spec, Condition(scenario, fog, 0.0), 40, horizon_s=0.5)
     executors._spare_envs.clear()
     fresh = RolloutWorker(second, width=8)
     expected = fresh.run([1, 2, 3])
@@ -174,16 +173,16 @@ def test_envelope_conditions_in_lockstep_are_the_rollouts_alone(random_models, r
     ranges = {"noise": (0.0, 0.2), "weather.blend": (0.0, 1.0), "scenario.ring_radius": (10.0, 24.0)}
     space = ConditionSpace(
         tuple(Axis.of(validate(AxisSettings, {"key": k, "range": list(ranges[k])})) for k in axes),
-        World(rain[0], WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"), 0.0),
+        Condition(rain[0], WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"), 0.0),
         (WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"), rain[1]) if "weather.blend" in axes else None,
     )
     spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
-    job = ConditionJob(spec, space, UniformIn((0.0, 0.0), (1.0, 1.0)), base_seed=900, horizon_s=1.0)
-    worlds = [job.world(i) for i in range(5)]
+    job = RolloutJob(spec, UniformIn(space, (0.0, 0.0), (1.0, 1.0)), base_seed=900, horizon_s=1.0)
+    worlds = [job.condition(i) for i in range(5)]
     assert len({repr(w) for w in worlds}) == 5
     with DrivingEnv(horizon_s=1.0) as env:
         policy = spec.build(job.control_hz)
-        runs = [[run_rollout(env, policy, 900 + i, w.scenario, w.weather, w.noise) for i, w in enumerate(worlds)]]
+        runs = [[run_rollout(env, policy, 900 + i, w) for i, w in enumerate(worlds)]]
     for lockstep in (1, 3):
         executor = make_executor("process", job, 1, lockstep=lockstep)
         try:

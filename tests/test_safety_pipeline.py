@@ -8,9 +8,9 @@ from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
-from uqdrive.pipeline.records import as_dict
-from uqdrive.pipeline.safety import run_safety
-from uqdrive.pipeline.safety_summary import run_safety_summary
+from uqdrive.pipeline.safety_stage import run_safety
+from uqdrive.pipeline.safety_summary_stage import run_safety_summary
+from uqdrive.records import as_dict
 from uqdrive.tracking import store_uris
 
 
@@ -32,12 +32,12 @@ def runs(root):
 def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_path):
     cfg = safety_config("model=hmc", "weather=afternoon", "noise=0.05")
     result = run_safety(cfg)
-    assert not result["reused"] and result["n"] == 4 == result["rollouts"]  # chernoff_n(0.7, 0.05)
-    assert result["scheme"] == "chernoff" and result["guaranteed"]
-    assert result["eta1_low"] <= result["eta1"] <= result["eta1_high"]
+    assert not result.reused and result.cell.n == 4 == result.cell.rollouts  # chernoff_n(0.7, 0.05)
+    assert result.cell.scheme == "chernoff" and result.cell.guaranteed
+    assert result.cell.eta1_low <= result.cell.eta1 <= result.cell.eta1_high
     out = tmp_path / "metrics/safety/hmc-seed0-roundabout-afternoon-noise0.05.json"
     saved = json.loads(out.read_text())
-    assert saved == {k: v for k, v in result.items() if k != "reused"}
+    assert saved == as_dict(result.cell)
     assert (tmp_path / "data/safety/hmc-seed0-roundabout-afternoon-noise0.05.npz").exists()
     assert (tmp_path / "plots/safety/cells/hmc-seed0-roundabout-afternoon-noise0.05.png").stat().st_size > 5000
 
@@ -60,7 +60,7 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     assert not {"safety.theta", "safety.gamma", "safety.scheme"} & set(params)  # each key once
     assert params["safety.base_seed"] == "100000"
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
-        assert run.data.metrics[key] == pytest.approx(result[key])
+        assert run.data.metrics[key] == pytest.approx(getattr(result.cell, key))
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
         "hmc-seed0-roundabout-afternoon-noise0.05.png",
         "hmc-seed0-roundabout-afternoon-noise0.05.csv",
@@ -69,12 +69,12 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     # same config, other worker count: reused, nothing rerun; a run tagged reused lists the cell
     stamp = out.stat().st_mtime_ns
     again = run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "executor.workers=2"))
-    assert again["reused"] and again["eta1"] == result["eta1"] and out.stat().st_mtime_ns == stamp
+    assert again.reused and again.cell.eta1 == result.cell.eta1 and out.stat().st_mtime_ns == stamp
     first, reused = sorted(runs(tmp_path)[1], key=lambda r: r.info.start_time)
     assert (first.data.tags["reused"], reused.data.tags["reused"]) == ("false", "true")
-    assert reused.data.metrics["eta1"] == result["eta1"] and reused.data.params["n"] == "4"
+    assert reused.data.metrics["eta1"] == result.cell.eta1 and reused.data.params["n"] == "4"
     # another seed is another cell config: recomputed
-    assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7"))["reused"]
+    assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7")).reused
 
 
 def test_a_cell_reruns_when_a_file_its_rollouts_run_changes(safety_config, tmp_path, monkeypatch):
@@ -84,14 +84,14 @@ def test_a_cell_reruns_when_a_file_its_rollouts_run_changes(safety_config, tmp_p
     shutil.copytree(runner.SRC / "uqdrive", src / "uqdrive", ignore=shutil.ignore_patterns("__pycache__"))
     monkeypatch.setattr(runner, "SRC", src)
     vi, mcd = safety_config("model=vi"), safety_config("model=mcd")
-    assert not run_safety(vi)["reused"] and not run_safety(mcd)["reused"]
-    assert run_safety(vi)["reused"] and run_safety(mcd)["reused"]
+    assert not run_safety(vi).reused and not run_safety(mcd).reused
+    assert run_safety(vi).reused and run_safety(mcd).reused
     with (src / "uqdrive/models/vi.py").open("a") as f:
         f.write("# how a VI head draws changed\n")
-    assert not run_safety(vi)["reused"] and run_safety(mcd)["reused"]
+    assert not run_safety(vi).reused and run_safety(mcd).reused
     with (src / "uqdrive/uq/estimators.py").open("a") as f:  # the runner's own closure: every cell
         f.write("# an estimator changed\n")
-    assert not run_safety(mcd)["reused"]
+    assert not run_safety(mcd).reused
 
 
 def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path, monkeypatch):
@@ -112,7 +112,7 @@ def test_interrupted_sweep_reruns_only_unfinished_cells(safety_config, tmp_path,
             run_safety(cfg)
     monkeypatch.setattr(runner, "make_executor", real)
     assert not (tmp_path / "metrics/safety/vi-seed0-roundabout-clear_noon-noise0.0.json").exists()
-    assert [run_safety(cfg)["reused"] for cfg in configs] == [True, False, False]
+    assert [run_safety(cfg).reused for cfg in configs] == [True, False, False]
     assert sorted(r.data.tags["reused"] for r in runs(tmp_path)[1]) == ["false", "false", "false", "true"]
 
 
@@ -140,16 +140,16 @@ def test_a_cell_interrupted_mid_way_keeps_its_finished_rollouts(safety_config, t
         run_safety(cfg)
     monkeypatch.setattr(runner, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), None))
     result = run_safety(cfg)
-    assert ran == [100000, 100001, 100002, 100003] and result["n"] == 4  # the first two were not rerun
+    assert ran == [100000, 100001, 100002, 100003] and result.cell.n == 4  # the first two were not rerun
     rows = (tmp_path / "plots/safety/cells/vi-seed0-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
     assert [int(r.split(",")[0]) for r in rows[1:]] == [100000, 100001, 100002, 100003]
 
 
 def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
     result = run_safety(safety_config("model=vi", "safety.scheme=sequential", "safety.theta=0.45"))
-    assert result["scheme"] == "sequential" and result["guaranteed"]
+    assert result.cell.scheme == "sequential" and result.cell.guaranteed
     rows = (tmp_path / "plots/safety/cells/vi-seed0-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
-    assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(100000, 100000 + result["n"]))
+    assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(100000, 100000 + result.cell.n))
 
 
 @pytest.mark.parametrize(
@@ -208,7 +208,7 @@ def test_summary_answers_per_method_over_replicates_and_draws_one_grid_per_locat
             "noises=[0]",
             "locations=[roundabout,roundabout_town]",
         )
-    )["summary"]
+    )
     assert json.loads((tmp_path / "metrics/safety.json").read_text()) == as_dict(summary)
     answer = summary.answer("vi", "roundabout_town", "clear_noon", 0)  # noise=0 and 0.0 are one cell
     cells = [

@@ -1,12 +1,18 @@
 """Safe sets against controllers whose safety is known: the autopilot (η̂1 ≈ 1) and full left (η̂1 ≈ 0)."""
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import CONF
 
-from uqdrive.safety import EstimatorSettings, PolicySpec, RolloutJob, estimate_safety, make_executor, safe_set_for
-from uqdrive.safety.safe_sets import obstacle_pass_progress
+from uqdrive.safety.cells import EstimatorSettings
+from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.runner import CellRunner
+from uqdrive.safety.safe_sets import obstacle_pass_progress, safe_set_for
 from uqdrive.sim import ScenarioConfig, WeatherConfig, build_geometry
+from uqdrive.sim.condition import Condition
 
 
 def scenario(name: str) -> ScenarioConfig:
@@ -16,8 +22,10 @@ def scenario(name: str) -> ScenarioConfig:
 def eta1(spec: PolicySpec, name: str, theta: float = 0.3, **job) -> tuple[float, list]:
     """η̂1 over chernoff_n(θ, 0.05) rollouts (21 at θ = 0.3), in this process."""
     weather = WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml")
-    executor = make_executor("process", RolloutJob(spec, scenario(name), weather, 0.0, base_seed=10, **job), 1)
-    estimate, results = estimate_safety(executor, EstimatorSettings("chernoff", theta, 0.05, 10))
+    cell = RolloutJob(spec, Condition(scenario(name), weather, 0.0), base_seed=10, **job)
+    with tempfile.TemporaryDirectory() as log, CellRunner("process", 1, progress=False) as runner:
+        run = runner.estimate(name, cell, EstimatorSettings("chernoff", theta, 0.05, 10), "key", Path(log) / "log")
+    estimate, results = run.outcome, run.results
     assert estimate.n == len(results) and [r.seed for r in results] == list(range(10, 10 + estimate.n))
     return estimate.value, results
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
+from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
+from uqdrive.data.frames import preprocess_frame
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.camera import _rain_cover
 from uqdrive.sim.world import World

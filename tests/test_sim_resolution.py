@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uqdrive.frames import main as frames_main
+from uqdrive.frame_gallery import main as frames_main
 from uqdrive.resolution import marking_contrast, project, render_at
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 

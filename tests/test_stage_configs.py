@@ -7,17 +7,18 @@ from pathlib import Path
 import pytest
 from conftest import ALL_TENTHS
 
-from uqdrive.pipeline.avoid import run_avoid
-from uqdrive.pipeline.avoid_summary import run_avoid_summary
-from uqdrive.pipeline.collect import run_collect, run_heldout
-from uqdrive.pipeline.envelope import run_envelope
-from uqdrive.pipeline.evaluate import run_evaluate
-from uqdrive.pipeline.findings import run_findings
-from uqdrive.pipeline.preprocess import run_preprocess
-from uqdrive.pipeline.report import run_report
-from uqdrive.pipeline.safety import run_safety, run_safety_sweep
-from uqdrive.pipeline.safety_summary import run_safety_summary
-from uqdrive.pipeline.train import run_train, run_train_replicates
+from uqdrive.pipeline.avoid_stage import run_avoid
+from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
+from uqdrive.pipeline.collect_stage import run_collect
+from uqdrive.pipeline.envelope_stage import run_envelope
+from uqdrive.pipeline.evaluate_stage import run_evaluate
+from uqdrive.pipeline.findings_stage import run_findings
+from uqdrive.pipeline.heldout_stage import run_heldout
+from uqdrive.pipeline.preprocess_stage import run_preprocess
+from uqdrive.pipeline.report_stage import run_report
+from uqdrive.pipeline.safety_stage import run_safety, run_safety_sweep
+from uqdrive.pipeline.safety_summary_stage import run_safety_summary
+from uqdrive.pipeline.train_stage import run_train, run_train_replicates
 from uqdrive.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,8 +153,8 @@ def test_the_paper_profile_keeps_the_papers_guarantee_in_fewer_rollouts(stage_co
     """θ = γ = 0.05 in every cell, as the paper's Chernoff n = 738 gives it, by the sequential scheme (36 rollouts
     where η1 is 0 or 1): the safety sweep, and avoidance on the paper's cells (the known condition, the unknown ones
     as one mixture cell), each running a fixed sample large enough to calibrate on."""
-    from uqdrive.pipeline.avoid_config import KNOWN, UNKNOWN, build_settings
-    from uqdrive.pipeline.safety import SafetyStage
+    from uqdrive.pipeline.safety_stage import SafetyStage
+    from uqdrive.safety.avoidance import KNOWN, UNKNOWN, build_settings
     from uqdrive.safety.calibration import min_calibration_runs
     from uqdrive.schema import validate
 

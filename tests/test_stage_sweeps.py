@@ -1,4 +1,4 @@
-"""The DVC stages that run a grid of cells in one process on one pool (uqdrive.pipeline.sweeps): `safety` and
+"""The DVC stages that run a grid of cells in one process on one pool (uqdrive.stage): `safety` and
 `heldout` give every cell the result, files and config hash its single-cell command gives it."""
 
 import shutil
@@ -9,10 +9,12 @@ from conftest import ALL_TENTHS, CONF
 from hydra import compose, initialize_config_dir
 from mlflow.tracking import MlflowClient
 
-from uqdrive.pipeline.collect import run_collect, run_heldout
-from uqdrive.pipeline.safety import run_safety, run_safety_sweep
-from uqdrive.pipeline.sweeps import cell_overrides, grid
+from uqdrive.pipeline.collect_stage import run_collect
+from uqdrive.pipeline.heldout_stage import run_heldout
+from uqdrive.pipeline.safety_stage import run_safety, run_safety_sweep
+from uqdrive.records import as_dict
 from uqdrive.schema import ConfigError
+from uqdrive.stage import cell_overrides, grid
 from uqdrive.tracking import store_uris
 from uqdrive.uq import chernoff_n
 
@@ -33,7 +35,14 @@ def models(random_models):
 def sweep(run, config_name, root, *overrides):
     args = [f"paths.root={root}", "profile=tiny", "progress=false", *overrides]
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return list(run(compose(config_name, args), args))
+        return [(cell, flat(result)) for cell, result in run(compose(config_name, args), args)]
+
+
+def flat(result):
+    """A finished cell as its record's keys plus ``reused`` (a collection: its record's keys)."""
+    if hasattr(result, "cell"):
+        return {**as_dict(result.cell), "reused": result.reused}
+    return as_dict(result)
 
 
 def test_grid_varies_the_last_axis_fastest_and_a_cell_overrides_the_sweep():
@@ -68,12 +77,14 @@ def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, model
     assert all(not r["reused"] and r["n"] == 4 for _, r in swept)
     # the single-cell command composes the same config: same hash, so it reuses the sweep's result as it is
     cell, last = swept[-1]
-    assert run_safety(stage_config("safety", *models, "model=mcd", "noise=0.1")) == {**last, "reused": True}
+    assert flat(run_safety(stage_config("safety", *models, "model=mcd", "noise=0.1"))) == {**last, "reused": True}
     # run afresh in one process elsewhere, it drives the rollouts the shared pool drove (whose processes had
     # dropped the worlds of the cells before)
     elsewhere = tmp_path / "single"
-    fresh = run_safety(
-        stage_config("safety", f"paths.root={elsewhere}", *models, "model=mcd", "noise=0.1", "executor.workers=1")
+    fresh = flat(
+        run_safety(
+            stage_config("safety", f"paths.root={elsewhere}", *models, "model=mcd", "noise=0.1", "executor.workers=1")
+        )
     )
     assert {k: v for k, v in fresh.items() if k != "seconds"} == {k: v for k, v in last.items() if k != "seconds"}
     table = f"plots/safety/cells/{cell.safety.cell}.csv"
@@ -108,7 +119,7 @@ def test_heldout_sweep_collects_every_condition_as_the_single_condition_command(
 
 def test_a_weather_without_a_config_fails_before_any_cell(tmp_path, models):
     with pytest.raises(
-        ConfigError, match=r"^sweep cell model=vi seed=0 scenario=roundabout weather=foggy noise=0: .*foggy"
+        ConfigError, match=r"^sweep cell model=vi seed=0 scenario=roundabout weather=foggy noise=0.0: .*foggy"
     ):
         sweep(
             run_safety_sweep,
@@ -132,6 +143,6 @@ def test_a_family_wise_sweep_spends_gamma_over_its_cells(tmp_path, models, stage
     single = stage_config(
         "safety", *models, "model=mcd", "noise=0.1", "safety.family_wise=true", "safety.family_size=4"
     )
-    assert run_safety(single)["reused"]
+    assert flat(run_safety(single))["reused"]
     with pytest.raises(ValueError, match=r"^safety.family_size=4 must be 1 unless safety.family_wise$"):
-        run_safety(stage_config("safety", *models, "safety.family_size=4"))
+        flat(run_safety(stage_config("safety", *models, "safety.family_size=4")))

@@ -14,7 +14,7 @@ from hydra.types import RunMode
 from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
-from uqdrive.pipeline.collect import run_collect
+from uqdrive.pipeline.collect_stage import run_collect
 from uqdrive.schema import config_error
 from uqdrive.tracking import store_lock, store_uris
 

@@ -23,7 +23,7 @@ from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.laplace import PRIOR_GRID
 from uqdrive.models.training import compute_features, evaluate
-from uqdrive.pipeline.train import run_train, run_train_replicates
+from uqdrive.pipeline.train_stage import run_train, run_train_replicates
 from uqdrive.tracking import flatten, store_uris
 
 CONF = Path(__file__).resolve().parents[1] / "conf"

@@ -6,9 +6,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
-from uqdrive.pipeline.collect import run_collect
-from uqdrive.pipeline.preprocess import run_preprocess
-from uqdrive.pipeline.train import run_train
+from uqdrive.pipeline.collect_stage import run_collect
+from uqdrive.pipeline.preprocess_stage import run_preprocess
+from uqdrive.pipeline.train_stage import run_train
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 SCENARIOS = ("obstacle", "roundabout")

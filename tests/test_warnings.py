@@ -9,19 +9,13 @@ from conftest import CONF
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
 from uqdrive.models.posterior import Posterior
-from uqdrive.safety import (
-    HANDOVER,
-    NO_WARNING,
-    Controller,
-    WarningAction,
-    WarningConfig,
-    WarningController,
-    classify,
-    run_rollout,
-)
-from uqdrive.safety.warnings import WarningActions
+from uqdrive.safety.controller import NO_WARNING, Controller
+from uqdrive.safety.rollout import run_rollout
+from uqdrive.safety.safe_sets import HANDOVER
+from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.condition import Condition
 from uqdrive.uq import chernoff_n
 
 BINS = SteeringBins()
@@ -118,7 +112,7 @@ def test_slow_down_holds_then_releases_and_hand_over_latches():
 
 def test_warning_2_brakes_the_car_to_a_stop_and_hands_over(obstacle):
     with DrivingEnv(control_hz=15.0, horizon_s=8.0) as env:
-        result = run_rollout(env, controller(DISAGREEING), 5, *obstacle, 0.0)
+        result = run_rollout(env, controller(DISAGREEING), 5, Condition(*obstacle, 0.0))
         speed = env.trajectory["speed"]
     assert result.termination == HANDOVER and result.safe and not result.collision
     assert speed[-1] == 0.0 and np.all(np.diff(speed) <= 0)
@@ -128,7 +122,7 @@ def test_warning_2_brakes_the_car_to_a_stop_and_hands_over(obstacle):
 
 def test_confident_controller_drives_at_full_speed_to_the_horizon(obstacle):
     with DrivingEnv(control_hz=15.0, horizon_s=1.0) as env:
-        result = run_rollout(env, controller(CONFIDENT), 5, *obstacle, 0.0)
+        result = run_rollout(env, controller(CONFIDENT), 5, Condition(*obstacle, 0.0))
     # a 1 s horizon ends long before the obstacle: the run answered nothing, so it is not safe
     assert result.termination == "timeout" and not result.reached_goal and not result.safe
     assert set(result.warning.tolist()) == {NO_WARNING} and np.all(result.command_speed == 8.0)
@@ -139,8 +133,8 @@ def test_warnings_that_never_fire_leave_the_rollout_unchanged(random_models, obs
     posterior = load_posterior(random_models["vi"])
     never = WarningConfig(delta1=0.0, delta2=0.0, tau=10.0, theta=0.3)
     with DrivingEnv(horizon_s=1.5) as env:
-        off = run_rollout(env, Controller(posterior, BINS, never.samples, 0.1, 8.0), 11, *obstacle, 0.05)
-        on = run_rollout(env, WarningController(posterior, BINS, never, 0.1, 8.0, 15.0), 11, *obstacle, 0.05)
+        off = run_rollout(env, Controller(posterior, BINS, never.samples, 0.1, 8.0), 11, Condition(*obstacle, 0.05))
+        on = run_rollout(env, WarningController(posterior, BINS, never, 0.1, 8.0, 15.0), 11, Condition(*obstacle, 0.05))
     assert off.summary() == on.summary()
     for key in ("x", "y", "eta2", "mutual_information", "warning", "command_speed"):
         assert np.array_equal(getattr(off, key), getattr(on, key))

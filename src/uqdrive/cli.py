@@ -11,9 +11,9 @@ import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("uqdrive.bench", "speed benchmarks; `uqdrive bench --help` lists them"),
-    "bound": ("uqdrive.uq.cli", "sample counts of each estimation scheme for (theta, gamma)"),
-    "findings": ("uqdrive.pipeline.report_findings", "print metrics/findings.json as the report states it"),
-    "frames": ("uqdrive.frames", "write one example camera frame per weather to docs/"),
+    "bound": ("uqdrive.uq.bound_table", "sample counts of each estimation scheme for (theta, gamma)"),
+    "findings": ("uqdrive.report.findings_text", "print metrics/findings.json as the report states it"),
+    "frames": ("uqdrive.frame_gallery", "write one example camera frame per weather to docs/"),
     "plots-page": ("uqdrive.plots_page", "write the page `dvc plots show` fills, its scripts inlined (no CDN)"),
 }
 

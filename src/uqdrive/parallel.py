@@ -47,7 +47,13 @@ def _run_keyed(keyed: tuple[int, Job, Any]) -> Any:
     return _keyed[key].run(item)
 
 
-PRELOAD = ["torch", "pybullet", "uqdrive.safety.executors", "uqdrive.pipeline.collect", "uqdrive.pipeline.train"]
+PRELOAD = [
+    "torch",
+    "pybullet",
+    "uqdrive.safety.executors",
+    "uqdrive.pipeline.collect_stage",
+    "uqdrive.pipeline.train_stage",
+]
 
 
 def _forkserver() -> multiprocessing.context.ForkServerContext:

@@ -115,75 +115,91 @@ def _summary(values: list[float], reference_mean: float) -> dict:
     }
 
 
+def frame_differences(conf: Path, envs: dict, seeds: range, every: int) -> tuple[dict, list]:
+    """Per scenario × weather, how far the configured render is from the reference on the autopilot's poses; and
+    one (reference, configured) frame pair per figure row."""
+    differences, rows = {}, []
+    for scenario_name in SCENARIOS:
+        scenario = ScenarioConfig.from_yaml(conf / "scenario" / f"{scenario_name}.yaml")
+        poses = autopilot_poses(envs["reference"], scenario, seeds, every)
+        for env in envs.values():
+            env.reset(seeds.start, scenario, render=False)
+        for weather_name in WEATHERS:
+            weather = WeatherConfig.from_yaml(conf / "weather" / f"{weather_name}.yaml")
+            pairs = [[render_at(env, pose, weather, 0.0, k) for env in envs.values()] for k, pose in enumerate(poses)]
+            ref = np.asarray([p[0] for p in pairs], float)
+            diff = np.abs(np.asarray([p[1] for p in pairs], float) - ref)
+            per_frame = diff.mean(axis=(1, 2))
+            differences[f"{scenario_name}/{weather_name}"] = {
+                "mean_abs": round(float(per_frame.mean()), 2),
+                "p95_abs": round(float(np.percentile(per_frame, 95)), 2),
+                "pixels_off_by_16": round(float((diff > 16).mean()), 4),
+                "consecutive_reference_frames": round(float(np.abs(np.diff(ref, axis=0)).mean()), 2),
+                "frames": len(pairs),
+            }
+            rows.append((f"{scenario_name} {weather_name}", *pairs[len(pairs) // 3]))
+    return differences, rows
+
+
+def marking_contrasts(conf: Path, envs: dict, seeds: range) -> dict:
+    """Per weather, the contrast of the straight road's three lane markings at each size."""
+    straight = ScenarioConfig.from_yaml(conf / "scenario" / "straight.yaml")
+    poses = autopilot_poses(envs["reference"], straight, seeds, 1)
+    half = straight.num_lanes * straight.lane_width / 2 - 0.15 - straight.marking_width / 2
+    lines = {"right_edge": -half, "centre_dashed": 0.0, "left_edge": half}
+    markings = {}
+    for weather_name in WEATHERS:
+        weather = WeatherConfig.from_yaml(conf / "weather" / f"{weather_name}.yaml")
+        contrast = {}
+        for key, env in envs.items():
+            env.reset(seeds.start, straight, render=False)
+            frames = [render_at(env, pose, weather, 0.0, k) for k, pose in enumerate(poses)]
+            contrast[key] = marking_contrast(frames, envs["reference"], poses, lines)
+        markings[weather_name] = {
+            line: {
+                d: {
+                    key: _summary(contrast[key][line][d], float(np.mean(contrast["reference"][line][d])))
+                    for key in envs
+                }
+                for d in contrast["reference"][line]
+            }
+            for line in lines
+        }
+    return markings
+
+
+def noise_seen(conf: Path, envs: dict, seeds: range, every: int, noise: float) -> dict:
+    """The sensor noise σ the network sees at each size (rain at the roundabout, as a share of full intensity)."""
+    scenario = ScenarioConfig.from_yaml(conf / "scenario" / "roundabout.yaml")
+    rain = WeatherConfig.from_yaml(conf / "weather" / "rain.yaml")
+    poses = autopilot_poses(envs["reference"], scenario, range(seeds.start, seeds.start + 1), every)
+    seen = {}
+    for key, env in envs.items():
+        env.reset(seeds.start, scenario, render=False)
+        diffs = [
+            render_at(env, p, rain, noise, k).astype(float) - render_at(env, p, rain, 0.0, k)
+            for k, p in enumerate(poses)
+        ]
+        seen[key] = round(float(np.std(diffs)) / 255, 4)
+    return {**seen, "configured_noise": noise}
+
+
 def compare(conf: Path, reference: tuple[int, int], seeds: range, every: int, noise: float) -> tuple[dict, list]:
     """The numbers of ``resolution.json`` and one (reference, configured) frame pair per figure row."""
     camera = CameraConfig()
     sizes = {"reference": reference, "configured": (camera.width, camera.height)}
     envs = {k: DrivingEnv(dataclasses.replace(camera, width=w, height=h)) for k, (w, h) in sizes.items()}
-    result: dict = {
-        "reference": "x".join(map(str, reference)),
-        "configured": f"{camera.width}x{camera.height}",
-        "seeds": [seeds.start, seeds.stop],
-        "every_nth_step": every,
-        "difference": {},
-    }
-    rows = []
     try:
-        for scenario_name in SCENARIOS:
-            scenario = ScenarioConfig.from_yaml(conf / "scenario" / f"{scenario_name}.yaml")
-            poses = autopilot_poses(envs["reference"], scenario, seeds, every)
-            for env in envs.values():
-                env.reset(seeds.start, scenario, render=False)
-            for weather_name in WEATHERS:
-                weather = WeatherConfig.from_yaml(conf / "weather" / f"{weather_name}.yaml")
-                pairs = [
-                    [render_at(env, pose, weather, 0.0, k) for env in envs.values()] for k, pose in enumerate(poses)
-                ]
-                ref = np.asarray([p[0] for p in pairs], float)
-                diff = np.abs(np.asarray([p[1] for p in pairs], float) - ref)
-                per_frame = diff.mean(axis=(1, 2))
-                result["difference"][f"{scenario_name}/{weather_name}"] = {
-                    "mean_abs": round(float(per_frame.mean()), 2),
-                    "p95_abs": round(float(np.percentile(per_frame, 95)), 2),
-                    "pixels_off_by_16": round(float((diff > 16).mean()), 4),
-                    "consecutive_reference_frames": round(float(np.abs(np.diff(ref, axis=0)).mean()), 2),
-                    "frames": len(pairs),
-                }
-                rows.append((f"{scenario_name} {weather_name}", *pairs[len(pairs) // 3]))
-        straight = ScenarioConfig.from_yaml(conf / "scenario" / "straight.yaml")
-        poses = autopilot_poses(envs["reference"], straight, seeds, 1)
-        half = straight.num_lanes * straight.lane_width / 2 - 0.15 - straight.marking_width / 2
-        lines = {"right_edge": -half, "centre_dashed": 0.0, "left_edge": half}
-        result["markings"] = {}
-        for weather_name in WEATHERS:
-            weather = WeatherConfig.from_yaml(conf / "weather" / f"{weather_name}.yaml")
-            contrast = {}
-            for key, env in envs.items():
-                env.reset(seeds.start, straight, render=False)
-                frames = [render_at(env, pose, weather, 0.0, k) for k, pose in enumerate(poses)]
-                contrast[key] = marking_contrast(frames, envs["reference"], poses, lines)
-            result["markings"][weather_name] = {
-                line: {
-                    d: {
-                        key: _summary(contrast[key][line][d], float(np.mean(contrast["reference"][line][d])))
-                        for key in envs
-                    }
-                    for d in contrast["reference"][line]
-                }
-                for line in lines
-            }
-        result["sigma_seen"] = {}
-        scenario = ScenarioConfig.from_yaml(conf / "scenario" / "roundabout.yaml")
-        rain = WeatherConfig.from_yaml(conf / "weather" / "rain.yaml")
-        poses = autopilot_poses(envs["reference"], scenario, range(seeds.start, seeds.start + 1), every)
-        for key, env in envs.items():
-            env.reset(seeds.start, scenario, render=False)
-            seen = [
-                render_at(env, p, rain, noise, k).astype(float) - render_at(env, p, rain, 0.0, k)
-                for k, p in enumerate(poses)
-            ]
-            result["sigma_seen"][key] = round(float(np.std(seen)) / 255, 4)
-        result["sigma_seen"]["configured_noise"] = noise
+        differences, rows = frame_differences(conf, envs, seeds, every)
+        result = {
+            "reference": "x".join(map(str, reference)),
+            "configured": f"{camera.width}x{camera.height}",
+            "seeds": [seeds.start, seeds.stop],
+            "every_nth_step": every,
+            "difference": differences,
+            "markings": marking_contrasts(conf, envs, seeds),
+            "sigma_seen": noise_seen(conf, envs, seeds, every, noise),
+        }
     finally:
         for env in envs.values():
             env.close()

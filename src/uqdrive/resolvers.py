@@ -48,6 +48,11 @@ def noise_label(noise: object) -> str:
     return repr(float(noise))
 
 
+def condition_label(location: str, weather: str, noise: object) -> str:
+    """location-weather-noise<σ>: a condition in cell names, file names and runs (`uqdrive.sim.condition`)."""
+    return f"{location}-{weather}-noise{noise_label(noise)}"
+
+
 def output_root(root: str, outputs: str) -> str:
     """``root`` with ``outputs=pipeline`` or outside a Hydra job (a config composed in code); else the job's own
     folder: hydra.run.dir for a single run, hydra.sweep.dir for a multirun."""

@@ -1,6 +1,6 @@
 """`uqdrive bench NAME`: speed benchmarks that print a ratio against a baseline measured in the same run.
 
-Every benchmark is a module ``uqdrive.bench.<name>`` with ``main(argv) -> int`` whose last
+Every benchmark is a module ``uqdrive.bench.<name>_bench`` with ``main(argv) -> int`` whose last
 printed line is ``RESULT <name> key=value ...``.
 """
 
@@ -10,9 +10,11 @@ import importlib
 import pkgutil
 import sys
 
+SUFFIX = "_bench"  # a benchmark's module: uqdrive.bench.<name>_bench
+
 
 def available() -> list[str]:
-    return sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
+    return sorted(m.name.removesuffix(SUFFIX) for m in pkgutil.iter_modules(__path__) if m.name.endswith(SUFFIX))
 
 
 def main(argv: list[str]) -> int:
@@ -24,4 +26,4 @@ def main(argv: list[str]) -> int:
     if name not in names:
         print(f"uqdrive bench: unknown benchmark {name!r}; choose one of {names}", file=sys.stderr)
         return 2
-    return int(importlib.import_module(f"uqdrive.bench.{name}").main(rest) or 0)
+    return int(importlib.import_module(f"uqdrive.bench.{name}{SUFFIX}").main(rest) or 0)

@@ -6,8 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-INPUT_HEIGHT = 48
-INPUT_WIDTH = 64
+from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
 
 
 def preprocess_frame(rgb: np.ndarray, height: int = INPUT_HEIGHT, width: int = INPUT_WIDTH) -> np.ndarray:

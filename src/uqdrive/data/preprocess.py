@@ -10,6 +10,7 @@ import pyarrow as pa
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import decode_png, preprocess_frame
 from uqdrive.data.tables import PROCESSED_SCHEMA
+from uqdrive.records import record
 from uqdrive.schema import ConfigError
 
 
@@ -51,3 +52,17 @@ def preprocess_raw(raw: pa.Table, bins: SteeringBins, split: Split) -> tuple[pa.
 
 def class_histogram(labels: np.ndarray, bins: SteeringBins) -> np.ndarray:
     return np.bincount(np.asarray(labels, dtype=np.int64), minlength=bins.num_classes)
+
+
+@record
+class Preprocessed:
+    """metrics/<experiment>/preprocess.json: the class set, how far the labels reach, the split's sizes."""
+
+    experiment: str
+    num_classes: int
+    clipped_label_fraction: float  # labels beyond the end classes by more than half a tenth: the set should cover them
+    steering_min: float
+    steering_max: float
+    train_frames: int
+    val_frames: int
+    majority_class_fraction: float

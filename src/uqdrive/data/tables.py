@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH
+from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.files import atomic_path
 
 RAW_SCHEMA = pa.schema(

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from enum import StrEnum
 
 import numpy as np
 
@@ -22,10 +22,21 @@ from uqdrive.schema import Count, OpenUnit, Unit, invalid, schema
 from uqdrive.uq import clopper_pearson_n
 from uqdrive.uq.threshold import ThresholdTest
 
-Verdict = Literal["safe", "unsafe", "undecided"]
-VERDICTS: tuple[Verdict, ...] = ("safe", "unsafe", "undecided")
+
+class RegionVerdict(StrEnum):
+    """A region's verdict: its η1 (over conditions drawn uniformly in it) certified above τ, below it, or neither."""
+
+    SAFE = "safe"
+    UNSAFE = "unsafe"
+    UNDECIDED = "undecided"
+
+
 Draw = Callable[[int], np.ndarray]
-_VERDICTS: dict[str | None, Verdict] = {"above": "safe", "below": "unsafe", None: "undecided"}
+_VERDICTS: dict[str | None, RegionVerdict] = {
+    "above": RegionVerdict.SAFE,
+    "below": RegionVerdict.UNSAFE,
+    None: RegionVerdict.UNDECIDED,
+}
 
 
 @schema(frozen=True)
@@ -65,7 +76,7 @@ class CertifySettings:
 class Decision:
     """How a region's test ended: its verdict, the rollouts it ran and how many of them were safe."""
 
-    verdict: Verdict
+    verdict: RegionVerdict
     rollouts: int
     safe: int
 
@@ -74,7 +85,7 @@ class Decision:
 class RegionResult:
     region: Region
     gamma: float
-    verdict: Verdict
+    verdict: RegionVerdict
     rollouts: int
     safe: int
 
@@ -101,7 +112,7 @@ def threshold_decision(settings: CertifySettings, gamma: float, draw: Draw, cap:
         decision = test.decide(k, n)
         if decision is not None:
             return Decision(_VERDICTS[decision], n, k)
-    return Decision("undecided", n, k)
+    return Decision(RegionVerdict.UNDECIDED, n, k)
 
 
 def clean_run_to_safe(settings: CertifySettings, gamma: float) -> int | None:
@@ -143,7 +154,7 @@ def certify(
     decisions: dict[int, Decision] = {}
     for i in range(len(regions)) if order is None else order:
         if left is not None and left < first_look:
-            decisions[i] = Decision("undecided", 0, 0)
+            decisions[i] = Decision(RegionVerdict.UNDECIDED, 0, 0)
             continue
         decisions[i] = decide(i, regions[i], shares[i], left)
         left = None if left is None else left - decisions[i].rollouts

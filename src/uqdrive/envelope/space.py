@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import Field
 
 from uqdrive.schema import ConfigError, Float, Str, invalid, schema
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import ScenarioConfig, WeatherConfig, blend_weather, check_noise
 
 NOISE = "noise"
@@ -83,21 +84,12 @@ class Axis:
 
 
 @dataclasses.dataclass(frozen=True)
-class World:
-    """Where one rollout drives: the location, the weather and the sensor noise."""
-
-    scenario: ScenarioConfig
-    weather: WeatherConfig
-    noise: float
-
-
-@dataclasses.dataclass(frozen=True)
 class ConditionSpace:
     """Axes over a base world (the stage's scenario, weather and noise); ``blend``: the weathers a
     ``weather.blend`` axis goes between. Picklable: rollout workers map their conditions themselves."""
 
     axes: tuple[Axis, ...]
-    base: World
+    base: Condition
     blend: tuple[WeatherConfig, WeatherConfig] | None = None
 
     def __post_init__(self) -> None:
@@ -121,8 +113,8 @@ class ConditionSpace:
             raise ValueError(f"a condition has {self.dim} coordinates, got {len(unit)}")
         return {a.key: a.value(float(u)) for a, u in zip(self.axes, unit)}
 
-    def world(self, unit: Sequence[float]) -> World:
-        """The world at a point of the unit cube, each part checked by its schema (`ConfigError` if invalid)."""
+    def condition(self, unit: Sequence[float]) -> Condition:
+        """The condition at a point of the unit cube, each part checked by its schema (`ConfigError` if invalid)."""
         values = self.values(unit)
         weather = self.base.weather
         if self.blend is not None:
@@ -138,7 +130,7 @@ class ConditionSpace:
         if changes["weather"]:
             weather = WeatherConfig.from_config({**weather.to_dict(), **changes["weather"]})
         noise = check_noise(values[NOISE]) if NOISE in values else self.base.noise
-        return World(scenario, weather, noise)
+        return Condition(scenario, weather, noise)
 
     def check(self) -> None:
         """Build the world at every point of a lattice over the box (ends included), so a range that leaves the
@@ -146,7 +138,7 @@ class ConditionSpace:
         ticks = np.linspace(0.0, 1.0, CHECK_POINTS)
         for unit in itertools.product(ticks, repeat=self.dim):
             try:
-                self.world(unit)
+                self.condition(unit)
             except (ConfigError, ValueError) as err:
                 where = ", ".join(f"{k}={v:g}" for k, v in self.values(unit).items())
                 raise ConfigError(f"envelope.axes: the condition {where} is not a valid world: {err}") from None

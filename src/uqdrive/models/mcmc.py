@@ -34,6 +34,101 @@ class HMCResult:
     step_size: torch.Tensor  # [chains], the adapted step size used after warm-up
 
 
+@dataclass(frozen=True)
+class _Point:
+    """A chain batch's position θ [chains, D] with its log density and gradient."""
+
+    theta: torch.Tensor
+    lp: torch.Tensor
+    grad: torch.Tensor
+
+
+class HMCKernel:
+    """One Metropolis-corrected HMC transition per call (Pyro's `HMC` names the same steps): a jittered step size,
+    a momentum draw for the mass matrix, L leapfrog steps, the accept test. Every draw comes from ``generator``, in
+    this order per transition: jitter, momentum, acceptance."""
+
+    def __init__(self, log_prob_grad: LogProbGrad, leapfrog_steps: int, generator: torch.Generator | None):
+        self.log_prob_grad, self.leapfrog_steps, self.generator = log_prob_grad, leapfrog_steps, generator
+
+    def start(self, init: torch.Tensor) -> _Point:
+        theta = init.detach().clone()
+        lp, grad = self.log_prob_grad(theta)
+        if not torch.isfinite(lp).all():
+            raise ValueError("hmc: the log density is not finite at the initial point")
+        return _Point(theta, lp, grad)
+
+    def jittered(self, step_size: torch.Tensor) -> torch.Tensor:
+        """The step size ±10 % per chain and proposal, so no trajectory length stays periodic: [chains, 1]."""
+        chains = step_size.shape[0]
+        return (step_size * (1.0 + 0.2 * (torch.rand(chains, generator=self.generator) - 0.5))).unsqueeze(1)
+
+    def momentum(self, shape: torch.Size, inv_mass: torch.Tensor) -> torch.Tensor:
+        return torch.randn(shape, generator=self.generator) / inv_mass.sqrt()
+
+    def leapfrog(self, start: _Point, p0: torch.Tensor, e: torch.Tensor, inv_mass: torch.Tensor):
+        """L leapfrog steps from ``start`` with momentum ``p0``: the proposal and its final momentum."""
+        p = p0 + 0.5 * e * start.grad
+        theta = start.theta
+        for step in range(self.leapfrog_steps):
+            theta = theta + e * inv_mass * p
+            lp, grad = self.log_prob_grad(theta)
+            p = p + (e if step < self.leapfrog_steps - 1 else 0.5 * e) * grad
+        return _Point(theta, lp, grad), p
+
+    def accept(self, current: _Point, proposal: _Point, log_ratio: torch.Tensor) -> tuple[_Point, torch.Tensor]:
+        """Metropolis: each chain moves to its proposal with probability min(1, exp(log_ratio)); NaN never moves."""
+        log_ratio = torch.nan_to_num(log_ratio, nan=-math.inf)
+        accept_prob = log_ratio.clamp(max=0.0).exp()
+        moved = torch.log(torch.rand(current.lp.shape[0], generator=self.generator)) < log_ratio
+        point = _Point(
+            torch.where(moved.unsqueeze(1), proposal.theta, current.theta),
+            torch.where(moved, proposal.lp, current.lp),
+            torch.where(moved.unsqueeze(1), proposal.grad, current.grad),
+        )
+        return point, accept_prob
+
+    def transition(self, current: _Point, step_size: torch.Tensor, inv_mass: torch.Tensor):
+        e = self.jittered(step_size)
+        p0 = self.momentum(current.theta.shape, inv_mass)
+        proposal, p = self.leapfrog(current, p0, e, inv_mass)
+        kinetic = 0.5 * ((inv_mass * p.square()).sum(1) - (inv_mass * p0.square()).sum(1))
+        return self.accept(current, proposal, proposal.lp - current.lp - kinetic)
+
+
+class _WarmUp:
+    """Warm-up's adaptation: the step size by dual averaging towards the target acceptance; with a mass window, a
+    diagonal mass matrix from the variances the chains showed in it, then the step size adapts again."""
+
+    def __init__(self, chains: int, shape: torch.Size, step_size: float, target: float, warmup: int, adapt_mass: bool):
+        self.target, self.warmup = target, warmup
+        self.adapt = _DualAveraging(torch.full((chains,), float(step_size)), target)
+        self.step_size = self.adapt.step_size
+        self.inv_mass = torch.ones(shape)
+        self.window = (warmup // 4, warmup * 3 // 4) if adapt_mass and warmup >= 40 else None  # short: identity
+        self.moments = _Welford(shape)
+
+    def update(self, it: int, theta: torch.Tensor, accept_prob: torch.Tensor) -> None:
+        self.step_size = self.adapt.update(accept_prob)
+        if self.window and self.window[0] <= it < self.window[1]:
+            self.moments.add(theta)
+        if self.window and it == self.window[1] - 1:
+            self.inv_mass = self.moments.regularised_variance()
+            self.adapt = _DualAveraging(self.step_size, self.target)  # the step size that fits the new metric differs
+        if it == self.warmup - 1:
+            self.step_size = self.adapt.final()
+
+
+def _check(num_samples: int, warmup: int, thin: int, leapfrog_steps: int, step_size: float, target: float) -> None:
+    if num_samples < 1 or warmup < 0 or thin < 1 or leapfrog_steps < 1 or not step_size > 0:
+        raise ValueError(
+            f"hmc: num_samples={num_samples} ≥ 1, warmup={warmup} ≥ 0, thin={thin} ≥ 1, "
+            f"leapfrog_steps={leapfrog_steps} ≥ 1 and step_size={step_size} > 0 required"
+        )
+    if not 0 < target < 1:
+        raise ValueError(f"hmc: target_accept={target} must lie in (0, 1)")
+
+
 def hmc(
     log_prob_grad: LogProbGrad,
     init: torch.Tensor,
@@ -51,57 +146,24 @@ def hmc(
     desc: str = "hmc",
 ) -> HMCResult:
     """Run len(init) chains for warmup + num_samples·thin iterations; keep every thin-th after warm-up."""
-    if num_samples < 1 or warmup < 0 or thin < 1 or leapfrog_steps < 1 or not step_size > 0:
-        raise ValueError(
-            f"hmc: num_samples={num_samples} ≥ 1, warmup={warmup} ≥ 0, thin={thin} ≥ 1, "
-            f"leapfrog_steps={leapfrog_steps} ≥ 1 and step_size={step_size} > 0 required"
-        )
-    if not 0 < target_accept < 1:
-        raise ValueError(f"hmc: target_accept={target_accept} must lie in (0, 1)")
-    theta = init.detach().clone()
-    chains = theta.shape[0]
-    lp, grad = log_prob_grad(theta)
-    if not torch.isfinite(lp).all():
-        raise ValueError("hmc: the log density is not finite at the initial point")
-    adapt = _DualAveraging(torch.full((chains,), float(step_size)), target_accept)
-    eps = adapt.step_size
-    inv_mass = torch.ones_like(theta)
-    window = (warmup // 4, warmup * 3 // 4) if adapt_mass and warmup >= 40 else None  # too short: identity mass
-    moments = _Welford(theta.shape)
+    _check(num_samples, warmup, thin, leapfrog_steps, step_size, target_accept)
+    kernel = HMCKernel(log_prob_grad, leapfrog_steps, generator)
+    point = kernel.start(init)
+    chains = point.theta.shape[0]
+    tuning = _WarmUp(chains, point.theta.shape, step_size, target_accept, warmup, adapt_mass)
     kept, kept_lp, accept_sum = [], [], torch.zeros(chains)
     for it in trange(warmup + num_samples * thin, desc=desc, unit="it", disable=not progress):
-        e = (eps * (1.0 + 0.2 * (torch.rand(chains, generator=generator) - 0.5))).unsqueeze(1)
-        p0 = torch.randn(theta.shape, generator=generator) / inv_mass.sqrt()
-        p = p0 + 0.5 * e * grad
-        new = theta
-        for step in range(leapfrog_steps):
-            new = new + e * inv_mass * p
-            new_lp, new_grad = log_prob_grad(new)
-            p = p + (e if step < leapfrog_steps - 1 else 0.5 * e) * new_grad
-        log_ratio = new_lp - lp - 0.5 * ((inv_mass * p.square()).sum(1) - (inv_mass * p0.square()).sum(1))
-        log_ratio = torch.nan_to_num(log_ratio, nan=-math.inf)
-        accept_prob = log_ratio.clamp(max=0.0).exp()
-        accept = torch.log(torch.rand(chains, generator=generator)) < log_ratio
-        theta = torch.where(accept.unsqueeze(1), new, theta)
-        lp = torch.where(accept, new_lp, lp)
-        grad = torch.where(accept.unsqueeze(1), new_grad, grad)
+        point, accept_prob = kernel.transition(point, tuning.step_size, tuning.inv_mass)
         if it < warmup:
-            eps = adapt.update(accept_prob)
-            if window and window[0] <= it < window[1]:
-                moments.add(theta)
-            if window and it == window[1] - 1:
-                inv_mass = moments.regularised_variance()
-                adapt = _DualAveraging(eps, target_accept)  # the step size that fits the new metric differs
-            if it == warmup - 1:
-                eps = adapt.final()
+            tuning.update(it, point.theta, accept_prob)
         else:
             accept_sum += accept_prob
             if (it - warmup + 1) % thin == 0:
-                kept.append(theta.clone())
-                kept_lp.append(lp.clone())
+                kept.append(point.theta.clone())
+                kept_lp.append(point.lp.clone())
         if callback is not None:
-            callback(it, theta, lp, accept_prob)
-    return HMCResult(torch.stack(kept, 1), torch.stack(kept_lp, 1), accept_sum / (num_samples * thin), eps)
+            callback(it, point.theta, point.lp, accept_prob)
+    return HMCResult(torch.stack(kept, 1), torch.stack(kept_lp, 1), accept_sum / (num_samples * thin), tuning.step_size)
 
 
 def whitened(log_prob_grad: LogProbGrad, centre: torch.Tensor, scale: torch.Tensor) -> LogProbGrad:

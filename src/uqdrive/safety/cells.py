@@ -68,7 +68,7 @@ class EstimatorSettings:
         return _PLANNED[self.scheme][1](int(draw(n).sum()), n, self.theta, self.gamma)
 
 
-class Draws:
+class OutcomeStream:
     """Outcomes of rollouts 0, 1, … in index order, as an estimator or a test asks for them (``draw(count)``):
     each rollout comes from the cell's log if an earlier run kept it, else from ``reuse`` (a rollout known to
     be identical, e.g. a warnings-off run in which no warning would fire), else from ``executor``. Every rollout
@@ -128,18 +128,6 @@ class Draws:
             self.run_to(self._end(start + count))
         self.results.extend(self.kept[start : start + count])
         return np.array([r.safe for r in self.results[start:]], dtype=np.int64)
-
-
-def estimate_safety(
-    executor: Executor,
-    settings: EstimatorSettings,
-    progress: Callable[[Iterator[RolloutResult]], Iterator[RolloutResult]] = iter,
-    log: RolloutLog | None = None,
-) -> tuple[Estimate, list[RolloutResult]]:
-    """Run rollouts 0, 1, … as the scheme asks for them and estimate η1 = P(path in the safe set); with ``log``,
-    an interrupted run's rollouts are reused, not rerun (see `Draws`)."""
-    draws = Draws(executor, log, progress=progress)
-    return settings.estimate(draws), draws.results
 
 
 def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins, trained_by: str) -> Posterior:

@@ -78,7 +78,7 @@ class FrameDecision:
     settled: bool = False
 
 
-Draws = Callable[[int], np.ndarray]
+OutcomeStream = Callable[[int], np.ndarray]
 """``draw(m)``: m more posterior draws of one frame, class probabilities [m, C] from the frame's generator, in
 numpy: the sequential path's few dozen draws per frame cost less in numpy than in torch."""
 
@@ -112,7 +112,7 @@ def first_draws(cap: int, settings: DrawSettings, tier: TierTest | None = None, 
 
 
 def sequential_frame(
-    draw: Draws,
+    draw: OutcomeStream,
     first: np.ndarray,
     cap: int,
     centres: torch.Tensor,
@@ -140,7 +140,7 @@ def sequential_frame(
 
 
 def _settle_mode(
-    draw: Draws, pilot: np.ndarray, first: np.ndarray, cap: int, gamma: float
+    draw: OutcomeStream, pilot: np.ndarray, first: np.ndarray, cap: int, gamma: float
 ) -> tuple[np.ndarray, int, bool]:
     """Every draw made for π(o), its class and whether the test settled it: the pilot's mode once the betting test
     settles it, else the mode of all ``cap`` draws. The test's looks double; once the candidate's margins average
@@ -160,7 +160,7 @@ def _settle_mode(
 
 
 def _refine_mutual_information(
-    draw: Draws, probs: np.ndarray, cap: int, tau: float | None
+    draw: OutcomeStream, probs: np.ndarray, cap: int, tau: float | None
 ) -> tuple[np.ndarray, tuple[float, float, float]]:
     """π(o)'s draws and their (MI, MI's standard error, entropy); with ``tau``, after more draws (doubling, up to
     ``cap``) while τ lies within `MI_Z` jackknife standard errors of the MI or within the unseen MI of the draws
@@ -181,7 +181,7 @@ class _Eta2Outcomes:
     """η2's Bernoulli draws of one frame (is a fresh draw's decision within ε of π(o)?), served from the first
     head call's η2 draws, then drawn as the test asks for them."""
 
-    def __init__(self, draw: Draws, first: np.ndarray, centres: np.ndarray, decision: float, eps: float):
+    def __init__(self, draw: OutcomeStream, first: np.ndarray, centres: np.ndarray, decision: float, eps: float):
         self.draw, self.centres, self.decision, self.eps = draw, centres, decision, eps
         self.pending, self.drawn = self.inside(first), len(first)
 

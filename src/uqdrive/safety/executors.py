@@ -29,7 +29,8 @@ from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningConfig, WarningController
 from uqdrive.schema import ConfigError
-from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig
+from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, build_geometry
+from uqdrive.sim.condition import Condition, ConditionSource
 
 BACKENDS = ("process", "ray")
 POLICIES = ("bnn", "autopilot", "constant")
@@ -94,12 +95,12 @@ class PolicySpec:
 
 @dataclasses.dataclass(frozen=True)
 class RolloutJob:
-    """Everything a worker needs to run rollout i of a sweep cell."""
+    """Everything a worker needs to run rollout i of a cell: the policy, where rollout i drives (``where``: a
+    `Condition`, a `Mixture` or an envelope's condition source, asked for rollout i's condition by its seed),
+    its seed ``base_seed + i``, the car, camera and horizon."""
 
     policy: PolicySpec
-    scenario: ScenarioConfig
-    weather: WeatherConfig
-    noise: float
+    where: ConditionSource
     base_seed: int
     camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)
     vehicle: VehicleConfig = dataclasses.field(default_factory=VehicleConfig)
@@ -107,24 +108,20 @@ class RolloutJob:
     horizon_s: float = 40.0
     half_width: float | None = None
 
-
-class RolloutsJob(Protocol):
-    """A job whose worker runs chunks of rollouts in lockstep, each rollout in its own world (an envelope's)."""
-
-    def worker(self, width: int) -> Any: ...
+    def condition(self, index: int) -> Condition:
+        """Where rollout ``index`` drives."""
+        return self.where.condition(index, self.base_seed + index)
 
 
 @dataclasses.dataclass(frozen=True)
 class LockstepJob:
     """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time."""
 
-    job: RolloutJob | RolloutsJob
+    job: RolloutJob
     width: int = 1
 
-    def worker(self) -> Any:
-        if isinstance(self.job, RolloutJob):
-            return RolloutWorker(self.job, self.width)
-        return self.job.worker(self.width)
+    def worker(self) -> RolloutWorker:
+        return RolloutWorker(self.job, self.width)
 
 
 class ChunkActor:
@@ -175,34 +172,39 @@ class WorkerEnvs:
 
 
 class RolloutWorker:
-    """Up to ``width`` envs (`WorkerEnvs`) and one policy, reused for every chunk the worker runs (one torch thread:
-    the parallelism is across workers, and a second intra-op thread only adds contention)."""
+    """Up to ``width`` envs (`WorkerEnvs`) and one policy, reused for every chunk the worker runs, each rollout reset
+    to its own condition (one torch thread: the parallelism is across workers, and a second intra-op thread only
+    adds contention). The safe set is rebuilt only for a new location."""
 
     def __init__(self, job: RolloutJob, width: int = 1):
         self.slots = WorkerEnvs(job, width)
         torch.set_num_threads(1)
         self.job = job
         self.policy = job.policy.build(job.control_hz)
-        self.ready = 0  # envs reset to this job's world
-        self.safe_set: SafeSet | None = None
+        self._scenario: ScenarioConfig | None = None
+        self._safe_set: SafeSet | None = None
 
-    def environments(self, count: int) -> list[DrivingEnv]:
-        """The first ``count`` envs (at most the width), each with this job's world built."""
-        job, envs = self.job, self.slots.first(count)
-        for env in envs[self.ready :]:
-            env.reset(job.base_seed, job.scenario, job.weather, job.noise, render=False)  # builds the world
-            self.safe_set = self.safe_set or safe_set_for(
-                env.geometry, job.vehicle.width, job.vehicle.length, job.half_width
-            )
-        self.ready = max(self.ready, len(envs))
-        return envs
+    def safe_set(self, scenario: ScenarioConfig) -> SafeSet:
+        if self._safe_set is None or scenario != self._scenario:
+            vehicle = self.job.vehicle
+            self._safe_set = safe_set_for(build_geometry(scenario), vehicle.width, vehicle.length, self.job.half_width)
+            self._scenario = scenario
+        return self._safe_set
 
     def run(self, indices: Sequence[int]) -> list[RolloutResult]:
-        """Rollouts ``indices`` (seeds base_seed + i), in that order."""
+        """Rollouts ``indices`` (seeds base_seed + i, each at its condition), in that order."""
         job = self.job
-        envs = self.environments(len(indices))
-        seeds = [job.base_seed + i for i in indices]
-        return run_rollouts(envs, self.policy, seeds, job.scenario, job.weather, job.noise, safe_set=self.safe_set)
+        conditions = [job.condition(i) for i in indices]
+        first = conditions[0].scenario
+        one_location = all(c.scenario == first for c in conditions)
+        return run_rollouts(
+            self.slots.first(len(indices)),
+            self.policy,
+            [job.base_seed + i for i in indices],
+            conditions,
+            job.half_width,
+            self.safe_set(first) if one_location else None,  # else judged on each rollout's own
+        )
 
     def close(self) -> None:
         self.slots.close()

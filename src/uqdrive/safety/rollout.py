@@ -15,7 +15,8 @@ import numpy as np
 
 from uqdrive.safety.controller import Command, Policy
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, safe_set_for
-from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim import DrivingEnv
+from uqdrive.sim.condition import Condition
 
 STOPPED_SPEED = 1e-6  # m/s: the car tracks a speed command of 0 exactly, so this means stopped
 
@@ -61,9 +62,7 @@ def run_rollout(
     env: DrivingEnv,
     policy: Policy,
     seed: int,
-    scenario: ScenarioConfig,
-    weather: WeatherConfig,
-    noise: float,
+    condition: Condition,
     half_width: float | None = None,
     safe_set: SafeSet | None = None,
 ) -> RolloutResult:
@@ -73,7 +72,7 @@ def run_rollout(
     The episode runs to its end even after the car leaves the corridor, so collision and
     off-road rates and the visited positions describe the whole path.
     """
-    return run_rollouts([env], policy, [seed], scenario, weather, noise, half_width, safe_set)[0]
+    return run_rollouts([env], policy, [seed], [condition], half_width, safe_set)[0]
 
 
 @dataclass
@@ -93,17 +92,14 @@ def run_rollouts(
     envs: Sequence[DrivingEnv],
     policy: Policy,
     seeds: Sequence[int],
-    scenario: ScenarioConfig,
-    weather: WeatherConfig,
-    noise: float,
+    conditions: Sequence[Condition],
     half_width: float | None = None,
     safe_set: SafeSet | None = None,
-    worlds: Sequence[tuple[ScenarioConfig, WeatherConfig, float]] | None = None,
 ) -> list[RolloutResult]:
-    """The rollouts of ``seeds`` (in that order), ``len(envs)`` at a time in lockstep: each control step asks the
-    policy for the commands of every running slot at once, and a slot whose rollout ends starts the next seed.
-    ``worlds``: each rollout's own (scenario, weather, noise), where they differ (an envelope's conditions); a
-    ``safe_set`` given must then hold for every one's scenario.
+    """The rollouts of ``seeds`` (in that order), each at its own of ``conditions``, ``len(envs)`` at a time in
+    lockstep: each control step asks the policy for the commands of every running slot at once, and a slot whose
+    rollout ends starts the next seed. A ``safe_set`` given must hold for every condition's location (else each
+    rollout is judged on its own).
 
     Each rollout is what `run_rollout` gives it alone: its env is reset with its own seed and the policy's slot
     draws from it only (`Controller`: the frames' features and draws do not depend on the other slots).
@@ -115,8 +111,8 @@ def run_rollouts(
     def start(slot: int) -> None:
         env = envs[slot]
         for index, seed in queue:
-            world = worlds[index] if worlds is not None else (scenario, weather, noise)
-            obs = env.reset(seed, *world, render=policy.needs_camera)
+            where = conditions[index]
+            obs = env.reset(seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
             policy.reset(env, seed, slot)
             episode = _Episode(index, seed, env, obs, env.last_info, env.last_info["termination"])
             if not env.done:

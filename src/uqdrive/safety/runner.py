@@ -25,7 +25,7 @@ from tqdm import tqdm
 from uqdrive.deps import SRC, files_digest, import_closure
 from uqdrive.models.checkpoint import read_checkpoint
 from uqdrive.parallel import ProcessPool
-from uqdrive.safety.cells import Draws, EstimatorSettings, file_digest
+from uqdrive.safety.cells import EstimatorSettings, OutcomeStream, file_digest
 from uqdrive.safety.executors import LOCKSTEP, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
@@ -78,7 +78,7 @@ def estimate_key(job: RolloutJob, settings: EstimatorSettings, stage_module: str
 class CellRun(Generic[T]):
     """A finished cell: what its consumer concluded, the rollouts it read in index order, wall time, identity.
     ``reused``: every rollout was replayed from the cell's log (nothing simulated); ``unread``: rollouts run ahead
-    of the consumer that it never asked for (`Draws`)."""
+    of the consumer that it never asked for (`OutcomeStream`)."""
 
     name: str
     key: str
@@ -114,7 +114,7 @@ class CellRunner:
         key: str,
         log_path: str | Path,
         base_seed: int,
-        consume: Callable[[Draws], T],
+        consume: Callable[[OutcomeStream], T],
         total: int,
         reuse: Mapping[int, RolloutResult] | None = None,
         ahead: int = 0,
@@ -122,7 +122,7 @@ class CellRunner:
     ) -> CellRun[T]:
         """``consume(draw)`` over the cell's rollouts (``draw(count)``: the next count outcomes, 0/1, in index
         order); ``total``: the most rollouts it may ask for (the progress bar's length, and the most run);
-        ``ahead``: after the consumer's first look, run batches doubling up to that many (`Draws`); ``floor``:
+        ``ahead``: after the consumer's first look, run batches doubling up to that many (`OutcomeStream`); ``floor``:
         rollouts the cell runs whatever the consumer reads (a sample fixed in advance, for paired tests and
         replays): its results are the first max(read, floor), the consumer's conclusion only what it read."""
         executor = make_executor(self.backend, job, self.workers, self.pool, **self.options)
@@ -135,7 +135,9 @@ class CellRunner:
 
         start = time.perf_counter()
         try:
-            draws = Draws(executor, RolloutLog(log_path, key, base_seed), reuse, progress, ahead, max(total, floor))
+            draws = OutcomeStream(
+                executor, RolloutLog(log_path, key, base_seed), reuse, progress, ahead, max(total, floor)
+            )
             bar.update(len(draws.kept))
             outcome = consume(draws)
             draws.run_to(floor)
@@ -158,9 +160,9 @@ class CellRunner:
         floor: int = 0,
     ) -> CellRun[Estimate]:
         """η̂1 of one cell of a `RolloutJob` by ``settings``' scheme (``key``: `estimate_key`). The cell runs ahead
-        of the estimator (`Draws`), which matters for a sequential scheme: it looks every few rollouts, fewer than
-        the workers' lockstep slots; the estimate reads the same outcomes in the same order (a fixed-n scheme asks
-        for all of them at once, so nothing runs ahead of it). ``floor``: see `run`."""
+        of the estimator (`OutcomeStream`), which matters for a sequential scheme: it looks every few rollouts, fewer
+        than the workers' lockstep slots; the estimate reads the same outcomes in the same order (a fixed-n scheme
+        asks for all of them at once, so nothing runs ahead of it). ``floor``: see `run`."""
         return self.run(
             name,
             job,

@@ -178,7 +178,7 @@ class WarningActions:
 class WarningController(Controller):
     """The Bayesian controller with the warning system: π(o) steers, the warning level sets the speed.
 
-    Draws ``config.samples`` weight samples per frame (Chernoff's n for the config's θ, γ).
+    OutcomeStream ``config.samples`` weight samples per frame (Chernoff's n for the config's θ, γ).
     A hand-over brakes with the steering wheel held where it was when it fired (the network is
     not trusted any more), at speed 0 with ``handover`` set; the rollout ends once the car has stopped.
     Each lockstep slot keeps its own actions' state.

@@ -18,7 +18,7 @@ import math
 import cv2
 import numpy as np
 
-from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH
+from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
 
 from .bullet import pybullet as p
 from .config import CameraConfig, WeatherConfig
@@ -42,7 +42,7 @@ class Camera:
         rows = np.arange(config.height, dtype=np.float32)
         self._sky_t = np.clip(rows / max(horizon, 1.0), 0.0, 1.0)[:, None, None]
         self.last_depth: np.ndarray | None = None  # metres along the view axis, inf for sky
-        self._look: Look | None = None
+        self._look: WeatherLook | None = None
         # the ground projection of the view is the wedge of the widest corner ray (pitch tilts the sides)
         tan_v = math.tan(math.radians(self.fov_y) / 2)
         level = math.cos(math.radians(config.pitch_deg)) - tan_v * abs(math.sin(math.radians(config.pitch_deg)))
@@ -107,14 +107,14 @@ class Camera:
             img = cv2.resize(img, (INPUT_WIDTH, INPUT_HEIGHT), interpolation=cv2.INTER_AREA)
         return add_noise(img, noise, noise_rng)
 
-    def _look_of(self, weather: WeatherConfig) -> Look:
+    def _look_of(self, weather: WeatherConfig) -> WeatherLook:
         if self._look is None or (self._look.weather is not weather and self._look.weather != weather):
-            self._look = Look.of(weather, self._sky_t, self.config.width)
+            self._look = WeatherLook.of(weather, self._sky_t, self.config.width)
         return self._look
 
 
 @dataclasses.dataclass(frozen=True)
-class Look:
+class WeatherLook:
     """What a weather does to every frame of one camera, worked out once as whole images: this runs
     on every frame, and numpy broadcasting over a last axis of 3 is ~10x slower than a whole-image
     operation (the bare render is the budget it is measured against: `uqdrive bench sim`)."""
@@ -131,7 +131,7 @@ class Look:
     blur_sigma: float  # pixels at this width
 
     @classmethod
-    def of(cls, weather: WeatherConfig, sky_t: np.ndarray, width: int) -> Look:
+    def of(cls, weather: WeatherConfig, sky_t: np.ndarray, width: int) -> WeatherLook:
         light = np.asarray(weather.light_direction, float)
         shape = (len(sky_t), width, 3)
 
@@ -159,7 +159,12 @@ def _planes3(plane: np.ndarray) -> np.ndarray:
 
 
 def apply_weather(
-    img: np.ndarray, depth: np.ndarray, sky: np.ndarray, road: np.ndarray, look: Look, streak_rng: np.random.Generator
+    img: np.ndarray,
+    depth: np.ndarray,
+    sky: np.ndarray,
+    road: np.ndarray,
+    look: WeatherLook,
+    streak_rng: np.random.Generator,
 ) -> np.ndarray:
     """Image-space weather on a float32 image in [0, 1] (modified in place); returns float32 in [0, 1]."""
     weather = look.weather

@@ -80,6 +80,24 @@ def straight(cfg: ScenarioConfig) -> Layout:
     return Layout(route, start, paved, [fan(road)], np.concatenate(marks), obstacles, None)
 
 
+def _roundabout_route(cfg: ScenarioConfig, a: float, reach: float) -> Route:
+    """South arm's right lane (centre offset ``a``) -> fillet (right turn) -> ring (ccw) -> mirrored to the east arm."""
+    rc, rf = cfg.ring_radius, cfg.route_fillet
+    c1 = np.array([a + rf, -math.sqrt((rc + rf) ** 2 - (a + rf) ** 2)])
+    theta_in = math.atan2(c1[1], c1[0])
+    if theta_in >= -math.pi / 4:
+        raise ConfigError(
+            f"scenario.route_fillet={rf} is too large for ring_radius={rc}: the entry and exit curves overlap"
+        )
+    half_route = join(
+        line([a, -reach], [a, c1[1]]),
+        arc(c1, rf, math.pi, math.atan2(-c1[1], -c1[0])),
+        arc(np.zeros(2), rc, theta_in, -math.pi / 4),
+    )
+    mirrored = np.stack([-half_route[:, 1], -half_route[:, 0]], axis=1)[::-1]
+    return Route.from_points(join(half_route, mirrored))
+
+
 def roundabout(cfg: ScenarioConfig) -> Layout:
     """A four-arm roundabout; the route enters from the south arm and leaves by the first exit (east)."""
     lw, n = cfg.lane_width, cfg.num_lanes
@@ -129,21 +147,7 @@ def roundabout(cfg: ScenarioConfig) -> Layout:
         marks.append(band(arc(np.zeros(2), r_out - edge, a0, a1, MARK_STEP), mw))
     paved = rasterise(on, [circle(r_in)], (-reach - 1, -reach - 1, reach + 1, reach + 1))
 
-    # route: south arm right lane -> fillet (right turn) -> ring (ccw) -> mirrored to the east arm
-    rf = cfg.route_fillet
-    c1 = np.array([a + rf, -math.sqrt((rc + rf) ** 2 - (a + rf) ** 2)])
-    theta_in = math.atan2(c1[1], c1[0])
-    if theta_in >= -math.pi / 4:
-        raise ConfigError(
-            f"scenario.route_fillet={rf} is too large for ring_radius={rc}: the entry and exit curves overlap"
-        )
-    half_route = join(
-        line([a, -reach], [a, c1[1]]),
-        arc(c1, rf, math.pi, math.atan2(-c1[1], -c1[0])),
-        arc(np.zeros(2), rc, theta_in, -math.pi / 4),
-    )
-    mirrored = np.stack([-half_route[:, 1], -half_route[:, 0]], axis=1)[::-1]
-    route = Route.from_points(join(half_route, mirrored))
+    route = _roundabout_route(cfg, a, reach)
     start = (a, -(r_out + cfg.start_distance), math.pi / 2)
     island = (0.0, 0.0, r_in - 0.3)
     return Layout(route, start, paved, asphalt, np.concatenate(marks), [], island)

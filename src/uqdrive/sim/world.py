@@ -66,18 +66,7 @@ class World:
             self._collidable.append((body, ob.x, ob.y, radius))
             self._cullable.append((body, ob.x, ob.y, radius, self.car_colors(ob.color)))
         if geometry.island is not None:
-            ix, iy, r = geometry.island
-            kerb_rgba = [0.75, 0.75, 0.72, 1.0]
-            kerb = client.createVisualShape(p.GEOM_CYLINDER, radius=r + 0.3, length=0.2, rgbaColor=kerb_rgba)
-            self._cullable.append(
-                (client.createMultiBody(0, -1, kerb, basePosition=[ix, iy, 0.1]), ix, iy, r + 0.3, [kerb_rgba])
-            )
-            col = client.createCollisionShape(p.GEOM_CYLINDER, radius=r, height=cfg.island_height)
-            island_rgba = _rgba(np.clip(np.asarray(cfg.ground_color) * 1.15, 0, 1))
-            vis = client.createVisualShape(p.GEOM_CYLINDER, radius=r, length=cfg.island_height, rgbaColor=island_rgba)
-            body = client.createMultiBody(0, col, vis, basePosition=[ix, iy, cfg.island_height / 2])
-            self._collidable.append((body, ix, iy, r))
-            self._cullable.append((body, ix, iy, r, [island_rgba]))
+            self._add_island(*geometry.island)
         for item in geometry.scenery:
             body, colors = self._prop(item)
             radius = item.size[1] if item.kind == "tree" else 0.5 * math.hypot(*item.size[:2])
@@ -101,6 +90,21 @@ class World:
         self._near_test = [(x, y, d * d, body) for x, y, d, body in reach]
         self._near_reach = max((d for *_, d, _ in reach), default=0.0) + 1e-6  # more than rounding can move
         self._ego_pose: tuple[float, float, float] | None = None  # set but not yet placed in pybullet
+
+    def _add_island(self, ix: float, iy: float, r: float) -> None:
+        """The roundabout's central island (collidable) with its kerb (visual only)."""
+        client, cfg = self.client, self.geometry.config
+        kerb_rgba = [0.75, 0.75, 0.72, 1.0]
+        kerb = client.createVisualShape(p.GEOM_CYLINDER, radius=r + 0.3, length=0.2, rgbaColor=kerb_rgba)
+        self._cullable.append(
+            (client.createMultiBody(0, -1, kerb, basePosition=[ix, iy, 0.1]), ix, iy, r + 0.3, [kerb_rgba])
+        )
+        col = client.createCollisionShape(p.GEOM_CYLINDER, radius=r, height=cfg.island_height)
+        island_rgba = _rgba(np.clip(np.asarray(cfg.ground_color) * 1.15, 0, 1))
+        vis = client.createVisualShape(p.GEOM_CYLINDER, radius=r, length=cfg.island_height, rgbaColor=island_rgba)
+        body = client.createMultiBody(0, col, vis, basePosition=[ix, iy, cfg.island_height / 2])
+        self._collidable.append((body, ix, iy, r))
+        self._cullable.append((body, ix, iy, r, [island_rgba]))
 
     def _mesh(self, triangles: np.ndarray, z: float, color) -> list[int]:
         """Flat triangle mesh bodies (visual only); triangles made counter-clockwise so they face up."""

@@ -153,7 +153,7 @@ def _ball_tables(theta: float, looks: range, level: float, cap: float) -> dict[i
 
 
 @dataclass(frozen=True)
-class Look:
+class LookRule:
     """The rule at one look for some counts: stop?, and the reported value and interval."""
 
     stop: np.ndarray
@@ -181,7 +181,7 @@ class SequentialScheme:
             n += self.look_size
         return n
 
-    def look(self, n: int, counts: np.ndarray) -> Look:
+    def look(self, n: int, counts: np.ndarray) -> LookRule:
         """The rule after n samples (a multiple of ``look_size``) with each of ``counts`` successes."""
         fit = _fit_table(n, self.theta)[:, counts]
         stop, report = fit[0] <= self.level, fit[1:]
@@ -189,7 +189,7 @@ class SequentialScheme:
             balls = self._balls[n][:, counts]
             ball = ~stop & (balls[0] <= self.ball_level)
             stop, report = stop | ball, np.where(ball, balls[1:], report)
-        return Look(stop, *report)
+        return LookRule(stop, *report)
 
     @cached_property
     def _balls(self) -> dict[int, np.ndarray]:

@@ -50,7 +50,7 @@ class TierTest:
 
     @property
     def first_draws(self) -> int:
-        """Draws worth making in a frame's first head call: the first two looks (all draws agreeing settle a
+        """OutcomeStream worth making in a frame's first head call: the first two looks (all draws agreeing settle a
         tier at δ1 = 0.7 and γ = 0.05 from 9 draws, so the second look, not the first)."""
         return self.looks[min(1, len(self.looks) - 1)]
 

@@ -1,0 +1,141 @@
+"""An operating envelope's plan (conf/envelope.yaml): its schema, and the validated stage it runs — the condition
+space, the controller, the rollout jobs that drive it — checked before any rollout."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Annotated
+
+from omegaconf import DictConfig
+from pydantic import Field
+
+from uqdrive.envelope.certify import CertifySettings, clean_run_to_safe
+from uqdrive.envelope.partition import PartitionSettings, split_gamma
+from uqdrive.envelope.search import SearchSettings
+from uqdrive.envelope.sources import Listed, UniformIn
+from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, ConditionSpace
+from uqdrive.models.posterior import posterior_from_config
+from uqdrive.safety.cells import cell_posterior
+from uqdrive.safety.draws import DrawSettings
+from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.schema import ConfigError, Count, NonNegative, Positive, Seed, Str, invalid, schema, validate
+from uqdrive.sim.condition import Condition
+from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
+
+Axes = Annotated[tuple[AxisSettings, ...], Field(min_length=2, max_length=3)]
+
+
+@schema(frozen=True, kw_only=True)
+class EnvelopeSection(CertifySettings):
+    """conf/envelope.yaml's `envelope`: the axes, the target and guarantee (threshold, gamma, theta, look_size,
+    region_budget), both phases' settings, the controller and the outputs."""
+
+    axes: Axes
+    blend: BlendSettings
+    base_seed: Seed  # phase one's rollouts use base_seed + 0 … budget − 1; region r's the next region_budget after
+    search: SearchSettings
+    partition: PartitionSettings
+    model_path: Str
+    horizon_s: Positive
+    speed: Positive
+    samples: Count
+    draws: DrawSettings
+    eps: Positive
+    half_width: Positive | None
+    out: Str
+    plots_dir: Str
+    rollout_log: Str
+
+
+@schema(root=True)
+class EnvelopeStage(SimConfig, ModelStage):
+    """`stages/envelope.py`: the certified map of one controller (``model``) over ``envelope.axes``."""
+
+    scenario: ScenarioConfig
+    weather: WeatherConfig  # the weather of every condition, unless an axis is weather.blend
+    weathers: dict[str, WeatherConfig]  # those envelope.blend may name
+    noise: NonNegative  # the sensor noise of every condition, unless an axis is noise
+    executor: ExecutorSettings
+    envelope: EnvelopeSection
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        env = self.envelope
+        if env.speed > self.vehicle.max_speed:
+            raise invalid("envelope.speed", env.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
+        if any(a.key == BLEND for a in env.axes):
+            for key, name in (("from", env.blend.start), ("to", env.blend.to)):
+                if name not in self.weathers:
+                    raise invalid(
+                        f"envelope.blend.{key}", name, f"is not loaded; choose one of {sorted(self.weathers)}"
+                    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Envelope:
+    """A validated stage: the condition space, the policy and the settings."""
+
+    stage: EnvelopeStage
+    method: str
+    space: ConditionSpace
+    policy: PolicySpec
+
+    @property
+    def settings(self) -> EnvelopeSection:
+        return self.stage.envelope
+
+    def listed(self, points: tuple[tuple[float, ...], ...]) -> Listed:
+        return Listed(self.space, points)
+
+    def uniform_in(self, low: tuple[float, ...], high: tuple[float, ...]) -> UniformIn:
+        return UniformIn(self.space, low, high)
+
+    def job(self, source: Listed | UniformIn, base_seed: int) -> RolloutJob:
+        s = self.stage
+        return RolloutJob(
+            policy=self.policy,
+            where=source,
+            base_seed=base_seed,
+            camera=s.camera,
+            vehicle=s.vehicle,
+            control_hz=s.control_hz,
+            horizon_s=s.envelope.horizon_s,
+            half_width=s.envelope.half_width,
+        )
+
+
+def build_envelope(cfg: DictConfig) -> Envelope:
+    """Validate the stage's config, every condition of a lattice over the axes and the model file, before any
+    rollout (a bad value is one line naming its key)."""
+    stage = validate(EnvelopeStage, cfg)
+    env = stage.envelope
+    method = posterior_from_config(stage.model).method
+    bins = stage.experiment.bins
+    trained_by = training_stage(stage.experiment.name, method)
+    cell_posterior("envelope.model_path", Path(env.model_path), method, bins, trained_by)
+    axes = tuple(Axis.of(a) for a in env.axes)
+    blend = None
+    if any(a.key == BLEND for a in axes):
+        blend = (stage.weathers[env.blend.start], stage.weathers[env.blend.to])
+    try:
+        space = ConditionSpace(axes, Condition(stage.scenario, stage.weather, stage.noise), blend)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    space.check()
+    _check_budget(env, len(axes))
+    policy = PolicySpec("bnn", env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
+    return Envelope(stage, method, space, policy)
+
+
+def _check_budget(env: EnvelopeSection, dim: int) -> None:
+    """A region must be able to end safe: with the most regions the partition can make (each at its share of γ),
+    some run of safe rollouts within the region's budget must certify it."""
+    regions = 2 ** (dim * env.partition.max_depth)
+    if clean_run_to_safe(env, split_gamma(env.gamma, regions)[0]) is None:
+        raise ConfigError(
+            f"envelope.region_budget={env.region_budget} is too small: with up to {regions} regions "
+            f"(partition.max_depth={env.partition.max_depth}) no region could be certified safe, even with every "
+            "rollout safe; raise it or lower max_depth"
+        )

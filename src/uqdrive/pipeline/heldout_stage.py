@@ -1,0 +1,29 @@
+"""The `heldout` stage: held-out autopilot frames in every weather × noise of the sweep, on episode seeds the
+training collection never uses (conf/heldout.yaml), each condition as the single-condition collect command
+composes it, all in one process on one pool of workers."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+from omegaconf import DictConfig
+
+from uqdrive.parallel import ProcessPool
+from uqdrive.pipeline.collect_stage import Collection, CollectStage, run_collect
+from uqdrive.schema import schema, validate
+from uqdrive.stage import grid, run_cells
+from uqdrive.stage_schemas import Sweep
+
+
+@schema(root=True)
+class HeldoutStage(CollectStage):
+    sweep: Sweep
+
+
+def run_heldout(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, Collection]]:
+    """Held-out frames in every condition of ``cfg.sweep`` (weathers × noises); yields each condition's config and
+    collection as it finishes (`uqdrive.stage.run_cells`)."""
+    stage = validate(HeldoutStage, cfg)
+    cells = grid(weather=stage.sweep.weathers, noise=stage.sweep.noises)
+    pool = ProcessPool(stage.collect.workers)
+    yield from run_cells("heldout", overrides, cells, CollectStage, run_collect, pool, stage.progress)

@@ -1,0 +1,277 @@
+"""The `safety` stage: η1 of one offline controller in one sweep cell (method × replicate × location × weather ×
+noise), each cell as the single-cell command composes it, the whole sweep in one process.
+
+Every cell drives the same rollout seeds (base_seed + i), so methods and conditions are compared
+on paired runs: the same start jitter, rain streaks and sensor noise.
+
+Every input is checked (method, model file, estimator, speed, world, executor) before the
+first rollout. A cell whose result file already holds its config hash is not run again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator, Sequence
+from contextlib import nullcontext
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import mlflow
+from omegaconf import DictConfig
+
+from uqdrive.files import write_csv
+from uqdrive.models.posterior import posterior_from_config
+from uqdrive.plots import safety_hexbin, save_figure
+from uqdrive.records import as_dict, read_record, write_record
+from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
+from uqdrive.safety.draws import DrawSettings
+from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.positions import CellPositions, cell_positions, write_positions
+from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
+from uqdrive.safety.safe_sets import safe_set_for
+from uqdrive.schema import Bool, Count, NonNegative, Positive, Str, invalid, schema, validate
+from uqdrive.sim import build_geometry
+from uqdrive.sim.condition import Condition
+from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.stage import grid, run_cells
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Sweep, training_stage
+from uqdrive.tracking import numeric_metrics, stage_run
+from uqdrive.uq import Estimate
+
+
+@schema(frozen=True, kw_only=True)
+class SafetySection(EstimatorSettings):
+    """conf/safety.yaml's `safety`: one cell's estimator (scheme, theta, gamma, look_size, base_seed), controller
+    and outputs."""
+
+    model_path: Str
+    horizon_s: Positive  # T
+    speed: Positive  # m/s, at most vehicle.max_speed
+    samples: Count  # posterior draws per frame (the cap, with sequential draws)
+    draws: DrawSettings  # fixed (the paper's) or sequential draws per frame
+    eps: Positive  # η2's ball, steering units
+    family_wise: Bool  # the sweep spends γ over its cells: every cell within ±θ at once with probability ≥ 1 − γ
+    family_size: Count  # cells γ is spread over (the sweep sets it to its cell count); 1 unless family_wise
+    half_width: Positive | None  # corridor half-width (m); None = the lane
+    cell: Str
+    out: Str
+    positions: Str
+    rollout_log: Str
+    plots_dir: Str
+
+
+@schema(root=True)
+class SafetyStage(SimConfig, ModelStage):
+    """`stages/safety.py`: one cell of the offline-safety sweep."""
+
+    scenario: ScenarioConfig
+    weather: WeatherConfig
+    noise: NonNegative
+    executor: ExecutorSettings
+    safety: SafetySection
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.safety.speed > self.vehicle.max_speed:
+            raise invalid("safety.speed", self.safety.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
+        if self.safety.family_size != 1 and not self.safety.family_wise:
+            raise invalid("safety.family_size", self.safety.family_size, "must be 1 unless safety.family_wise")
+
+    @property
+    def estimator(self) -> EstimatorSettings:
+        """The cell's estimator: γ spread over the family's cells (Bonferroni) when family-wise."""
+        s = self.safety
+        return dataclasses.replace(s.estimator, gamma=s.gamma / s.family_size)
+
+
+@schema(root=True)
+class SafetySweepStage(SafetyStage):
+    """`stages/safety_sweep.py`: every cell of `sweep` (each cell is also checked as a `SafetyStage`)."""
+
+    sweep: Sweep
+
+
+@dataclasses.dataclass(frozen=True)
+class SafetyRun:
+    """A finished cell and whether it was ``reused``: nothing simulated (its result file or every rollout replayed
+    from its log)."""
+
+    cell: SafetyCell
+    reused: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class CellPlan:
+    """A validated cell: its config, method, rollout job and identity."""
+
+    stage: SafetyStage
+    method: str
+    job: RolloutJob
+    key: str
+
+
+def plan_cell(cfg: DictConfig) -> CellPlan:
+    """Validate the cell's config and load its model once, before any rollout: a bad config value is one line
+    naming the key, the value and what is allowed; a missing or mismatched model file names the stage to run."""
+    stage = validate(SafetyStage, cfg)
+    safety = stage.safety
+    method = posterior_from_config(stage.model).method
+    bins = stage.experiment.bins
+    model_path = Path(safety.model_path)
+    cell_posterior("safety.model_path", model_path, method, bins, training_stage(stage.experiment.name, method))
+    spec = PolicySpec(
+        "bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws
+    )
+    job = RolloutJob(
+        policy=spec,
+        where=Condition(stage.scenario, stage.weather, stage.noise),
+        base_seed=safety.base_seed,
+        camera=stage.camera,
+        vehicle=stage.vehicle,
+        control_hz=stage.control_hz,
+        horizon_s=safety.horizon_s,
+        half_width=safety.half_width,
+    )
+    return CellPlan(stage, method, job, estimate_key(job, stage.estimator, __name__))
+
+
+def reusable_result(path: str | Path, key: str) -> SafetyCell | None:
+    """The finished cell at ``path`` if it was computed for the cell with key ``key`` (by this code: a file of
+    another format is not reused)."""
+    try:
+        cell = read_record(SafetyCell, path, "safety")
+    except (FileNotFoundError, ValueError):
+        return None
+    return cell if cell.config_hash == key else None
+
+
+def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
+    """The cell's record: η̂1 with its interval and guarantee, how its runs failed, each run's verdict in order."""
+    estimate, results, stage, where = run.outcome, run.results, plan.stage, plan.job.where
+    return SafetyCell(
+        method=plan.method,
+        replicate=stage.seed,
+        experiment=stage.experiment.name,
+        location=where.scenario.name,
+        weather=where.weather.name,
+        noise=where.noise,
+        theta=estimate.theta,
+        gamma=estimate.gamma,
+        scheme=estimate.scheme,
+        n=estimate.n,
+        base_seed=stage.safety.base_seed,
+        family_size=stage.safety.family_size,
+        fixed_rollouts=stage.estimator.fixed_rollouts(),
+        eta1=estimate.value,
+        eta1_low=estimate.low,
+        eta1_high=estimate.high,
+        rollouts=estimate.n,
+        steps=int(sum(r.steps for r in results)),
+        seconds=run.seconds,
+        **rates(results),
+        guaranteed=estimate.guaranteed,
+        outcomes="".join("1" if r.safe else "0" for r in results),  # by rollout index: paired across cells
+        config_hash=plan.key,
+        unread=run.unread,
+    )
+
+
+def cell_figure(plan: CellPlan, positions: CellPositions, estimate: Estimate) -> plt.Figure:
+    where = plan.job.where
+    title = (
+        f"{plan.method} · {where.scenario.name} · {where.weather.name} · noise {where.noise:g}: "
+        f"η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
+    )
+    fig, ax = plt.subplots(figsize=(5, 5))
+    p = positions
+    safety_hexbin(ax, p.x, p.y, p.route, p.edges, tuple(p.extent), title, p.road)
+    ax.legend(loc="lower left", fontsize=7)
+    return fig
+
+
+def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> SafetyRun:
+    """Estimate η1 for one cell: plan, drive (the rollouts its log holds are replayed), compute, plot, write, log.
+    A cell whose result file holds its key is only logged again. ``runner``: shared by many cells
+    (`run_safety_sweep`), else the cell's own."""
+    plan = plan_cell(cfg)
+    section = plan.stage.safety
+    previous = reusable_result(section.out, plan.key)
+    if previous is not None:
+        log_cell(cfg, plan.stage, previous, [p for p in _cell_files(section) if p.exists()], reused=True)
+        return SafetyRun(previous, reused=True)
+    with nullcontext(runner) if runner else CellRunner.of(plan.stage.executor, plan.stage.progress) as cells:
+        run = cells.estimate(f"safety {section.cell}", plan.job, plan.stage.estimator, plan.key, section.rollout_log)
+    job = plan.job
+    geometry = build_geometry(job.where.scenario)
+    safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
+    positions = cell_positions(run.results, geometry, safe_set, run.outcome.value)
+    cell = safety_cell(plan, run)
+    figure = save_figure(cell_figure(plan, positions, run.outcome), Path(section.plots_dir) / f"{section.cell}.png")
+    table = write_csv(Path(section.plots_dir) / f"{section.cell}.csv", [r.summary() for r in run.results])
+    write_positions(section.positions, positions)
+    write_record(
+        section.out, cell
+    )  # before logging: a tracking failure never loses the cell; its presence marks it done
+    log_cell(cfg, plan.stage, cell, [figure, table], reused=run.reused)
+    return SafetyRun(cell, run.reused)
+
+
+def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, SafetyRun]]:
+    """Every cell of ``cfg.sweep`` (methods × replicates × locations × weathers × noises) in this process, on one
+    cell runner (one pool of workers with the process backend); yields each cell's config and result as it
+    finishes (`uqdrive.stage.run_cells`)."""
+    stage = validate(SafetySweepStage, cfg)
+    s = stage.sweep
+    cells = grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
+    if stage.safety.family_wise:  # every cell at γ/m: the whole sweep within ±θ at once with probability ≥ 1 − γ
+        cells = [{**cell, "safety.family_size": len(cells)} for cell in cells]
+    runner = CellRunner.of(stage.executor, stage.progress)
+    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress)
+
+
+def describe(name: str, run: SafetyRun) -> str:
+    """The line a stage prints for a finished cell."""
+    c = run.cell
+    return (
+        f"safety {name}: eta1 = {c.eta1:.3f} in [{c.eta1_low:.3f}, {c.eta1_high:.3f}] "
+        f"from {c.n} rollouts ({c.scheme}, theta={c.theta:g}, gamma={c.gamma:g})"
+        f"{' (reused: config unchanged)' if run.reused else ''}"
+    )
+
+
+CELL_PARAMS = (
+    "method",
+    "replicate",
+    "experiment",
+    "location",
+    "weather",
+    "noise",
+    "theta",
+    "gamma",
+    "scheme",
+    "n",
+    "base_seed",
+    "family_size",
+)
+
+
+def _cell_files(section: SafetySection) -> list[Path]:
+    plots = Path(section.plots_dir)
+    return [plots / f"{section.cell}.png", plots / f"{section.cell}.csv"]
+
+
+def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: list[Path], reused: bool) -> None:
+    """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
+    metrics = numeric_metrics({k: v for k, v in as_dict(cell).items() if k not in CELL_PARAMS})
+    with stage_run(
+        stage.paths.root,
+        "safety",
+        cfg,
+        run_name=stage.safety.cell,
+        tags={"reused": str(reused).lower(), "config_hash": cell.config_hash},
+    ):
+        mlflow.log_params({"n": cell.n, "cell_gamma": cell.gamma})  # the rest: the cell's config (`stage_run`)
+        mlflow.log_metrics(metrics)
+        for path in artifacts:
+            mlflow.log_artifact(str(path))

@@ -1,0 +1,174 @@
+"""The `train` stages: fit one posterior (model=<conf/model yaml>) for one training seed (a replicate), evaluate it
+on validation, save and log it; the DVC stage trains every replicate of params.yaml side by side, each as the
+single-replicate command (`python stages/train.py model=M seed=r`) composes it.
+
+The model config names its Posterior class by `_target_`; the class checks its settings and fits itself (MCD end
+to end on the processed frames; the head methods on the same replicate's MCD trunk features), so these stages
+know no method by name.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib.pyplot as plt
+import mlflow
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from uqdrive.data.datasets import load_frames
+from uqdrive.files import write_csv, write_json
+from uqdrive.models.checkpoint import save_posterior
+from uqdrive.models.metrics import majority_accuracy
+from uqdrive.models.pilotnet import Architecture
+from uqdrive.models.posterior import posterior_settings
+from uqdrive.models.training import TrainingData, compute_features, evaluate
+from uqdrive.parallel import ProcessPool
+from uqdrive.plots import save_figure
+from uqdrive.schema import Count, Str, schema, validate
+from uqdrive.stage import compose_cell, grid
+from uqdrive.stage_schemas import ModelStage, NonEmptySeeds
+from uqdrive.tracking import stage_run
+
+
+@schema
+class TrainSection:
+    """Training sizes; the per-method ones reach the model's settings through conf/model/ (checked there)."""
+
+    base_model: Str
+    eval_samples: Count
+    threads: Count
+    workers: Count  # replicates trained side by side (`run_train_replicates`)
+    mcd: dict[str, Any]
+    vi: dict[str, Any]
+    hmc: dict[str, Any]
+    ensemble: dict[str, Any]
+    laplace: dict[str, Any]
+
+
+@schema(root=True)
+class TrainStage(ModelStage):
+    arch: Architecture
+    train: TrainSection
+
+
+def run_train(cfg: DictConfig) -> dict:
+    stage = validate(TrainStage, cfg)
+    cls, settings = posterior_settings(stage.model)
+    method = cls.method
+    eval_samples = stage.train.eval_samples
+    bins = stage.experiment.bins
+    processed = Path(cfg.paths.processed)
+    train = load_frames(processed / "train.parquet", bins.num_classes)
+    val = load_frames(processed / "val.parquet", bins.num_classes)
+    generator = torch.Generator().manual_seed(int(cfg.seed))
+    threads = stage.train.threads
+    previous_threads = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    data = TrainingData(
+        train,
+        val,
+        bins,
+        stage.arch,
+        Path(stage.train.base_model),
+        eval_samples,
+    )
+    try:
+        started = time.perf_counter()
+        fitted = cls.fit(settings, data, generator, bool(cfg.progress))
+        seconds = time.perf_counter() - started
+        model, curve, extra = fitted.posterior.eval(), fitted.curve, fitted.extra
+        scores = evaluate(model, compute_features(model, val), val.labels, eval_samples, generator)
+    finally:
+        torch.set_num_threads(previous_threads)
+    metrics = {
+        "method": method,
+        **{f"val_{k}": v for k, v in scores.items()},
+        "majority_baseline_accuracy": majority_accuracy(train.labels, val.labels, bins.num_classes),
+        "train_frames": len(train),
+        "val_frames": len(val),
+        "eval_samples": eval_samples,
+        "seed": int(cfg.seed),
+        "train_seconds": seconds,
+        **extra,
+    }
+    replicate = cfg.replicate
+    model_path = save_posterior(model, Path(cfg.paths.models) / f"{replicate}.pt", metadata={"metrics": metrics})
+    plots = Path(cfg.paths.plots)
+    curve_csv = write_csv(plots / f"{replicate}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
+    curve_png = save_figure(curve_figure(curve, method, cls.curve_unit), plots / f"{replicate}_curve.png")
+    metrics_json = Path(cfg.paths.metrics) / f"{replicate}.json"
+    write_json(metrics_json, metrics)
+
+    with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}-{cfg.replicate}"):
+        mlflow.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float))})
+        for row in curve:
+            mlflow.log_metrics({f"curve_{k}": float(v) for k, v in row.items() if k != "step"}, step=int(row["step"]))
+        for path in (curve_csv, curve_png, metrics_json, model_path):
+            mlflow.log_artifact(str(path))
+    return metrics
+
+
+def describe(m: dict) -> str:
+    """The line a stage prints for a trained replicate."""
+    return (
+        f"train {m['method']} seed {m['seed']}: val accuracy {m['val_accuracy']:.3f} (majority baseline "
+        f"{m['majority_baseline_accuracy']:.3f}), NLL {m['val_nll']:.3f}, ECE {m['val_ece']:.3f} "
+        f"in {m['train_seconds']:.0f} s"
+    )
+
+
+def curve_figure(rows: list[dict], method: str, unit: str) -> plt.Figure:
+    """Loss and validation accuracy per step; points are marked, so a curve of one step still shows."""
+    step = [r["step"] for r in rows]
+    fig, (loss_ax, acc_ax) = plt.subplots(1, 2, figsize=(9, 3.2))
+    loss_ax.plot(step, [r["train_loss"] for r in rows], ".-", label="train loss")
+    loss_ax.plot(step, [r["val_nll"] for r in rows], ".-", label="val NLL")
+    loss_ax.set_xlabel(unit)
+    loss_ax.legend()
+    acc_ax.plot(step, [r["val_accuracy"] for r in rows], ".-")
+    acc_ax.set_xlabel(loss_ax.get_xlabel())
+    acc_ax.set_ylabel("val accuracy")
+    fig.suptitle(f"{method} learning curve")
+    return fig
+
+
+@schema(root=True)
+class TrainReplicatesStage(TrainStage):
+    """`stages/train_replicates.py`: one posterior for every training seed of `replicates`."""
+
+    replicates: NonEmptySeeds
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """The replicates' configs, resolved (a worker process has no Hydra): item i trains the i-th."""
+
+    configs: tuple[dict, ...]
+
+    def worker(self) -> TrainJob:
+        return self
+
+    def run(self, index: int) -> dict:
+        return run_train(OmegaConf.create(self.configs[index]))
+
+    def close(self) -> None:
+        """Nothing held between items."""
+
+
+def run_train_replicates(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
+    """Every replicate of ``cfg.replicates``, ``train.workers`` at a time (a process each); each replicate's config
+    checked before any trains. Returns their metrics in replicate order."""
+    stage = validate(TrainReplicatesStage, cfg)
+    cells = grid(seed=cfg.replicates)
+    configs = [compose_cell("train", overrides, cell) for cell in cells]
+    for config in configs:
+        validate(TrainStage, config)
+    job = TrainJob(tuple(OmegaConf.to_container(c, resolve=True) for c in configs))
+    with ProcessPool(min(stage.train.workers, len(configs))) as pool:
+        executor = pool.executor(job)
+        return list(executor.run(range(len(configs))))

@@ -1,0 +1,77 @@
+"""The report from the run's records: read every stage's record, then the sections in order — findings first,
+then every table and figure of the paper with ours beside it."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from uqdrive.analysis.comparisons import Findings
+from uqdrive.analysis.method_answers import AvoidSummary, SafetySummary
+from uqdrive.data.preprocess import Preprocessed
+from uqdrive.envelope.map_records import EnvelopeResult
+from uqdrive.models.heldout_eval import HeldoutTable
+from uqdrive.records import read_record
+from uqdrive.report.document import Report
+from uqdrive.report.envelope_section import envelope_section, read_envelopes
+from uqdrive.report.findings_text import findings_markdown
+from uqdrive.report.heldout_section import heldout_section
+from uqdrive.report.overview import Scope, run_section, sample_counts_section
+from uqdrive.report.sections import (
+    Run,
+    avoid_section,
+    conditions_of,
+    fidelity_section,
+    read_train_metrics,
+    safety_section,
+    training_section,
+)
+from uqdrive.safety.cell_records import read_avoid_results, read_safety_cells
+
+
+@dataclasses.dataclass(frozen=True)
+class Records:
+    """Everything the report reads: the run's closed-loop and training records, the findings, the held-out table,
+    the envelopes."""
+
+    run: Run
+    findings: Findings
+    evaluated: HeldoutTable
+    envelopes: list[EnvelopeResult]
+
+
+def read_records(metrics_dir: Path, scope: Scope) -> Records:
+    seeds = list(scope.replicates)
+    classes = {
+        e: read_record(Preprocessed, metrics_dir / e / "preprocess.json", f"preprocess@{e}").num_classes
+        for e in scope.experiments
+    }
+    run = Run(
+        trained=read_train_metrics(metrics_dir, list(scope.experiments), list(scope.posteriors), seeds),
+        classes=classes,
+        cells=read_safety_cells(metrics_dir / "safety", scope),
+        safety=read_record(SafetySummary, metrics_dir / "safety.json", "safety_summary"),
+        avoided=read_avoid_results(metrics_dir / "avoid", list(scope.methods), seeds),
+        avoid=read_record(AvoidSummary, metrics_dir / "avoid.json", "avoid_summary"),
+    )
+    return Records(
+        run,
+        read_record(Findings, metrics_dir / "findings.json", "findings"),
+        read_record(HeldoutTable, metrics_dir / "evaluate.json", "evaluate"),
+        read_envelopes(metrics_dir, list(scope.methods), seeds[0]),
+    )
+
+
+def build_report(root: Path, out_dir: Path, scope: Scope, records: Records) -> Report:
+    run, methods = records.run, list(scope.methods)
+    report = Report(root, out_dir)
+    run_section(report, scope, run.cells)
+    report.add("## What the run found\n\n" + findings_markdown(records.findings))
+    fidelity_section(report, run, methods, list(scope.weathers), scope.locations[0])
+    training_section(report, run, list(scope.experiments), list(scope.posteriors), list(scope.replicates))
+    safety_section(report, run, methods, conditions_of(scope.locations, scope.weathers, scope.noises))
+    avoid_section(report, run, methods)
+    envelope_section(report, records.envelopes)
+    heldout_section(report, records.evaluated, scope.posteriors, scope.weathers, scope.noises, scope.replicates[0])
+    sample_counts_section(report, run.cells)
+    return report

@@ -1,0 +1,103 @@
+"""One collision-avoidance cell (condition × warnings mode): its rollouts, the warning levels and hand-over places
+read off them, distances along the obstacle road, the traces the threshold calibration replays, a figure panel."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from uqdrive.safety.calibration import Traces
+from uqdrive.safety.cell_records import Mode
+from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.warnings import LEVELS, WarningConfig, classify
+from uqdrive.sim import ScenarioGeometry
+from uqdrive.uq import Estimate
+
+
+@dataclasses.dataclass
+class Cell:
+    """A finished cell: its estimate, rollouts and the thresholds its warnings are counted with.
+    ``reused``: every rollout came from an earlier run's log of the same cell."""
+
+    name: str
+    condition: str
+    mode: Mode
+    warning: WarningConfig
+    estimate: Estimate
+    results: list[RolloutResult]
+    seconds: float
+    reused: bool
+    base_seed: int
+
+
+def levels(cell: Cell, result: RolloutResult) -> np.ndarray:
+    """Warning level per frame: as raised (warnings on) or as the cell's thresholds would have raised them (off)."""
+    if not cell.mode.warnings_off:
+        return result.warning
+    w = cell.warning
+    return classify(result.eta2, result.mutual_information, w.delta1, w.delta2, w.tau)
+
+
+def progress_along(geometry: ScenarioGeometry, result: RolloutResult) -> tuple[np.ndarray, float]:
+    """Metres along the route at each decision frame, and where the run ended."""
+    s, _ = geometry.route.project(np.stack([result.x, result.y], axis=1))
+    return s[:-1], float(s[-1])
+
+
+def obstacle_progress(geometry: ScenarioGeometry) -> float:
+    s, _ = geometry.route.project(np.array([[geometry.obstacles[0].x, geometry.obstacles[0].y]]))
+    return float(s[0])
+
+
+def distances(result: RolloutResult, geometry: ScenarioGeometry) -> np.ndarray:
+    """Metres to the obstacle along the road at each decision frame."""
+    return obstacle_progress(geometry) - progress_along(geometry, result)[0]
+
+
+def handover_distances(cell: Cell, geometry: ScenarioGeometry) -> list[float]:
+    """Distance to the obstacle at the first hand-over frame of each run that handed over (warnings on)."""
+    if cell.mode.warnings_off:
+        return []
+    handover_levels = [lv for lv, a in zip(LEVELS, cell.warning.actions) if a.handover]
+    out = []
+    for r in cell.results:
+        fired = np.flatnonzero(np.isin(r.warning, handover_levels))
+        if fired.size:
+            out.append(float(distances(r, geometry)[fired[0]]))
+    return out
+
+
+def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry], first: int) -> Traces:
+    """Rollouts 0 … ``first`` − 1 of the warnings-off ``cells`` as replay input (a number fixed in advance, so
+    exact tests on them hold whatever a sequential scheme did next); group g = the g-th cell's condition."""
+    runs = []
+    for g, cell in enumerate(cells):
+        for r in cell.results[:first]:
+            s, end = progress_along(geometries[cell.condition], r)
+            runs.append((r.eta2, r.mutual_information, s, end, r.safe, g))
+    return Traces.from_runs(runs)
+
+
+def obstacle_box(geometry: ScenarioGeometry) -> np.ndarray:
+    ob = geometry.obstacles[0]
+    return np.array([ob.x, ob.y, ob.size[0], ob.size[1]])
+
+
+def road_box(geometry: ScenarioGeometry) -> np.ndarray:
+    """x range of the road and its lane edges (y), for drawing the straight obstacle road."""
+    cfg = geometry.config
+    return np.array([0.0, cfg.road_length, -cfg.lane_width, 0.0, cfg.lane_width * (cfg.num_lanes - 1)])
+
+
+def panel(cell: Cell, geometry: ScenarioGeometry) -> dict:
+    """One figure panel: the cell's paths coloured by mutual information on the road."""
+    paths = [
+        {"x": r.x[:-1], "y": r.y[:-1], "mi": r.mutual_information, "termination": r.termination} for r in cell.results
+    ]
+    return {
+        "paths": paths,
+        "obstacle": obstacle_box(geometry),
+        "road": road_box(geometry),
+        "title": f"η̂1 = {cell.estimate.value:.2f} [{cell.estimate.low:.2f}, {cell.estimate.high:.2f}]",
+    }

@@ -1,0 +1,285 @@
+"""The collision-avoidance experiment's plan: its config (unknown conditions, threshold calibration, the stage's
+whole schema) and the validated settings a run works from (`build_settings`): the known and unknown conditions,
+the warnings-off policy and the rollout job of each cell."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from omegaconf import DictConfig
+from pydantic import Field
+
+from uqdrive.models.posterior import posterior_from_config
+from uqdrive.safety.calibration import min_calibration_runs
+from uqdrive.safety.cell_records import Mode
+from uqdrive.safety.cells import EstimatorSettings, cell_posterior
+from uqdrive.safety.draws import DrawSettings
+from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.safe_sets import obstacle_pass_progress
+from uqdrive.safety.warnings import WarningConfig
+from uqdrive.schema import (
+    Bool,
+    ConfigError,
+    NonNegative,
+    OpenUnit,
+    Positive,
+    Seed,
+    Str,
+    Unit,
+    invalid,
+    schema,
+    validate,
+)
+from uqdrive.sim import CameraConfig, ScenarioGeometry, VehicleConfig, build_geometry
+from uqdrive.sim.condition import Condition, Mixture
+from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
+
+KNOWN = "known"
+UNKNOWN = "unknown"  # the mixture cell's condition (avoid.unknown_as=mixture)
+
+
+@schema
+class UnknownCondition:
+    """One unknown condition of the avoid stage: a weather loaded under `weathers`, sensor noise, scenario changes."""
+
+    name: Str
+    weather: Str | None = None  # None: the known weather
+    noise: NonNegative = 0.0
+    scenario: dict[str, Any] = Field(default_factory=dict)  # fields of the obstacle scenario to change
+
+    def __post_init__(self) -> None:
+        if self.name in (KNOWN, UNKNOWN):
+            raise invalid("name", self.name, "is the training condition's or the unknown mixture's; choose another")
+
+
+@schema(frozen=True)
+class CalibrationSettings:
+    """Threshold calibration by Learn-then-Test (`uqdrive.safety.calibration`): with probability ≥ 1 − ``gamma``
+    every certified candidate keeps the replayed known-condition autonomy ≥ ``autonomy_target`` (and, with
+    ``missed_limit``, each unknown condition's replayed missed-collision rate ≤ it); among the certified, the
+    most replayed unknown-condition safety. The candidate grids are kept sorted and without repeats."""
+
+    autonomy_target: OpenUnit
+    gamma: OpenUnit  # family-wise error over the candidate grid
+    margin_m: NonNegative  # extra stopping distance a saved run must have kept before its collision point
+    deltas: Annotated[tuple[Unit, ...], Field(min_length=1)]  # candidates for δ1 and δ2 (δ2 <= δ1)
+    taus: Annotated[tuple[NonNegative, ...], Field(min_length=1)]  # candidates for τ
+    missed_limit: OpenUnit | None  # None: no constraint on the unknown conditions' missed collisions
+    calibration_fraction: Annotated[float, Field(gt=0, le=1)]  # share of run indices the tests use
+    order: Literal["firing", "learned"]  # the fixed sequence: a priori, or Pareto Testing on the other runs
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "deltas", tuple(sorted(set(self.deltas))))
+        object.__setattr__(self, "taus", tuple(sorted(set(self.taus))))
+
+
+@schema(frozen=True, kw_only=True)
+class AvoidSection(EstimatorSettings):
+    """conf/avoid.yaml's `avoid`: every cell's estimator (scheme, theta, gamma, look_size, base_seed), the world and
+    the calibration."""
+
+    model_path: Str
+    name: Str  # <method>-<replicate>: the stage's cells, files and runs
+    horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked)
+    speed: Positive  # cruise speed (m/s), at most vehicle.max_speed
+    eps: Positive
+    draws: DrawSettings  # fixed (the paper's) or sequential; warnings-off cells record what calibration replays
+    validation_seed: Seed
+    known_noise: NonNegative
+    family_wise: Bool  # spend γ over this controller's cells (conditions × modes): all of them at once
+    unknown: Annotated[tuple[UnknownCondition, ...], Field(min_length=1)]
+    unknown_as: Literal["cells", "mixture"]  # a cell per variant, or one whose rollouts draw theirs (avoid_mixture)
+    min_rollouts: Seed  # every cell runs at least this many (the sample paired tests and the calibration use)
+    calibration: CalibrationSettings
+    out: Str
+    data_dir: Str
+    rollout_log: Str
+    plots_dir: Str
+
+    def __post_init__(self) -> None:
+        names = [c.name for c in self.unknown]
+        if len(set(names)) != len(names):
+            raise invalid("unknown", names, "must have unique names")
+
+
+@schema(root=True)
+class AvoidStage(SimConfig, ModelStage):
+    """`stages/avoid.py`: collision avoidance with the warning system, one method."""
+
+    scenario: ScenarioConfig
+    weather: WeatherConfig  # the known condition
+    weathers: dict[str, WeatherConfig]  # those `avoid.unknown` may name
+    warning: WarningConfig
+    executor: ExecutorSettings
+    avoid: AvoidSection
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.scenario.kind != "obstacle":
+            raise invalid("scenario.kind", self.scenario.kind, "must be 'obstacle' for the avoid stage")
+        if self.avoid.speed > self.vehicle.max_speed:
+            raise invalid("avoid.speed", self.avoid.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
+        loaded = {self.weather.name, *self.weathers}
+        for i, condition in enumerate(self.avoid.unknown):
+            if condition.weather is not None and condition.weather not in loaded:
+                raise invalid(
+                    f"avoid.unknown[{i}].weather",
+                    condition.weather,
+                    f"is not loaded; choose one of {sorted(loaded)} or add +weather@weathers.{condition.weather}="
+                    f"{condition.weather}",
+                )
+            validate(ScenarioConfig, {**self.scenario.to_dict(), **condition.scenario}, f"avoid.unknown[{i}].scenario")
+
+
+@dataclasses.dataclass(frozen=True)
+class AvoidSettings:
+    """Everything a stage run needs, validated (``stage``: the whole config, its paths among it); ``spec`` is the
+    warnings-off policy."""
+
+    stage: AvoidStage
+    method: str
+    seed: int  # the replicate's training seed
+    name: str  # <method>-<replicate>
+    spec: PolicySpec
+    warning: WarningConfig
+    estimator: EstimatorSettings
+    validation_seed: int
+    known: Condition
+    unknown: tuple[Condition, ...] | tuple[Mixture]  # each variant its own cell, or one mixture cell
+    calibration: CalibrationSettings
+    camera: CameraConfig
+    vehicle: VehicleConfig
+    control_hz: float
+    horizon_s: float
+    executor: ExecutorSettings
+    progress: bool
+    family_size: int  # cells the estimator's γ is spread over (1: per cell)
+    min_rollouts: int  # every cell runs at least this many, whatever its estimator reads
+
+    @property
+    def conditions(self) -> tuple[Condition | Mixture, ...]:
+        return (self.known, *self.unknown)
+
+    def fixed_rollouts(self) -> int:
+        """Rollouts every cell runs whatever its outcomes: the prefix paired tests and the calibration may use."""
+        return max(self.estimator.fixed_rollouts(), self.min_rollouts)
+
+    def job(self, where: Condition | Mixture, warning: WarningConfig | None, base_seed: int) -> RolloutJob:
+        """The rollouts of one cell: ``warning`` None drives without the warning system. Sequential draws test
+        each threshold inside (0, 1); thresholds the calibration may choose at 0 or 1 (never or always warning)
+        have no indifference zone to test in, so such a cell takes the paper's fixed draws."""
+        draws = self.spec.draws
+        if warning is not None and not 0 < warning.delta2 <= warning.delta1 < 1:
+            draws = dataclasses.replace(draws, scheme="fixed")
+        policy = dataclasses.replace(self.spec, warnings=warning, draws=draws)
+        return RolloutJob(policy, where, base_seed, self.camera, self.vehicle, self.control_hz, self.horizon_s)
+
+    def replay_args(self) -> dict[str, float]:
+        """The car and calibration settings the threshold replay needs (`uqdrive.safety.calibration.replay`)."""
+        return {
+            "control_hz": self.control_hz,
+            "cruise": self.spec.speed,
+            "start_speed": min(self.known.scenario.start_speed, self.vehicle.max_speed),
+            "max_accel": self.vehicle.max_accel,
+            "max_brake": self.vehicle.max_brake,
+            "margin_m": self.calibration.margin_m,
+        }
+
+    def geometries(self) -> dict[str, ScenarioGeometry]:
+        """Road geometry per condition name, for distances along the road."""
+
+        def scenario(where: Condition | Mixture) -> ScenarioConfig:  # a mixture's road: the known one's
+            return where.scenario if isinstance(where, Condition) else self.known.scenario
+
+        return {c.name: build_geometry(scenario(c)) for c in self.conditions}
+
+
+def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...] | tuple[Mixture]:
+    """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather;
+    with ``unknown_as: mixture``, one mixture whose rollouts draw among them (roads and obstacle places alike)."""
+    weathers = {stage.weather.name: stage.weather, **stage.weathers}
+    each = tuple(
+        Condition(
+            ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
+            weathers[item.weather or stage.weather.name],
+            item.noise,
+            item.name,
+        )
+        for item in stage.avoid.unknown
+    )
+    return each if stage.avoid.unknown_as == "cells" else (Mixture(UNKNOWN, each),)
+
+
+def check_horizon(
+    horizon: float, warning: WarningConfig, speed: float, scenario: ScenarioConfig, vehicle: VehicleConfig
+) -> float:
+    """The horizon must let a run that warnings slow down (but do not stop) pass the obstacle: a timeout
+    before it would be a non-answer, neither safe nor a collision."""
+    slowest = (
+        min(a.speed for a in warning.actions if not a.handover) if any(not a.handover for a in warning.actions) else 1.0
+    )
+    if slowest <= 0:
+        raise ConfigError(
+            "warning.actions: a slow-down to speed 0 without a hand-over never passes the obstacle; "
+            "give it a speed > 0 or handover: true"
+        )
+    distance = obstacle_pass_progress(build_geometry(scenario), vehicle.length) - scenario.start_distance
+    needed = distance / (slowest * speed) + 1.0  # + 1 s for the start jitter and speed changes
+    if horizon < needed:
+        raise ConfigError(
+            f"avoid.horizon_s={horizon:g} is too short: a run slowed to {slowest * speed:g} m/s needs "
+            f"{needed:.1f} s to pass the obstacle ({distance:.0f} m); set at least {np.ceil(needed):g}"
+        )
+    return horizon
+
+
+def build_settings(cfg: DictConfig) -> AvoidSettings:
+    """Validate the stage's config and the model file; raises before any rollout, naming key and value."""
+    stage = validate(AvoidStage, cfg)
+    avoid, warning = stage.avoid, stage.warning
+    cells = 1 + (len(avoid.unknown) if avoid.unknown_as == "cells" else 1)
+    family_size = cells * len(Mode) if avoid.family_wise else 1
+    estimator = dataclasses.replace(avoid.estimator, gamma=avoid.gamma / family_size)
+    method = posterior_from_config(stage.model).method
+    horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
+    calibration = avoid.calibration
+    needed = min_calibration_runs(calibration.autonomy_target, calibration.gamma, calibration.calibration_fraction)
+    fixed = max(estimator.fixed_rollouts(), avoid.min_rollouts)
+    if fixed < needed:
+        raise ConfigError(
+            f"avoid.calibration.autonomy_target={calibration.autonomy_target:g} cannot be certified with "
+            f"{fixed} known-condition runs (it needs {needed}); lower it, raise avoid.min_rollouts or tighten "
+            "avoid.theta"
+        )
+    if calibration.order == "learned" and calibration.calibration_fraction == 1:
+        raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
+    bins = stage.experiment.bins
+    model_path = Path(avoid.model_path)
+    trained_by = training_stage(stage.experiment.name, method)
+    cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
+    spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)
+    return AvoidSettings(
+        stage,
+        method,
+        stage.seed,
+        avoid.name,
+        spec,
+        warning,
+        estimator,
+        avoid.validation_seed,
+        Condition(stage.scenario, stage.weather, avoid.known_noise, KNOWN),
+        _unknown_conditions(stage),
+        calibration,
+        stage.camera,
+        stage.vehicle,
+        float(stage.control_hz),
+        horizon,
+        stage.executor,
+        stage.progress,
+        family_size,
+        avoid.min_rollouts,
+    )

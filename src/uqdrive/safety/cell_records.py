@@ -1,0 +1,219 @@
+"""The closed-loop stages' records: an offline-safety cell (metrics/safety/<cell>.json) and an avoid stage's result
+(metrics/avoid/<method>-<replicate>.json), each cell's outcomes in rollout order so cells on the same seeds pair."""
+
+from __future__ import annotations
+
+import dataclasses
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uqdrive.records import read_record, record
+from uqdrive.resolvers import condition_label
+
+
+def safety_cell_name(method: str, replicate: int, location: str, weather: str, noise: float) -> str:
+    """A cell's name in file names and runs, as conf/safety.yaml's `safety.cell` spells it."""
+    return f"{method}-seed{replicate}-{condition_label(location, weather, noise)}"
+
+
+@record
+class SafetyCell:
+    """One offline-safety cell: η̂1 of one controller (method × replicate) at one condition, how its runs failed,
+    and ``outcomes``: each rollout's verdict in index order ("1" safe), which pairs it with every other cell."""
+
+    method: str
+    replicate: int
+    experiment: str
+    location: str
+    weather: str
+    noise: float
+    theta: float
+    gamma: float
+    scheme: str
+    n: int
+    base_seed: int
+    family_size: int  # cells γ was spread over (1: the guarantee holds per cell)
+    fixed_rollouts: int  # rollouts the scheme runs whatever the outcomes: the prefix exact tests may use
+    eta1: float
+    eta1_low: float
+    eta1_high: float
+    rollouts: int
+    steps: int
+    seconds: float
+    collision_rate: float
+    off_road_rate: float
+    left_corridor_rate: float
+    reached_goal_rate: float
+    max_corridor_use: float
+    mean_corridor_use: float | None
+    mean_lateral_deviation: float
+    mean_eta2: float | None  # None: the controller drew no η2 set (sequential draws acting on no warning)
+    mean_mutual_information: float
+    guaranteed: bool
+    outcomes: str
+    config_hash: str
+    unread: int = 0  # rollouts run ahead of a sequential estimator that it never read: time spent, not error
+
+    @property
+    def condition(self) -> tuple[str, str, float]:
+        return self.location, self.weather, self.noise
+
+    @property
+    def name(self) -> str:
+        return safety_cell_name(self.method, self.replicate, self.location, self.weather, self.noise)
+
+    @property
+    def safe(self) -> np.ndarray:
+        return np.frombuffer(self.outcomes.encode(), np.uint8) == ord("1")
+
+
+class Mode(StrEnum):
+    """An avoid cell's warnings: off (only counted) and on (the configured thresholds) on the stage's seeds; off again
+    and calibrated on fresh seeds the calibration never saw. Each of `PAIRS` is two cells on the same seeds."""
+
+    OFF = "off"
+    ON = "on"
+    FRESH_OFF = "fresh_off"
+    CALIBRATED = "calibrated"
+
+    @property
+    def warnings_off(self) -> bool:
+        return self in (Mode.OFF, Mode.FRESH_OFF)
+
+    @property
+    def fresh(self) -> bool:
+        """Drives the validation seeds, which the calibration never saw."""
+        return self in (Mode.FRESH_OFF, Mode.CALIBRATED)
+
+
+PAIRS = ((Mode.ON, Mode.OFF), (Mode.CALIBRATED, Mode.FRESH_OFF))  # (warnings, the same seeds without)
+
+
+@record
+class AvoidCell:
+    """One collision-avoidance cell (condition × warnings mode) of one controller."""
+
+    eta1: float
+    eta1_low: float
+    eta1_high: float
+    n: int
+    handover_rate: float
+    autonomy: float
+    full_speed_fraction: float
+    collision_rate: float
+    off_road_rate: float
+    passed_rate: float
+    timeout_before_obstacle_rate: float
+    handover_distance_min: float | None
+    handover_distance_median: float | None
+    handover_distances: list[float]
+    mean_steps: float
+    seconds: float
+    reused: bool
+    warning0_frames: int
+    warning0_runs: int
+    warning1_frames: int
+    warning1_runs: int
+    warning2_frames: int
+    warning2_runs: int
+    terminations: dict[str, int]
+    guaranteed: bool
+    scheme: str
+    theta: float
+    gamma: float
+    family_size: int
+    fixed_rollouts: int
+    thresholds: dict[str, float]
+    base_seed: int
+    outcomes: str
+
+    @property
+    def safe(self) -> np.ndarray:
+        return np.frombuffer(self.outcomes.encode(), np.uint8) == ord("1")
+
+
+@record
+class MixtureEstimate:
+    """The unknown conditions as one uniform mixture: of their cells (Hoeffding's interval, fixed n), or the one
+    cell whose rollouts drew their variant (its own estimate; ``variants``: each variant's runs and safe runs in
+    the cell's fixed sample, where it has one)."""
+
+    eta1: float
+    eta1_low: float
+    eta1_high: float
+    theta: float
+    gamma: float
+    n: int
+    autonomy: float
+    interval: str
+    variants: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
+
+
+@record
+class CalibrationSummary:
+    """The thresholds Learn-then-Test chose, what it certified (``guarantee``, in words), the replay at them and
+    the closed-loop check on fresh seeds."""
+
+    delta1: float
+    delta2: float
+    tau: float
+    feasible: bool
+    certified: int
+    guarantee: str
+    autonomy_target: float
+    max_certifiable_target: float
+    gamma: float
+    missed_limit: float | None
+    order: str
+    calibration_runs: dict[str, int]
+    learn_runs: dict[str, int]
+    candidates: int
+    replayed: dict[str, Any]
+    fresh_seed_check: dict[str, Any]
+    uncaught_variants: list[dict[str, Any]]
+    replay_check: dict[str, dict[str, float]]
+
+
+@record
+class AvoidResult:
+    """One avoid stage (method × replicate): every cell by condition and mode, the unknown mixtures, the
+    calibration."""
+
+    method: str
+    replicate: int
+    experiment: str
+    cells: dict[str, dict[Mode, AvoidCell]]  # condition → mode → cell
+    unknown: dict[Mode, MixtureEstimate]
+    calibration: CalibrationSummary
+    warning: dict[str, Any]
+    samples_per_frame: int
+    conditions: list[str]
+    horizon_s: float
+    speed: float
+    seconds: float
+
+    def cell(self, condition: str, mode: Mode) -> AvoidCell:
+        return self.cells[condition][mode]
+
+
+def read_safety_cells(folder: str | Path, grid: Any) -> list[SafetyCell]:
+    """Every cell of the ``grid`` (its methods × replicates × locations × weathers × noises), as written."""
+    return [
+        read_record(SafetyCell, Path(folder) / f"{safety_cell_name(m, r, loc, w, x)}.json", "safety")
+        for m in grid.methods
+        for r in grid.replicates
+        for loc in grid.locations
+        for w in grid.weathers
+        for x in grid.noises
+    ]
+
+def read_avoid_results(folder: str | Path, methods: list[str], replicates: list[int]) -> list[AvoidResult]:
+    """Every method × replicate's avoid result, as written."""
+    return [
+        read_record(AvoidResult, Path(folder) / f"{m}-seed{r}.json", f"avoid@{m}-{r}")
+        for m in methods
+        for r in replicates
+    ]

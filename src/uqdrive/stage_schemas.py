@@ -1,0 +1,118 @@
+"""What the stages' configs share (`uqdrive.schema`): the top level every stage has, the experiment, the executor,
+a grid stage's sweep, a posterior's settings.
+
+Each stage's own schema lives beside its code (`CollectStage` in `pipeline/collect_stage.py`, …) and names the sections
+it reads; the values of a stage's own sections are written once, in its conf/<stage>.yaml (its schema gives them
+no defaults), and the shared groups (scenario, weather, the car, warning, model) take theirs from their
+dataclasses. The top level of a stage's config also holds the profile's keys for other stages, so it ignores the
+keys it does not name; every section rejects unknown keys.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import Field
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.schema import Bool, Count, MethodName, NonNegative, Seed, Str, schema
+
+Names = tuple[Str, ...]
+MethodNames = tuple[MethodName, ...]  # conf/model/<name>.yaml
+Noises = tuple[NonNegative, ...]
+NonEmptyNames = Annotated[Names, Field(min_length=1)]
+NonEmptyMethodNames = Annotated[MethodNames, Field(min_length=1)]
+NonEmptyNoises = Annotated[Noises, Field(min_length=1)]
+NonEmptySeeds = Annotated[tuple[Seed, ...], Field(min_length=1)]  # training seeds: the replicates
+
+
+@schema
+class Experiment:
+    """conf/experiment/<name>.yaml: the collected scenarios an experiment trains on, and its class set."""
+
+    name: Str
+    scenarios: NonEmptyNames
+    bins: SteeringBins
+
+
+def training_stage(experiment: str, method: str) -> str:
+    """The DVC stage that trains ``experiment``'s ``method``, every replicate (MCD: the trunk the heads sit on)."""
+    return f"train_mcd@{experiment}" if method == "mcd" else f"train@{experiment}-{method}"
+
+
+@schema
+class ExecutorSettings:
+    """conf/executor/: where rollouts run (a local process pool, or Ray actors at ``address``)."""
+
+    name: Literal["process", "ray"]
+    workers: Count
+    address: Str | None = None  # ray: null starts a local Ray; "auto" or ray://host:port joins a cluster
+
+    def options(self) -> dict[str, Any]:
+        """The backend's own options (unset ones dropped)."""
+        return {} if self.address is None else {"address": self.address}
+
+
+@schema(root=True)
+class Named:
+    """A config group a stage reads only the name of (the stages that use the rest check it)."""
+
+    name: Str
+
+
+@schema
+class Paths:
+    """conf/common.yaml's `paths`: the project (inputs, the MLflow store) and where this run writes."""
+
+    root: Str
+    out: Str
+    raw: Str
+    processed: Str
+    models: Str
+    metrics: Str
+    plots: Str
+
+
+@schema(root=True)
+class Stage:
+    """What every stage's config holds (conf/common.yaml)."""
+
+    seed: Seed  # the training seed: the replicate
+    replicate: Str  # its name (seed<seed>)
+    progress: Bool
+    paths: Paths
+
+
+@schema(root=True)
+class ModelStage(Stage):
+    """A stage that fits or drives a posterior: `model` (conf/model/<method>.yaml) is that class's settings."""
+
+    experiment: Experiment
+    model: dict[str, Any]
+
+    def __post_init__(self) -> None:
+        from uqdrive.models.posterior import posterior_settings  # here: a collect worker imports no torch
+
+        posterior_settings(self.model)
+
+
+@schema
+class Sweep:
+    """The grid a one-process grid stage runs (params.yaml's lists)."""
+
+    weathers: NonEmptyNames
+    noises: NonEmptyNoises
+    methods: MethodNames = ()
+    replicates: tuple[Seed, ...] = ()  # training seeds
+    locations: Names = ()
+
+
+@schema(root=True)
+class SafetyGrid(Stage):
+    """The offline-safety sweep's cells, as a stage that reads them names them (params.yaml's lists)."""
+
+    methods: NonEmptyNames
+    replicates: NonEmptySeeds
+    weathers: NonEmptyNames
+    noises: NonEmptyNoises
+    locations: NonEmptyNames

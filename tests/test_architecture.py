@@ -1,0 +1,84 @@
+"""The shape docs/architecture.md describes: each package imports only the packages below it, no module or class
+name is defined twice, no function runs past 60 lines, and `pipeline/` holds stage functions only."""
+
+import ast
+import collections
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "src" / "uqdrive"
+LAYERS = {  # package → the project packages it may import (root modules are open to all)
+    "uq": set(),
+    "sim": set(),
+    "data": set(),
+    "models": {"data", "uq"},
+    "safety": {"sim", "models", "uq", "data"},
+    "envelope": {"safety", "sim", "models", "uq", "data"},
+    "analysis": {"safety", "envelope", "sim", "models", "uq", "data"},
+    "report": {"analysis", "safety", "envelope", "sim", "models", "uq", "data"},
+}
+TOOLS = {"bench"}  # measure any part; nothing imports them
+
+
+def modules() -> dict[Path, ast.Module]:
+    return {p: ast.parse(p.read_text()) for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def imported_packages(tree: ast.Module) -> set[str]:
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("uqdrive."):
+            names.add(node.module.split(".")[1])
+        elif isinstance(node, ast.Import):
+            names |= {a.name.split(".")[1] for a in node.names if a.name.startswith("uqdrive.")}
+    return names
+
+
+def test_packages_import_only_the_packages_below_them():
+    packages = {p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    upward = []
+    for path, tree in modules().items():
+        here = path.relative_to(PACKAGE).parts[0]
+        if here in LAYERS:
+            for name in imported_packages(tree) & packages - LAYERS[here] - {here}:
+                upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
+        elif path.parent == PACKAGE and path.name not in {"cli.py"}:  # root utilities
+            for name in imported_packages(tree) & ({"pipeline", "report", "analysis"} | TOOLS):
+                upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
+    assert not upward, "\n".join(upward)
+
+
+def test_no_module_or_class_name_is_defined_twice():
+    names, classes = collections.defaultdict(list), collections.defaultdict(list)
+    for path, tree in modules().items():
+        rel = path.relative_to(PACKAGE)
+        if path.name != "__init__.py":
+            names[path.stem].append(str(rel))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                classes[node.name].append(str(rel))
+    names.update({p.name: [*names[p.name], f"{p.name}/"] for p in PACKAGE.iterdir() if p.is_dir()})
+    assert not {k: v for k, v in names.items() if len(v) > 1}
+    assert not {k: v for k, v in classes.items() if len(v) > 1}
+
+
+def test_no_function_runs_past_60_lines():
+    long = [
+        f"{path.relative_to(PACKAGE)}:{node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for path, tree in modules().items()
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > 60
+    ]
+    assert not long, "\n".join(long)
+
+
+def test_pipeline_holds_one_stage_module_per_stage_and_each_run_returns_a_dataclass():
+    stages = sorted(p.name for p in (PACKAGE / "pipeline").glob("*.py") if p.name != "__init__.py")
+    assert all(name.endswith("_stage.py") for name in stages), stages
+    plain = []
+    for path in (PACKAGE / "pipeline").glob("*_stage.py"):
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.FunctionDef) and node.name.startswith("run_"):
+                returns = ast.unparse(node.returns) if node.returns else ""
+                if returns.startswith(("dict", "list", "None")) or not returns:
+                    plain.append(f"{path.name}:{node.name} -> {returns or '?'}")
+    assert not plain, plain
