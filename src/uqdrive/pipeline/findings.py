@@ -32,7 +32,7 @@ from uqdrive.pipeline.records import (
     write_record,
 )
 from uqdrive.schema import OpenUnit, Str, schema, validate
-from uqdrive.uq.findings import Comparison, decide_findings
+from uqdrive.uq.family import Comparison, decide_findings
 from uqdrive.uq.paired import PairedTable, paired_table
 
 Cell = SafetyCell | AvoidCell
