@@ -5,7 +5,7 @@ Knows nothing of the simulator, data or models: it takes posterior class probabi
 ``[n, B, C]`` and the class centres, or 0/1 outcomes.
 Comparisons of cells on the same seeds: exact paired tests (`paired`), Holm and Bonferroni (`multiplicity`),
 intervals over training replicates (`replicates`); the two levels of answer: a family of findings for these
-trained controllers (`family`) with its `verdict`;
+trained controllers (`family`) and method claims over training runs (`claims`), with their `verdict`;
 Learn-then-Test (`ltt`).
 """
 
@@ -14,6 +14,15 @@ from uqdrive.uq.bounds import (
     clopper_pearson_interval,
     clopper_pearson_n,
     massart_n,
+)
+from uqdrive.uq.claims import (
+    ClaimResult,
+    MethodClaim,
+    decide_claim,
+    decide_claims,
+    detectable_difference,
+    replicate_t,
+    replicates_needed,
 )
 from uqdrive.uq.estimators import (
     Estimate,
@@ -93,14 +102,21 @@ __all__ = [
     "steering_moments",
     "within_ball",
     "wilson",
+    "ClaimResult",
     "Comparison",
     "Finding",
+    "MethodClaim",
     "Reason",
     "Verdict",
+    "decide_claim",
+    "decide_claims",
     "decide_finding",
     "decide_findings",
+    "detectable_difference",
     "holm",
     "holm_levels",
+    "replicate_t",
+    "replicates_needed",
     "share_interval",
     "split_gamma",
     "PairedTable",
