@@ -62,12 +62,12 @@ class Finding:
     """One comparison's outcome for these trained controllers.
 
     ``effect``: Σ_r (a_only − b_only) / Σ_r n, η̂_A − η̂_B over all the replicates' pairs. ``share``,
-    ``share_low``, ``share_high``: π̂ = Σ a_only / Σ discordant and its interval at level 1 − ``level`` (the
-    level Holm grants this finding); ``low``, ``high``: that interval mapped to the difference scale at the
-    observed discordance, d̂ (2π − 1) with d̂ = ``discordance`` = Σ discordant / Σ n — a picture of π's
-    interval, not an unconditional interval for Δ (d is estimated, not known). Either excludes 0 (½) exactly
-    when ``significant`` (p ≤ level). ``agreeing``/``opposing``: replicates whose own difference has the
-    pooled sign / the opposite one; ``consistent``: every replicate agrees.
+    ``share_low``, ``share_high``: π̂ = Σ a_only / Σ discordant (½ without discordant pairs) and its interval
+    at level 1 − ``level`` (the level Holm grants this finding); ``low``, ``high``: that interval mapped to the
+    difference scale at the observed discordance, d̂ (2π − 1) with d̂ = ``discordance`` = Σ discordant / Σ n —
+    a picture of π's interval, not an unconditional interval for Δ (d is estimated, not known). Either
+    excludes 0 (½) exactly when ``significant`` (p ≤ level). ``agreeing``/``opposing``: replicates whose own
+    difference has the pooled sign / the opposite one; ``consistent``: every replicate agrees.
     """
 
     name: str
