@@ -124,6 +124,8 @@ def test_the_interval_and_p_value_are_students_paired_t():
     assert (result.estimate, result.low, result.high) == pytest.approx((np.mean(differences), low, high))
     assert result.p_value == pytest.approx(reference.pvalue) and result.sd == pytest.approx(np.std(differences, ddof=1))
     assert result.verdict is Verdict.SUPPORTED and result.reason is Reason.DECIDED and "normal" in result.assumption
+    assert result.detectable == detectable_difference(result.sd, 4, ALPHA)
+    assert result.needed == replicates_needed(result.sd, MARGIN, ALPHA)
     assert decide_claim(claim([(b, a) for a, b in counts]), ALPHA).verdict is Verdict.REFUTED
 
 
@@ -149,6 +151,7 @@ def test_every_cell_at_one_is_equivalent_only_when_the_margin_floor_allows():
 def test_one_replicate_decides_nothing():
     result = decide_claim(claim([(20, 0)]), ALPHA)
     assert (result.low, result.high, result.p_value) == (-1.0, 1.0, 1.0) and result.detectable == np.inf
+    assert result.needed is None
     assert result.verdict is Verdict.UNDECIDED and result.reason is Reason.TOO_FEW_REPLICATES
 
 

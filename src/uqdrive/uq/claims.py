@@ -155,7 +155,8 @@ class MethodClaim:
 class ClaimResult:
     """One method claim decided at ``level`` (α/m in a family of m): the estimate of Δ, its interval and the
     equivalence interval, the p-value, the verdict and, where undecided, the reason; ``detectable``: the |Δ| a
-    design of this many replicates with this sd detects with 80 % power at this level."""
+    design of this many replicates with this sd detects with 80 % power at this level; ``needed``: the
+    replicates that would detect a difference of δ so (None below two replicates: no sd to plan from)."""
 
     name: str
     estimate: float
@@ -166,6 +167,7 @@ class ClaimResult:
     p_value: float
     sd: float
     detectable: float
+    needed: int | None
     replicates: tuple[int, ...]
     level: float
     margin: float
@@ -185,10 +187,12 @@ def decide_claim(claim: MethodClaim, level: float) -> ClaimResult:
     fields = ("estimate", "low", "high", "equivalence_low", "equivalence_high", "p_value", "sd")
     values = {f: float(getattr(result, f)) for f in fields}
     detectable = detectable_difference(values["sd"], len(tables), level)
+    needed = replicates_needed(values["sd"], claim.margin, level) if len(tables) >= 2 else None
     return ClaimResult(
         claim.name,
         **values,
         detectable=detectable,
+        needed=needed,
         replicates=tuple(claim.tables),
         level=float(level),
         margin=float(claim.margin),
