@@ -8,7 +8,7 @@ A fixed family of comparisons, each between two cells on the same rollout seeds,
   condition.
 Each is decided by the stratified exact McNemar test over its replicates, Holm's correction over the whole family
 (family-wise error ≤ α), and the sign rule: a finding whose replicates disagree in sign is not supported
-(`uqdrive.uq.findings`). Only the first k rollouts of a cell enter, k fixed in advance (`fixed_rollouts`), so the
+(`uqdrive.uq.family`). Only the first k rollouts of a cell enter, k fixed in advance (`fixed_rollouts`), so the
 exact tests hold whatever a sequential scheme did next.
 """
 
@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import PAIRS, AvoidCell, AvoidResult, Mode, SafetyCell
-from uqdrive.uq.findings import Comparison, decide_findings
+from uqdrive.uq.family import Comparison, decide_findings
 from uqdrive.uq.paired import PairedTable, paired_table
 
 Cell = SafetyCell | AvoidCell

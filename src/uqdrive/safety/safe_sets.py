@@ -28,7 +28,7 @@ HANDOVER = "handover"  # termination of a run whose warning system braked to a s
 
 
 @dataclass(frozen=True)
-class Verdict:
+class PathVerdict:
     """Outcome of one path. ``reached_goal``: the first exit (roundabout), past the obstacle (obstacle road),
     always True on a straight road. ``corridor_use``: the largest |lateral deviation| of a body corner over
     the lane half-width there (NaN where no lane rule applies); above 1 the car's body left its lane."""
@@ -56,21 +56,21 @@ class SafeSet:
 
     def judge(
         self, geometry: ScenarioGeometry, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, termination: str
-    ) -> Verdict:
-        """Verdict for a path of body-centre poses ``x``, ``y``, ``yaw`` that ended with ``termination``."""
+    ) -> PathVerdict:
+        """The verdict on a path of body-centre poses ``x``, ``y``, ``yaw`` that ended with ``termination``."""
         collision, off_road = termination == "collision", termination == "off_road"
         s, _ = geometry.route.project(np.stack([x, y], axis=1))
         reached = self.goal_progress is None or bool(s.max() >= self.goal_progress)
         if self.half_width is None:
             stopped = termination == HANDOVER
-            return Verdict(
+            return PathVerdict(
                 not (collision or off_road) and (reached or stopped), collision, off_road, False, reached, math.nan
             )
         corners = body_corners(np.asarray(x), np.asarray(y), np.asarray(yaw), *self.car_size)
         corner_s, lateral = geometry.route.project(corners)
         use = float(np.max(np.abs(lateral) / np.interp(corner_s, geometry.route.s, self.half_width)))
         left = use > 1.0
-        return Verdict(not (collision or off_road or left) and reached, collision, off_road, left, reached, use)
+        return PathVerdict(not (collision or off_road or left) and reached, collision, off_road, left, reached, use)
 
     def boundaries(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Left and right corridor edges [N, 2] for figures (None for road-only safe sets)."""

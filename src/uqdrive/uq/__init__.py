@@ -4,7 +4,9 @@ sequential threshold tests with exact error.
 Knows nothing of the simulator, data or models: it takes posterior class probabilities
 ``[n, B, C]`` and the class centres, or 0/1 outcomes.
 Comparisons of cells on the same seeds: exact paired tests (`paired`), Holm and Bonferroni (`multiplicity`),
-intervals over training replicates (`replicates`), a family's findings (`findings`); Learn-then-Test (`ltt`).
+intervals over training replicates (`replicates`); the two levels of answer: a family of findings for these
+trained controllers (`family`) and method claims over training runs (`claims`), with their `verdict`;
+Learn-then-Test (`ltt`).
 """
 
 from uqdrive.uq.bounds import (
@@ -12,6 +14,15 @@ from uqdrive.uq.bounds import (
     clopper_pearson_interval,
     clopper_pearson_n,
     massart_n,
+)
+from uqdrive.uq.claims import (
+    ClaimResult,
+    MethodClaim,
+    decide_claim,
+    decide_claims,
+    detectable_difference,
+    replicate_t,
+    replicates_needed,
 )
 from uqdrive.uq.estimators import (
     Estimate,
@@ -25,7 +36,7 @@ from uqdrive.uq.estimators import (
     sprt_cap,
     wilson,
 )
-from uqdrive.uq.findings import Comparison, Finding, decide_findings
+from uqdrive.uq.family import Comparison, Finding, decide_finding, decide_findings, share_interval
 from uqdrive.uq.measures import (
     FrameMeasures,
     check_samples,
@@ -42,7 +53,7 @@ from uqdrive.uq.measures import (
     steering_moments,
     within_ball,
 )
-from uqdrive.uq.multiplicity import holm, per_cell_gamma
+from uqdrive.uq.multiplicity import holm, holm_levels, split_gamma
 from uqdrive.uq.paired import (
     PairedTable,
     PairedTest,
@@ -55,6 +66,7 @@ from uqdrive.uq.paired import (
 from uqdrive.uq.replicates import ReplicateInterval, replicate_bounded_interval, replicate_t_interval
 from uqdrive.uq.sequential import SequentialScheme, sequential_scheme
 from uqdrive.uq.threshold import ThresholdDecision, ThresholdTest, doubling_looks
+from uqdrive.uq.verdict import Reason, Verdict
 
 __all__ = [
     "Estimate",
@@ -90,11 +102,23 @@ __all__ = [
     "steering_moments",
     "within_ball",
     "wilson",
+    "ClaimResult",
     "Comparison",
     "Finding",
+    "MethodClaim",
+    "Reason",
+    "Verdict",
+    "decide_claim",
+    "decide_claims",
+    "decide_finding",
     "decide_findings",
+    "detectable_difference",
     "holm",
-    "per_cell_gamma",
+    "holm_levels",
+    "replicate_t",
+    "replicates_needed",
+    "share_interval",
+    "split_gamma",
     "PairedTable",
     "PairedTest",
     "difference_interval",

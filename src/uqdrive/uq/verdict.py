@@ -1,0 +1,24 @@
+"""What a comparison concludes, at either level of answer: for these trained controllers (`family`) or for the
+method over its training runs (`claims`). String-valued, so a record serialises it as its text."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class Verdict(StrEnum):
+    SUPPORTED = "supported"  # the difference is established (in the claim's direction, for a method claim)
+    REFUTED = "refuted"  # a method claim: the opposite direction is established
+    EQUIVALENT = "equivalent"  # a method claim: the difference is established to lie within ±δ
+    UNDECIDED = "undecided"  # none of the above; a reason says why
+
+
+class Reason(StrEnum):
+    """Why a comparison is undecided ("" where it is decided)."""
+
+    DECIDED = ""
+    NOT_SIGNIFICANT = "not significant"
+    REPLICATES_DISAGREE = "replicates disagree"
+    NO_DIFFERENCE_IN_A_REPLICATE = "a replicate shows no difference"
+    TOO_FEW_REPLICATES = "fewer than two replicates"
+    INTERVAL_TOO_WIDE = "the interval holds 0 and reaches past the margin"
