@@ -19,7 +19,8 @@ from uqdrive.safety import (
     classify,
     run_rollout,
 )
-from uqdrive.safety.warnings import WarningActions
+from uqdrive.safety.draws import DrawSettings
+from uqdrive.safety.warnings import WarningActions, WarningRule
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.uq import chernoff_n
@@ -73,7 +74,8 @@ def frame(obstacle):
 
 
 def controller(probs: np.ndarray, config: WarningConfig = FAST) -> WarningController:
-    return WarningController(FixedPosterior(probs), BINS, config, eps=0.1, speed=8.0, control_hz=15.0)
+    rule = WarningRule(config, DrawSettings())
+    return WarningController(FixedPosterior(probs), BINS, rule, eps=0.1, speed=8.0, control_hz=15.0)
 
 
 def test_levels_follow_the_paper_thresholds():
@@ -140,7 +142,8 @@ def test_warnings_that_never_fire_leave_the_rollout_unchanged(random_models, obs
     never = WarningConfig(delta1=0.0, delta2=0.0, tau=10.0, theta=0.3)
     with DrivingEnv(horizon_s=1.5) as env:
         off = run_rollout(env, Controller(posterior, BINS, never.samples, 0.1, 8.0), 11, *obstacle, 0.05)
-        on = run_rollout(env, WarningController(posterior, BINS, never, 0.1, 8.0, 15.0), 11, *obstacle, 0.05)
+        rule = WarningRule(never, DrawSettings())
+        on = run_rollout(env, WarningController(posterior, BINS, rule, 0.1, 8.0, 15.0), 11, *obstacle, 0.05)
     assert off.summary() == on.summary()
     for key in ("x", "y", "eta2", "mutual_information", "warning", "command_speed"):
         assert np.array_equal(getattr(off, key), getattr(on, key))

@@ -20,7 +20,14 @@ from uqdrive.safety.executors import (
 from uqdrive.safety.rollout import RolloutResult, run_rollout, run_rollouts
 from uqdrive.safety.runner import CellRun, CellRunner
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, Verdict, safe_set_for
-from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
+from uqdrive.safety.warnings import (
+    WarningAction,
+    WarningActions,
+    WarningConfig,
+    WarningController,
+    WarningRule,
+    classify,
+)
 
 __all__ = [
     "BACKENDS",
@@ -48,6 +55,7 @@ __all__ = [
     "WarningActions",
     "WarningConfig",
     "WarningController",
+    "WarningRule",
     "classify",
     "estimate_safety",
     "make_executor",

@@ -104,12 +104,6 @@ class TierRule:
         return self.delta1 > 0
 
     @property
-    def first_draws(self) -> int:
-        """Draws worth making in a frame's first head call: the first two looks (all draws agreeing settle a
-        tier at δ1 = 0.7 and γ = 0.05 from 9 draws, so the second look, not the first); none if none are read."""
-        return self.looks[min(1, len(self.looks) - 1)] if self.reads_draws else 0
-
-    @property
     def middle_guaranteed(self) -> bool:
         """Whether some η2 gets the middle tier with probability ≥ 1 − γ: only when δ1 − δ2 ≥ 2θ (otherwise every
         η2 of the middle tier lies within θ of a threshold, where either neighbouring tier is acceptable)."""
