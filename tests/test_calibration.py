@@ -334,3 +334,17 @@ def test_the_fresh_seed_check_is_a_record_with_its_p_value():
     assert not fresh_seed_check([False] * 13 + [True], 0.8, 0.05).met  # 13/14 = 0.93 ≥ 0.8, but p = 0.198
     with pytest.raises(ValueError, match="one hand-over flag per run"):
         fresh_seed_check([], 0.8, 0.05)
+
+
+def test_the_replay_takes_the_mi_a_warning_controller_stops_at_not_the_recorded_cap():
+    """A recorded frame whose first 24 draws agree (MI 0, which decides τ = 0.45 since h(3/24) = 0.38 < 0.45) but
+    whose draws to the cap disagree (MI 0.9): a controller at τ = 0.45 stops at 24 draws and raises no warning 0; one
+    at τ = 0.1 (undecided at 24) draws on and slows down. The replay must read the stages as they do."""
+    rule = WarningRule(WarningConfig(theta=0.1, delta1=0.0, delta2=0.0), DrawSettings("sequential", theta=0.1))
+    stages = np.full((30, 3, 3), np.nan)
+    stages[:, 0] = (24, 0.0, 0.0)
+    stages[12] = [(24, 0.0, 0.0), (48, 0.9, 0.01), (185, 0.9, 0.01)]
+    counts = np.broadcast_to(np.array(rule.looks), (30, len(rule.looks)))
+    t = Traces.from_runs([(counts, stages, np.arange(30.0), 29.0, True, 0)], rule.looks)
+    out = replay(t, [rule.with_thresholds(0, 0, 0.45), rule.with_thresholds(0, 0, 0.1)], **ARGS)
+    assert out.full_speed[0, 0] == 1.0 and out.full_speed[1, 0] < 1.0

@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 import torch
-from conftest import CONF
+from conftest import CONF, compose_stage
+from omegaconf import OmegaConf
 from scipy import stats
-from test_uq_tier import tier_probabilities
+from test_uq_tier import tier_probabilities, wrong_tier_rate
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
@@ -19,7 +20,7 @@ from uqdrive.models.posterior import Posterior
 from uqdrive.safety import NO_WARNING, Controller, PolicySpec, WarningConfig, WarningController, run_rollout
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.warnings import WarningRule, levels_of
-from uqdrive.schema import ConfigError
+from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.uq.tier import CONFIDENT, DOUBTFUL, UNSURE
 
@@ -272,3 +273,20 @@ def test_warnings_off_and_on_drive_identically_until_a_warning_first_changes_a_c
                     acted_mid_run += 0 < j
                     assert on.command_speed[j] < off.command_speed[j]
     assert acted_mid_run >= 2 and never_acted >= 2
+
+
+@pytest.mark.parametrize("profile", ["quick", "paper"])
+def test_the_profiles_deployed_tier_rules_compute_their_exact_error_and_say_if_the_middle_tier_is_owed(
+    tmp_path, profile
+):
+    """The rule the avoid stage deploys on each profile (conf/warning, conf/avoid.yaml's draws, the profile's θ):
+    its exact wrong-tier error, recomputed by test_uq_tier's independent DP, is ≤ γ; quick's thresholds lie closer
+    than 2θ, so no η2 is owed the middle tier there."""
+    cfg = compose_stage(tmp_path, "avoid", f"profile={profile}")
+    draws = validate(DrawSettings, OmegaConf.to_container(cfg.avoid.draws, resolve=True), "avoid.draws")
+    rule = WarningRule(WarningConfig.from_config(OmegaConf.to_container(cfg.warning, resolve=True)), draws)
+    outside, anywhere = wrong_tier_rate(rule.tier, rule.tier.theta)
+    print(f"{profile}: {rule.describe()}")
+    assert rule.tier.error == pytest.approx(anywhere, abs=1e-9) and outside <= anywhere + 1e-12 <= 0.05 + 1e-12
+    assert rule.tier.middle_guaranteed == (profile == "paper")
+    assert rule.looks == {"quick": (24, 48, 96, 185), "paper": (24, 48, 96, 192, 384, 738)}[profile]

@@ -85,8 +85,9 @@ class DocumentedRule:
         return UNSURE if (upper, lower) == ("below", "above") else None
 
 
-QUICK = (0.7, 0.6, 0.05, 0.1, 8, 185)  # conf/profile/quick.yaml: θ = 0.1, cap chernoff_n(0.1, 0.05) = 185
-PAPER = (0.7, 0.6, 0.05, 0.05, 8, 738)  # the paper's thresholds, θ = γ = 0.05, at most 738 draws
+# as the profiles deploy them (test_safety_draws composes them): the first look is the first head call's 24 draws
+QUICK = (0.7, 0.6, 0.05, 0.1, 24, 185)  # conf/profile/quick.yaml: θ = 0.1, cap chernoff_n(0.1, 0.05) = 185
+PAPER = (0.7, 0.6, 0.05, 0.05, 24, 738)  # the paper's thresholds, θ = γ = 0.05, at most 738 draws
 
 
 @pytest.mark.parametrize(
@@ -94,6 +95,7 @@ PAPER = (0.7, 0.6, 0.05, 0.05, 8, 738)  # the paper's thresholds, θ = γ = 0.05
     [
         PAPER,
         QUICK,
+        (0.7, 0.6, 0.05, 0.05, 8, 738),  # the paper's, looks from 8
         (0.85, 0.5, 0.05, 0.1, 8, 200),  # a wide unsure tier
         (0.75, 0.75, 0.02, 0.1, 4, 400),  # one threshold: warning 1 never fires
         (0.95, 0.5, 0.05, 0.1, 8, 300),  # δ1's zone clipped at 1
@@ -134,11 +136,11 @@ def test_the_quick_and_paper_settings_are_accepted_and_say_whether_the_middle_ti
         "delta2": 0.6,
         "theta": 0.1,
         "gamma": 0.05,
-        "looks": [8, 16, 32, 64, 128, 185],
+        "looks": [24, 48, 96, 185],
         "wrong_tier_error": quick.error,
         "middle_guaranteed": False,
     }
-    assert TierTest(0.8, 0.6, 0.05, 0.1, 8, 185).middle_guaranteed
+    assert TierTest(0.8, 0.6, 0.05, 0.1, 24, 185).middle_guaranteed
 
 
 def test_a_setting_whose_exact_error_exceeds_gamma_is_refused_in_one_line():
@@ -161,13 +163,18 @@ def test_every_threshold_pair_the_calibration_may_choose_has_a_rule_within_gamma
     checks the worst)."""
     grid = [0.0, 0.5, 0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95, 0.97, 0.98, 0.99, 0.995, 1.0]
     pairs = [(d1, d2) for d1, d2 in itertools.product(grid, grid) if d2 <= d1]
-    worst = max((tier_rule("sequential", d1, d2, 0.05, theta, 8, cap) for d1, d2 in pairs), key=lambda r: r.error)
+    worst = max((tier_rule("sequential", d1, d2, 0.05, theta, 24, cap) for d1, d2 in pairs), key=lambda r: r.error)
     print(f"theta={theta}, cap={cap}: worst exact wrong-tier error {worst.error:.5f}, {worst.describe()}")
     assert worst.error <= 0.05 and wrong_tier_rate(worst, theta)[1] == pytest.approx(worst.error, abs=1e-9)
 
 
 @pytest.mark.parametrize(
-    "rule", [TierTest(*QUICK), TierTest(1.0, 0.6, 0.05, 0.1, 8, 185), FixedTier(0.7, 0.6, 0.05, 0.1, 185)]
+    "rule",
+    [
+        TierTest(0.7, 0.6, 0.05, 0.1, 8, 185),
+        TierTest(1.0, 0.6, 0.05, 0.1, 24, 185),
+        FixedTier(0.7, 0.6, 0.05, 0.1, 185),
+    ],
 )
 def test_recorded_counts_give_the_tier_the_rule_decides_on_the_same_stream(rule):
     """The calibration replays a rule from the counts a warnings-off frame records at every look; the controller
