@@ -126,7 +126,9 @@ def unseen_mutual_information(draws: np.ndarray | int) -> np.ndarray:
     return -share * np.log(share) - (1 - share) * np.log1p(-share)
 
 
-def mi_decided(mi: np.ndarray | float, se: np.ndarray | float, draws: np.ndarray | int, tau: np.ndarray | float):
+def mi_decided(
+    mi: np.ndarray | float, se: np.ndarray | float, draws: np.ndarray | int, tau: np.ndarray | float
+) -> np.ndarray:
     """Whether a warning controller with MI threshold τ stops drawing for MI: τ lies at least `MI_Z` jackknife
     standard errors and the unseen MI of the draws away from the MI (NaN stages never decide)."""
     return np.abs(np.asarray(mi) - tau) >= np.maximum(MI_Z * np.asarray(se), unseen_mutual_information(draws))
