@@ -1,11 +1,11 @@
 """The `avoid` stage on the tiny profile: cells per condition, calibration, reuse, outputs, MLflow runs, the
 summary, clear errors."""
 
-import dataclasses
 import json
 
 import pytest
 from mlflow.tracking import MlflowClient
+from scipy import stats
 
 import uqdrive.safety.runner as runner
 from uqdrive.pipeline.avoid_stage import run_avoid
@@ -52,13 +52,30 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     assert calibration["feasible"] and calibration["certified"] >= 1 and calibration["replayed"]["certified"]
     assert calibration["guarantee"].startswith("With probability ≥ 0.95, each of the")
     assert calibration["calibration_runs"] == {KNOWN: 4, "fog": 4} and calibration["learn_runs"] == {KNOWN: 0, "fog": 0}
-    assert calibration["fresh_seed_check"] == {
-        "known_autonomy": saved["cells"][KNOWN]["calibrated"]["autonomy"],
-        "known_eta1": saved["cells"][KNOWN]["calibrated"]["eta1"],
+    calibrated = saved["cells"][KNOWN]["calibrated"]
+    autonomous = round(calibrated["autonomy"] * 4)  # of the cell's 4 fixed runs
+    p_value = sum(stats.binom.pmf(k, 4, 0.3) for k in range(autonomous, 5))  # P(Bin(4, target) >= autonomous)
+    check = calibration["fresh_seed_check"]
+    assert check == {
+        "runs": 4,
+        "autonomous": autonomous,
+        "target": 0.3,
+        "level": 0.05,
+        "p_value": pytest.approx(p_value),
+        "target_met": p_value <= 0.05,
+        "known_autonomy": calibrated["autonomy"],
+        "known_eta1": calibrated["eta1"],
         "unknown_eta1": saved["unknown"]["calibrated"]["eta1"],
         "base_seed": 300000,
-        "target_met": saved["cells"][KNOWN]["calibrated"]["autonomy"] >= 0.3,
     }
+    rule = calibration["rule"]  # the deployed rule: the calibrated thresholds, the tier rule with its exact error
+    assert (rule["delta1"], rule["delta2"], rule["tau"]) == (
+        calibration["delta1"],
+        calibration["delta2"],
+        calibration["tau"],
+    )
+    assert 0 <= rule["tier"]["wrong_tier_error"] <= rule["tier"]["gamma"]
+    assert calibration["middle_guaranteed"] == rule["tier"]["middle_guaranteed"]
     assert calibration["candidates"] > 100 and set(calibration["replay_check"]) == {KNOWN, "fog"}
     rows = (tmp_path / "plots/avoid/mcd-seed0/tradeoff.csv").read_text().splitlines()
     assert len(rows) == calibration["candidates"] + 1 and rows[0].startswith("delta1,delta2,tau")
@@ -117,10 +134,10 @@ def test_thresholds_actions_and_samples_come_from_config(avoid_config):
             "avoid.horizon_s=10",
         )
     )
-    w = settings.warning
+    w = settings.rule.config
     assert (w.delta1, w.delta2, w.tau, w.actions[0].speed, w.samples) == (0.8, 0.6, 0.3, 0.25, 47)
-    policy = settings.job(settings.known, w, 0).policy.build(15.0)
-    assert isinstance(policy, WarningController) and policy.config == w and policy.n_samples == 47
+    policy = settings.job(settings.known, settings.rule, 0).policy.build(15.0)
+    assert isinstance(policy, WarningController) and policy.rule is settings.rule and policy.n_samples == 47
     assert settings.job(settings.known, None, 0).policy.build(15.0).n_samples == 47  # warnings off: same draws
 
 
@@ -206,13 +223,16 @@ def test_bad_input_fails_before_any_rollout(avoid_config, tmp_path, monkeypatch,
     assert not (tmp_path / "metrics").exists() and not (tmp_path / "mlflow.db").exists()
 
 
-def test_thresholds_at_0_or_1_take_the_fixed_draws_and_others_the_configured_sequential_ones(avoid_config):
-    """The calibration may choose a never- or always-warning candidate; sequential tiers cannot test 0 or 1."""
+def test_warnings_on_and_off_and_thresholds_at_0_or_1_share_the_configured_draws(avoid_config):
+    """The calibration may choose a never- or always-warning candidate: its tier rule decides 0 and 1 too, so every
+    cell, with warnings or without, takes the configured sequential draws and only the warnings differ."""
     settings = build_settings(avoid_config("model=vi"))
-    w = settings.warning
     assert settings.spec.draws.scheme == "sequential"
-    assert settings.job(settings.known, w, 0).policy.draws.scheme == "sequential"
+    assert (
+        settings.job(settings.known, None, 0).policy.draws
+        == settings.job(settings.known, settings.rule, 0).policy.draws
+    )
     for delta1, delta2 in ((0.0, 0.0), (1.0, 0.6), (1.0, 1.0)):
-        edge = dataclasses.replace(w, delta1=delta1, delta2=delta2)
+        edge = settings.rule.with_thresholds(delta1, delta2, 0.45)
         policy = settings.job(settings.known, edge, 0).policy
-        assert policy.draws.scheme == "fixed" and isinstance(policy.build(15.0), WarningController)
+        assert policy.draws.scheme == "sequential" and isinstance(policy.build(15.0), WarningController)

@@ -27,7 +27,7 @@ from uqdrive.models.checkpoint import save_posterior
             ["controller", "--frames", "1", "--methods", "vi"],
             r"RESULT controller controller=(trained|random) worst_ms=[\d.]+ worst_p95_ms=[\d.]+ fixed_worst_ms=[\d.]+ "
             r"min_speedup=[\d.]+ "
-            r"median_draws=\d+",
+            r"median_draws=\d+ recorded_ratio=[\d.]+",
         ),
     ],
 )

@@ -13,8 +13,8 @@ import yaml
 from test_report import markdown_rows
 
 from uqdrive.analysis.method_answers import AvoidSummary, SafetySummary
-from uqdrive.pipeline.findings_stage import Findings
 from uqdrive.models.heldout_eval import HeldoutTable
+from uqdrive.pipeline.findings_stage import Findings
 from uqdrive.records import read_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import findings_markdown

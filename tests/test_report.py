@@ -18,7 +18,15 @@ from uqdrive.pipeline.report_stage import run_report
 from uqdrive.records import write_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import findings_markdown
-from uqdrive.safety.cell_records import AvoidCell, AvoidResult, CalibrationSummary, MixtureEstimate, Mode, SafetyCell
+from uqdrive.safety.cell_records import (
+    AvoidCell,
+    AvoidResult,
+    CalibrationSummary,
+    FreshSeedRecord,
+    MixtureEstimate,
+    Mode,
+    SafetyCell,
+)
 
 METHODS, WEATHERS, NOISES, SEEDS = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05), (0, 1)
 EXPERIMENTS, LOCATIONS, CONDITIONS = ("avoid", "offline"), ("roundabout", "roundabout_large"), ("known", "fog")
@@ -79,7 +87,10 @@ def avoid_result(rng, method, seed) -> AvoidResult:
         **dict(autonomy_target=0.8, max_certifiable_target=0.85, gamma=0.05, missed_limit=None, order="firing"),
         **dict(calibration_runs={"known": N, "fog": N}, learn_runs={"known": 0, "fog": 0}, candidates=729),
         replayed={"eta1_unknown": 0.6},
-        fresh_seed_check={"known_autonomy": 1.0, "unknown_eta1": 0.5},
+        fresh_seed_check=FreshSeedRecord(N, N, 0.8, 0.05, 0.8**N, True, 1.0, 0.9, 0.5, 300000),
+        rule={"delta1": 0.9, "delta2": 0.8, "tau": 0.45, "tier": {"scheme": "sequential", "wrong_tier_error": 0.02}},
+        middle_guaranteed=False,
+        refused={},
         uncaught_variants=[
             {"condition": "fog", "eta1_off": 0.4, "min_eta2_median": 0.97, "max_mutual_information_median": 0.1}
         ]

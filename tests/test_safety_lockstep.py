@@ -1,6 +1,8 @@
 """Rollouts in lockstep: a rollout's result does not depend on which rollouts share its batch, nor on the
 lockstep width or the worker count (the same seeds alone and batched give the same outcomes and traces)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -16,12 +18,23 @@ from uqdrive.safety.controller import Controller
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import PolicySpec, RolloutJob, RolloutWorker, lockstep_chunks, make_executor
 from uqdrive.safety.rollout import run_rollout, run_rollouts
-from uqdrive.safety.warnings import WarningConfig, WarningController
+from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
 
-TRACES = ("x", "y", "eta2", "mutual_information", "warning", "command_speed", "draws", "mutual_information_se")
+TRACES = (
+    "x",
+    "y",
+    "eta2",
+    "mutual_information",
+    "warning",
+    "command_speed",
+    "draws",
+    "mutual_information_se",
+    "eta2_counts",
+    "mi_stages",
+)
 
 
 def assert_same_rollouts(a: list, b: list) -> None:
@@ -79,15 +92,20 @@ def controllers(model_path) -> dict:
     posterior = load_posterior(model_path, expected_method="vi", expected_classes=bins)
     warning = WarningConfig(theta=0.3, delta1=0.45, delta2=0.12, tau=0.03)  # every level fires on random weights
     sequential = DrawSettings("sequential", theta=0.3, gamma=0.1, unacted="skip")
+    # sequential tiers test each threshold ±θ: zones that reach 0 would never say "doubtful" on random weights' η2
+    tiered = WarningRule(
+        WarningConfig(theta=0.2, delta1=0.5, delta2=0.3, tau=0.03), dataclasses.replace(sequential, theta=0.15)
+    )
     return {
         "plain": Controller(posterior, bins, 20, 0.1, 6.0),
-        "warnings": WarningController(posterior, bins, warning, 0.1, 6.0, 15.0),
+        "warnings": WarningController(posterior, bins, WarningRule(warning, DrawSettings()), 0.1, 6.0, 15.0),
         "plain, sequential": Controller(posterior, bins, 40, 0.1, 6.0, sequential),
-        "warnings, sequential": WarningController(posterior, bins, warning, 0.1, 6.0, 15.0, sequential),
+        "plain, recorded": Controller(posterior, bins, 40, 0.1, 6.0, dataclasses.replace(sequential, unacted="record")),
+        "warnings, sequential": WarningController(posterior, bins, tiered, 0.1, 6.0, 15.0),
     }
 
 
-@pytest.mark.parametrize("kind", ["plain", "warnings", "plain, sequential", "warnings, sequential"])
+@pytest.mark.parametrize("kind", ["plain", "warnings", "plain, sequential", "plain, recorded", "warnings, sequential"])
 def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
     """Five seeds, three slots: slots refill as rollouts end, and each frame batch mixes different rollouts."""
     seeds = [31, 32, 33, 34, 35]

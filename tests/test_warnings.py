@@ -10,9 +10,17 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Controller
+from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.rollout import run_rollout
 from uqdrive.safety.safe_sets import HANDOVER
-from uqdrive.safety.warnings import WarningAction, WarningActions, WarningConfig, WarningController, classify
+from uqdrive.safety.warnings import (
+    WarningAction,
+    WarningActions,
+    WarningConfig,
+    WarningController,
+    WarningRule,
+    classify,
+)
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
@@ -67,7 +75,8 @@ def frame(obstacle):
 
 
 def controller(probs: np.ndarray, config: WarningConfig = FAST) -> WarningController:
-    return WarningController(FixedPosterior(probs), BINS, config, eps=0.1, speed=8.0, control_hz=15.0)
+    rule = WarningRule(config, DrawSettings())
+    return WarningController(FixedPosterior(probs), BINS, rule, eps=0.1, speed=8.0, control_hz=15.0)
 
 
 def test_levels_follow_the_paper_thresholds():
@@ -134,7 +143,8 @@ def test_warnings_that_never_fire_leave_the_rollout_unchanged(random_models, obs
     never = WarningConfig(delta1=0.0, delta2=0.0, tau=10.0, theta=0.3)
     with DrivingEnv(horizon_s=1.5) as env:
         off = run_rollout(env, Controller(posterior, BINS, never.samples, 0.1, 8.0), 11, Condition(*obstacle, 0.05))
-        on = run_rollout(env, WarningController(posterior, BINS, never, 0.1, 8.0, 15.0), 11, Condition(*obstacle, 0.05))
+        rule = WarningRule(never, DrawSettings())
+        on = run_rollout(env, WarningController(posterior, BINS, rule, 0.1, 8.0, 15.0), 11, Condition(*obstacle, 0.05))
     assert off.summary() == on.summary()
     for key in ("x", "y", "eta2", "mutual_information", "warning", "command_speed"):
         assert np.array_equal(getattr(off, key), getattr(on, key))

@@ -8,10 +8,18 @@ from collections import Counter
 
 import numpy as np
 
-from uqdrive.safety.avoid_cells import Cell, handover_distances, levels
+from uqdrive.safety.avoid_cells import Cell, handed_over, handover_distances, levels
 from uqdrive.safety.avoidance import AvoidSettings
-from uqdrive.safety.calibration import Calibration, Traces, replay
-from uqdrive.safety.cell_records import AvoidCell, AvoidResult, CalibrationSummary, MixtureEstimate, Mode
+from uqdrive.safety.calibration import Calibration, fresh_seed_check
+from uqdrive.safety.cell_records import (
+    AvoidCell,
+    AvoidResult,
+    CalibrationSummary,
+    FreshSeedRecord,
+    MixtureEstimate,
+    Mode,
+)
+from uqdrive.safety.replay import Traces, replay
 from uqdrive.safety.warnings import LEVELS
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.sim.condition import Mixture
@@ -44,13 +52,20 @@ def avoid_result(
         for mode in Mode
     }
     known = table[names[0]][Mode.CALIBRATED]
-    fresh = {
-        "known_autonomy": known.autonomy,
-        "known_eta1": known.eta1,
-        "unknown_eta1": mixture[Mode.CALIBRATED].eta1,
-        "base_seed": settings.validation_seed,
-        "target_met": known.autonomy >= calib.target,
-    }
+    handed = handed_over(cells[names[0], Mode.CALIBRATED])[:fixed]
+    test = fresh_seed_check(handed, calib.target, calib.gamma)
+    fresh = FreshSeedRecord(
+        test.runs,
+        test.autonomous,
+        test.target,
+        test.level,
+        test.p_value,
+        test.met,
+        known.autonomy,
+        known.eta1,
+        mixture[Mode.CALIBRATED].eta1,
+        settings.validation_seed,
+    )
     check = replay_check(cells, names, settings, traces)
     calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check, fresh)
     return AvoidResult(
@@ -60,8 +75,8 @@ def avoid_result(
         cells=table,
         unknown=mixture,
         calibration=calibration,
-        warning=settings.warning.to_dict(),
-        samples_per_frame=settings.warning.samples,
+        warning=settings.rule.to_dict(),
+        samples_per_frame=settings.rule.cap,
         conditions=names,
         horizon_s=settings.horizon_s,
         speed=settings.spec.speed,
@@ -75,9 +90,8 @@ def cell_metrics(
     """η̂1 with its interval, autonomy, passed and timeout rates, hand-over distances, warning counts, and each
     run's verdict in rollout order (``fixed_rollouts``: how many every cell runs whatever the outcomes)."""
     results, est = cell.results, cell.estimate
-    handover_levels = [lv for lv, a in zip(LEVELS, cell.warning.actions) if a.handover]
     per_run = [levels(cell, r) for r in results]
-    handed = [not cell.mode.warnings_off and bool(np.isin(lv, handover_levels).any()) for lv in per_run]
+    handed = handed_over(cell)
     steps = sum(r.steps for r in results)
     full = sum(int(np.sum(r.command_speed >= cruise - 1e-9)) for r in results)
     where = handover_distances(cell, geometry)
@@ -115,7 +129,7 @@ def cell_metrics(
         gamma=est.gamma,
         family_size=family_size,
         fixed_rollouts=fixed_rollouts,
-        thresholds={"delta1": cell.warning.delta1, "delta2": cell.warning.delta2, "tau": cell.warning.tau},
+        thresholds={"delta1": cell.rule.config.delta1, "delta2": cell.rule.config.delta2, "tau": cell.rule.config.tau},
         base_seed=cell.base_seed,
         outcomes="".join("1" if r.safe else "0" for r in results),
     )
@@ -176,8 +190,7 @@ def replay_check(
 ) -> dict:
     """The replay at the configured thresholds against the warnings-on cells on the same seeds: how well
     the approximation predicts closed loop, run by run."""
-    w = settings.warning
-    out = replay(traces, np.array([w.delta1]), np.array([w.delta2]), np.array([w.tau]), w, **settings.replay_args())
+    out = replay(traces, [settings.rule], **settings.replay_args())
     check = {}
     for g, name in enumerate(calib_groups):
         replayed = out.safe[0, traces.group == g]
@@ -190,7 +203,9 @@ def replay_check(
     return check
 
 
-def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict, fresh: dict) -> CalibrationSummary:
+def calibration_summary(
+    calib: Calibration, uncaught: list[dict], check: dict, fresh: FreshSeedRecord
+) -> CalibrationSummary:
     """The chosen thresholds, what Learn-then-Test certified (and in what words), the replay at them, and the
     closed-loop check on fresh seeds (``fresh``)."""
     row = {
@@ -216,13 +231,7 @@ def calibration_summary(calib: Calibration, uncaught: list[dict], check: dict, f
         fresh_seed_check=fresh,
         uncaught_variants=uncaught,
         replay_check=check,
+        rule=calib.rule.to_dict(),
+        middle_guaranteed=calib.rule.tier.middle_guaranteed,
+        refused={f"{d1:g}/{d2:g}": why for (d1, d2), why in calib.refused.items()},
     )
-
-
-def _configured_index(calib: Calibration, settings: AvoidSettings) -> int | None:
-    """Row of the configured thresholds among the candidates (None if they are off the grids)."""
-    t, w = calib.table, settings.warning
-    hit = np.flatnonzero(
-        np.isclose(t["delta1"], w.delta1) & np.isclose(t["delta2"], w.delta2) & np.isclose(t["tau"], w.tau)
-    )
-    return int(hit[0]) if hit.size else None

@@ -90,12 +90,31 @@ UNKNOWN = "unknown mixture"
 
 
 @record
+class DeployedRule:
+    """One controller's calibrated warning rule as deployed in its calibrated cells: its settings (thresholds,
+    actions, draws, tier rule), what Learn-then-Test certified in words, the tier rule's exact wrong-tier error and
+    whether its middle tier is guaranteed, and the fresh-seed test of its known-condition autonomy."""
+
+    method: str
+    replicate: int
+    rule: dict[str, Any]
+    guarantee: str
+    tier_error: float
+    middle_guaranteed: bool
+    fresh_runs: int
+    fresh_p_value: float
+    target_met: bool
+
+
+@record
 class AvoidSummary:
     """metrics/avoid.json: every method's answer over its replicates per condition × warnings mode (and for the
-    unknown conditions' mixture), which guarantee the cells carry, and the paper's numbers."""
+    unknown conditions' mixture), which guarantee the cells carry, each controller's deployed rule, and the paper's
+    numbers."""
 
     answers: list[MethodAnswer]
     family_size: int
+    deployed: list[DeployedRule]
     paper: dict[str, Any]
 
     def answer(self, method: str, condition: str, mode: Mode) -> MethodAnswer:
@@ -126,4 +145,19 @@ def summarise_avoid(results: list[AvoidResult], methods: list[str]) -> AvoidSumm
             ]
             answers.append(method_answer(method, f"{UNKNOWN}/{mode}", mixtures, gamma))
     family = first.cells[first.conditions[0]][Mode.OFF].family_size
-    return AvoidSummary(answers, family, paper.to_dict())
+    return AvoidSummary(answers, family, [deployed_rule(r) for r in results], paper.to_dict())
+
+
+def deployed_rule(result: AvoidResult) -> DeployedRule:
+    k = result.calibration
+    return DeployedRule(
+        result.method,
+        result.replicate,
+        k.rule,
+        k.guarantee,
+        float(k.rule["tier"]["wrong_tier_error"]),
+        k.middle_guaranteed,
+        k.fresh_seed_check.runs,
+        k.fresh_seed_check.p_value,
+        k.fresh_seed_check.target_met,
+    )

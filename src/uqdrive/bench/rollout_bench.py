@@ -36,7 +36,7 @@ from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, Policy
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import PolicySpec, RolloutJob
-from uqdrive.safety.warnings import WarningConfig, WarningController
+from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import SimConfig
@@ -158,8 +158,8 @@ def agreement(posterior, bins, draws: DrawSettings, frames: list) -> tuple[float
     2 x 738 draws (the warning config's defaults), that of two seeds of the fixed draws, and ``draws``' mean draws
     per frame."""
     config = WarningConfig()
-    fixed = WarningController(posterior, bins, config, 0.1, 6.0, 15.0, DrawSettings("fixed"))
-    chosen = WarningController(posterior, bins, config, 0.1, 6.0, 15.0, draws)
+    fixed = WarningController(posterior, bins, WarningRule(config, DrawSettings("fixed")), 0.1, 6.0, 15.0)
+    chosen = WarningController(posterior, bins, WarningRule(config, draws), 0.1, 6.0, 15.0)
     same, floor, used = 0, 0, 0
     for i, (frame, info) in enumerate(frames):
         commands = []

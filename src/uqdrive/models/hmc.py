@@ -330,7 +330,7 @@ def diagnostics_summary(settings: HMCSettings, extra: dict) -> str:
 
 
 class HMCPosterior(StoredHeadPosterior):
-    """OutcomeStream index the stored samples: without replacement when n ≤ S, with replacement when n > S."""
+    """Draws index the stored samples: without replacement when n ≤ S, with replacement when n > S."""
 
     method = "hmc"
     Settings = HMCSettings

@@ -24,7 +24,7 @@ set-up (GGN Hessian, full covariance, GLM predictive) is a few closed forms:
   0.355 and 0.218 → 0.214). The train stage's validation metrics are not held out for λ (one number chosen
   among 41); the evaluate stage's frames are.
 Checked once against laplace-torch 0.3 (last_layer, full Hessian) on a toy network: Hessian and GLM logit
-covariance agree to 1e-6 (its float32). OutcomeStream are drawn per frame from its C×C logit Gaussian (as VI's
+covariance agree to 1e-6 (its float32). Draws are drawn per frame from its C×C logit Gaussian (as VI's
 local reparameterisation does): exact per frame, and n·C normals instead of n·P.
 
 The learning curve has one row per MAP epoch (the MAP head alone: a Laplace posterior of zero covariance)

@@ -8,7 +8,7 @@ A method is one subclass: it names itself (`method`), declares the dataclass its
 `conf/model/<method>.yaml` fills (`Settings`) and fits itself (`fit`). The yaml names the class
 by Hydra's `_target_`, and model files record it, so the pipeline needs no list of methods.
 
-OutcomeStream are only promised to be exact *per frame*: MCD and HMC share draw s across the frames
+Draws are only promised to be exact *per frame*: MCD and HMC share draw s across the frames
 of a batch, VI draws its pre-activations per frame (local reparameterisation, same per-frame
 distribution, ~100x fewer random numbers). No consumer may rely on draw s being the same
 network for two frames.

@@ -30,25 +30,23 @@ from uqdrive.records import as_dict, write_record
 from uqdrive.safety.avoid_cells import Cell, distances, panel, traces_of
 from uqdrive.safety.avoid_files import write_cell_data, write_cell_table, write_signals, write_tradeoff
 from uqdrive.safety.avoidance import AvoidSettings, build_settings
-from uqdrive.safety.calibration import Calibration, Traces, calibrate
+from uqdrive.safety.calibration import Calibration, calibrate
 from uqdrive.safety.cell_records import AvoidResult, Mode
+from uqdrive.safety.replay import Traces
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
-from uqdrive.safety.warnings import WarningConfig, classify
+from uqdrive.safety.warnings import WarningRule
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.tracking import numeric_metrics, stage_run
 
 Cells = dict[tuple[str, Mode], Cell]
 
 
-def unchanged_by(warning: WarningConfig, off: Cell) -> dict[int, RolloutResult]:
-    """Warnings-off rollouts in which ``warning`` never fires: with warnings on, the same seed gives the
-    same frames, draws and measures, no action ever changes a command, so the rollout is identical."""
-    return {
-        i: r
-        for i, r in enumerate(off.results)
-        if not (classify(r.eta2, r.mutual_information, warning.delta1, warning.delta2, warning.tau) >= 0).any()
-    }
+def unchanged_by(rule: WarningRule, off: Cell) -> dict[int, RolloutResult]:
+    """Warnings-off rollouts in which ``rule`` never fires on the recorded draws: with warnings on, the same seed
+    gives the same frames and the same draws (each frame's streams are its own), no action ever changes a command,
+    so the outcome and path are identical (the per-frame η2 and MI traces are the off run's, read to the cap)."""
+    return {i: r for i, r in enumerate(off.results) if not (rule.levels(r.eta2_counts, r.mi_stages) >= 0).any()}
 
 
 def run_cell(
@@ -56,17 +54,16 @@ def run_cell(
     settings: AvoidSettings,
     where: Condition | Mixture,
     mode: Mode,
-    warning: WarningConfig,
+    rule: WarningRule,
     off: Cell | None = None,
 ) -> Cell:
     """η̂1 of one cell; the rollouts its log already holds (same identity) are replayed, not rerun, so a finished
-    cell costs nothing on a rerun and an interrupted one resumes. Warnings-off modes drive without warnings
-    (``warning``'s are only counted); fresh modes drive the validation seeds. ``off``: the warnings-off cell on the
-    same seeds, whose rollouts no warning would change are reused exactly (with fixed draws only: sequential draws
-    differ between a controller that acts on warnings and one that does not)."""
+    cell costs nothing on a rerun and an interrupted one resumes. Warnings-off modes drive without warnings, on
+    the same draws (``rule``'s are only counted); fresh modes drive the validation seeds. ``off``: the warnings-off
+    cell on the same seeds, whose rollouts the rule never changes are reused."""
     base_seed = settings.validation_seed if mode.fresh else settings.estimator.base_seed
     estimator = dataclasses.replace(settings.estimator, base_seed=base_seed)
-    job = settings.job(where, None if mode.warnings_off else warning, base_seed)
+    job = settings.job(where, None if mode.warnings_off else rule, base_seed)
     name = f"{settings.name}-{where.name}-{mode}"
     run = runner.estimate(
         f"avoid {name}",
@@ -74,10 +71,10 @@ def run_cell(
         estimator,
         estimate_key(job, estimator, __name__),
         Path(settings.stage.avoid.rollout_log) / f"{name}.jsonl",
-        reuse=unchanged_by(warning, off) if off is not None and settings.spec.draws.scheme == "fixed" else None,
+        reuse=unchanged_by(rule, off) if off is not None else None,
         floor=settings.min_rollouts,
     )
-    return Cell(name, where.name, mode, warning, run.outcome, run.results, run.seconds, run.reused, base_seed)
+    return Cell(name, where.name, mode, rule, run.outcome, run.results, run.seconds, run.reused, base_seed)
 
 
 def calibration_of(settings: AvoidSettings, cells: Cells) -> tuple[Calibration, Traces]:
@@ -87,7 +84,7 @@ def calibration_of(settings: AvoidSettings, cells: Cells) -> tuple[Calibration, 
     calib = calibrate(
         traces,
         names,
-        settings.warning,
+        settings.rule,
         list(c.deltas),
         list(c.taus),
         c.autonomy_target,
@@ -106,10 +103,10 @@ def drive(settings: AvoidSettings) -> tuple[Cells, Calibration, Traces]:
     cells: Cells = {}
     with CellRunner.of(settings.executor, settings.progress) as runner:
         for where in settings.conditions:
-            off = cells[where.name, Mode.OFF] = run_cell(runner, settings, where, Mode.OFF, settings.warning)
-            cells[where.name, Mode.ON] = run_cell(runner, settings, where, Mode.ON, settings.warning, off)
+            off = cells[where.name, Mode.OFF] = run_cell(runner, settings, where, Mode.OFF, settings.rule)
+            cells[where.name, Mode.ON] = run_cell(runner, settings, where, Mode.ON, settings.rule, off)
         calib, traces = calibration_of(settings, cells)
-        calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
+        calibrated = calib.rule  # the rule certified is the rule deployed
         for where in settings.conditions:
             fresh = cells[where.name, Mode.FRESH_OFF] = run_cell(runner, settings, where, Mode.FRESH_OFF, calibrated)
             cells[where.name, Mode.CALIBRATED] = run_cell(runner, settings, where, Mode.CALIBRATED, calibrated, fresh)
@@ -137,9 +134,8 @@ def plot(settings: AvoidSettings, cells: Cells, calib: Calibration) -> dict[str,
         ]
         for c in names
     }
-    calibrated = settings.warning.with_thresholds(calib.delta1, calib.delta2, calib.tau)
     title = f"{settings.name}, warnings off: uncertainty approaching the obstacle"
-    figures["warnings"] = avoid_signals_figure(signals, settings.warning, calibrated, title)
+    figures["warnings"] = avoid_signals_figure(signals, settings.rule.config, calib.rule.config, title)
     title = f"{settings.name}: unknown-condition safety against known autonomy (replayed)"
     figures["tradeoff"] = avoid_tradeoff_figure(
         calib.table, calib.chosen, configured_index(calib, settings), calib.target, title
@@ -149,7 +145,7 @@ def plot(settings: AvoidSettings, cells: Cells, calib: Calibration) -> dict[str,
 
 def configured_index(calib: Calibration, settings: AvoidSettings) -> int | None:
     """Row of the configured thresholds among the candidates (None if they are off the grids)."""
-    t, w = calib.table, settings.warning
+    t, w = calib.table, settings.rule.config
     hit = np.flatnonzero(
         np.isclose(t["delta1"], w.delta1) & np.isclose(t["delta2"], w.delta2) & np.isclose(t["tau"], w.tau)
     )
@@ -177,10 +173,12 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
         params = {
             "condition": condition,
             "warnings": str(mode),
-            "delta1": cell.warning.delta1,
-            "delta2": cell.warning.delta2,
-            "tau": cell.warning.tau,
-            "samples_per_frame": cell.warning.samples,
+            "delta1": cell.rule.config.delta1,
+            "delta2": cell.rule.config.delta2,
+            "tau": cell.rule.config.tau,
+            "samples_per_frame": cell.rule.cap,
+            "tier_error": cell.rule.tier.error,
+            "middle_guaranteed": cell.rule.tier.middle_guaranteed,
             "n": cell.estimate.n,
         }
         with stage_run(root, "avoid", cfg, run_name=cell.name, tags={"reused": str(cell.reused).lower()}):
@@ -197,6 +195,8 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
                 "calibrated_tau": k.tau,
                 "autonomy_target": k.autonomy_target,
                 "calibration_certified": k.certified,
+                "fresh_seed_p_value": k.fresh_seed_check.p_value,
+                "fresh_seed_target_met": k.fresh_seed_check.target_met,
             }
         )
         mlflow.log_metrics({f"replayed_{key}": float(v) for key, v in k.replayed.items()})

@@ -7,23 +7,23 @@ import dataclasses
 
 import numpy as np
 
-from uqdrive.safety.calibration import Traces
 from uqdrive.safety.cell_records import Mode
+from uqdrive.safety.replay import Traces
 from uqdrive.safety.rollout import RolloutResult
-from uqdrive.safety.warnings import LEVELS, WarningConfig, classify
+from uqdrive.safety.warnings import LEVELS, WarningRule
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.uq import Estimate
 
 
 @dataclasses.dataclass
 class Cell:
-    """A finished cell: its estimate, rollouts and the thresholds its warnings are counted with.
+    """A finished cell: its estimate, rollouts and the warning rule its warnings are raised or counted with.
     ``reused``: every rollout came from an earlier run's log of the same cell."""
 
     name: str
     condition: str
     mode: Mode
-    warning: WarningConfig
+    rule: WarningRule
     estimate: Estimate
     results: list[RolloutResult]
     seconds: float
@@ -32,11 +32,11 @@ class Cell:
 
 
 def levels(cell: Cell, result: RolloutResult) -> np.ndarray:
-    """Warning level per frame: as raised (warnings on) or as the cell's thresholds would have raised them (off)."""
+    """Warning level per frame: as raised (warnings on) or as the cell's rule would have raised them on the same
+    draws (off: read from the recorded η2 counts and MI stages)."""
     if not cell.mode.warnings_off:
         return result.warning
-    w = cell.warning
-    return classify(result.eta2, result.mutual_information, w.delta1, w.delta2, w.tau)
+    return cell.rule.levels(result.eta2_counts, result.mi_stages)
 
 
 def progress_along(geometry: ScenarioGeometry, result: RolloutResult) -> tuple[np.ndarray, float]:
@@ -55,11 +55,19 @@ def distances(result: RolloutResult, geometry: ScenarioGeometry) -> np.ndarray:
     return obstacle_progress(geometry) - progress_along(geometry, result)[0]
 
 
+def handed_over(cell: Cell) -> list[bool]:
+    """Per run, whether the warnings handed control over (always False with warnings off)."""
+    if cell.mode.warnings_off:
+        return [False] * len(cell.results)
+    handover_levels = [lv for lv, a in zip(LEVELS, cell.rule.config.actions) if a.handover]
+    return [bool(np.isin(r.warning, handover_levels).any()) for r in cell.results]
+
+
 def handover_distances(cell: Cell, geometry: ScenarioGeometry) -> list[float]:
     """Distance to the obstacle at the first hand-over frame of each run that handed over (warnings on)."""
     if cell.mode.warnings_off:
         return []
-    handover_levels = [lv for lv, a in zip(LEVELS, cell.warning.actions) if a.handover]
+    handover_levels = [lv for lv, a in zip(LEVELS, cell.rule.config.actions) if a.handover]
     out = []
     for r in cell.results:
         fired = np.flatnonzero(np.isin(r.warning, handover_levels))
@@ -70,13 +78,14 @@ def handover_distances(cell: Cell, geometry: ScenarioGeometry) -> list[float]:
 
 def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry], first: int) -> Traces:
     """Rollouts 0 … ``first`` − 1 of the warnings-off ``cells`` as replay input (a number fixed in advance, so
-    exact tests on them hold whatever a sequential scheme did next); group g = the g-th cell's condition."""
+    exact tests on them hold whatever a sequential scheme did next): each frame's recorded η2 counts at the rule's
+    looks and MI stages; group g = the g-th cell's condition."""
     runs = []
     for g, cell in enumerate(cells):
         for r in cell.results[:first]:
             s, end = progress_along(geometries[cell.condition], r)
-            runs.append((r.eta2, r.mutual_information, s, end, r.safe, g))
-    return Traces.from_runs(runs)
+            runs.append((r.eta2_counts, r.mi_stages, s, end, r.safe, g))
+    return Traces.from_runs(runs, cells[0].rule.looks)
 
 
 def obstacle_box(geometry: ScenarioGeometry) -> np.ndarray:

@@ -19,7 +19,7 @@ from uqdrive.safety.cells import EstimatorSettings, cell_posterior
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.safety.safe_sets import obstacle_pass_progress
-from uqdrive.safety.warnings import WarningConfig
+from uqdrive.safety.warnings import WarningConfig, WarningRule
 from uqdrive.schema import (
     Bool,
     ConfigError,
@@ -145,7 +145,7 @@ class AvoidSettings:
     seed: int  # the replicate's training seed
     name: str  # <method>-<replicate>
     spec: PolicySpec
-    warning: WarningConfig
+    rule: WarningRule  # the configured warnings, as the controller deploys them and the calibration replays them
     estimator: EstimatorSettings
     validation_seed: int
     known: Condition
@@ -168,14 +168,9 @@ class AvoidSettings:
         """Rollouts every cell runs whatever its outcomes: the prefix paired tests and the calibration may use."""
         return max(self.estimator.fixed_rollouts(), self.min_rollouts)
 
-    def job(self, where: Condition | Mixture, warning: WarningConfig | None, base_seed: int) -> RolloutJob:
-        """The rollouts of one cell: ``warning`` None drives without the warning system. Sequential draws test
-        each threshold inside (0, 1); thresholds the calibration may choose at 0 or 1 (never or always warning)
-        have no indifference zone to test in, so such a cell takes the paper's fixed draws."""
-        draws = self.spec.draws
-        if warning is not None and not 0 < warning.delta2 <= warning.delta1 < 1:
-            draws = dataclasses.replace(draws, scheme="fixed")
-        policy = dataclasses.replace(self.spec, warnings=warning, draws=draws)
+    def job(self, where: Condition | Mixture, rule: WarningRule | None, base_seed: int) -> RolloutJob:
+        """The rollouts of one cell: ``rule`` None drives without the warning system (on the same draws)."""
+        policy = dataclasses.replace(self.spec, warnings=rule)
         return RolloutJob(policy, where, base_seed, self.camera, self.vehicle, self.control_hz, self.horizon_s)
 
     def replay_args(self) -> dict[str, float]:
@@ -261,6 +256,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     model_path = Path(avoid.model_path)
     trained_by = training_stage(stage.experiment.name, method)
     cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
+    rule = WarningRule(warning, avoid.draws)  # refused here, before any rollout, if its tier rule errs above γ
     spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)
     return AvoidSettings(
         stage,
@@ -268,7 +264,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         stage.seed,
         avoid.name,
         spec,
-        warning,
+        rule,
         estimator,
         avoid.validation_seed,
         Condition(stage.scenario, stage.weather, avoid.known_noise, KNOWN),

@@ -1,5 +1,10 @@
 """Choosing the warning thresholds (δ1, δ2, τ) by replaying recorded warnings-off rollouts, with a guarantee.
 
+What is replayed is the rule that will be deployed (`WarningRule`: the thresholds, the tier rule that decides
+η2's tier from a frame's draws, the actions): each candidate is the deployed rule at its thresholds, reading the
+recorded η2 streams as its controller reads them (`uqdrive.safety.replay`), and the chosen candidate is the
+object the calibrated cells deploy.
+
 The paper sets δ1 = 0.7, δ2 = 0.6, τ = 0.45 by looking at how uncertainty behaves as the car
 approaches the obstacle, and asks of the result two things at once: safety in unknown
 conditions, and full autonomy in the known one. Calibration makes that joint claim the
@@ -12,125 +17,38 @@ replayed unknown-condition safety) needs no further correction. Checking each ca
 then choosing among the 729 would not do: the bound that was checked is not the bound that holds for
 the one chosen. "Always hand over" is safe and useless; the autonomy constraint rules it out. The
 never-firing candidate (δ1 = δ2 = 0, τ = 10 nats) is always on the grid and first in the default order;
-where nothing is certified the calibration falls back to it and says so.
+where nothing is certified the calibration falls back to it and says so. A candidate whose tier rule is refused
+(its exact wrong-tier error above γ, `uqdrive.uq.tier`) cannot be deployed and is left out.
+
+The certificate is the replayed one: exact up to each run's first warning action, approximate after it (the
+replay keeps the recorded path). The closed-loop claim is the fresh-seed check's (`fresh_seed_check`): the
+deployed rule's known-condition autonomy on runs it never saw, by one exact test fixed in advance.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
-from uqdrive.safety.controller import NO_WARNING
-from uqdrive.safety.warnings import WarningActions, WarningConfig, classify
+from uqdrive.safety.replay import Replay, Traces, replay
+from uqdrive.safety.warnings import WarningConfig, WarningRule
+from uqdrive.schema import ConfigError
 from uqdrive.uq import clopper_pearson_interval
 from uqdrive.uq.ltt import fixed_sequence, interleaved_split, pareto_order, rate_above_p
 
 
 @dataclasses.dataclass(frozen=True)
-class Traces:
-    """Warnings-off rollouts padded to F frames, for replaying warning thresholds over them.
-
-    ``progress``: metres along the route at each frame; ``end_progress``: where the run ended
-    (for an unsafe run, where it collided or left the road); ``group``: the run's condition.
-    """
-
-    eta2: np.ndarray  # [R, F], padding 1.0
-    mutual_information: np.ndarray  # [R, F], padding 0.0
-    progress: np.ndarray  # [R, F], padding: the end progress
-    frames: np.ndarray  # [R] real frames per run
-    end_progress: np.ndarray  # [R]
-    safe: np.ndarray  # [R]
-    group: np.ndarray  # [R] index into the group names
-
-    @classmethod
-    def from_runs(cls, runs: list[tuple[np.ndarray, np.ndarray, np.ndarray, float, bool, int]]) -> Traces:
-        """From (eta2, mutual_information, progress, end_progress, safe, group) per run."""
-        if not runs:
-            raise ValueError("calibration needs at least one recorded rollout")
-        width = max(1, max(len(r[0]) for r in runs))
-        eta2, mi, progress = np.ones((len(runs), width)), np.zeros((len(runs), width)), np.zeros((len(runs), width))
-        for i, (e, m, s, end, _, _) in enumerate(runs):
-            eta2[i, : len(e)], mi[i, : len(m)] = e, m
-            progress[i] = end
-            progress[i, : len(s)] = s
-        return cls(
-            eta2,
-            mi,
-            progress,
-            np.array([len(r[0]) for r in runs]),
-            np.array([r[3] for r in runs], float),
-            np.array([r[4] for r in runs], bool),
-            np.array([r[5] for r in runs], np.int64),
-        )
-
-
-@dataclasses.dataclass(frozen=True)
-class Replay:
-    """Replayed outcome per candidate × run: safe, handed over, fraction of frames at full speed."""
-
-    safe: np.ndarray  # [C, R]
-    handover: np.ndarray  # [C, R]
-    full_speed: np.ndarray  # [C, R]
-
-
-def replay(
-    traces: Traces,
-    delta1: np.ndarray,
-    delta2: np.ndarray,
-    tau: np.ndarray,
-    config: WarningConfig,
-    control_hz: float,
-    cruise: float,
-    start_speed: float,
-    max_accel: float,
-    max_brake: float,
-    margin_m: float,
-) -> Replay:
-    """What candidate thresholds (arrays [C]) would have done on recorded warnings-off runs.
-
-    Approximation (the path is the recorded one; only the speed is replayed):
-    each frame is seen where the warnings-off car saw it; the warnings' actions set the speed,
-    which follows within the car's accel/brake limits over the distance between frames. A
-    hand-over (warning 2 with the default actions) at frame k stops the car within
-    v_k²/(2·max_brake); an unsafe run counts as saved if that, plus ``margin_m``, fits before
-    the point where it collided or left the road, and a safe run stays safe. Slow-downs change
-    the outcome only through a shorter stopping distance; in closed loop they also change the
-    path, which is why calibrated thresholds are validated with real rollouts.
-    """
-    delta1, delta2, tau = (np.asarray(v, float)[:, None] for v in (delta1, delta2, tau))
-    n_cand, (n_runs, width) = delta1.shape[0], traces.eta2.shape
-    actions = WarningActions(config.actions, round(config.hold_s * control_hz), (n_cand, n_runs))
-    speed = np.full((n_cand, n_runs), float(start_speed))
-    saved = np.zeros((n_cand, n_runs), dtype=bool)
-    stopped_at = np.full((n_cand, n_runs), -1)
-    full = np.zeros((n_cand, n_runs))
-    for k in range(width):
-        live = (k < traces.frames)[None] & (stopped_at < 0)
-        levels = classify(traces.eta2[None, :, k], traces.mutual_information[None, :, k], delta1, delta2, tau)
-        factor, _, handover = actions.step(np.where(live, levels, NO_WARNING))
-        full += live & (factor >= 1.0)
-        now = live & handover
-        room = traces.end_progress - traces.progress[:, k]
-        saved |= now & (room[None] >= speed**2 / (2 * max_brake) + margin_m)
-        stopped_at = np.where(now, k, stopped_at)
-        step = np.clip((traces.progress[:, min(k + 1, width - 1)] - traces.progress[:, k]), 0, None)[None]
-        target = cruise * factor
-        up = np.minimum(target, np.sqrt(speed**2 + 2 * max_accel * step))
-        down = np.maximum(target, np.sqrt(np.maximum(speed**2 - 2 * max_brake * step, 0)))
-        speed = np.where(live, np.where(target >= speed, up, down), speed)
-    driven = np.where(stopped_at >= 0, stopped_at + 1, traces.frames[None])
-    return Replay(traces.safe[None] | saved, stopped_at >= 0, full / np.maximum(driven, 1))
-
-
-@dataclasses.dataclass(frozen=True)
 class Calibration:
-    """Chosen thresholds, what Learn-then-Test certified, and every candidate's replayed outcome.
+    """The chosen rule, what Learn-then-Test certified, and every candidate's replayed outcome.
 
-    ``feasible``: the chosen candidate is certified (False: nothing was, and it is the never-firing one).
+    ``rule``: the chosen candidate, the `WarningRule` object the calibrated cells deploy (δ1, δ2, τ: its
+    thresholds). ``feasible``: it is certified (False: nothing was, and it is the never-firing one).
     ``certified``: how many candidates are. ``calibration_runs``/``learn_runs``: runs per condition in each
     split. ``max_target``: the highest autonomy target the known calibration runs could certify at level γ
-    (no hand-over in any). ``guarantee``: the claim in words, or what could not be certified.
+    (no hand-over in any). ``refused``: candidate (δ1, δ2) pairs left out, their tier rule refused (why).
+    ``guarantee``: the claim in words, or what could not be certified.
 
     ``table`` columns per candidate: delta1, delta2, tau; autonomy (known runs with no hand-over) and
     autonomy_low (its own exact lower bound at level 1 − γ: descriptive, it does not account for the
@@ -141,9 +59,7 @@ class Calibration:
     rejected); feasible (the same as certified, the column the trade-off figure marks).
     """
 
-    delta1: float
-    delta2: float
-    tau: float
+    rule: WarningRule
     feasible: bool
     target: float
     gamma: float
@@ -155,10 +71,23 @@ class Calibration:
     order: str
     missed_limit: float | None
     max_target: float
+    refused: dict[tuple[float, float], str] = dataclasses.field(default_factory=dict)
+
+    @property
+    def delta1(self) -> float:
+        return self.rule.config.delta1
+
+    @property
+    def delta2(self) -> float:
+        return self.rule.config.delta2
+
+    @property
+    def tau(self) -> float:
+        return self.rule.config.tau
 
     @property
     def guarantee(self) -> str:
-        """The claim in words, or why there is none."""
+        """The claim in words, naming the rule it holds for, or why there is none."""
         runs = f"{next(iter(self.calibration_runs.values()))} known-condition calibration runs"
         if not self.feasible:
             first = self.table["p_value"][self.table["sequence"] == 0]
@@ -166,7 +95,7 @@ class Calibration:
                 f"Nothing certified at gamma={self.gamma:g}: the first candidate of the {self.order} order has "
                 f"p = {first[0] if first.size else 1.0:.3g}. {runs} can certify known-condition autonomy "
                 f"≥ {self.max_target:.3f} at most (no hand-over in any); fell back to the never-firing thresholds "
-                "(no warnings)."
+                f"(no warnings): {self.rule.describe()}."
             )
         missed = (
             ""
@@ -177,9 +106,42 @@ class Calibration:
             f"With probability ≥ {1 - self.gamma:g}, each of the {self.certified} certified candidates, the chosen "
             f"one among them, keeps the replayed known-condition autonomy ≥ {self.target:g}{missed} "
             f"(Learn-then-Test: exact binomial p-values on {runs}, fixed-sequence testing along the {self.order} "
-            "order). It assumes independent runs whose number was fixed before they ran; the replay keeps each "
-            "recorded path, so closed-loop cells on fresh seeds check what the thresholds achieve."
+            f"order). Chosen and deployed rule: {self.rule.describe()}. The replay reads each run's recorded η2 "
+            "draws as this rule's controller reads them, so it is exact up to a run's first warning action; after "
+            "a slow-down the closed-loop path departs from the recorded one, which the replay keeps (an "
+            "approximation). It assumes independent runs whose number was fixed before they ran. The closed-loop "
+            "claim is the fresh-seed check's."
         )
+
+
+@dataclasses.dataclass(frozen=True)
+class FreshSeedCheck:
+    """The deployed rule's known-condition autonomy on fresh closed-loop runs, by one exact test fixed in advance:
+    H0 "autonomy < ``target``" (autonomy: the share of runs without a hand-over), one-sided exact binomial,
+    p = P(Bin(``runs``, target) ≥ ``autonomous``). ``met``: H0 rejected at ``level`` — a rule whose autonomy is
+    below the target is declared to meet it with probability ≤ level."""
+
+    runs: int
+    autonomous: int
+    target: float
+    level: float
+    p_value: float
+    met: bool
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def fresh_seed_check(handed_over: Sequence[bool] | np.ndarray, target: float, level: float) -> FreshSeedCheck:
+    """The test of `FreshSeedCheck` on ``handed_over`` (one entry per fresh run; their number fixed before they
+    ran, e.g. a cell's fixed rollouts): the same exact binomial p-value as the calibration's nulls."""
+    handed = np.asarray(handed_over, bool)
+    if handed.ndim != 1 or not handed.size:
+        raise ValueError(f"the fresh-seed check needs one hand-over flag per run, got shape {handed.shape}")
+    if not 0 < level < 1:
+        raise ValueError(f"the fresh-seed check's level must be in (0, 1), got {level!r}")
+    p = float(rate_above_p(int(handed.sum()), handed.size, 1 - target))
+    return FreshSeedCheck(handed.size, int((~handed).sum()), float(target), float(level), p, p <= level)
 
 
 NEVER_FIRES = (0.0, 0.0, 10.0)  # η2 < 0 is impossible and MI ≤ ln C < 10 nats: no warning, full autonomy
@@ -192,6 +154,22 @@ def candidates(deltas: list[float], taus: list[float]) -> tuple[np.ndarray, np.n
     rows = [*dict.fromkeys([*rows, NEVER_FIRES])]
     d1, d2, t = (np.array(c, float) for c in zip(*rows))
     return d1, d2, t
+
+
+def candidate_rules(
+    rule: WarningRule, deltas: list[float], taus: list[float]
+) -> tuple[list[WarningRule], dict[tuple[float, float], str]]:
+    """The deployed ``rule`` at every candidate's thresholds (`candidates`), and the (δ1, δ2) pairs left out
+    because their tier rule is refused (exact wrong-tier error above γ), with the reason."""
+    rules, refused = [], {}
+    for d1, d2, t in zip(*candidates(deltas, taus)):
+        if (d1, d2) in refused:
+            continue
+        try:
+            rules.append(rule.with_thresholds(d1, d2, t))
+        except ConfigError as err:
+            refused[float(d1), float(d2)] = str(err)
+    return rules, refused
 
 
 def pareto(autonomy: np.ndarray, safety: np.ndarray) -> np.ndarray:
@@ -285,10 +263,20 @@ def replayed_table(
     return table
 
 
+def _check_calibration(traces: Traces, groups: list[str], order: str, calibration_fraction: float) -> None:
+    counts = [int(np.sum(traces.group == g)) for g in range(len(groups))]
+    if len(groups) < 2 or min(counts) == 0:
+        raise ValueError(
+            f"calibration needs runs of the known and at least one unknown condition, got {dict(zip(groups, counts))}"
+        )
+    if order not in ORDERS or (order == "learned" and calibration_fraction >= 1):
+        raise ValueError(f"order={order!r} must be one of {ORDERS}; 'learned' needs calibration_fraction < 1")
+
+
 def calibrate(
     traces: Traces,
     groups: list[str],
-    config: WarningConfig,
+    rule: WarningRule,
     deltas: list[float],
     taus: list[float],
     target: float,
@@ -299,41 +287,34 @@ def calibrate(
     order: str = "firing",
     **replay_args: float,
 ) -> Calibration:
-    """Thresholds certified by Learn-then-Test at family-wise error ``gamma`` to keep the replayed known-condition
-    autonomy ≥ ``target`` (and each unknown condition's replayed missed-collision rate ≤ ``missed_limit``, if
-    given); among the certified, the most replayed unknown-condition η̂1.
+    """The deployed ``rule`` at thresholds certified by Learn-then-Test at family-wise error ``gamma`` to keep the
+    replayed known-condition autonomy ≥ ``target`` (and each unknown condition's replayed missed-collision rate
+    ≤ ``missed_limit``, if given); among the certified, the most replayed unknown-condition η̂1.
 
     ``groups[0]`` is the known condition, the others the unknown ones (``traces.group`` indexes ``groups``;
     each condition's runs in rollout order). Run index i calibrates iff ⌊(i + 1) f⌋ > ⌊i f⌋ with f =
     ``calibration_fraction``; the other indices form the learn split, which ``order="learned"`` ranks the
     candidates on (it needs f < 1; the default ``"firing"`` order needs no runs, so f = 1 tests on every run).
     The choice among the certified uses every run: the guarantee holds for all of them at once. Ties go to
-    more autonomy, then more time at full speed, then the candidate closest to ``config``'s thresholds. With
+    more autonomy, then more time at full speed, then the candidate closest to ``rule``'s thresholds. With
     nothing certified it returns the never-firing candidate with ``feasible`` False.
     """
-    counts = [int(np.sum(traces.group == g)) for g in range(len(groups))]
-    if len(groups) < 2 or min(counts) == 0:
-        raise ValueError(
-            f"calibration needs runs of the known and at least one unknown condition, got {dict(zip(groups, counts))}"
-        )
-    if order not in ORDERS or (order == "learned" and calibration_fraction >= 1):
-        raise ValueError(f"order={order!r} must be one of {ORDERS}; 'learned' needs calibration_fraction < 1")
-    thresholds = candidates(deltas, taus)
-    out = replay(traces, *thresholds, config, **replay_args)
+    _check_calibration(traces, groups, order, calibration_fraction)
+    rules, refused = candidate_rules(rule, deltas, taus)
+    thresholds = tuple(np.array([getattr(r.config, k) for r in rules]) for k in ("delta1", "delta2", "tau"))
+    out = replay(traces, rules, **replay_args)
     index = run_index(traces.group)
     calibrating = interleaved_split(int(index.max()) + 1, calibration_fraction)[index]
     table = replayed_table(out, traces, groups, thresholds, gamma)
     table |= certify(out, traces.group, calibrating, table, target, gamma, missed_limit, order)
-    best = choose(table, config)
+    best = choose(table, rule.config)
     split, learn = (
         {name: int(np.sum(part & (traces.group == g))) for g, name in enumerate(groups)}
         for part in (calibrating, ~calibrating)
     )
     known = split[groups[0]]
     return Calibration(
-        float(table["delta1"][best]),
-        float(table["delta2"][best]),
-        float(table["tau"][best]),
+        rules[best],
         bool(table["certified"][best]),
         float(target),
         float(gamma),
@@ -345,6 +326,7 @@ def calibrate(
         order,
         missed_limit,
         float(gamma ** (1 / known)) if known else 0.0,
+        refused,
     )
 
 

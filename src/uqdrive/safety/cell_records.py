@@ -153,9 +153,29 @@ class MixtureEstimate:
 
 
 @record
+class FreshSeedRecord:
+    """The calibrated rule in closed loop on fresh seeds: its known-condition autonomy tested by one exact test fixed
+    in advance (H0 "autonomy < ``target``" on the cell's ``runs`` fixed runs, one-sided exact binomial; ``target_met``:
+    rejected at ``level``), and its η̂1 known and in the unknown conditions (descriptive)."""
+
+    runs: int
+    autonomous: int
+    target: float
+    level: float
+    p_value: float
+    target_met: bool
+    known_autonomy: float
+    known_eta1: float
+    unknown_eta1: float
+    base_seed: int
+
+
+@record
 class CalibrationSummary:
-    """The thresholds Learn-then-Test chose, what it certified (``guarantee``, in words), the replay at them and
-    the closed-loop check on fresh seeds."""
+    """The thresholds Learn-then-Test chose, what it certified (``guarantee``, in words, naming the deployed rule),
+    the deployed rule itself (``rule``: thresholds, actions, draws, the tier rule with its exact wrong-tier error and
+    whether the middle tier is guaranteed), the candidates whose tier rule was refused, the replay at the chosen
+    thresholds and the closed-loop check on fresh seeds."""
 
     delta1: float
     delta2: float
@@ -172,9 +192,12 @@ class CalibrationSummary:
     learn_runs: dict[str, int]
     candidates: int
     replayed: dict[str, Any]
-    fresh_seed_check: dict[str, Any]
+    fresh_seed_check: FreshSeedRecord
     uncaught_variants: list[dict[str, Any]]
     replay_check: dict[str, dict[str, float]]
+    rule: dict[str, Any]
+    middle_guaranteed: bool
+    refused: dict[str, str]  # "delta1/delta2" → why its tier rule was refused
 
 
 @record
@@ -209,6 +232,7 @@ def read_safety_cells(folder: str | Path, grid: Any) -> list[SafetyCell]:
         for w in grid.weathers
         for x in grid.noises
     ]
+
 
 def read_avoid_results(folder: str | Path, methods: list[str], replicates: list[int]) -> list[AvoidResult]:
     """Every method × replicate's avoid result, as written."""

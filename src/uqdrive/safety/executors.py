@@ -27,7 +27,7 @@ from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controlle
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
-from uqdrive.safety.warnings import WarningConfig, WarningController
+from uqdrive.safety.warnings import WarningController, WarningRule
 from uqdrive.schema import ConfigError
 from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, ConditionSource
@@ -47,9 +47,10 @@ class PolicySpec:
     """A picklable recipe for a policy, built once in each worker.
 
     kind: ``bnn`` (posterior from ``model_path``), ``autopilot`` or ``constant`` (``steer``).
-    ``warnings``: a ``bnn`` policy with the warning system (its ``samples`` must be the warning
-    config's Chernoff n). ``draws``: how many posterior draws a ``bnn`` frame takes (`DrawSettings`:
-    the paper's fixed ``samples`` + ``samples``, or sequential with ``samples`` as the cap).
+    ``warnings``: a ``bnn`` policy with the warning system, deployed by this `WarningRule` (its cap must be
+    ``samples`` and its draw settings ``draws``: warnings on and off differ only by the warnings). ``draws``: how
+    many posterior draws a ``bnn`` frame takes (`DrawSettings`: the paper's fixed ``samples`` + ``samples``, or
+    sequential with ``samples`` as the cap).
     """
 
     kind: str
@@ -61,32 +62,25 @@ class PolicySpec:
     eps: float = 0.1
     steer: float = 0.0
     autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
-    warnings: WarningConfig | None = None
+    warnings: WarningRule | None = None
     draws: DrawSettings = dataclasses.field(default_factory=DrawSettings)
 
     def __post_init__(self) -> None:
         if self.kind not in POLICIES:
             raise ValueError(f"policy kind {self.kind!r} is not known; choose one of {list(POLICIES)}")
-        if self.warnings is not None and (self.kind != "bnn" or self.samples != self.warnings.samples):
-            raise ValueError(
-                f"a policy with warnings must be kind 'bnn' with samples={self.warnings.samples} "
-                f"(chernoff_n of warning.theta, warning.gamma), got kind={self.kind!r}, "
-                f"samples={self.samples}"
-            )
         w = self.warnings
-        if w is not None and self.draws.scheme == "sequential" and not 0 < w.delta2 <= w.delta1 < 1:
-            raise ConfigError(
-                f"warning.delta1={w.delta1!r}, warning.delta2={w.delta2!r}: sequential draws test each threshold, "
-                "so they need 0 < delta2 <= delta1 < 1 (use draws.scheme=fixed for thresholds of 0 or 1)"
+        if w is not None and (self.kind != "bnn" or self.samples != w.cap or w.draws != self.draws):
+            raise ValueError(
+                f"a policy with warnings must be kind 'bnn' with samples={w.cap} (chernoff_n of warning.theta, "
+                f"warning.gamma) and the rule's draws {w.draws}, got kind={self.kind!r}, samples={self.samples}, "
+                f"draws {self.draws}"
             )
 
     def build(self, control_hz: float) -> Policy:
         if self.kind == "bnn":
             posterior = load_posterior(Path(self.model_path), expected_method=self.method, expected_classes=self.bins)
             if self.warnings is not None:
-                return WarningController(
-                    posterior, self.bins, self.warnings, self.eps, self.speed, control_hz, self.draws
-                )
+                return WarningController(posterior, self.bins, self.warnings, self.eps, self.speed, control_hz)
             return Controller(posterior, self.bins, self.samples, self.eps, self.speed, self.draws)
         if self.kind == "autopilot":
             return AutopilotPolicy(self.autopilot)

@@ -29,8 +29,11 @@ def _empty() -> np.ndarray:
 class RolloutResult:
     """Outcome of one episode; ``x``, ``y`` are the body-centre positions at every control step
     (and the last pose). Per-decision traces (one value per step): ``eta2``, ``mutual_information``,
-    ``warning`` (level, -1 for none), ``command_speed``, ``draws`` (posterior draws the step took) and
-    ``mutual_information_se`` (how precise the MI is at those draws: its jackknife standard error)."""
+    ``warning`` (level, -1 for none), ``command_speed``, ``draws`` (posterior draws the step took),
+    ``mutual_information_se`` (how precise the MI is at those draws: its jackknife standard error) and
+    ``eta2_counts`` [steps, looks] (successes at each look of the step's η2 stream; -1 past the looks read) and
+    ``mi_stages`` [steps, stages, 3] (draws, MI, SE at each stage of its π(o) draws; NaN past those read): what a
+    warning rule reads (`uqdrive.safety.warnings.WarningRule.levels`)."""
 
     seed: int
     safe: bool
@@ -52,6 +55,8 @@ class RolloutResult:
     command_speed: np.ndarray = field(default_factory=_empty)
     draws: np.ndarray = field(default_factory=_empty)
     mutual_information_se: np.ndarray = field(default_factory=_empty)
+    eta2_counts: np.ndarray = field(default_factory=_empty)
+    mi_stages: np.ndarray = field(default_factory=_empty)
 
     def summary(self) -> dict:
         """The scalar fields (one row of the per-rollout table)."""
@@ -170,4 +175,16 @@ def _result(episode: _Episode, safe_set: SafeSet | None, half_width: float | Non
         command_speed=np.array([c.speed for c in commands], dtype=float),
         draws=np.array([c.draws for c in commands], dtype=np.int32),
         mutual_information_se=np.array([c.mutual_information_se for c in commands], dtype=float),
+        eta2_counts=_padded([c.eta2_counts for c in commands], -1, np.int32),
+        mi_stages=_padded([c.mi_stages for c in commands], np.nan, float),
     )
+
+
+def _padded(rows: list[tuple], fill: float, dtype: type) -> np.ndarray:
+    """[steps, longest, ...] of each step's tuple, ``fill`` past its end."""
+    width = max((len(row) for row in rows), default=0)
+    inner = next((np.shape(row)[1:] for row in rows if len(row)), ())
+    out = np.full((len(rows), width, *inner), fill, dtype=dtype)
+    for i, row in enumerate(rows):
+        out[i, : len(row)] = row
+    return out

@@ -6,7 +6,9 @@ action: a speed as a fraction of the cruise speed, an alert to the operator, and
 (brake to a stop and give control to the operator; once fired it holds until the car stops).
 The classification and the actions are vectorised over a batch, so the live controller (a
 batch of one) and the threshold calibration (a batch of candidate thresholds × rollouts) run
-the same code.
+the same code. `WarningRule` is the deployed rule as one object — thresholds, the tier rule that
+decides η2's tier from a frame's draws, the actions — which the controller acts by and the
+calibration replays.
 """
 
 from __future__ import annotations
@@ -20,10 +22,10 @@ import numpy as np
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Command, Controller
-from uqdrive.safety.draws import DrawSettings, FrameDecision
-from uqdrive.schema import Bool, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
+from uqdrive.safety.draws import DrawSettings, FrameDecision, first_draws, refined_mutual_information
+from uqdrive.schema import Bool, ConfigError, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
 from uqdrive.uq import chernoff_n
-from uqdrive.uq.tier import DOUBTFUL, UNSURE, TierTest
+from uqdrive.uq.tier import DOUBTFUL, UNSURE, TierRule, tier_rule
 
 LEVELS = (0, 1, 2)
 
@@ -139,14 +141,80 @@ def classify(
     return np.where(eta2 < delta2, 2, np.where(eta2 < delta1, 1, np.where(mi > tau, 0, NO_WARNING))).astype(np.int8)
 
 
-def warning_level(tier: int, mutual_information: float, tau: float) -> int:
-    """One frame's level from its η2 tier (`uqdrive.safety.draws`: decided by the frame's draws) and its MI: what
-    `classify` gives from η2 itself."""
-    if tier == DOUBTFUL:
-        return 2
-    if tier == UNSURE:
-        return 1
-    return 0 if mutual_information > tau else NO_WARNING
+def levels_of(tiers: np.ndarray | int, mutual_information: np.ndarray | float, tau: np.ndarray | float) -> np.ndarray:
+    """Warning levels from η2 tiers (decided by a tier rule from the frames' draws) and MI, broadcast: what
+    `classify` gives from η2 itself — DOUBTFUL → 2, UNSURE → 1, confident with MI > τ → 0, else none."""
+    tiers, mi = np.asarray(tiers), np.asarray(mutual_information, dtype=float)
+    return np.where(tiers == DOUBTFUL, 2, np.where(tiers == UNSURE, 1, np.where(mi > tau, 0, NO_WARNING))).astype(
+        np.int8
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class WarningRule:
+    """The warning rule a controller deploys: thresholds, actions and hold (``config``) and how a frame's η2 tier is
+    decided from its draws (``draws``: `TierTest` for sequential draws, `FixedTier` for the paper's fixed ones,
+    built once, its exact wrong-tier error checked against γ). The warning controller acts by it and the
+    threshold calibration replays it on recorded η2 streams: one object, so the rule certified is the rule
+    deployed. Raises `ConfigError` (one line naming the settings and the error) for a tier rule above γ."""
+
+    config: WarningConfig
+    draws: DrawSettings
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tier", self._tier_rule())
+
+    def _tier_rule(self) -> TierRule:
+        c, d = self.config, self.draws
+        sequential = d.scheme == "sequential"
+        theta, gamma = (d.theta, d.gamma) if sequential else (c.theta, c.gamma)
+        try:
+            return tier_rule(d.scheme, c.delta1, c.delta2, gamma, theta, first_draws(d, c.samples), c.samples)
+        except ValueError as err:
+            keys = "draws.theta, draws.gamma and draws.look" if sequential else "warning.theta, warning.gamma"
+            raise ConfigError(
+                f"warning.delta1={c.delta1!r}, warning.delta2={c.delta2!r}: {err} (set by {keys}; its cap by "
+                "warning.theta, warning.gamma)"
+            ) from None
+
+    @property
+    def cap(self) -> int:
+        """η2 draws per frame at most (Chernoff's n for the warning config's θ, γ)."""
+        return self.config.samples
+
+    @property
+    def looks(self) -> tuple[int, ...]:
+        return self.tier.looks
+
+    def with_thresholds(self, delta1: float, delta2: float, tau: float) -> WarningRule:
+        """The same rule (tier settings, actions, hold) at other thresholds."""
+        return WarningRule(self.config.with_thresholds(delta1, delta2, tau), self.draws)
+
+    def levels(self, eta2_counts: np.ndarray, mi_stages: np.ndarray) -> np.ndarray:
+        """Warning levels of recorded frames (η2 counts [..., looks], MI stages [..., S, 3]): what the controller
+        raises on the same draws."""
+        tau = self.config.tau
+        return levels_of(self.tier.tiers(eta2_counts), refined_mutual_information(mi_stages, tau), tau)
+
+    def describe(self) -> str:
+        """The rule in words, for certificates and reports."""
+        c, t = self.config, self.tier
+        middle = "guaranteed" if t.middle_guaranteed else "not guaranteed (delta1 - delta2 < 2 theta)"
+        actions = "; ".join(
+            f"warning{level} speed {a.speed:g}"
+            + (" + alert" if a.alert else "")
+            + (" + hand-over" if a.handover else "")
+            for level, a in zip(LEVELS, c.actions)
+        )
+        return (
+            f"delta1={c.delta1:g}, delta2={c.delta2:g}, tau={c.tau:g} nats; {t.scheme} tier rule theta={t.theta:g}, "
+            f"gamma={t.gamma:g}, looks {'/'.join(map(str, t.looks))} (exact wrong-tier error {t.error:.4f}; middle "
+            f"tier {middle}); {actions}; hold {c.hold_s:g} s"
+        )
+
+    def to_dict(self) -> dict:
+        """Plain values for records: the thresholds and actions, the draw settings, the tier rule with its error."""
+        return self.config.to_dict() | {"draws": dict(self.draws.__dict__), "tier": self.tier.settings()}
 
 
 class WarningActions:
@@ -176,51 +244,32 @@ class WarningActions:
 
 
 class WarningController(Controller):
-    """The Bayesian controller with the warning system: π(o) steers, the warning level sets the speed.
+    """The Bayesian controller with the warning system: π(o) steers, the warning level of ``rule`` sets the speed.
 
-    OutcomeStream ``config.samples`` weight samples per frame (Chernoff's n for the config's θ, γ).
-    A hand-over brakes with the steering wheel held where it was when it fired (the network is
-    not trusted any more), at speed 0 with ``handover`` set; the rollout ends once the car has stopped.
-    Each lockstep slot keeps its own actions' state.
+    Draws as the rule's draw settings say (`uqdrive.safety.draws`; its cap: Chernoff's n for the config's θ, γ)
+    and decides each frame's η2 tier by the rule's tier rule. A hand-over brakes with the steering wheel held
+    where it was when it fired (the network is not trusted any more), at speed 0 with ``handover`` set; the
+    rollout ends once the car has stopped. Each lockstep slot keeps its own actions' state.
     """
 
     def __init__(
-        self,
-        posterior: Posterior,
-        bins: SteeringBins,
-        config: WarningConfig,
-        eps: float,
-        speed: float,
-        control_hz: float,
-        draws: DrawSettings | None = None,
+        self, posterior: Posterior, bins: SteeringBins, rule: WarningRule, eps: float, speed: float, control_hz: float
     ):
-        super().__init__(posterior, bins, config.samples, eps, speed, draws)
-        self.config = config
-        if self.draws.scheme == "sequential":
-            self.tier = TierTest(
-                config.delta1, config.delta2, self.draws.gamma, self.draws.theta, self.draws.look, self.n_samples
-            )
-        self.hold_frames = round(config.hold_s * control_hz)
-        self.actions = {0: WarningActions(config.actions, self.hold_frames)}
+        super().__init__(posterior, bins, rule.cap, eps, speed, rule.draws)
+        self.rule, self.tier, self.tau = rule, rule.tier, rule.config.tau
+        self.hold_frames = round(rule.config.hold_s * control_hz)
+        self.actions = {0: WarningActions(rule.config.actions, self.hold_frames)}
         self.held_steer: dict[int, float | None] = {0: None}
 
     def reset(self, env, seed: int, slot: int = 0) -> None:
         super().reset(env, seed, slot)
-        self.actions[slot] = WarningActions(self.config.actions, self.hold_frames)
+        self.actions[slot] = WarningActions(self.rule.config.actions, self.hold_frames)
         self.held_steer[slot] = None
-
-    @property
-    def thresholds(self) -> tuple[float, float]:
-        return self.config.delta1, self.config.delta2
-
-    @property
-    def tau(self) -> float:
-        return self.config.tau
 
     def commands(self, slots: Sequence[int], frames: Sequence[FrameDecision], infos: Sequence[dict]) -> list[Command]:
         """π(o) steers, the frame's warning level sets the speed (and may hand over)."""
         commands = super().commands(slots, frames, infos)
-        levels = [warning_level(f.tier, f.mutual_information, self.config.tau) for f in frames]
+        levels = [int(levels_of(f.tier, f.mutual_information, self.rule.config.tau)) for f in frames]
         return [self._act_on(*args) for args in zip(slots, commands, levels, infos)]
 
     def _act_on(self, slot: int, command: Command, level: int, info: dict) -> Command:

@@ -1,6 +1,6 @@
 """Sequential test of a Bernoulli rate η against a threshold δ, with exact error.
 
-OutcomeStream come in looks (cumulative counts ``looks``, the last one the cap). At a look with k successes
+Draws come in looks (cumulative counts ``looks``, the last one the cap). At a look with k successes
 in n draws the test says "above" when P(Bin(n, δ − θ) ≥ k) ≤ ``above_level`` (that many successes
 are implausible if η sat at the lower edge of the indifference zone), "below" when
 P(Bin(n, δ + θ) ≤ k) ≤ ``below_level``, and otherwise draws on; where both hold, the smaller tail
