@@ -1,4 +1,5 @@
-"""`uqdrive bench sim|posterior|controller|rollout` run end to end on small sizes and end with their RESULT line.
+"""`uqdrive bench sim|posterior|gym_step|controller|rollout` run end to end on small sizes and end with their
+RESULT line.
 
 Only the output contract is tested here; the speed targets are measured by running the
 benchmarks themselves (README), never asserted in timed tests.
@@ -23,6 +24,10 @@ from uqdrive.models.checkpoint import save_posterior
     [
         (["sim", "--steps", "30", "--repeats", "1"], r"RESULT sim step_over_render=[\d.]+"),
         (["posterior", "--samples", "50", "--repeats", "2"], r"RESULT posterior worst_ms=[\d.]+ min_speedup=[\d.]+"),
+        (
+            ["gym_step", "--world", "uqdrive", "--steps", "30", "--repeats", "1"],
+            r"RESULT gym_step adapter_over_env=[\d.]+",
+        ),
         (
             ["controller", "--frames", "1", "--methods", "vi"],
             r"RESULT controller controller=(trained|random) worst_ms=[\d.]+ worst_p95_ms=[\d.]+ fixed_worst_ms=[\d.]+ "

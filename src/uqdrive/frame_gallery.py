@@ -16,19 +16,10 @@ import numpy as np
 
 from uqdrive.data.frames import preprocess_frame
 from uqdrive.sim.autopilot import Autopilot
-from uqdrive.sim.config import ScenarioConfig, WeatherConfig
+from uqdrive.sim.config import ScenarioConfig, WeatherConfig, find_conf
 from uqdrive.sim.env import DrivingEnv
 
 WEATHERS = ("clear_noon", "afternoon", "rain", "fog")
-
-
-def find_conf(start: Path | None = None) -> Path:
-    """The repo's ``conf/`` directory: searched upwards from the working directory, then from this file."""
-    for base in (start or Path.cwd(), Path(__file__).resolve()):
-        for d in (base, *base.parents):
-            if (d / "conf" / "weather").is_dir():
-                return d / "conf"
-    raise FileNotFoundError("no conf/weather directory found; pass --conf")
 
 
 def _size(text: str) -> tuple[int, int]:

@@ -271,6 +271,15 @@ def check_noise(noise: float) -> float:
     return validate(NonNegative, noise, "noise")
 
 
+def find_conf(start: Path | None = None) -> Path:
+    """The repo's ``conf/`` directory: searched upwards from the working directory, then from this file."""
+    for base in (start or Path.cwd(), Path(__file__).resolve()):
+        for d in (base, *base.parents):
+            if (d / "conf" / "weather").is_dir():
+                return d / "conf"
+    raise FileNotFoundError("no conf/weather directory above the working directory or this package")
+
+
 def _load_group_file(path: Path) -> Any:
     from omegaconf import OmegaConf
 

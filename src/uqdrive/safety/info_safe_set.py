@@ -1,0 +1,45 @@
+"""The safe set of a Gymnasium world (`uqdrive.sim.gym_world`): a predicate over every step's info.
+
+A path is safe when every recorded step (the reset's included) has each ``safe_if`` key at its required value
+(e.g. HighwayEnv: ``crashed: false, on_road: true``) and the episode did not end in a collision or off the road.
+There is no goal beyond staying safe for the horizon, so ``reached_goal`` is always True (a run that ends
+early has failed the predicate or been handed over), and no corridor: ``left_corridor`` says the predicate failed
+at some step, ``corridor_use`` is NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from uqdrive.safety.safe_sets import Verdict
+from uqdrive.sim.gym_world import GymEpisode, GymWorldConfig
+
+
+@dataclass(frozen=True)
+class InfoSafeSet:
+    """``safe_if``: info key → the value it must have at every step."""
+
+    safe_if: Mapping[str, bool] = field(default_factory=lambda: {"collision": False, "off_road": False})
+    kind: str = "info"
+
+    @classmethod
+    def of(cls, config: GymWorldConfig) -> InfoSafeSet:
+        return cls(dict(config.safe_if))
+
+    def judge(self, geometry: GymEpisode, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, termination: str) -> Verdict:
+        """Verdict for the episode ``geometry`` records (the world's ``geometry``); the poses are not needed."""
+        if not isinstance(geometry, GymEpisode):
+            raise TypeError(f"InfoSafeSet judges a GymWorld's episodes, got a {type(geometry).__name__}")
+        infos = geometry.infos
+        held = all(bool(info[key]) == value for info in infos for key, value in self.safe_if.items())
+        collision = termination == "collision" or any(info["collision"] for info in infos)
+        off_road = termination == "off_road" or any(info["off_road"] for info in infos)
+        return Verdict(held and not (collision or off_road), collision, off_road, not held, True, math.nan)
+
+    def boundaries(self) -> None:
+        """No corridor to draw."""
+        return None

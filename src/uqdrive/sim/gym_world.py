@@ -1,0 +1,322 @@
+"""Any registered Gymnasium env as a world the closed-loop rollouts drive.
+
+`GymWorld` has `DrivingEnv`'s interface (``reset(seed, scenario, weather, noise, render)`` → frame,
+``step(steer, speed)`` → frame, info; ``last_info``, ``done``, ``trajectory``), so `run_rollouts` drives it as it
+drives the pybullet world, judged by `uqdrive.safety.info_safe_set.InfoSafeSet` (a predicate over every step's info).
+
+What differs between envs sits behind the world's hooks (``GymWorldConfig.hooks``): how the env's observation
+becomes the network's grey frame, where pose, speed, collision and off-road come from, how a (steer, speed) command
+becomes the env's action, and what the env's own expert would do. ``info`` reads them from the env's info dict
+(an env written for uqdrive, e.g. `uqdrive.sim.gym_env`); ``highway`` reads HighwayEnv's ego vehicle
+(`uqdrive.sim.gym_highway`, the one module that names that package).
+
+Frames are delivered as uqdrive's camera delivers them: RGB uint8 [48, 64, 3], here with three equal channels (the
+grey frame), so `preprocess_frame` gives the grey frame back exactly; sensor noise (σ in units of full intensity)
+is the camera's own `add_noise`, seeded by the rollout seed. A condition the env does not have (a scenario, a
+weather) is refused, never ignored.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any, ClassVar, Literal, Protocol
+
+import cv2
+import numpy as np
+from pydantic import Field
+
+from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH
+from uqdrive.schema import Bool, ConfigError, Count, Positive, Str, schema
+
+from .camera import add_noise
+from .config import Section, check_noise
+
+STATE_KEYS = ("x", "y", "yaw", "speed", "collision", "off_road", "lateral_deviation")
+_TRAJECTORY_KEYS = ("t", "x", "y", "yaw", "speed", "steering")
+_HOOKS = {"info": "uqdrive.sim.gym_world:InfoHooks", "highway": "uqdrive.sim.gym_highway:HighwayHooks"}
+
+
+@schema
+class GymWorldConfig(Section):
+    """A Gymnasium env as a world: ``gymnasium.make(env_id, **env_kwargs)``, read through ``hooks``.
+
+    ``safe_if``: info key → the value it must have at every step for the path to be safe (`InfoSafeSet`).
+    ``horizon_steps``: the episode ends by timeout after this many steps (T = horizon_steps / control_hz),
+    or earlier if the env truncates it. ``control_hz``: decisions per simulated second (the info's ``t``).
+    """
+
+    section: ClassVar[str] = "gym_world"
+
+    env_id: Str = "uqdrive/Roundabout-v0"
+    env_kwargs: dict[str, Any] = Field(default_factory=dict)
+    hooks: Literal["info", "highway"] = "info"
+    hooks_options: dict[str, Any] = Field(default_factory=dict)
+    safe_if: dict[str, Bool] = Field(default_factory=lambda: {"collision": False, "off_road": False})
+    horizon_steps: Count = 600
+    control_hz: Positive = 15.0
+
+
+class WorldHooks(Protocol):
+    """What one family of Gymnasium envs needs to be a uqdrive world (``hooks_cls(env, config)`` checks the env).
+
+    Poses are in uqdrive's frame: x, y in metres with y to the left of x, yaw counter-clockwise, lateral deviation
+    + = left; steer + = left, in [-1, 1]."""
+
+    packages: ClassVar[tuple[str, ...]]  # distributions beyond the env's own whose versions the identity records
+
+    @classmethod
+    def env_kwargs(cls, kwargs: Mapping[str, Any]) -> dict[str, Any]:
+        """``gymnasium.make``'s kwargs from the config's (e.g. yaml lists to the tuples an env expects)."""
+
+    def begin(self) -> None:
+        """A new episode has started (the env is reset)."""
+
+    def frame(self, obs: Any) -> np.ndarray:
+        """The env's observation as a grey uint8 image [H, W]."""
+
+    def state(self, info: Mapping[str, Any]) -> dict[str, Any]:
+        """`STATE_KEYS` (and any other keys the safe set may read) after a reset or step."""
+
+    def action(self, steer: float, speed: float) -> Any:
+        """The env's action for a steering command and a commanded speed (m/s)."""
+
+    def expert(self) -> tuple[float, float]:
+        """(steer, speed) the env's own expert would command now."""
+
+
+class InfoHooks:
+    """An env whose info carries `STATE_KEYS` in uqdrive's frame and whose observation is a grey [H, W] or RGB
+    [H, W, 3] uint8 image; its action is [steer] (speed: the env's own) or [steer, speed]."""
+
+    packages: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, env: Any, config: GymWorldConfig):
+        if config.hooks_options:
+            raise ConfigError(f"gym_world.hooks_options={config.hooks_options!r}: hooks 'info' take no options")
+        shape = getattr(env.action_space, "shape", None)
+        if shape not in ((1,), (2,)):
+            raise ConfigError(
+                f"gym_world.env_id={config.env_id!r}: action space {env.action_space} is not [steer] or [steer, speed]"
+            )
+        self.env, self.env_id, self.action_size = env, config.env_id, shape[0]
+        self.dtype = env.action_space.dtype
+
+    @classmethod
+    def env_kwargs(cls, kwargs: Mapping[str, Any]) -> dict[str, Any]:
+        return dict(kwargs)
+
+    def begin(self) -> None:
+        pass
+
+    def frame(self, obs: Any) -> np.ndarray:
+        image = np.asarray(obs)
+        if image.dtype != np.uint8 or not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+            raise ValueError(f"{self.env_id}: observation {image.dtype} {image.shape} is not a uint8 grey or RGB image")
+        return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+
+    def state(self, info: Mapping[str, Any]) -> dict[str, Any]:
+        missing = [key for key in STATE_KEYS if key not in info]
+        if missing:
+            raise ConfigError(
+                f"gym_world.hooks='info': the info of {self.env_id!r} has no {missing[0]!r} (it has {sorted(info)})"
+            )
+        return {key: info[key] for key in STATE_KEYS}
+
+    def action(self, steer: float, speed: float) -> np.ndarray:
+        return np.array([steer, speed][: self.action_size], dtype=self.dtype)
+
+    def expert(self) -> tuple[float, float]:
+        raise NotImplementedError(f"gym_world.hooks='info': {self.env_id!r} has no expert these hooks know of")
+
+
+@dataclass
+class GymEpisode:
+    """The record of one episode: every step's info, the reset's first. `run_rollouts` hands a world's
+    ``geometry`` to the safe set and asks it for the path's lateral deviation; a Gymnasium world has no static
+    geometry, so this record stands in for it (`InfoSafeSet` judges it)."""
+
+    infos: list[dict[str, Any]] = field(default_factory=list)
+
+    def lateral_deviation(self, points: np.ndarray) -> np.ndarray:
+        """The recorded lateral deviation at the path's points (one per step, as the trajectory logs them)."""
+        if len(points) != len(self.infos):
+            raise ValueError(f"{len(points)} points for an episode of {len(self.infos)} recorded steps")
+        return np.array([info["lateral_deviation"] for info in self.infos], dtype=float)
+
+
+class GymWorld:
+    """A Gymnasium env driven as uqdrive drives `DrivingEnv` (module docstring). Episode ends: ``collision`` and
+    ``off_road`` (from the hooks' state, as `DrivingEnv` ends them), ``terminated`` (the env ended it otherwise),
+    ``timeout`` (``horizon_steps``, or the env truncated it)."""
+
+    def __init__(self, config: GymWorldConfig):
+        gymnasium = _gymnasium()
+        self.config = config
+        hooks_cls = _hooks_class(config.hooks)
+        try:
+            self.env = gymnasium.make(config.env_id, **hooks_cls.env_kwargs(config.env_kwargs))
+        except gymnasium.error.Error as err:
+            raise ConfigError(f"gym_world.env_id={config.env_id!r}: {err}") from None
+        self.hooks: WorldHooks = hooks_cls(self.env, config)
+        self.control_hz = float(config.control_hz)
+        self.dt = 1.0 / self.control_hz
+        self.noise = 0.0
+        self.render_enabled = True
+        self._noise_rng = np.random.default_rng(0)
+        self._steps = 0
+        self._applied = 0.0
+        self._done = True
+        self._episode = GymEpisode()
+        self._log: dict[str, list[float]] = {k: [] for k in _TRAJECTORY_KEYS}
+        self.last_info: dict[str, Any] = {}
+
+    def reset(
+        self, seed: int, scenario: Any = None, weather: Any = None, noise: float = 0.0, render: bool = True
+    ) -> np.ndarray | None:
+        """Start the episode of rollout seed ``seed`` (the env's ``reset(seed=seed)``; the sensor noise drawn from
+        the same seed); returns the first frame (None when ``render`` is False). ``scenario`` and ``weather`` must be
+        None: the env is its own world, and has no weather."""
+        for key, value in (("scenario", scenario), ("weather", weather)):
+            if value is not None:
+                name = getattr(value, "name", value)
+                raise ConfigError(f"{key}={name!r}: {self.config.env_id} has no {key} condition (the world is the env)")
+        self.noise = check_noise(noise)
+        self.render_enabled = bool(render)
+        obs, env_info = self.env.reset(seed=int(seed))
+        self._noise_rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
+        self.hooks.begin()
+        self._steps, self._applied, self._done = 0, 0.0, False
+        self._episode = GymEpisode()
+        self._log = {k: [] for k in _TRAJECTORY_KEYS}
+        self._record(env_info, terminated=False, truncated=False)
+        return self._frame(obs)
+
+    def step(self, steer: float, speed: float) -> tuple[np.ndarray | None, dict[str, Any]]:
+        """Advance one control period: steer in [-1, 1] (clipped; + = left), speed in m/s."""
+        if self._done:
+            raise RuntimeError("episode is over (or was never started); call reset() first")
+        self._applied = min(max(float(steer), -1.0), 1.0)
+        obs, _, terminated, truncated, env_info = self.env.step(self.hooks.action(self._applied, float(speed)))
+        self._steps += 1
+        info = self._record(env_info, bool(terminated), bool(truncated))
+        return self._frame(obs), info
+
+    def expert_command(self) -> tuple[float, float]:
+        """(steer, speed) the env's own expert would command in the current state (a collect stage's label)."""
+        return self.hooks.expert()
+
+    def _record(self, env_info: Mapping[str, Any], terminated: bool, truncated: bool) -> dict[str, Any]:
+        state = self.hooks.state(env_info)
+        if state["collision"]:
+            termination = "collision"
+        elif state["off_road"]:
+            termination = "off_road"
+        elif terminated:
+            termination = "terminated"
+        elif truncated or self._steps >= self.config.horizon_steps:
+            termination = "timeout"
+        else:
+            termination = ""
+        self._done = termination != ""
+        info = {**_scalars(env_info), **{k: _plain(v) for k, v in state.items()}}
+        info.update(t=self._steps * self.dt, steering=self._applied, done=self._done, termination=termination)
+        missing = [key for key in self.config.safe_if if key not in info]
+        if missing:
+            raise ConfigError(
+                f"gym_world.safe_if: {missing[0]!r} is not in the info of {self.config.env_id!r} "
+                f"(it has {sorted(info)})"
+            )
+        for key in _TRAJECTORY_KEYS:
+            self._log[key].append(float(info[key]))
+        self._episode.infos.append(info)
+        self.last_info = info
+        return info
+
+    def _frame(self, obs: Any) -> np.ndarray | None:
+        if not self.render_enabled:
+            return None
+        grey = self.hooks.frame(obs)
+        if grey.shape != (INPUT_HEIGHT, INPUT_WIDTH):
+            grey = cv2.resize(grey, (INPUT_WIDTH, INPUT_HEIGHT), interpolation=cv2.INTER_AREA)
+        if self.noise == 0:
+            return cv2.merge((grey, grey, grey))
+        rgb = cv2.merge((grey, grey, grey)).astype(np.float32)
+        rgb *= np.float32(1 / 255)
+        return add_noise(rgb, self.noise, self._noise_rng)
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    @property
+    def trajectory(self) -> dict[str, np.ndarray]:
+        """Per-step log, including the start: t, x, y, yaw, speed, steering (as `DrivingEnv.trajectory`)."""
+        return {k: np.asarray(v, float) for k, v in self._log.items()}
+
+    @property
+    def geometry(self) -> GymEpisode:
+        """The current episode's record: what `run_rollouts` hands the safe set in place of a road geometry."""
+        return self._episode
+
+    def close(self) -> None:
+        self.env.close()
+
+    def __enter__(self) -> GymWorld:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def world_identity(config: GymWorldConfig) -> dict[str, Any]:
+    """Everything a Gymnasium world's rollouts depend on beyond project code, for a cell's identity hash: the
+    config (env id, kwargs, hooks, safe set, horizon) and the versions of Gymnasium, the env's own distribution
+    and the hooks' (e.g. the renderer that draws HighwayEnv's observation)."""
+    owners = metadata.packages_distributions().get(_entry_module(config).split(".")[0], [])
+    names = sorted({"gymnasium", *owners, *_hooks_class(config.hooks).packages})
+    return {"config": config.to_dict(), "packages": {name: metadata.version(name) for name in names}}
+
+
+def world_modules(config: GymWorldConfig) -> list[str]:
+    """The project modules a Gymnasium world's rollouts run that no static import reaches (the hooks and the env
+    are loaded by name), for a cell's code digest."""
+    env_module = _entry_module(config)
+    own = [env_module] if env_module.startswith("uqdrive.") else []
+    return list(dict.fromkeys(["uqdrive.sim.gym_world", _HOOKS[config.hooks].split(":")[0], *own]))
+
+
+def _entry_module(config: GymWorldConfig) -> str:
+    """The module that defines the env ``config.env_id`` names."""
+    _hooks_class(config.hooks)  # first: importing the hooks registers their package's env ids
+    entry = _gymnasium().spec(config.env_id).entry_point
+    return entry.split(":")[0] if isinstance(entry, str) else entry.__module__
+
+
+def _gymnasium() -> Any:
+    """Gymnasium, with uqdrive's own ids registered (importing `uqdrive.sim.gym_env` registers them)."""
+    import gymnasium
+
+    from . import gym_env  # noqa: F401
+
+    return gymnasium
+
+
+def _hooks_class(name: str) -> Any:
+    module, _, attr = _HOOKS[name].partition(":")
+    try:
+        return getattr(importlib.import_module(module), attr)
+    except ImportError as err:
+        raise ConfigError(f"gym_world.hooks={name!r} needs {err.name!r}: pip install 'uqdrive[{name}]'") from None
+
+
+def _scalars(info: Mapping[str, Any]) -> dict[str, Any]:
+    """The env's own info, less what is not a scalar (arrays, nested dicts): the safe set reads scalars."""
+    return {k: _plain(v) for k, v in info.items() if isinstance(v, (bool, int, float, str, np.generic))}
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars as Python's (True is True, not np.True_)."""
+    return value.item() if isinstance(value, np.generic) else value
