@@ -3,9 +3,10 @@ import pyarrow as pa
 import pytest
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.data.frames import decode_png, encode_png, preprocess_frame
+from uqdrive.data.frames import decode_png, encode_png
 from uqdrive.data.preprocess import Split, class_histogram, preprocess_raw
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, images_to_array, read_table, write_table_batches
+from uqdrive.network_input import preprocess_frame
 
 
 def _rgb(seed: int, height: int = 120, width: int = 160) -> np.ndarray:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from uqdrive.data.frames import preprocess_frame
+from uqdrive.network_input import preprocess_frame
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig
 from uqdrive.sim.config import WeatherConfig, find_conf

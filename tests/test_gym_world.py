@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from uqdrive.data.frames import preprocess_frame
+from uqdrive.network_input import preprocess_frame
 from uqdrive.safety.controller import Command, ConstantPolicy
 from uqdrive.safety.info_safe_set import InfoSafeSet
 from uqdrive.safety.rollout import run_rollouts
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import find_conf
 from uqdrive.sim.gym_world import GymWorld, GymWorldConfig, world_identity, world_modules
 from uqdrive.uq import clopper_pearson_interval
@@ -76,6 +77,11 @@ if COIN_ID not in gymnasium.registry:
     gymnasium.register(COIN_ID, entry_point=lambda rate=CRASH_RATE: CoinCrash(LineEnv(), rate))
 
 
+def conditions(seeds: list[int], noise: float) -> list[Condition]:
+    """A Gymnasium world's condition for each rollout: no scenario or weather of ours, only the sensor noise."""
+    return [Condition(None, None, noise)] * len(seeds)
+
+
 def coin_world(**overrides) -> GymWorld:
     return GymWorld(GymWorldConfig.from_config({"env_id": COIN_ID, "horizon_steps": 12, **overrides}))
 
@@ -84,14 +90,20 @@ def test_stub_crash_rate_is_covered_by_the_exact_interval_of_the_rollouts_outcom
     seeds = list(range(100, 400))
     safe_set = InfoSafeSet()
     worlds = [coin_world() for _ in range(3)]
-    results = run_rollouts(worlds, ConstantPolicy(0.0, 1.0), seeds, None, None, 0.0, safe_set=safe_set)
+    results = run_rollouts(worlds, ConstantPolicy(0.0, 1.0), seeds, conditions(seeds, 0.0), safe_set=safe_set)
     assert [r.collision for r in results] == [coin_crash_step(s, CRASH_RATE) is not None for s in seeds]
     assert [r.safe for r in results] == [not r.collision for r in results]
     assert all(r.termination in ("collision", "timeout") for r in results)
     crashes = sum(r.collision for r in results)
     low, high = clopper_pearson_interval(crashes, len(seeds), 0.05)
     assert low <= CRASH_RATE <= high, (crashes, low, high)
-    alone = run_rollouts(worlds[:1], ConstantPolicy(0.0, 1.0), seeds[:20], None, None, 0.0, safe_set=safe_set)
+    alone = run_rollouts(
+        worlds[:1],
+        ConstantPolicy(0.0, 1.0),
+        seeds[:20],
+        conditions(seeds[:20], 0.0),
+        safe_set=safe_set,
+    )
     assert _same(alone, results[:20])  # a rollout is its seed's, whatever the lockstep width
 
 
@@ -99,13 +111,13 @@ def test_uqdrive_env_through_the_adapter_drives_the_paths_driving_env_drives() -
     config = GymWorldConfig(env_id="uqdrive/Roundabout-v0", env_kwargs={"speed_action": True})
     policy, seeds = ConstantPolicy(0.0625, 6.0), [3, 4]  # a steer float32 holds exactly: the action space's dtype
     with GymWorld(config) as world:
-        through = run_rollouts([world], policy, seeds, None, None, 0.0, safe_set=InfoSafeSet.of(config))
+        through = run_rollouts([world], policy, seeds, conditions(seeds, 0.0), safe_set=InfoSafeSet.of(config))
         first = world.reset(3, noise=0.0)
         with gymnasium.make("uqdrive/Roundabout-v0") as env:
             assert np.array_equal(preprocess_frame(first), env.reset(seed=3)[0])  # the grey frame, exactly
     with DrivingEnv() as env:
         scenario = ScenarioConfig.from_yaml(find_conf() / "scenario" / "roundabout.yaml")
-        direct = run_rollouts([env], policy, seeds, scenario, None, 0.0)
+        direct = run_rollouts([env], policy, seeds, [Condition(scenario, None, 0.0)] * len(seeds))
     for a, b in zip(through, direct):
         assert np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y) and a.termination == b.termination
         assert a.safe == (b.termination == "timeout") and a.mean_abs_lateral_deviation == b.mean_abs_lateral_deviation
@@ -180,8 +192,8 @@ class ExpertPolicy:
 def test_highway_roundabout_runs_end_to_end_through_run_rollouts(highway_config: GymWorldConfig) -> None:
     seeds, safe_set = [0, 1, 2], InfoSafeSet.of(highway_config)
     worlds = [GymWorld(highway_config) for _ in range(2)]
-    results = run_rollouts(worlds, ExpertPolicy(), seeds, None, None, 0.05, safe_set=safe_set)
-    again = run_rollouts(worlds[:1], ExpertPolicy(), seeds, None, None, 0.05, safe_set=safe_set)
+    results = run_rollouts(worlds, ExpertPolicy(), seeds, conditions(seeds, 0.05), safe_set=safe_set)
+    again = run_rollouts(worlds[:1], ExpertPolicy(), seeds, conditions(seeds, 0.05), safe_set=safe_set)
     assert _same(results, again)
     assert [r.termination for r in results] == ["timeout"] * 3 and all(r.safe for r in results)
     info = worlds[0].last_info

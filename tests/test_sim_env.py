@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
-from uqdrive.data.frames import preprocess_frame
+from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.camera import _rain_cover
 from uqdrive.sim.world import World

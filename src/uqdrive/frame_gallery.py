@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from uqdrive.data.frames import preprocess_frame
+from uqdrive.network_input import preprocess_frame
 from uqdrive.sim.autopilot import Autopilot
 from uqdrive.sim.config import ScenarioConfig, WeatherConfig, find_conf
 from uqdrive.sim.env import DrivingEnv

@@ -26,8 +26,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from uqdrive.data.frames import preprocess_frame
 from uqdrive.files import atomic_path, write_json
+from uqdrive.network_input import preprocess_frame
 from uqdrive.sim.autopilot import Autopilot
 from uqdrive.sim.config import CameraConfig, ScenarioConfig, WeatherConfig
 from uqdrive.sim.env import DrivingEnv

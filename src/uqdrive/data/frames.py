@@ -1,20 +1,9 @@
-"""Camera frame → network input. Shared by the `preprocess` stage and the live closed-loop controller,
-so that what the network sees on the road is exactly what it was trained on."""
+"""Frames on disk: lossless PNG bytes in the parquet tables (the network's input is `uqdrive.network_input`)."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
-
-from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
-
-
-def preprocess_frame(rgb: np.ndarray, height: int = INPUT_HEIGHT, width: int = INPUT_WIDTH) -> np.ndarray:
-    """RGB uint8 [H, W, 3] → grayscale uint8 [height, width] (area interpolation, no aliasing)."""
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-        raise ValueError(f"expected an RGB uint8 image [H, W, 3], got dtype={rgb.dtype} shape={rgb.shape}")
-    gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    return cv2.resize(gray, (width, height), interpolation=cv2.INTER_AREA)
 
 
 def encode_png(image: np.ndarray) -> bytes:

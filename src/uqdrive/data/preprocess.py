@@ -8,8 +8,9 @@ import numpy as np
 import pyarrow as pa
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.data.frames import decode_png, preprocess_frame
+from uqdrive.data.frames import decode_png
 from uqdrive.data.tables import PROCESSED_SCHEMA
+from uqdrive.network_input import preprocess_frame
 from uqdrive.records import record
 from uqdrive.schema import ConfigError
 

@@ -9,8 +9,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.files import atomic_path
+from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 
 RAW_SCHEMA = pa.schema(
     [

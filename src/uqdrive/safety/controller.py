@@ -18,8 +18,8 @@ import torch
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
-from uqdrive.data.frames import preprocess_frame
 from uqdrive.models.posterior import Posterior
+from uqdrive.network_input import preprocess_frame
 from uqdrive.safety.draws import (
     ETA2_STREAM,
     PI_STREAM,

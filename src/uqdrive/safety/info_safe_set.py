@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from uqdrive.safety.safe_sets import Verdict
+from uqdrive.safety.safe_sets import PathVerdict
 from uqdrive.sim.gym_world import GymEpisode, GymWorldConfig
 
 
@@ -30,15 +30,17 @@ class InfoSafeSet:
     def of(cls, config: GymWorldConfig) -> InfoSafeSet:
         return cls(dict(config.safe_if))
 
-    def judge(self, geometry: GymEpisode, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, termination: str) -> Verdict:
-        """Verdict for the episode ``geometry`` records (the world's ``geometry``); the poses are not needed."""
+    def judge(
+        self, geometry: GymEpisode, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, termination: str
+    ) -> PathVerdict:
+        """The verdict on the episode ``geometry`` records (the world's ``geometry``); the poses are not needed."""
         if not isinstance(geometry, GymEpisode):
             raise TypeError(f"InfoSafeSet judges a GymWorld's episodes, got a {type(geometry).__name__}")
         infos = geometry.infos
         held = all(bool(info[key]) == value for info in infos for key, value in self.safe_if.items())
         collision = termination == "collision" or any(info["collision"] for info in infos)
         off_road = termination == "off_road" or any(info["off_road"] for info in infos)
-        return Verdict(held and not (collision or off_road), collision, off_road, not held, True, math.nan)
+        return PathVerdict(held and not (collision or off_road), collision, off_road, not held, True, math.nan)
 
     def boundaries(self) -> None:
         """No corridor to draw."""

@@ -18,7 +18,7 @@ import math
 import cv2
 import numpy as np
 
-from uqdrive import INPUT_HEIGHT, INPUT_WIDTH
+from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 
 from .bullet import pybullet as p
 from .config import CameraConfig, WeatherConfig

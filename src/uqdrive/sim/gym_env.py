@@ -28,7 +28,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
+from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
 from uqdrive.schema import ConfigError
 
 from .config import (

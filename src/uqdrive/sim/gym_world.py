@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from uqdrive.data.frames import INPUT_HEIGHT, INPUT_WIDTH
+from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.schema import Bool, ConfigError, Count, Positive, Str, schema
 
 from .camera import add_noise
