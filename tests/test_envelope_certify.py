@@ -19,10 +19,11 @@ from uqdrive.envelope.certify import (
     region_test,
     threshold_decision,
 )
-from uqdrive.envelope.partition import Region, split_gamma
+from uqdrive.envelope.partition import Region
 from uqdrive.envelope.search import BoundaryModel
 from uqdrive.schema import ConfigError, validate
 from uqdrive.uq import clopper_pearson_interval
+from uqdrive.uq.multiplicity import split_gamma
 
 
 def exact_errors(test, eta: float) -> tuple[float, float]:
@@ -55,7 +56,7 @@ SETTINGS = [
 @pytest.mark.parametrize("settings", SETTINGS, ids=str)
 @pytest.mark.parametrize("regions", [1, 4, 7, 13, 16])
 def test_each_region_errs_at_most_its_share_for_every_rate_on_the_wrong_side(settings, regions):
-    (share, *_) = split_gamma(settings.gamma, regions)
+    share = split_gamma(settings.gamma, regions)
     test = region_test(settings, share)
     tau, theta = settings.threshold, settings.theta
     below_tau = np.concatenate([np.linspace(0, tau - theta, 101), [np.nextafter(tau - theta, 0)]])
@@ -68,7 +69,7 @@ def test_each_region_errs_at_most_its_share_for_every_rate_on_the_wrong_side(set
 def test_the_whole_map_errs_at_most_gamma_even_with_every_region_at_its_worst_case(regions):
     """Regions' draws are independent given the partition, so P(some verdict wrong) = 1 − Π(1 − e_r); with every
     region's η1 at the worst case for a wrong "safe" (just below τ) it is still ≤ Σ γ_r ≤ γ."""
-    shares = split_gamma(QUICK.gamma, regions)
+    shares = (split_gamma(QUICK.gamma, regions),) * regions
     assert sum(map(Fraction, shares)) <= Fraction(QUICK.gamma)
     worst = [exact_errors(region_test(QUICK, g), np.nextafter(QUICK.threshold, 0))[0] for g in shares]
     assert 1 - np.prod(1 - np.array(worst)) <= sum(worst) <= QUICK.gamma
@@ -84,7 +85,7 @@ def test_certify_hands_each_region_its_share_and_what_is_left_of_the_budget():
         asked.append((index, region, gamma, cap))
         return Decision(("safe", "unsafe", "undecided", "safe")[index], 10 + index, index)
 
-    (share, *_) = split_gamma(0.05, 4)
+    share = split_gamma(0.05, 4)
     results = certify(regions, 0.05, decide)
     assert asked == [(i, r, share, None) for i, r in enumerate(regions)]
     assert [(r.region, r.verdict, r.rollouts, r.safe, r.gamma) for r in results] == [
@@ -100,7 +101,7 @@ def test_certify_hands_each_region_its_share_and_what_is_left_of_the_budget():
 
 
 def test_a_region_ends_safe_unsafe_or_undecided_at_its_budget():
-    share = split_gamma(QUICK.gamma, 13)[0]
+    share = split_gamma(QUICK.gamma, 13)
     drawn = []
 
     def constant(value):
@@ -137,7 +138,7 @@ def test_regions_go_by_the_decisions_their_tests_are_expected_to_make_per_rollou
 
 def test_the_grid_cost_is_a_per_cell_exact_interval_at_each_cells_share():
     cost = grid_cost(dim=2, depth=2, theta=0.05, gamma=0.05)
-    assert cost["cells"] == 16 and cost["gamma_per_cell"] == split_gamma(0.05, 16)[0]
+    assert cost["cells"] == 16 and cost["gamma_per_cell"] == split_gamma(0.05, 16)
     n = cost["per_cell"]
     assert cost["rollouts"] == 16 * n
     k = np.arange(n + 1)  # at n every count's exact interval at level 1 − γ/16 fits in ±θ; at n − 1 one does not

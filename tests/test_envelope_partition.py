@@ -5,9 +5,10 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from uqdrive.envelope.partition import PartitionSettings, Region, partition, split_gamma
+from uqdrive.envelope.partition import PartitionSettings, Region, partition
 from uqdrive.envelope.search import BoundaryModel
 from uqdrive.schema import ConfigError, validate
+from uqdrive.uq.multiplicity import split_gamma
 
 TAU = 0.9
 
@@ -59,7 +60,7 @@ def test_depth_settings_are_checked():
 @pytest.mark.parametrize("gamma", [0.05, 0.1, 0.01, 1 / 3, 0.07])
 def test_gamma_shares_are_equal_and_their_exact_sum_is_at_most_gamma(gamma):
     for count in [*range(1, 80), 97, 128, 255, 1000, 4096]:
-        shares = split_gamma(gamma, count)
+        shares = (split_gamma(gamma, count),) * count
         assert len(shares) == count and len(set(shares)) == 1
         assert sum(map(Fraction, shares)) <= Fraction(gamma)
         assert shares[0] >= gamma / count * (1 - 1e-15)  # nothing given away beyond rounding

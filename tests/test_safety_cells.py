@@ -32,6 +32,7 @@ def fake_rollout(seed: int) -> RolloutResult:
         left_corridor=not safe,
         reached_goal=safe,
         corridor_use=float(rng.random()) * (2 if not safe else 1),
+        margin=float(rng.random()) * (1 if safe else -1),
         mean_abs_lateral_deviation=float(rng.random()),
         mean_eta2=float(rng.random()),
         mean_mutual_information=float("nan"),

@@ -44,12 +44,21 @@ def test_autopilot_drives_every_location_safely(location):
     assert all(r.termination == "route_complete" and r.reached_goal and not r.left_corridor for r in results)
     assert max(r.corridor_use for r in results) < 0.95  # the body stays in its lane with a margin (measured 0.89)
     assert max(r.mean_abs_lateral_deviation for r in results) < 0.5
+    assert all(0 < r.margin == pytest.approx(1 - r.corridor_use) for r in results)  # the lane binds, not the exit
 
 
 def test_full_left_is_unsafe_at_the_roundabout():
     value, results = eta1(FULL_LEFT, "roundabout")
     assert value == 0.0
     assert all(r.left_corridor and not r.reached_goal and r.corridor_use > 1 for r in results)
+    assert all(r.margin <= 1 - r.corridor_use < 0 for r in results)  # its worst moment, signed
+
+
+def test_a_lane_kept_but_an_exit_not_reached_has_the_exit_as_its_margin():
+    """Slow enough to time out on the ring, in lane: unsafe, and the margin is the (negative) way left to the exit."""
+    value, results = eta1(PolicySpec("autopilot", 6.0), "roundabout", horizon_s=4.0)
+    assert value == 0.0
+    assert all(not r.reached_goal and not r.left_corridor and r.margin < 0 for r in results)
 
 
 @pytest.mark.parametrize("name", ["straight", "obstacle"])

@@ -73,6 +73,13 @@ class Paths:
     plots: Str
 
 
+SEED_BLOCK = 1_000_000
+"""Rollout seeds per training replicate. Replicate r drives seeds base + r·SEED_BLOCK + i, so no two replicates
+share a world: their paired tables are independent, which the stratified exact test across replicates (findings
+"for these trained controllers") and the t-test across replicates (method-level claims) both need. Within a
+replicate every cell drives the same seeds, so its methods, conditions and warnings modes pair by seed."""
+
+
 @schema(root=True)
 class Stage:
     """What every stage's config holds (conf/common.yaml)."""
@@ -81,6 +88,10 @@ class Stage:
     replicate: Str  # its name (seed<seed>)
     progress: Bool
     paths: Paths
+
+    def rollout_seeds(self, base: int) -> int:
+        """The first rollout seed of this replicate's block for a stage whose replicate 0 starts at ``base``."""
+        return base + self.seed * SEED_BLOCK
 
 
 @schema(root=True)

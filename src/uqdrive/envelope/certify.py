@@ -16,10 +16,11 @@ from enum import StrEnum
 
 import numpy as np
 
-from uqdrive.envelope.partition import Region, split_gamma
+from uqdrive.envelope.partition import Region
 from uqdrive.envelope.search import BoundaryModel
 from uqdrive.schema import Count, OpenUnit, Unit, invalid, schema
 from uqdrive.uq import clopper_pearson_n
+from uqdrive.uq.multiplicity import split_gamma
 from uqdrive.uq.threshold import ThresholdTest
 
 
@@ -127,7 +128,7 @@ def decision_order(regions: Sequence[Region], model: BoundaryModel, settings: Ce
     η1 were phase one's estimate of it (the kernel-smoothed rate, averaged over the region): P(safe or unsafe)
     over the expected rollouts, both exact for the test. A total budget then goes to the regions it can decide
     cheaply (clearly unsafe ones in a few rollouts, safe ones in a clean run) before the boundary's."""
-    shares = split_gamma(settings.gamma, len(regions))
+    shares = (split_gamma(settings.gamma, len(regions)),) * len(regions)
 
     def rate(i: int) -> float:
         eta = float(np.mean(model.rate(regions[i].grid(2))))
@@ -149,7 +150,7 @@ def certify(
     (None: no cap), γ split equally (`split_gamma`). Regions go in ``order`` (default: as given) while phase two's
     ``budget`` (None: no total budget) lasts; one reached with fewer than ``first_look`` rollouts left is undecided
     without any."""
-    shares = split_gamma(gamma, len(regions))
+    shares = (split_gamma(gamma, len(regions)),) * len(regions)
     left = budget
     decisions: dict[int, Decision] = {}
     for i in range(len(regions)) if order is None else order:
@@ -170,7 +171,7 @@ def grid_cost(dim: int, depth: int, theta: float, gamma: float) -> dict[str, flo
     safety sweep uses per cell), family-wise at γ like the map (each cell at γ / cells), and, beside it, each
     cell at γ alone (no guarantee for the map as a whole)."""
     cells = 2 ** (depth * dim)
-    share = split_gamma(gamma, cells)[0]
+    share = split_gamma(gamma, cells)
     per_cell = clopper_pearson_n(theta, share)
     return {
         "cells": cells,

@@ -160,7 +160,7 @@ def envelope_result(
         gamma=env.gamma,
         theta=env.theta,
         guarantee=guarantee(env.theta),
-        base_seed=env.base_seed,
+        base_seed=envelope.base_seed,
         regions=regions,
         verdicts={v: sum(r.verdict == v for r in regions) for v in RegionVerdict},
         volume={v: sum(r.volume for r in regions if r.verdict == v) for v in RegionVerdict},

@@ -12,7 +12,6 @@ import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
-from fractions import Fraction
 from typing import Annotated
 
 import numpy as np
@@ -108,17 +107,3 @@ def partition(model: BoundaryModel, dim: int, settings: PartitionSettings) -> tu
             yield region
 
     return tuple(visit(Region.cube(dim)))
-
-
-def split_gamma(gamma: float, count: int) -> tuple[float, ...]:
-    """γ in ``count`` equal shares whose exact sum (of the floats as stored) is ≤ γ: the family-wise budget.
-
-    Equal shares cost little: a region certified safe needs about ln(1/γ_r) / ln(1/τ) rollouts, which grows
-    only with the logarithm of the number of regions.
-    """
-    if count < 1:
-        raise ValueError(f"count={count!r} must be >= 1")
-    share = gamma / count
-    while Fraction(share) * count > Fraction(gamma):
-        share = math.nextafter(share, 0.0)
-    return (share,) * count

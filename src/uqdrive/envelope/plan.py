@@ -11,7 +11,7 @@ from omegaconf import DictConfig
 from pydantic import Field
 
 from uqdrive.envelope.certify import CertifySettings, clean_run_to_safe
-from uqdrive.envelope.partition import PartitionSettings, split_gamma
+from uqdrive.envelope.partition import PartitionSettings
 from uqdrive.envelope.search import SearchSettings
 from uqdrive.envelope.sources import Listed, UniformIn
 from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, ConditionSpace
@@ -23,6 +23,7 @@ from uqdrive.schema import ConfigError, Count, NonNegative, Positive, Seed, Str,
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
+from uqdrive.uq.multiplicity import split_gamma
 
 Axes = Annotated[tuple[AxisSettings, ...], Field(min_length=2, max_length=3)]
 
@@ -86,6 +87,11 @@ class Envelope:
     def settings(self) -> EnvelopeSection:
         return self.stage.envelope
 
+    @property
+    def base_seed(self) -> int:
+        """The first rollout seed of the map (its replicate's block: `uqdrive.stage_schemas.SEED_BLOCK`)."""
+        return self.stage.rollout_seeds(self.settings.base_seed)
+
     def listed(self, points: tuple[tuple[float, ...], ...]) -> Listed:
         return Listed(self.space, points)
 
@@ -133,7 +139,7 @@ def _check_budget(env: EnvelopeSection, dim: int) -> None:
     """A region must be able to end safe: with the most regions the partition can make (each at its share of γ),
     some run of safe rollouts within the region's budget must certify it."""
     regions = 2 ** (dim * env.partition.max_depth)
-    if clean_run_to_safe(env, split_gamma(env.gamma, regions)[0]) is None:
+    if clean_run_to_safe(env, split_gamma(env.gamma, regions)) is None:
         raise ConfigError(
             f"envelope.region_budget={env.region_budget} is too small: with up to {regions} regions "
             f"(partition.max_depth={env.partition.max_depth}) no region could be certified safe, even with every "

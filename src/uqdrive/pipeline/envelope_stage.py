@@ -46,7 +46,7 @@ def _search_round(envelope: Envelope, runner: CellRunner, cells: list[CellRun]) 
 
     def run(points: np.ndarray) -> np.ndarray:
         job = envelope.job(
-            envelope.listed(tuple(map(tuple, points.tolist()))), env.base_seed + sum(len(c.results) for c in cells)
+            envelope.listed(tuple(map(tuple, points.tolist()))), envelope.base_seed + sum(len(c.results) for c in cells)
         )
         name = f"search-{len(cells)}"
         key = cell_key(job, {"phase": "search"}, env.model_path, __name__)
@@ -67,7 +67,7 @@ def _region_test(
     env = envelope.settings
 
     def decide(index: int, region: Region, gamma: float, cap: int | None) -> Decision:
-        base_seed = env.base_seed + env.search.budget + index * env.region_budget
+        base_seed = envelope.base_seed + env.search.budget + index * env.region_budget
         job = envelope.job(envelope.uniform_in(region.low, region.high), base_seed)
         consumer = {"phase": "certify", "test": dataclasses.asdict(region_test(env, gamma))}
         key = cell_key(job, consumer, env.model_path, __name__)

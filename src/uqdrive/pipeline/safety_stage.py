@@ -11,6 +11,7 @@ first rollout. A cell whose result file already holds its config hash is not run
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
 from pathlib import Path
@@ -38,6 +39,7 @@ from uqdrive.stage import grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Sweep, training_stage
 from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq import Estimate
+from uqdrive.uq.multiplicity import split_gamma
 
 
 @schema(frozen=True, kw_only=True)
@@ -80,9 +82,12 @@ class SafetyStage(SimConfig, ModelStage):
 
     @property
     def estimator(self) -> EstimatorSettings:
-        """The cell's estimator: γ spread over the family's cells (Bonferroni) when family-wise."""
+        """The cell's estimator: γ spread over the family's cells (Bonferroni) when family-wise; the replicate's
+        block of rollout seeds."""
         s = self.safety
-        return dataclasses.replace(s.estimator, gamma=s.gamma / s.family_size)
+        return dataclasses.replace(
+            s.estimator, gamma=split_gamma(s.gamma, s.family_size), base_seed=self.rollout_seeds(s.base_seed)
+        )
 
 
 @schema(root=True)
@@ -126,7 +131,7 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
     job = RolloutJob(
         policy=spec,
         where=Condition(stage.scenario, stage.weather, stage.noise),
-        base_seed=safety.base_seed,
+        base_seed=stage.estimator.base_seed,
         camera=stage.camera,
         vehicle=stage.vehicle,
         control_hz=stage.control_hz,
@@ -160,7 +165,7 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
         gamma=estimate.gamma,
         scheme=estimate.scheme,
         n=estimate.n,
-        base_seed=stage.safety.base_seed,
+        base_seed=stage.estimator.base_seed,
         family_size=stage.safety.family_size,
         fixed_rollouts=stage.estimator.fixed_rollouts(),
         eta1=estimate.value,
@@ -174,6 +179,7 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
         outcomes="".join("1" if r.safe else "0" for r in results),  # by rollout index: paired across cells
         config_hash=plan.key,
         unread=run.unread,
+        margins=[None if math.isnan(r.margin) else round(r.margin, 6) for r in results],
     )
 
 

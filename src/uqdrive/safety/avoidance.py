@@ -37,6 +37,7 @@ from uqdrive.sim import CameraConfig, ScenarioGeometry, VehicleConfig, build_geo
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
+from uqdrive.uq.multiplicity import split_gamma
 
 KNOWN = "known"
 UNKNOWN = "unknown"  # the mixture cell's condition (avoid.unknown_as=mixture)
@@ -238,7 +239,9 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     avoid, warning = stage.avoid, stage.warning
     cells = 1 + (len(avoid.unknown) if avoid.unknown_as == "cells" else 1)
     family_size = cells * len(Mode) if avoid.family_wise else 1
-    estimator = dataclasses.replace(avoid.estimator, gamma=avoid.gamma / family_size)
+    estimator = dataclasses.replace(
+        avoid.estimator, gamma=split_gamma(avoid.gamma, family_size), base_seed=stage.rollout_seeds(avoid.base_seed)
+    )
     method = posterior_from_config(stage.model).method
     horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
     calibration = avoid.calibration
@@ -266,7 +269,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         spec,
         rule,
         estimator,
-        avoid.validation_seed,
+        stage.rollout_seeds(avoid.validation_seed),
         Condition(stage.scenario, stage.weather, avoid.known_noise, KNOWN),
         _unknown_conditions(stage),
         calibration,

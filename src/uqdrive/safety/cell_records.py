@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -56,6 +57,7 @@ class SafetyCell:
     outcomes: str
     config_hash: str
     unread: int = 0  # rollouts run ahead of a sequential estimator that it never read: time spent, not error
+    margins: list[float | None] = dataclasses.field(default_factory=list)  # each run's `PathVerdict.margin`, in order
 
     @property
     def condition(self) -> tuple[str, str, float]:
@@ -68,6 +70,11 @@ class SafetyCell:
     @property
     def safe(self) -> np.ndarray:
         return np.frombuffer(self.outcomes.encode(), np.uint8) == ord("1")
+
+    @property
+    def margin(self) -> np.ndarray:
+        """Each run's margin in rollout order (NaN: none recorded)."""
+        return np.array([math.nan if m is None else m for m in self.margins], float)
 
 
 class Mode(StrEnum):

@@ -43,6 +43,7 @@ class RolloutResult:
     left_corridor: bool
     reached_goal: bool
     corridor_use: float
+    margin: float  # the path's worst signed distance inside the safe set (`PathVerdict.margin`; NaN: no lane rule)
     mean_abs_lateral_deviation: float
     mean_eta2: float
     mean_mutual_information: float
@@ -163,6 +164,7 @@ def _result(episode: _Episode, safe_set: SafeSet | None, half_width: float | Non
         left_corridor=verdict.left_corridor,
         reached_goal=verdict.reached_goal,
         corridor_use=verdict.corridor_use,
+        margin=verdict.margin,
         mean_abs_lateral_deviation=float(np.mean(np.abs(lateral))),
         mean_eta2=float(np.mean(eta2)) if eta2 else float("nan"),
         mean_mutual_information=float(np.mean(mi)) if mi else float("nan"),

@@ -31,7 +31,10 @@ HANDOVER = "handover"  # termination of a run whose warning system braked to a s
 class PathVerdict:
     """Outcome of one path. ``reached_goal``: the first exit (roundabout), past the obstacle (obstacle road),
     always True on a straight road. ``corridor_use``: the largest |lateral deviation| of a body corner over
-    the lane half-width there (NaN where no lane rule applies); above 1 the car's body left its lane."""
+    the lane half-width there (NaN where no lane rule applies); above 1 the car's body left its lane.
+    ``margin``: how far inside the safe set the path stayed at its worst, in lane half-widths — the robustness of
+    "always in the lane and eventually at the exit" (signal-temporal-logic style): min(1 − corridor_use, how far
+    past the exit it got); ≥ 0 exactly when the path is safe (0 at the boundary). NaN where no lane rule applies."""
 
     safe: bool
     collision: bool
@@ -39,6 +42,7 @@ class PathVerdict:
     left_corridor: bool
     reached_goal: bool
     corridor_use: float
+    margin: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,17 @@ class SafeSet:
         corner_s, lateral = geometry.route.project(corners)
         use = float(np.max(np.abs(lateral) / np.interp(corner_s, geometry.route.s, self.half_width)))
         left = use > 1.0
-        return PathVerdict(not (collision or off_road or left) and reached, collision, off_road, left, reached, use)
+        safe = not (collision or off_road or left) and reached
+        return PathVerdict(safe, collision, off_road, left, reached, use, self._margin(geometry, s, use, safe))
+
+    def _margin(self, geometry: ScenarioGeometry, progress: np.ndarray, use: float, safe: bool) -> float:
+        """min(1 − corridor_use, metres past the goal in lane half-widths), clipped to ≤ 0 for an unsafe path."""
+        goal = math.inf
+        if self.goal_progress is not None:
+            half = float(np.interp(self.goal_progress, geometry.route.s, self.half_width))
+            goal = (float(progress.max()) - self.goal_progress) / half
+        margin = min(1.0 - use, goal)
+        return margin if safe else min(margin, 0.0)
 
     def boundaries(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Left and right corridor edges [N, 2] for figures (None for road-only safe sets)."""

@@ -8,7 +8,9 @@ dependence between the tests or cells: they rest on the union bound only, which 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from fractions import Fraction
 
 import numpy as np
 
@@ -57,12 +59,16 @@ def holm_levels(p_values: Sequence[float] | np.ndarray, alpha: float) -> np.ndar
 
 
 def split_gamma(gamma: float, parts: int) -> float:
-    """Bonferroni: each of ``parts`` members of a family (cells, claims) at γ/m, so all hold at once with
-    probability ≥ 1 − γ.
+    """Bonferroni: each of ``parts`` members of a family (cells, claims, an envelope's regions) at γ/m, so all hold
+    at once with probability ≥ 1 − γ; the share is rounded down until m of it, summed exactly as stored, are ≤ γ.
 
-    The union bound needs no independence: P(some member errs) ≤ Σ P(that member errs) ≤ m · γ/m.
+    The union bound needs no independence: P(some member errs) ≤ Σ P(that member errs) ≤ m · γ/m. The one helper
+    every stage splits γ with.
     """
     gamma = check_unit("gamma", gamma)
     if isinstance(parts, bool) or int(parts) != parts or parts < 1:
         raise ValueError(f"parts must be an integer >= 1, got {parts!r}")
-    return gamma / int(parts)
+    share = gamma / int(parts)
+    while Fraction(share) * int(parts) > Fraction(gamma):
+        share = math.nextafter(share, 0.0)
+    return share
