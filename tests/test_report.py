@@ -1,6 +1,7 @@
 """The `report` stage: tables filled from the metrics files (typed records), findings first, figures embedded, a
 clear error on a missing input."""
 
+import dataclasses
 import json
 import re
 
@@ -9,6 +10,7 @@ import pytest
 
 from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_comparisons
 from uqdrive.analysis.method_answers import summarise_avoid, summarise_methods
+from uqdrive.analysis.method_claims import method_claims
 from uqdrive.data.frames import encode_png
 from uqdrive.data.preprocess import Preprocessed
 from uqdrive.envelope.map_records import EnvelopeAxis, EnvelopeRegion, EnvelopeResult, EnvelopeSearch, GridCost
@@ -177,7 +179,8 @@ def write_run(root):
     avoid = summarise_avoid(results, list(METHODS))
     write_record(root / "metrics/avoid.json", avoid)
     family = [*safety_comparisons(cells, list(METHODS), ("roundabout", "clear_noon", 0.0))]
-    findings = decide([*family, *avoid_comparisons(results, list(METHODS))], 0.05)
+    claims = method_claims(cells, results, list(METHODS), ("roundabout", "clear_noon", 0.0), 0.05, 0.1)
+    findings = dataclasses.replace(decide([*family, *avoid_comparisons(results, list(METHODS))], 0.05), claims=claims)
     write_record(root / "metrics/findings.json", findings)
     evaluated = HeldoutTable(
         {
@@ -214,7 +217,19 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     text = (tmp_path / "reports/report.md").read_text()
 
     assert findings_markdown(findings) in text  # the findings, generated from the file, come before the tables
-    assert text.index("## What the run found") < text.index("## Controllers")
+    assert text.index("## What the run found") < text.index("**The paper's claims, for the method**")
+    assert text.index("**The paper's claims, for the method**") < text.index("**For these trained controllers**")
+    assert text.index("**For these trained controllers**") < text.index("## Controllers")
+    claims = {r["claim (A safer than B)"]: r for r in markdown_rows(text, "claim (A safer than B)")}
+    paper = [c for c in findings.claims if c.family == "paper"]
+    assert set(claims) == {c.name for c in paper} and {c.name for c in paper} >= {
+        "vi safer than mcd offline",
+        "mcd safer without rain than in rain",
+        "vi: warnings on safer than off, unknown conditions",
+    }
+    on = next(c for c in paper if c.name == "vi: warnings on safer than off, unknown conditions")
+    assert claims[on.name]["paper"] == "0.9 vs 0" and claims[on.name]["Δ̂ [interval]"].startswith(f"{on.estimate:+.2f}")
+    assert {c.family for c in findings.claims} == {"paper", "exploratory"}  # the synthetic cells record no margins
     assert findings.supported > 0  # rain with noise breaks both methods in every replicate (0.2 against 0.9)
     rows = markdown_rows(text, "method | location | weather")
     assert len(rows) == len(METHODS) * len(LOCATIONS) * len(WEATHERS) * len(NOISES)

@@ -10,12 +10,14 @@ import pytest
 from scipy import stats
 
 from uqdrive.uq.claims import (
+    MarginClaim,
     MethodClaim,
     claim_verdicts,
     decide_claim,
     decide_claims,
     detectable_difference,
     replicate_t,
+    replicate_t_means,
     replicates_needed,
 )
 from uqdrive.uq.multiplicity import split_gamma
@@ -179,3 +181,29 @@ def test_replicates_needed_is_the_fewest_that_detect_the_target():
     assert detectable_difference(0.1, needed, ALPHA) <= 0.1 < detectable_difference(0.1, needed - 1, ALPHA)
     assert needed == 10 and replicates_needed(0.01, 0.5, ALPHA) == 2
     assert detectable_difference(0.0, 4, ALPHA) == 0.0 and detectable_difference(0.1, 1, ALPHA) == np.inf
+
+
+def test_margin_claims_keep_their_size_under_a_spread_of_training_runs():
+    """The continuous version (per-run margin differences): replicate means spread between training runs, runs
+    within a replicate noisy, equal means. 10,000 repetitions per design: the CP upper end of each kind's error
+    rate stays below α (each verdict kind is one tail: nominal α/2)."""
+    rng = np.random.default_rng(7)
+    for replicates, runs, spread in ((4, 14, 0.2), (8, 50, 0.05), (8, 14, 1.0)):
+        shifts = rng.normal(0.0, spread, (REPS, replicates, 1))
+        draws = shifts + rng.standard_t(5, (REPS, replicates, runs)) * 0.3  # heavy-tailed runs
+        above = below = 0
+        for repetition in draws:
+            result = replicate_t_means(list(repetition), ALPHA)
+            above, below = above + bool(result.low > 0), below + bool(result.high < 0)
+        assert upper(above) < ALPHA and upper(below) < ALPHA, (replicates, runs, spread, above, below)
+
+
+def test_a_margin_claim_is_decided_from_the_replicates_means():
+    rng = np.random.default_rng(3)
+    ahead = {r: rng.normal(0.3, 0.1, 20) for r in range(8)}  # A keeps 0.3 more of its lane than B, every replicate
+    (result,) = decide_claims([MarginClaim("A vs B margin", ahead, margin=0.1)], 0.05)
+    assert result.verdict == Verdict.SUPPORTED and result.replicates == tuple(range(8))
+    level = [MarginClaim("same", {r: rng.normal(0.0, 0.01, 20) for r in range(8)}, margin=0.1)]
+    assert decide_claims(level, 0.05)[0].verdict == Verdict.EQUIVALENT
+    with pytest.raises(ValueError, match="at least two finite paired differences"):
+        replicate_t_means([np.array([0.1]), np.array([0.2, 0.3])], 0.05)

@@ -4,11 +4,13 @@ metrics/findings.json."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from uqdrive.analysis.comparisons import Findings, avoid_comparisons, decide, safety_comparisons
+from uqdrive.analysis.method_claims import method_claims
 from uqdrive.records import write_record
 from uqdrive.safety.cell_records import read_avoid_results, read_safety_cells
 from uqdrive.schema import OpenUnit, Str, schema, validate
@@ -17,7 +19,8 @@ from uqdrive.stage_schemas import SafetyGrid
 
 @schema
 class FindingsSection:
-    alpha: OpenUnit  # family-wise error over the whole family of comparisons
+    alpha: OpenUnit  # family-wise error of each family (the controller-level one; each method-level one)
+    margin: OpenUnit  # δ: two methods within ±δ of each other are equivalent (a method-level verdict)
     cells_dir: Str
     results_dir: Str
     out: Str
@@ -32,13 +35,14 @@ class FindingsStage(SafetyGrid):
 
 
 def run_findings(cfg: DictConfig) -> Findings:
+    """Read the records, decide the controller-level family and the method-level claims, write them."""
     stage = validate(FindingsStage, cfg)
-    methods = list(stage.methods)
+    methods, settings = list(stage.methods), stage.findings
     training = (stage.locations[0], stage.train_weather, 0.0)
-    family = [
-        *safety_comparisons(read_safety_cells(stage.findings.cells_dir, stage), methods, training),
-        *avoid_comparisons(read_avoid_results(stage.findings.results_dir, methods, list(stage.replicates)), methods),
-    ]
-    findings = decide(family, stage.findings.alpha)
-    write_record(Path(stage.findings.out), findings)
+    cells = read_safety_cells(settings.cells_dir, stage)
+    results = read_avoid_results(settings.results_dir, methods, list(stage.replicates))
+    family = [*safety_comparisons(cells, methods, training), *avoid_comparisons(results, methods)]
+    claims = method_claims(cells, results, methods, training, settings.alpha, settings.margin)
+    findings = dataclasses.replace(decide(family, settings.alpha), margin=settings.margin, claims=claims)
+    write_record(Path(settings.out), findings)
     return findings

@@ -67,13 +67,35 @@ def replicate_t(a_only: np.ndarray, b_only: np.ndarray, pairs: np.ndarray, level
     a, b = np.asarray(a_only, float), np.asarray(b_only, float)
     n = np.broadcast_to(np.asarray(pairs, float), a.shape)
     effects = (a - b) / n
+    within = ((a + b) / n - effects**2) / n
+    return _paired_t(effects, within, margin * (1 - margin) / n, level, bound=1.0)
+
+
+def replicate_t_means(differences: Sequence[np.ndarray], level: float) -> ReplicateT:
+    """The paired t across replicates of a continuous per-run difference (e.g. the margin of A's run i minus B's):
+    replicate r contributes the mean of its runs' differences; its within-replicate variance (sample variance / n)
+    floors the variance as for counts. No margin floor is proven for an unbounded difference: the equivalence
+    interval is the interval itself."""
+    level = check_unit("level", level)
+    runs = [np.asarray(d, float) for d in differences]
+    if any(d.ndim != 1 or d.size < 2 or not np.isfinite(d).all() for d in runs):
+        raise ValueError("each replicate needs at least two finite paired differences")
+    effects = np.array([d.mean() for d in runs])
+    within = np.array([d.var(ddof=1) / d.size for d in runs])
+    return _paired_t(effects, within, np.zeros_like(within), level, bound=math.inf)
+
+
+def _paired_t(effects: np.ndarray, within: np.ndarray, margin_floor: np.ndarray, level: float, bound: float):
+    """Student's t over the last axis of per-replicate ``effects``, the variance floored at the mean ``within``
+    variance (the equivalence interval's also at the mean ``margin_floor``), intervals clipped to ±``bound``."""
     estimate, count = effects.mean(-1), effects.shape[-1]
     if count < 2:
-        whole = np.ones_like(estimate)
-        return ReplicateT(estimate, np.full_like(estimate, np.inf), -whole, whole, -whole, whole, whole)
-    within = (((a + b) / n - effects**2) / n).mean(-1)
-    variance = np.maximum(effects.var(-1, ddof=1), within)
-    margin_variance = np.maximum(variance, (margin * (1 - margin) / n).mean(-1))
+        whole = np.full_like(estimate, bound)
+        return ReplicateT(
+            estimate, np.full_like(estimate, np.inf), -whole, whole, -whole, whole, np.ones_like(estimate)
+        )
+    variance = np.maximum(effects.var(-1, ddof=1), within.mean(-1))
+    margin_variance = np.maximum(variance, margin_floor.mean(-1))
     quantile = special.stdtrit(count - 1, 1 - level / 2)
     half, margin_half = (quantile * np.sqrt(v / count) for v in (variance, margin_variance))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -82,10 +104,10 @@ def replicate_t(a_only: np.ndarray, b_only: np.ndarray, pairs: np.ndarray, level
     return ReplicateT(
         estimate,
         np.sqrt(variance),
-        np.clip(estimate - half, -1, 1),
-        np.clip(estimate + half, -1, 1),
-        np.clip(estimate - margin_half, -1, 1),
-        np.clip(estimate + margin_half, -1, 1),
+        np.clip(estimate - half, -bound, bound),
+        np.clip(estimate + half, -bound, bound),
+        np.clip(estimate - margin_half, -bound, bound),
+        np.clip(estimate + margin_half, -bound, bound),
         p,
     )
 
@@ -152,6 +174,16 @@ class MethodClaim:
 
 
 @dataclasses.dataclass(frozen=True)
+class MarginClaim:
+    """ "A keeps a larger margin than B" over training runs (a continuous estimand, not η1): ``differences[r]``:
+    replicate r's per-run margin of A minus B's on the same seeds; ``margin``: δ, in the differences' units."""
+
+    name: str
+    differences: Mapping[int, np.ndarray]
+    margin: float
+
+
+@dataclasses.dataclass(frozen=True)
 class ClaimResult:
     """One method claim decided at ``level`` (α/m in a family of m): the estimate of Δ, its interval and the
     equivalence interval, the p-value, the verdict and, where undecided, the reason; ``detectable``: the |Δ| a
@@ -176,24 +208,28 @@ class ClaimResult:
     assumption: str
 
 
-def decide_claim(claim: MethodClaim, level: float) -> ClaimResult:
-    tables = list(claim.tables.values())
-    counts = np.array([[t.a_only, t.b_only, t.n] for t in tables], float).reshape(-1, 3)
-    result = replicate_t(counts[:, 0], counts[:, 1], counts[:, 2], level, claim.margin)
+def decide_claim(claim: MethodClaim | MarginClaim, level: float) -> ClaimResult:
+    if isinstance(claim, MarginClaim):
+        replicates = tuple(claim.differences)
+        result = replicate_t_means(list(claim.differences.values()), level)
+    else:
+        replicates = tuple(claim.tables)
+        counts = np.array([[t.a_only, t.b_only, t.n] for t in claim.tables.values()], float).reshape(-1, 3)
+        result = replicate_t(counts[:, 0], counts[:, 1], counts[:, 2], level, claim.margin)
     verdict = Verdict(claim_verdicts(result, claim.margin).item())
     reason = Reason.DECIDED
     if verdict is Verdict.UNDECIDED:
-        reason = Reason.TOO_FEW_REPLICATES if len(tables) < 2 else Reason.INTERVAL_TOO_WIDE
+        reason = Reason.TOO_FEW_REPLICATES if len(replicates) < 2 else Reason.INTERVAL_TOO_WIDE
     fields = ("estimate", "low", "high", "equivalence_low", "equivalence_high", "p_value", "sd")
     values = {f: float(getattr(result, f)) for f in fields}
-    detectable = detectable_difference(values["sd"], len(tables), level)
-    needed = replicates_needed(values["sd"], claim.margin, level) if len(tables) >= 2 else None
+    detectable = detectable_difference(values["sd"], len(replicates), level)
+    needed = replicates_needed(values["sd"], claim.margin, level) if len(replicates) >= 2 else None
     return ClaimResult(
         claim.name,
         **values,
         detectable=detectable,
         needed=needed,
-        replicates=tuple(claim.tables),
+        replicates=replicates,
         level=float(level),
         margin=float(claim.margin),
         verdict=verdict,
@@ -202,10 +238,10 @@ def decide_claim(claim: MethodClaim, level: float) -> ClaimResult:
     )
 
 
-def decide_claims(claims: Sequence[MethodClaim], alpha: float) -> list[ClaimResult]:
+def decide_claims(claims: Sequence[MethodClaim | MarginClaim], alpha: float) -> list[ClaimResult]:
     """A family of method claims at family-wise error α: each at α/m (Bonferroni), so with probability ≥ 1 − α
     (under the t assumption) every SUPPORTED, REFUTED and EQUIVALENT verdict of the family is right."""
-    if not claims or any(not c.tables for c in claims):
+    if not claims or any(not (c.differences if isinstance(c, MarginClaim) else c.tables) for c in claims):
         raise ValueError("method claims need at least one claim, each with at least one replicate's table")
     level = split_gamma(alpha, len(claims))
     return [decide_claim(c, level) for c in claims]

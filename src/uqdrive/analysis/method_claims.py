@@ -1,0 +1,261 @@
+"""Method-level answers: claims about posterior families (the mean over training runs), decided across replicates.
+
+Three families, each at family-wise error α on its own (Bonferroni within it, `uqdrive.uq.claims`):
+
+- ``paper``: the paper's comparisons, fixed in advance — offline safety at the training location without noise
+  over the sweep's weathers (VI > HMC > MCD, as the paper ranks them), MCD without rain against MCD in rain, and
+  per method the warnings (on, and calibrated on fresh seeds) against none in the unknown conditions (the
+  paper's VI: 0.00 → 0.90);
+- ``exploratory``: every method pair at every condition of both experiments, and the warnings per condition;
+- ``margin``: the paper's offline method pairs on each run's margin (`PathVerdict.margin`), a separate estimand
+  (how far inside its lane a controller stays), never η1.
+
+A claim reads "A is safer than B". Replicate r gives one paired difference from its cells on its own seeds
+(pooled claims concatenate the pairs of their conditions); replicates drive disjoint seeds, so the differences
+are independent across replicates.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from uqdrive import paper
+from uqdrive.records import record
+from uqdrive.resolvers import condition_label
+from uqdrive.safety.cell_records import PAIRS, AvoidCell, AvoidResult, Mode, SafetyCell
+from uqdrive.uq.claims import ClaimResult, MarginClaim, MethodClaim, decide_claims
+from uqdrive.uq.paired import paired_table
+from uqdrive.uq.verdict import Reason, Verdict  # noqa: F401  (record field types)
+
+PAPER_OFFLINE = (("vi", "hmc"), ("vi", "mcd"), ("hmc", "mcd"))  # the paper's ranking: VI 0.91 > HMC 0.766 > MCD 0.58
+RAIN = "rain"
+
+
+@record
+class ClaimRecord:
+    """One claim "``a`` is safer than ``b``" (``family``: paper, exploratory or margin) decided over the replicates:
+    Δ̂ (the mean of ``per_replicate``), its interval and equivalence interval at ``level``, the verdict and, if
+    undecided, the reason; ``detectable``: the |Δ| this design detects with 80 % power; ``needed``: replicates that
+    would detect ``margin``; ``a_rates``, ``b_rates``: each replicate's two sides; ``paper``: the paper's numbers."""
+
+    family: str
+    name: str
+    experiment: str
+    a: str
+    b: str
+    paper: str | None
+    estimate: float
+    low: float
+    high: float
+    equivalence_low: float
+    equivalence_high: float
+    p_value: float
+    sd: float
+    detectable: float
+    needed: int | None
+    level: float
+    margin: float
+    replicates: list[int]
+    per_replicate: list[float]
+    a_rates: list[float]
+    b_rates: list[float]
+    pairs: int
+    verdict: Verdict
+    reason: Reason
+    assumption: str
+
+
+class _Claim:
+    """A claim before it is decided: its sides' cells per replicate (A's and B's lists pair run by run)."""
+
+    def __init__(self, name: str, experiment: str, a: str, b: str, paper_text: str | None, sides: dict):
+        self.name, self.experiment, self.a, self.b, self.paper = name, experiment, a, b, paper_text
+        self.sides = sides  # replicate → (A cells, B cells), paired position by position
+
+    def outcomes(self, replicate: int) -> tuple[np.ndarray, np.ndarray]:
+        a, b = self.sides[replicate]
+        return _concat(a, lambda c: c.safe), _concat(b, lambda c: c.safe)
+
+    def margins(self, replicate: int) -> np.ndarray:
+        a, b = self.sides[replicate]
+        return _concat(a, lambda c: c.margin) - _concat(b, lambda c: c.margin)
+
+
+def _concat(cells: Sequence[SafetyCell | AvoidCell], values) -> np.ndarray:
+    """Each cell's first k runs (k fixed in advance: `fixed_rollouts`), concatenated."""
+    k = min(c.fixed_rollouts for c in cells)
+    return np.concatenate([np.asarray(values(c))[:k] for c in cells])
+
+
+def _check_paired(sides: dict) -> None:
+    for a, b in sides.values():
+        if len(a) != len(b) or any(x.base_seed != y.base_seed for x, y in zip(a, b)):
+            raise ValueError("a claim's cells must pair one to one on the same rollout seeds")
+
+
+def offline_claims(cells: list[SafetyCell], methods: Sequence[str], location: str, noise: float) -> list[_Claim]:
+    """The paper's offline comparisons at ``location`` without noise, over every weather of the sweep."""
+    by = {(c.method, c.replicate, c.condition): c for c in cells}
+    replicates = sorted({c.replicate for c in cells})
+    weathers = list(dict.fromkeys(c.weather for c in cells if (c.location, c.noise) == (location, noise)))
+    out = []
+    for x, y in (p for p in PAPER_OFFLINE if set(p) <= set(methods)):
+        sides = {
+            r: ([by[x, r, (location, w, noise)] for w in weathers], [by[y, r, (location, w, noise)] for w in weathers])
+            for r in replicates
+        }
+        text = f"{paper.OFFLINE_ALL_WEATHERS[x]:g} vs {paper.OFFLINE_ALL_WEATHERS[y]:g}"
+        out.append(_Claim(f"{x} safer than {y} offline", "offline", x, y, text, sides))
+    dry = [w for w in weathers if w != RAIN]
+    if "mcd" in methods and RAIN in weathers and dry:
+        sides = {
+            r: ([by["mcd", r, (location, w, noise)] for w in dry], [by["mcd", r, (location, RAIN, noise)]] * len(dry))
+            for r in replicates
+        }
+        # rain's cell pairs with each dry weather's: Δ̂_r is exact; the within-replicate floor counts those pairs
+        # as apart, so it binds less (the variance between replicates carries the test)
+        text = f"{paper.OFFLINE_WITHOUT_RAIN['mcd']:g} vs {paper.OFFLINE_ALL_WEATHERS['mcd']:g} (with rain)"
+        out.append(_Claim("mcd safer without rain than in rain", "offline", "mcd dry", "mcd rain", text, sides))
+    return out
+
+
+def warning_claims(results: list[AvoidResult], methods: Sequence[str]) -> list[_Claim]:
+    """Per method, warnings on (and calibrated, on fresh seeds) against none in the unknown conditions."""
+    out = []
+    for method in methods:
+        mine = [r for r in results if r.method == method]
+        for with_warnings, without in PAIRS:
+            sides = {
+                r.replicate: (
+                    [r.cell(c, with_warnings) for c in r.conditions[1:]],
+                    [r.cell(c, without) for c in r.conditions[1:]],
+                )
+                for r in mine
+            }
+            text = (
+                f"{paper.AVOID_UNKNOWN_ON:g} vs {paper.AVOID_UNKNOWN_OFF:g}"
+                if (method, with_warnings)
+                == (
+                    paper.AVOID_METHOD,
+                    Mode.ON,
+                )
+                else None
+            )
+            name = f"{method}: warnings {with_warnings} safer than {without}, unknown conditions"
+            out.append(_Claim(name, "avoid", f"{method} {with_warnings}", f"{method} {without}", text, sides))
+    return out
+
+
+def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], methods: Sequence[str]) -> list[_Claim]:
+    """Every method pair at every condition of both experiments; the warnings per method and condition."""
+    out = []
+    by = {(c.method, c.replicate, c.condition): c for c in cells}
+    replicates = sorted({c.replicate for c in cells})
+    for condition in dict.fromkeys(c.condition for c in cells):
+        label = condition_label(*condition)
+        for x, y in itertools.combinations(methods, 2):
+            sides = {r: ([by[x, r, condition]], [by[y, r, condition]]) for r in replicates}
+            out.append(_Claim(f"{x} vs {y} at {label}", "offline", x, y, None, sides))
+    avoid = {(r.method, r.replicate): r for r in results}
+    for condition in results[0].conditions:
+        for x, y in itertools.combinations(methods, 2):
+            sides = {
+                r: ([avoid[x, r].cell(condition, Mode.OFF)], [avoid[y, r].cell(condition, Mode.OFF)])
+                for m, r in avoid
+                if m == x
+            }
+            out.append(_Claim(f"{x} vs {y} at {condition}, warnings off", "avoid", x, y, None, sides))
+        for method, (with_warnings, without) in itertools.product(methods, PAIRS):
+            sides = {
+                r: ([avoid[method, r].cell(condition, with_warnings)], [avoid[method, r].cell(condition, without)])
+                for m, r in avoid
+                if m == method
+            }
+            name = f"{method}: warnings {with_warnings} vs {without} at {condition}"
+            out.append(_Claim(name, "avoid", f"{method} {with_warnings}", f"{method} {without}", None, sides))
+    return out
+
+
+def _decide(
+    family: str, claims: list[_Claim], margin: float, alpha: float, on_margins: bool = False
+) -> list[ClaimRecord]:
+    for claim in claims:
+        _check_paired(claim.sides)
+    if on_margins:
+        decided = decide_claims(
+            [MarginClaim(c.name, {r: c.margins(r) for r in c.sides}, margin) for c in claims], alpha
+        )
+    else:
+        tables = [{r: paired_table(*c.outcomes(r)) for r in c.sides} for c in claims]
+        decided = decide_claims([MethodClaim(c.name, t, margin) for c, t in zip(claims, tables)], alpha)
+    return [_record(family, c, d, on_margins) for c, d in zip(claims, decided)]
+
+
+def _record(family: str, claim: _Claim, decided: ClaimResult, on_margins: bool) -> ClaimRecord:
+    sides = [claim.outcomes(r) if not on_margins else _margin_sides(claim, r) for r in claim.sides]
+    a_rates, b_rates = [float(np.mean(a)) for a, _ in sides], [float(np.mean(b)) for _, b in sides]
+    return ClaimRecord(
+        family=family,
+        name=claim.name,
+        experiment=claim.experiment,
+        a=claim.a,
+        b=claim.b,
+        paper=claim.paper,
+        estimate=decided.estimate,
+        low=decided.low,
+        high=decided.high,
+        equivalence_low=decided.equivalence_low,
+        equivalence_high=decided.equivalence_high,
+        p_value=decided.p_value,
+        sd=decided.sd,
+        detectable=decided.detectable,
+        needed=decided.needed,
+        level=decided.level,
+        margin=decided.margin,
+        replicates=list(decided.replicates),
+        per_replicate=[a - b for a, b in zip(a_rates, b_rates)],
+        a_rates=a_rates,
+        b_rates=b_rates,
+        pairs=len(sides[0][0]),
+        verdict=decided.verdict,
+        reason=decided.reason,
+        assumption=decided.assumption,
+    )
+
+
+def _margin_sides(claim: _Claim, replicate: int) -> tuple[np.ndarray, np.ndarray]:
+    a, b = claim.sides[replicate]
+    return _concat(a, lambda c: c.margin), _concat(b, lambda c: c.margin)
+
+
+def has_margins(claims: Iterable[_Claim]) -> bool:
+    """Whether every run of these claims' cells recorded a margin (cells of an older run, or of a world without a
+    lane rule, record none)."""
+    margins = [claim.margins(r) for claim in claims for r in claim.sides]
+    return all(m.size > 1 and np.isfinite(m).all() for m in margins)
+
+
+def method_claims(
+    cells: list[SafetyCell],
+    results: list[AvoidResult],
+    methods: Sequence[str],
+    training: tuple,
+    alpha: float,
+    margin: float,
+) -> list[ClaimRecord]:
+    """Every family of method claims, each decided at family-wise error ``alpha``; ``margin``: δ of equivalence
+    (η1 units, and lane half-widths for the margin family)."""
+    location, _, noise = training
+    offline = offline_claims(cells, methods, location, noise)
+    paper_family = [*offline, *warning_claims(results, methods)]
+    out = [
+        *_decide("paper", paper_family, margin, alpha),
+        *_decide("exploratory", exploratory_claims(cells, results, methods), margin, alpha),
+    ]
+    pairs = [c for c in offline if c.a != "mcd dry"]
+    if pairs and has_margins(pairs):
+        out += _decide("margin", pairs, margin, alpha, on_margins=True)
+    return out
