@@ -272,11 +272,12 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert "- vi certified" in text  # each calibration's guarantee in words
     assert "| profile | `tiny` |" in text and "| training replicates | seeds 0, 1" in text
     assert "Figure missing: `plots/safety/summary/hexbin_roundabout_noise0.05.png`" in text
-    envelope_rows = {r["method"]: r for r in markdown_rows(text, "method | safe regions (box)")}
+    envelope_rows = {r["method"]: r for r in markdown_rows(text, "method | safe on average (box)")}
     for envelope in envelopes:
         row = envelope_rows[envelope.method]
         n = envelope.rollouts
-        assert row["safe regions (box)"] == "1 (50%)" and row["undecided"] == "1 (50%)" and row["unsafe"] == "0 (0%)"
+        assert row["safe on average (box)"] == "1 (50%)" and row["undecided"] == "1 (50%)"
+        assert row["unsafe on average"] == "0 (0%)"
         assert row["rollouts"] == f"8 + {n['certify']} + 3 = {n['total']}" and row["grid"] == "16000"
         assert row["seconds"] == fmt(envelope.seconds, 0)
     assert "weather.blend (clear_noon → rain) ∈ [0, 1]" in text

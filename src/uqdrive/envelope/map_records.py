@@ -103,9 +103,10 @@ def guarantee(theta: float) -> str:
     if theta > 0:
         safe, unsafe = ("eta1 > threshold - theta", "eta1 < threshold + theta")
     return (
-        f"family-wise: with probability >= 1 - gamma, at once, every region marked safe has {safe} and every region "
-        f"marked unsafe has {unsafe}, where a region's eta1 is the probability that a rollout at a condition drawn "
-        "uniformly in the region, on a fresh seed, stays in the safe set"
+        f"family-wise, of region averages: with probability >= 1 - gamma, at once, every region marked safe has "
+        f"{safe} and every region marked unsafe has {unsafe}, where a region's eta1 is its average: the probability "
+        "that a rollout at a condition drawn uniformly in the region, on a fresh seed, stays in the safe set (not "
+        "eta1 at every point of it)"
     )
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from uqdrive.envelope.certify import RegionVerdict
 from uqdrive.envelope.map_records import EnvelopeResult
 from uqdrive.records import read_record
 from uqdrive.report.document import Report, fmt, table
@@ -36,16 +37,18 @@ def envelope_section(report: Report, envelopes: list[EnvelopeResult]) -> None:
 Each `offline` controller (replicate seed{first.replicate}) over the continuous conditions {axes} at
 {first.location}: phase one searches for the boundary η1 = {first.threshold:g} with {first.search.rollouts}
 rollouts; their outcomes alone choose a partition, finer along that boundary; phase two certifies each region's η1
-(conditions drawn uniformly in the region, fresh seeds) with the sequential threshold test at its share of γ. A
-region ends safe (η1 ≥ τ certified), unsafe (η1 < τ certified) or undecided (its budget spent). **Guarantee:
-family-wise.** With probability ≥ 1 − {first.gamma:g}, every verdict of a map holds at once. `grid`: the rollouts a
-grid of the finest regions would need with a per-cell exact interval of half-width {first.grid.theta:g},
-family-wise at the same γ. `rollouts`: search + the tests' + run ahead of a test and never read (a region's
+with the sequential threshold test at its share of γ. **A verdict is about the region's average**: its η1 is the
+probability that a rollout at a condition drawn uniformly in the region, on a fresh seed, stays in the safe set. A
+region ends safe (its average η1 ≥ τ certified), unsafe (its average < τ certified) or undecided (its budget
+spent); a safe region may hold points below τ (nothing here assumes safety falls monotonically with noise or
+rain). **Guarantee: family-wise, of region averages.** With probability ≥ 1 − {first.gamma:g}, every verdict of a
+map holds at once. `grid`: the rollouts a grid of the finest regions would need with a per-cell exact interval of
+half-width {first.grid.theta:g}, family-wise at the same γ (each cell's interval, too, is of a region average). `rollouts`: search + the tests' + run ahead of a test and never read (a region's
 rollouts are simulated a full lockstep batch at a time; a test reads only what it asks for, in order).""")
     rows = [
         [
             e.method,
-            *(f"{e.verdicts[v]} ({e.volume[v]:.0%})" for v in ("safe", "unsafe", "undecided")),
+            *(f"{e.verdicts[v]} ({e.volume[v]:.0%})" for v in RegionVerdict),
             str(e.search.failures),
             f"{e.rollouts['search']} + {e.rollouts['certify']} + {e.rollouts['unread']} = {e.rollouts['total']}",
             str(e.grid.rollouts),
@@ -53,7 +56,16 @@ rollouts are simulated a full lockstep batch at a time; a test reads only what i
         ]
         for e in envelopes
     ]
-    headers = ["method", "safe regions (box)", "unsafe", "undecided", "failures found", "rollouts", "grid", "seconds"]
+    headers = [
+        "method",
+        "safe on average (box)",
+        "unsafe on average",
+        "undecided",
+        "failures found",
+        "rollouts",
+        "grid",
+    ]
+    headers += ["seconds"]
     report.add(table(headers, rows))
     for e in envelopes:
         report.figure(
