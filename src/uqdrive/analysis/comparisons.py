@@ -113,7 +113,8 @@ def safety_comparisons(cells: list[SafetyCell], methods: list[str], training: tu
             label, base = condition_label(*condition), condition_label(*training)
             pairs = {r: (by[method, r, condition], by[method, r, training]) for r in replicates}
             name = f"{method}: {label} vs the training condition"
-            yield "offline", "condition", label, f"{method} {label}", f"{method} {base}", _comparison(name, pairs)
+            topic = condition[0] if condition[0] != training[0] else label  # another location: one topic, all weathers
+            yield "offline", "condition", topic, f"{method} {label}", f"{method} {base}", _comparison(name, pairs)
 
 
 def avoid_comparisons(results: list[AvoidResult], methods: list[str]) -> Iterator[tuple]:
