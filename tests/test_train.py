@@ -140,7 +140,9 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
         posterior = load_posterior(
             root / f"models/joint/{method}/seed0.pt", expected_method=method, expected_classes=bins
         )
-        scores = evaluate(posterior, compute_features(posterior, val), val.labels, 20, torch.Generator().manual_seed(0))
+        # 200 draws: the predictive the reported 20-draw number estimates (two 20-draw MCD estimates differ by ~0.09)
+        features = compute_features(posterior, val)
+        scores = evaluate(posterior, features, val.labels, 200, torch.Generator().manual_seed(0))
         assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
 
 

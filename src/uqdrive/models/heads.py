@@ -18,6 +18,7 @@ from tqdm import trange
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture, sampled_mlp_logits
 from uqdrive.models.posterior import Posterior, check_draws, per_frame_linear
+from uqdrive.models.stacking import per_replicate, replicate_rows
 from uqdrive.models.training import curve_row, evaluate
 
 Shapes = list[tuple[int, int]]
@@ -83,37 +84,44 @@ def train_heads(
     batch_size: int,
     lr: float,
     prior_sigma: float,
-    generator: torch.Generator,
+    generators: Sequence[torch.Generator],
     progress: bool,
     desc: str,
-    scored: Posterior | None = None,
+    scored: Sequence[Posterior] | None = None,
     eval_samples: int = 1,
-) -> tuple[torch.Tensor, list[dict]]:
-    """MAP training of k heads θ [k, D] side by side (Adam; each head its own minibatch order).
+) -> tuple[torch.Tensor, list[list[dict]]]:
+    """MAP training of R replicates' k heads θ [R, k, D] side by side (Adam; each head its own minibatch order),
+    replicate r's on its features [R, N, F] (validation [R, M, F]), its orders from ``generators[r]``.
 
     Loss per frame: cross-entropy + ‖θ‖²/(2σ²N), the MAP of the same N(0, σ²) prior as VI and HMC.
-    `scored` (a posterior viewing θ) is evaluated on validation after each epoch for the curve.
+    ``scored[r]`` (a posterior viewing replicate r's θ) is evaluated on validation after each epoch for its curve.
+    Returns the heads [R, k, D] and the replicates' curves.
     """
+    replicates, heads = theta.shape[:2]
     theta = theta.detach().clone().requires_grad_(True)
-    optimizer = torch.optim.Adam([theta], lr=lr)
-    n_train, heads = len(labels), len(theta)
-    curve = []
+    optimizer = torch.optim.Adam([theta], lr=lr, fused=True)
+    n_train = len(labels)
+    curves: list[list[dict]] = [[] for _ in range(replicates)]
     for epoch in trange(1, epochs + 1, desc=desc, unit="epoch", disable=not progress):
-        order = torch.stack([torch.randperm(n_train, generator=generator) for _ in range(heads)])  # [k, N]
-        total = 0.0
-        for index in order.split(batch_size, dim=1):
-            nll = head_nll(features[index], labels[index], theta, shapes) / index.shape[1]
-            loss = (nll + theta.square().sum(1) / (2 * prior_sigma**2 * n_train)).sum()
+        order = per_replicate(  # [R, k, N]
+            generators, lambda g: torch.stack([torch.randperm(n_train, generator=g) for _ in range(heads)])
+        )
+        totals = torch.zeros(replicates, dtype=torch.float64)
+        for index in order.split(batch_size, dim=2):
+            rows = replicate_rows(features, index).flatten(0, 1)  # [R·k, b, F]
+            nll = head_nll(rows, labels[index].flatten(0, 1), theta.flatten(0, 1), shapes).view(replicates, heads)
+            nll = nll / index.shape[2]
+            loss = (nll + theta.square().sum(2) / (2 * prior_sigma**2 * n_train)).sum()
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-            total += float(nll.detach().sum()) * index.shape[1] / heads
-        if scored is not None:
+            totals += nll.detach().double().sum(1) * index.shape[2] / heads
+        for r, posterior in enumerate(scored or []):
             with torch.no_grad():
-                scored.load_heads(theta.detach())
-            scores = evaluate(scored, val_features, val_labels, eval_samples, generator)
-            curve.append(curve_row(epoch, total / n_train, scores))
-    return theta.detach(), curve
+                posterior.load_heads(theta[r].detach())
+            scores = evaluate(posterior, val_features[r], val_labels, eval_samples, generators[r])
+            curves[r].append(curve_row(epoch, float(totals[r]) / n_train, scores))
+    return theta.detach(), curves
 
 
 class StoredHeadPosterior(Posterior):

@@ -163,20 +163,20 @@ def sampled_layers(
     head = flatten_mcd_head(data.base)
     if fixed:
         head = train_heads(
-            head.unsqueeze(0),
+            head.view(1, 1, -1),
             shapes,
-            data.train_features,
+            data.train_features.unsqueeze(0),
             train_labels,
-            data.val_features,
+            data.val_features.unsqueeze(0),
             val_labels,
             epochs=settings.map_epochs,
             batch_size=settings.map_batch_size,
             lr=settings.map_lr,
             prior_sigma=settings.prior_sigma,
-            generator=generator,
+            generators=[generator],
             progress=progress,
             desc="hmc map",
-        )[0][0]
+        )[0][0, 0]
     return SampledLayers(
         shapes,
         fixed,
@@ -207,20 +207,20 @@ def dispersed_space(
     """Each chain starts from its own He initialisation trained `start_epochs` towards its own mode: dispersed,
     but past the first steep descent that a random head would spend warm-up on."""
     starts = train_heads(
-        he_init_heads(settings.chains, layers.sampled_shapes, generator),
+        he_init_heads(settings.chains, layers.sampled_shapes, generator).unsqueeze(0),
         layers.sampled_shapes,
-        layers.train_phi,
+        layers.train_phi.unsqueeze(0),
         layers.train_labels,
-        layers.val_phi,
+        layers.val_phi.unsqueeze(0),
         layers.val_labels,
         epochs=settings.start_epochs,
         batch_size=settings.map_batch_size,
         lr=settings.map_lr,
         prior_sigma=settings.prior_sigma,
-        generator=generator,
+        generators=[generator],
         progress=progress,
         desc="hmc starts",
-    )[0]
+    )[0][0]
     return ChainSpace(layers.log_posterior(settings.prior_sigma), starts)
 
 

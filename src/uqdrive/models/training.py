@@ -7,6 +7,7 @@ leapfrog step reuses the tensor.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -46,6 +47,18 @@ class TrainingData:
     @cached_property
     def val_features(self) -> torch.Tensor:
         return compute_features(self.base, self.val)
+
+
+def shared_frames(data: Sequence[TrainingData]) -> tuple[FrameSet, FrameSet]:
+    """The train and validation frames of replicates trained as one batch: the same frames (each replicate shuffles
+    them its own way), network shape and evaluation, or stacking them means nothing."""
+    first = data[0]
+    for other in data[1:]:
+        if other.train is not first.train or other.val is not first.val:
+            raise ValueError("replicates trained as one batch must share their train and validation frames")
+        if (other.arch, other.bins, other.eval_samples) != (first.arch, first.bins, first.eval_samples):
+            raise ValueError("replicates trained as one batch must share their architecture, classes and eval_samples")
+    return first.train, first.val
 
 
 @torch.no_grad()

@@ -25,7 +25,7 @@ from uqdrive.files import write_csv, write_json
 from uqdrive.models.checkpoint import save_posterior
 from uqdrive.models.metrics import majority_accuracy
 from uqdrive.models.pilotnet import Architecture
-from uqdrive.models.posterior import posterior_settings
+from uqdrive.models.posterior import Fitted, posterior_settings
 from uqdrive.models.training import TrainingData, compute_features, evaluate
 from uqdrive.parallel import ProcessPool
 from uqdrive.pipeline.configs import ModelStage, NonEmptySeeds
@@ -57,50 +57,67 @@ class TrainStage(ModelStage):
 
 
 def run_train(cfg: DictConfig) -> dict:
-    stage = validate(TrainStage, cfg)
-    cls, settings = posterior_settings(stage.model)
-    method = cls.method
-    eval_samples = stage.train.eval_samples
-    bins = stage.experiment.bins
+    return train_replicates([cfg])[0]
+
+
+def train_replicates(configs: Sequence[DictConfig]) -> list[dict]:
+    """Fit one method's replicates (configs that differ by seed only) as one batch (`Posterior.fit_replicates`:
+    stacked where the method allows), then evaluate, save and log each as its own run. Returns their metrics."""
+    stages = [validate(TrainStage, cfg) for cfg in configs]
+    cls, settings = posterior_settings(stages[0].model)
+    if (
+        any(posterior_settings(s.model) != (cls, settings) for s in stages)
+        or len({c.paths.processed for c in configs}) > 1
+    ):
+        raise ValueError("replicates trained as one batch must share the model settings and the processed frames")
+    cfg, bins = configs[0], stages[0].experiment.bins
     processed = Path(cfg.paths.processed)
     train = load_frames(processed / "train.parquet", bins.num_classes)
     val = load_frames(processed / "val.parquet", bins.num_classes)
-    generator = torch.Generator().manual_seed(int(cfg.seed))
-    threads = stage.train.threads
+    data = [TrainingData(train, val, bins, s.arch, Path(s.train.base_model), s.train.eval_samples) for s in stages]
+    generators = [torch.Generator().manual_seed(int(c.seed)) for c in configs]
     previous_threads = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    data = TrainingData(
-        train,
-        val,
-        bins,
-        stage.arch,
-        Path(stage.train.base_model),
-        eval_samples,
-    )
+    torch.set_num_threads(stages[0].train.threads)
     try:
         started = time.perf_counter()
-        fitted = cls.fit(settings, data, generator, bool(cfg.progress))
-        seconds = time.perf_counter() - started
-        model, curve, extra = fitted.posterior.eval(), fitted.curve, fitted.extra
-        scores = evaluate(model, compute_features(model, val), val.labels, eval_samples, generator)
+        fits = cls.fit_replicates(settings, data, generators, bool(cfg.progress))
+        seconds = (time.perf_counter() - started) / len(fits)  # the replicate's share of the batch
+        scores = [
+            evaluate(f.posterior.eval(), compute_features(f.posterior, val), val.labels, d.eval_samples, g)
+            for f, d, g in zip(fits, data, generators)
+        ]
     finally:
         torch.set_num_threads(previous_threads)
-    metrics = {
-        "method": method,
-        **{f"val_{k}": v for k, v in scores.items()},
-        "majority_baseline_accuracy": majority_accuracy(train.labels, val.labels, bins.num_classes),
-        "train_frames": len(train),
-        "val_frames": len(val),
-        "eval_samples": eval_samples,
-        "seed": int(cfg.seed),
-        "train_seconds": seconds,
-        **extra,
-    }
+    baseline = majority_accuracy(train.labels, val.labels, bins.num_classes)
+    return [
+        write_replicate(
+            c,
+            fit,
+            {
+                "method": cls.method,
+                **{f"val_{k}": v for k, v in score.items()},
+                "majority_baseline_accuracy": baseline,
+                "train_frames": len(train),
+                "val_frames": len(val),
+                "eval_samples": d.eval_samples,
+                "seed": int(c.seed),
+                "train_seconds": seconds,
+                "batched_replicates": len(fits),
+                **fit.extra,
+            },
+        )
+        for c, fit, score, d in zip(configs, fits, scores, data)
+    ]
+
+
+def write_replicate(cfg: DictConfig, fitted: Fitted, metrics: dict) -> dict:
+    """A trained replicate's model, learning curve and metrics files, and its MLflow run; returns its metrics."""
+    model, curve, method = fitted.posterior, fitted.curve, metrics["method"]
     replicate = cfg.replicate
     model_path = save_posterior(model, Path(cfg.paths.models) / f"{replicate}.pt", metadata={"metrics": metrics})
     plots = Path(cfg.paths.plots)
     curve_csv = write_csv(plots / f"{replicate}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
-    curve_png = save_figure(curve_figure(curve, method, cls.curve_unit), plots / f"{replicate}_curve.png")
+    curve_png = save_figure(curve_figure(curve, method, model.curve_unit), plots / f"{replicate}_curve.png")
     metrics_json = Path(cfg.paths.metrics) / f"{replicate}.json"
     write_json(metrics_json, metrics)
 
@@ -146,29 +163,32 @@ class TrainReplicatesStage(TrainStage):
 
 @dataclass(frozen=True)
 class TrainJob:
-    """The replicates' configs, resolved (a worker process has no Hydra): item i trains the i-th."""
+    """The replicates' configs, resolved (a worker process has no Hydra), in groups: item i trains group i as one
+    batch (`train_replicates`)."""
 
-    configs: tuple[dict, ...]
+    groups: tuple[tuple[dict, ...], ...]
 
     def worker(self) -> TrainJob:
         return self
 
-    def run(self, index: int) -> dict:
-        return run_train(OmegaConf.create(self.configs[index]))
+    def run(self, index: int) -> list[dict]:
+        return train_replicates([OmegaConf.create(c) for c in self.groups[index]])
 
     def close(self) -> None:
         """Nothing held between items."""
 
 
 def run_train_replicates(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
-    """Every replicate of ``cfg.replicates``, ``train.workers`` at a time (a process each); each replicate's config
-    checked before any trains. Returns their metrics in replicate order."""
+    """Every replicate of ``cfg.replicates``, in ``train.workers`` groups of consecutive seeds, each group one batch
+    in a process of its own (a core each: stacking replicates saves per-replicate overhead, a second core doubles
+    throughput); each replicate's config checked before any trains. Returns their metrics in replicate order."""
     stage = validate(TrainReplicatesStage, cfg)
-    cells = grid(seed=cfg.replicates)
-    configs = [compose_cell("train", overrides, cell) for cell in cells]
+    configs = [compose_cell("train", overrides, cell) for cell in grid(seed=cfg.replicates)]
     for config in configs:
         validate(TrainStage, config)
-    job = TrainJob(tuple(OmegaConf.to_container(c, resolve=True) for c in configs))
-    with ProcessPool(min(stage.train.workers, len(configs))) as pool:
-        executor = pool.executor(job)
-        return list(executor.run(range(len(configs))))
+    resolved = [OmegaConf.to_container(c, resolve=True) for c in configs]
+    workers = min(stage.train.workers, len(configs))
+    bounds = [round(i * len(configs) / workers) for i in range(workers + 1)]
+    job = TrainJob(tuple(tuple(resolved[start:end]) for start, end in zip(bounds, bounds[1:])))
+    with ProcessPool(workers) as pool:
+        return [metrics for group in pool.executor(job).run(range(workers)) for metrics in group]
