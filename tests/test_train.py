@@ -1,9 +1,5 @@
-"""The train stage (mcd → vi, hmc, ensemble, laplace) on a small synthetic road data set, called as DVC would call it.
-
-Synthetic but shaped like the real data: 48x64 gray frames with sky, grass and a road whose
-vanishing point moves with the steering label, 45% of frames "straight ahead" (the majority
-class, as in the collected data), noise and per-frame brightness and horizon jitter. The same
-checks on frames collected in pybullet run in test_train_collected.py (slow).
+"""The train stage (mcd → vi, hmc, ensemble, laplace) on a small synthetic road data set (`uqdrive.data.synthetic`),
+called as DVC would call it. The same checks on frames collected in pybullet run in test_train_collected.py (slow).
 """
 
 import csv
@@ -19,6 +15,7 @@ from mlflow.tracking import MlflowClient
 import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import load_frames
+from uqdrive.data.synthetic import synthetic_road_frames
 from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.laplace import PRIOR_GRID
@@ -30,22 +27,8 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
 
 
-def synthetic_frames(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """uint8 frames [n, 48, 64] and steering [n] (positive = left: the road bends, and its vanishing point
-    moves, left)."""
-    steer = np.where(rng.random(n) < 0.45, 0.0, rng.choice(np.arange(-6, 7) / 10, n))
-    yy, xx = np.mgrid[0:48, 0:64].astype(np.float32)
-    horizon = 16 + rng.integers(-2, 3, n)[:, None, None]
-    vanish = 32 - 40 * steer[:, None, None]
-    t = np.clip((yy - horizon) / (47 - horizon), 0, 1)
-    road = (np.abs(xx - (vanish + (32 - vanish) * t)) < 2 + 28 * t) & (yy > horizon)
-    image = np.where(yy <= horizon, 180.0, np.where(road, 100.0, 60.0))
-    image = image + rng.normal(0, 8, image.shape) + rng.integers(-20, 21, n)[:, None, None]
-    return np.clip(image, 0, 255).astype(np.uint8), steer.astype(np.float32)
-
-
 def write_processed(path: Path, n: int, seed: int) -> None:
-    images, steer = synthetic_frames(n, np.random.default_rng(seed))
+    images, steer = synthetic_road_frames(n, np.random.default_rng(seed))
     columns = {
         "scenario": ["synthetic"] * n,
         "weather": ["clear_noon"] * n,

@@ -1,7 +1,7 @@
 """`uqdrive bench NAME`: speed benchmarks that print a ratio against a baseline measured in the same run.
 
-Every benchmark is a module ``uqdrive.bench.<name>`` with ``main(argv) -> int`` whose last
-printed line is ``RESULT <name> key=value ...``.
+Every benchmark is a module ``uqdrive.bench.<name>`` (or ``<name>_bench``, where ``<name>`` is another module's
+name in the package) with ``main(argv) -> int`` whose last printed line is ``RESULT <name> key=value ...``.
 """
 
 from __future__ import annotations
@@ -11,8 +11,13 @@ import pkgutil
 import sys
 
 
+def _modules() -> dict[str, str]:
+    """Benchmark name → its module's name."""
+    return {m.name.removesuffix("_bench"): m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")}
+
+
 def available() -> list[str]:
-    return sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
+    return sorted(_modules())
 
 
 def main(argv: list[str]) -> int:
@@ -24,4 +29,4 @@ def main(argv: list[str]) -> int:
     if name not in names:
         print(f"uqdrive bench: unknown benchmark {name!r}; choose one of {names}", file=sys.stderr)
         return 2
-    return int(importlib.import_module(f"uqdrive.bench.{name}").main(rest) or 0)
+    return int(importlib.import_module(f"uqdrive.bench.{_modules()[name]}").main(rest) or 0)

@@ -18,7 +18,7 @@ from pydantic import Field
 
 from uqdrive.models.heads import StoredHeadPosterior, he_init_heads, train_heads
 from uqdrive.models.posterior import Fitted
-from uqdrive.models.training import TrainingData, shared_frames
+from uqdrive.models.training import TrainingData, share_features, shared_frames
 from uqdrive.schema import Count, Int, Positive, schema
 
 
@@ -55,6 +55,7 @@ class EnsemblePosterior(StoredHeadPosterior):
     ) -> list[Fitted]:
         """Every replicate's members trained side by side, replicate r's on its own base model's features."""
         train, val = shared_frames(data)
+        features, val_features = share_features(data)
         shapes = data[0].base.arch.head_shapes(data[0].base.num_classes)
         ensembles = [
             cls.from_heads(d.base, he_init_heads(settings.members, shapes, g)) for d, g in zip(data, generators)
@@ -62,9 +63,9 @@ class EnsemblePosterior(StoredHeadPosterior):
         members, curves = train_heads(
             torch.stack([e.samples for e in ensembles]),
             shapes,
-            torch.stack([d.train_features for d in data]),
+            features,
             train.labels,
-            torch.stack([d.val_features for d in data]),
+            val_features,
             val.labels,
             epochs=settings.epochs,
             batch_size=settings.batch_size,

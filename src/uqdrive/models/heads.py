@@ -18,7 +18,7 @@ from tqdm import trange
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture, sampled_mlp_logits
 from uqdrive.models.posterior import Posterior, check_draws, per_frame_linear
-from uqdrive.models.stacking import per_replicate, replicate_rows
+from uqdrive.models.stacking import adam, per_replicate, replicate_rows
 from uqdrive.models.training import curve_row, evaluate
 
 Shapes = list[tuple[int, int]]
@@ -99,7 +99,7 @@ def train_heads(
     """
     replicates, heads = theta.shape[:2]
     theta = theta.detach().clone().requires_grad_(True)
-    optimizer = torch.optim.Adam([theta], lr=lr, fused=True)
+    optimizer = adam([theta], lr)
     n_train = len(labels)
     curves: list[list[dict]] = [[] for _ in range(replicates)]
     for epoch in trange(1, epochs + 1, desc=desc, unit="epoch", disable=not progress):

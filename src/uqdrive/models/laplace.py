@@ -44,7 +44,7 @@ from uqdrive.models.heads import fixed_layer_features, flatten_mcd_head, head_nl
 from uqdrive.models.metrics import PROB_FLOOR
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
-from uqdrive.models.training import TrainingData, curve_row, evaluate, shared_frames
+from uqdrive.models.training import TrainingData, curve_row, evaluate, share_features, shared_frames
 from uqdrive.schema import Count, Positive, Seed, schema
 
 PRIOR_GRID = torch.logspace(-4, 4, 161, dtype=torch.float64)  # candidate prior precisions λ (laplace-torch's range)
@@ -215,6 +215,7 @@ class LaplacePosterior(Posterior):
     ) -> list[Fitted]:
         """Every replicate's MAP head trained side by side (`train_heads`), then each its own Laplace step."""
         train, val = shared_frames(data)
+        features, val_features = share_features(data)
         laplaces = []
         for d in data:
             laplace = cls(d.base.arch, d.base.bins)
@@ -223,9 +224,9 @@ class LaplacePosterior(Posterior):
         heads, map_curves = train_heads(
             torch.stack([flatten_mcd_head(d.base).unsqueeze(0) for d in data]),
             laplaces[0].shapes,
-            torch.stack([d.train_features for d in data]),
+            features,
             train.labels,
-            torch.stack([d.val_features for d in data]),
+            val_features,
             val.labels,
             epochs=settings.epochs,
             batch_size=settings.batch_size,

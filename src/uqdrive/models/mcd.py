@@ -19,6 +19,7 @@ from uqdrive.models.concrete_dropout import ConcreteDropout, dropout_regularizer
 from uqdrive.models.pilotnet import INPUT_SHAPE, Architecture, init_weights
 from uqdrive.models.posterior import Fitted, Posterior, check_draws, per_frame_linear
 from uqdrive.models.stacking import (
+    adam,
     epoch_batches,
     per_replicate,
     stack_parameters,
@@ -100,12 +101,12 @@ class MCDPosterior(Posterior):
         train, val = shared_frames(data)
         networks = [cls(d.arch, d.bins, settings.init_p, settings.temperature) for d in data]
         stacked = StackedMCD([init_weights(n, g) for n, g in zip(networks, generators)])
-        optimizer = torch.optim.Adam(stacked.parameters(), lr=settings.lr)
+        optimizer = adam(stacked.parameters(), settings.lr)
         curves: list[list[dict]] = [[] for _ in generators]
         for epoch in trange(1, settings.epochs + 1, desc="mcd", unit="epoch", disable=not progress):
             loss_sums = torch.zeros(len(generators), dtype=torch.float64)
             for index in epoch_batches(len(train), settings.batch_size, generators):
-                losses = stacked.batch_losses(train, index, generators, settings.lengthscale)
+                losses = stacked.losses(*stacked.batch(train, index, generators), len(train), settings.lengthscale)
                 optimizer.zero_grad()
                 losses.sum().backward()
                 optimizer.step()
@@ -165,19 +166,25 @@ class StackedMCD:
             total = total + dropout_regularizer(squares, p, drop.width, lengthscale**2 / num_train, 2.0 / num_train)
         return total
 
-    def batch_losses(
-        self, frames: FrameSet, index: torch.Tensor, generators: Sequence[torch.Generator], lengthscale: float
-    ) -> torch.Tensor:
-        """Each replicate's loss [R] on its minibatch ``frames[index[r]]``, masks drawn from its own generator."""
-        replicates, batch = index.shape
-        x = to_inputs(frames.images[index.flatten()]).view(replicates, batch, *INPUT_SHAPE)
+    def batch(
+        self, frames: FrameSet, index: torch.Tensor, generators: Sequence[torch.Generator]
+    ) -> tuple[torch.Tensor, list[torch.Tensor], torch.Tensor]:
+        """Each replicate's minibatch ``frames[index[r]]`` [R, b, 1, 48, 64], its dropout uniforms [R, b, width] per
+        layer (drawn from its own generator, as its lone run draws them) and its labels [R, b]."""
+        replicates, size = index.shape
+        x = to_inputs(frames.images[index.flatten()]).view(replicates, size, *INPUT_SHAPE)
         uniforms = [
-            per_replicate(generators, lambda g, width=drop.width: torch.rand((batch, width), generator=g))
+            per_replicate(generators, lambda g, width=drop.width: torch.rand((size, width), generator=g))
             for drop in self.template.dropout
         ]
-        logits = self.train_logits(x, uniforms)
-        nll = cross_entropy(logits.flatten(0, 1), frames.labels[index].flatten(), reduction="none")
-        return nll.view(replicates, batch).mean(1) + self.regularizer(len(frames), lengthscale)
+        return x, uniforms, frames.labels[index]
+
+    def losses(
+        self, x: torch.Tensor, uniforms: list[torch.Tensor], labels: torch.Tensor, num_train: int, lengthscale: float
+    ) -> torch.Tensor:
+        """Each replicate's loss [R] on its minibatch (`batch`): cross-entropy + the regulariser per training frame."""
+        nll = cross_entropy(self.train_logits(x, uniforms).flatten(0, 1), labels.flatten(), reduction="none")
+        return nll.view(labels.shape).mean(1) + self.regularizer(num_train, lengthscale)
 
     def _layer(self, k: int) -> tuple[torch.Tensor, torch.Tensor]:
         return self.params[f"head.{k}.weight"], self.params[f"head.{k}.bias"]

@@ -22,8 +22,8 @@ from tqdm import trange
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, Posterior, check_draws, per_frame_linear
-from uqdrive.models.stacking import epoch_batches, per_replicate, replicate_rows, stack_parameters, unstack_into
-from uqdrive.models.training import TrainingData, curve_row, evaluate, shared_frames
+from uqdrive.models.stacking import adam, epoch_batches, per_replicate, replicate_rows, stack_parameters, unstack_into
+from uqdrive.models.training import TrainingData, curve_row, evaluate, share_features, shared_frames
 from uqdrive.schema import ConfigError, Count, Positive, schema
 
 
@@ -98,9 +98,8 @@ class VIPosterior(Posterior):
         train, val = shared_frames(data)
         vis = [cls.from_mcd(d.base, settings.prior_sigma, settings.init_sigma) for d in data]
         params = stack_parameters(vis)
-        features = torch.stack([d.train_features for d in data])
-        val_features = torch.stack([d.val_features for d in data])
-        optimizer = torch.optim.Adam(params.values(), lr=settings.lr, fused=True)
+        features, val_features = share_features(data)
+        optimizer = adam(params.values(), settings.lr)
         n_train = len(train)
         curves: list[list[dict]] = [[] for _ in data]
         for epoch in trange(1, settings.epochs + 1, desc="vi", unit="epoch", disable=not progress):
