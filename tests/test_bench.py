@@ -1,4 +1,4 @@
-"""`uqdrive bench sim|posterior|controller|rollout` run end to end on small sizes and end with their RESULT line.
+"""`uqdrive bench sim|posterior|train|controller|rollout` run end to end on small sizes and end with their RESULT line.
 
 Only the output contract is tested here; the speed targets are measured by running the
 benchmarks themselves (README), never asserted in timed tests.
@@ -23,6 +23,12 @@ from uqdrive.models.checkpoint import save_posterior
     [
         (["sim", "--steps", "30", "--repeats", "1"], r"RESULT sim step_over_render=[\d.]+"),
         (["posterior", "--samples", "50", "--repeats", "2"], r"RESULT posterior worst_ms=[\d.]+ min_speedup=[\d.]+"),
+        (
+            "train --replicates 2 --train-frames 32 --val-frames 16 --methods mcd vi --steps 1 --repeats 1 "
+            "--override train.mcd.epochs=1 --override arch.conv=[4,4,4,4,4]".split(),
+            r"RESULT train batched_speedup=[\d.]+ mcd=[\d.]+ vi=[\d.]+ mcd_step_speedup=[\d.]+ "
+            r"replicates_per_min=[\d.]+",
+        ),
         (
             ["controller", "--frames", "1", "--methods", "vi"],
             r"RESULT controller worst_ms=[\d.]+ worst_p95_ms=[\d.]+ fixed_worst_ms=[\d.]+ min_speedup=[\d.]+ "

@@ -191,3 +191,31 @@ def test_the_replicates_stage_trains_each_seed_as_the_single_replicate_command(t
     }
     saved = [torch.load(root / "models/joint/mcd/seed1.pt")["state"] for root in (tmp_path, tmp_path / "single")]
     assert all(torch.equal(saved[0][k], saved[1][k]) for k in saved[0])
+
+
+@pytest.mark.slow
+def test_the_replicates_stage_stacks_a_workers_seeds_and_writes_each_as_its_own_replicate(tmp_path):
+    """One worker: the three seeds of each method trained as one stacked batch, each written as the single-replicate
+    command writes it (model, metrics, curve, MLflow run); each replicate's heads sit on its own trunk."""
+    write_processed(tmp_path / "data/processed/joint/train.parquet", 160, seed=1)
+    write_processed(tmp_path / "data/processed/joint/val.parquet", 80, seed=2)
+    common = [f"paths.root={tmp_path}", "profile=tiny", "progress=false", "experiment=joint", "train.workers=1"]
+    for method in ("mcd", "vi"):
+        overrides = [*common, f"model={method}"]
+        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+            swept = run_train_replicates(compose("train_replicates", [*overrides, "replicates=[0,1,2]"]), overrides)
+        assert [m["seed"] for m in swept] == [0, 1, 2] and {m["batched_replicates"] for m in swept} == {3}
+        for seed, metrics in enumerate(swept):
+            assert json.loads((tmp_path / f"metrics/joint/train/{method}/seed{seed}.json").read_text()) == metrics
+            assert (tmp_path / f"plots/joint/train/{method}/seed{seed}_curve.csv").exists()
+            load_posterior(tmp_path / f"models/joint/{method}/seed{seed}.pt", expected_method=method)
+    trunks = {
+        (m, s): load_posterior(tmp_path / f"models/joint/{m}/seed{s}.pt").trunk.state_dict()
+        for m in ("mcd", "vi")
+        for s in range(3)
+    }
+    for seed in range(3):
+        assert all(torch.equal(trunks["vi", seed][k], trunks["mcd", seed][k]) for k in trunks["mcd", seed])
+    assert not torch.equal(trunks["mcd", 0]["fc.weight"], trunks["mcd", 1]["fc.weight"])
+    client = MlflowClient(store_uris(tmp_path)[0])
+    assert len(client.search_runs([client.get_experiment_by_name("train").experiment_id])) == 6

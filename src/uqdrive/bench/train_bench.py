@@ -26,6 +26,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import FrameSet
 from uqdrive.data.synthetic import synthetic_road_frames
 from uqdrive.models.checkpoint import save_posterior
+from uqdrive.models.diagnostics import function_space_diagnostics
 from uqdrive.models.mcd import MCDPosterior, StackedMCD
 from uqdrive.models.pilotnet import Architecture, init_weights
 from uqdrive.models.posterior import Fitted, Posterior, posterior_settings
@@ -67,6 +68,15 @@ def composed_methods(profile: str, experiment: str, methods: list[str], override
             cls, settings = posterior_settings(stage.model)
             composed[method] = Method(cls, settings, stage.arch, stage.experiment.bins, stage.train.eval_samples)
     return composed
+
+
+def warm_up() -> None:
+    """Pay here the one-off costs a process's first fit pays (seconds: torch._dynamo's import on the first optimiser
+    step, ArviZ's on HMC's first diagnostics), not in whichever mode is timed first."""
+    parameter = torch.zeros(1, requires_grad=True)
+    parameter.grad = torch.zeros(1)
+    adam([parameter], 1e-3).step()
+    function_space_diagnostics(torch.full((2, 4, 1, 2), 0.5))
 
 
 def synthetic_split(count: int, seed: int, bins: SteeringBins) -> FrameSet:
@@ -167,6 +177,7 @@ def main(argv: list[str]) -> int:
     if args.replicates < 2 or args.steps < 1 or args.repeats < 1:
         ap.error(f"--replicates={args.replicates} must be >= 2, --steps={args.steps} and --repeats={args.repeats} >= 1")
     torch.set_num_threads(1)
+    warm_up()
     methods = composed_methods(
         args.profile, args.experiment, ["mcd", *(m for m in args.methods if m != "mcd")], args.override
     )
