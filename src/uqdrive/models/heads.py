@@ -1,9 +1,9 @@
 """Heads as flat weight vectors on the fixed trunk, and posteriors that store a set of them.
 
 A head's weights live as one flat vector (layer by layer: W [in, out], then b), so HMC's generic
-kernel can sample them, many heads train side by side as a batch dimension (ensemble members,
-HMC chains' starts), and `head_probs` evaluates a set of stored heads with one batched matmul
-per layer.
+kernel can sample them, many heads train side by side as batch dimensions (replicates, and within
+each its ensemble members or HMC chains' starts), and `head_probs` evaluates a set of stored heads
+with one batched matmul per layer.
 """
 
 from __future__ import annotations

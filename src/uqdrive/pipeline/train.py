@@ -1,6 +1,7 @@
 """The `train` stages: fit one posterior (model=<conf/model yaml>) for one training seed (a replicate), evaluate it
-on validation, save and log it; the DVC stage trains every replicate of params.yaml side by side, each as the
-single-replicate command (`python stages/train.py model=M seed=r`) composes it.
+on validation, save and log it; the DVC stage trains every replicate of params.yaml, each as the single-replicate
+command (`python stages/train.py model=M seed=r`) composes it, a worker's share of them stacked into one batch
+(`Posterior.fit_replicates`: each replicate still draws everything from its own seed).
 
 The model config names its Posterior class by `_target_`; the class checks its settings and fits itself (MCD end
 to end on the processed frames; the head methods on the same replicate's MCD trunk features), so these stages
