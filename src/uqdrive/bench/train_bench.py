@@ -28,6 +28,7 @@ from uqdrive.data.synthetic import synthetic_road_frames
 from uqdrive.models.checkpoint import save_posterior
 from uqdrive.models.diagnostics import function_space_diagnostics
 from uqdrive.models.mcd import MCDPosterior, StackedMCD
+from uqdrive.models.metrics import classification_metrics
 from uqdrive.models.pilotnet import Architecture, init_weights
 from uqdrive.models.posterior import Fitted, Posterior, posterior_settings
 from uqdrive.models.schemas import register_schemas
@@ -71,11 +72,13 @@ def composed_methods(profile: str, experiment: str, methods: list[str], override
 
 
 def warm_up() -> None:
-    """Pay here the one-off costs a process's first fit pays (seconds: torch._dynamo's import on the first optimiser
-    step, ArviZ's on HMC's first diagnostics), not in whichever mode is timed first."""
+    """Pay here the one-off costs a process's first fit pays (seconds each: torch._dynamo's import on the first
+    optimiser step, torchmetrics' on the first validation, ArviZ's on HMC's first diagnostics), not in whichever mode
+    is timed first."""
     parameter = torch.zeros(1, requires_grad=True)
     parameter.grad = torch.zeros(1)
     adam([parameter], 1e-3).step()
+    classification_metrics(torch.full((2, 2), 0.5), torch.tensor([0, 1]))
     function_space_diagnostics(torch.full((2, 4, 1, 2), 0.5))
 
 
