@@ -12,7 +12,6 @@ from abc import abstractmethod
 from collections.abc import Sequence
 
 import torch
-from torch.nn.functional import cross_entropy
 from tqdm import trange
 
 from uqdrive.data.binning import SteeringBins
@@ -64,12 +63,19 @@ def he_init_heads(count: int, shapes: Shapes, generator: torch.Generator) -> tor
 
 
 def head_nll(features: torch.Tensor, labels: torch.Tensor, theta: torch.Tensor, shapes: Shapes) -> torch.Tensor:
-    """Summed softmax negative log-likelihood [k] of each of k heads θ [k, D] on features [N, F] (or [k, N, F])."""
-    logits = sampled_mlp_logits(features, unflatten(theta, shapes))  # [k, N, C]
-    nll = cross_entropy(
-        logits.flatten(0, 1), labels.repeat(len(theta)) if labels.ndim == 1 else labels.flatten(), reduction="none"
-    )
-    return nll.view(len(theta), -1).sum(1)
+    """Summed softmax negative log-likelihood [k] of each of k heads θ [k, D] on features [N, F] (or [k, N, F]),
+    labels [N] (or [k, N]).
+
+    The last layer's logits are laid out classes first [k, C, N], so its matmul's long side and the log-sum-exp's
+    vector run along the frames: HMC's full-batch gradient (4 chains × 4,413 frames × 10 classes) took 9.4 ms with
+    [k, N, C] logits and `cross_entropy` (whose softmax over 10 contiguous classes barely vectorises), 2.1 ms so.
+    """
+    *hidden, (weight, bias) = unflatten(theta, shapes)
+    h = torch.relu(sampled_mlp_logits(features, hidden)) if hidden else features
+    logits = torch.matmul(weight.transpose(1, 2), h.transpose(-1, -2)) + bias.unsqueeze(2)  # [k, C, N]
+    top = logits.detach().amax(1, keepdim=True)
+    log_total = (logits - top).exp().sum(1).log() + top.squeeze(1)
+    return (log_total - logits.gather(1, labels.expand(len(theta), -1).unsqueeze(1)).squeeze(1)).sum(1)
 
 
 def train_heads(
