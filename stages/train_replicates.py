@@ -1,5 +1,5 @@
 """DVC stages `train_mcd@<experiment>` and `train@<experiment>-<method>`: the posterior for every training seed of
-params.yaml (models/<experiment>/<method>/seed<r>.pt), replicates side by side in worker processes."""
+params.yaml (models/<experiment>/<method>/seed<r>.pt), each worker process's share of them stacked into one batch."""
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
@@ -16,7 +16,7 @@ def main(cfg: DictConfig) -> None:
         run_train_replicates,
     )
 
-    for metrics in run_train_replicates(cfg, list(HydraConfig.get().overrides.task)):
+    for metrics in run_train_replicates(cfg, list(HydraConfig.get().overrides.task)).replicates:
         print(describe(metrics))
 
 

@@ -1,4 +1,4 @@
-"""`uqdrive bench sim|posterior|gym_step|controller|rollout` run end to end on small sizes and end with their
+"""`uqdrive bench sim|posterior|gym_step|train|controller|rollout` run end to end on small sizes and end with their
 RESULT line.
 
 Only the output contract is tested here; the speed targets are measured by running the
@@ -27,6 +27,12 @@ from uqdrive.models.checkpoint import save_posterior
         (
             ["gym_step", "--world", "uqdrive", "--steps", "30", "--repeats", "1"],
             r"RESULT gym_step adapter_over_env=[\d.]+",
+        ),
+        (
+            "train --replicates 2 --train-frames 32 --val-frames 16 --methods mcd vi --steps 1 --repeats 1 "
+            "--override train.mcd.epochs=1 --override arch.conv=[4,4,4,4,4]".split(),
+            r"RESULT train batched_speedup=[\d.]+ mcd=[\d.]+ vi=[\d.]+ mcd_step_speedup=[\d.]+ "
+            r"replicates_per_min=[\d.]+",
         ),
         (
             ["controller", "--frames", "1", "--methods", "vi"],

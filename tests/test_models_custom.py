@@ -96,7 +96,7 @@ def test_a_user_posterior_trains_and_evaluates_through_the_pipeline(tmp_path):
 
     run_train(config("train", "model=mcd"))
     metrics = run_train(config("train", "model=noisy_head", "model.scale=0.3"))
-    assert metrics["method"] == "noisy_head" and metrics["diagnostics"] == "noise scale 0.3"
+    assert metrics.method == "noisy_head" and metrics.diagnostics == "noise scale 0.3"
     loaded = load_posterior(tmp_path / "models/joint/noisy_head/seed0.pt", expected_method="noisy_head")
     assert isinstance(loaded, NoisyHeadPosterior) and loaded.scale == 0.3
     result = run_evaluate(config("evaluate", "methods=[mcd,noisy_head]", "weathers=[clear_noon,rain]", "noises=[0.0]"))

@@ -153,3 +153,26 @@ def test_hmc_fit_is_a_function_of_its_seed(metric, layers):
     assert first["samples"].shape == (4 * 4, sum(i * o + o for i, o in data.arch.head_shapes(5)[-layers:]))
     assert extra["kept_samples"] == 16 and extra["chains"] == 4 and curve[-1]["step"] == 6 + 4
     assert not torch.equal(first["samples"], fit(1)[0]["samples"])
+
+
+@pytest.mark.parametrize("layers", [1, 4])
+def test_head_nll_is_the_summed_cross_entropy_of_each_head(layers):
+    """Its classes-first log-sum-exp (`head_nll`) is torch's cross-entropy, shared or per-head features alike."""
+    from torch.nn.functional import cross_entropy
+
+    from uqdrive.models.heads import head_nll, head_size, unflatten
+    from uqdrive.models.pilotnet import sampled_mlp_logits
+
+    g = torch.Generator().manual_seed(0)
+    shapes = [(12, 9), (9, 8), (8, 8), (8, 5)][-layers:]
+    theta = torch.randn((3, head_size(shapes)), generator=g, dtype=torch.float64)
+    for features, labels in [
+        (torch.randn((40, shapes[0][0]), generator=g, dtype=torch.float64), torch.randint(0, 5, (40,), generator=g)),
+        (
+            torch.randn((3, 40, shapes[0][0]), generator=g, dtype=torch.float64),
+            torch.randint(0, 5, (3, 40), generator=g),
+        ),
+    ]:
+        logits = sampled_mlp_logits(features, unflatten(theta, shapes))
+        expected = torch.stack([cross_entropy(logits[k], labels.expand(3, -1)[k], reduction="sum") for k in range(3)])
+        torch.testing.assert_close(head_nll(features, labels, theta, shapes), expected)

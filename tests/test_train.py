@@ -1,9 +1,5 @@
-"""The train stage (mcd → vi, hmc, ensemble, laplace) on a small synthetic road data set, called as DVC would call it.
-
-Synthetic but shaped like the real data: 48x64 gray frames with sky, grass and a road whose
-vanishing point moves with the steering label, 45% of frames "straight ahead" (the majority
-class, as in the collected data), noise and per-frame brightness and horizon jitter. The same
-checks on frames collected in pybullet run in test_train_collected.py (slow).
+"""The train stage (mcd → vi, hmc, ensemble, laplace) on a small synthetic road data set (`uqdrive.data.synthetic`),
+called as DVC would call it. The same checks on frames collected in pybullet run in test_train_collected.py (slow).
 """
 
 import csv
@@ -19,33 +15,21 @@ from mlflow.tracking import MlflowClient
 import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import load_frames
+from uqdrive.data.synthetic import synthetic_road_frames
 from uqdrive.data.tables import PROCESSED_SCHEMA, write_table_batches
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.laplace import PRIOR_GRID
 from uqdrive.models.training import compute_features, evaluate
 from uqdrive.pipeline.train_stage import run_train, run_train_replicates
+from uqdrive.records import as_dict
 from uqdrive.tracking import flatten, store_uris
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
 
 
-def synthetic_frames(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """uint8 frames [n, 48, 64] and steering [n] (positive = left: the road bends, and its vanishing point
-    moves, left)."""
-    steer = np.where(rng.random(n) < 0.45, 0.0, rng.choice(np.arange(-6, 7) / 10, n))
-    yy, xx = np.mgrid[0:48, 0:64].astype(np.float32)
-    horizon = 16 + rng.integers(-2, 3, n)[:, None, None]
-    vanish = 32 - 40 * steer[:, None, None]
-    t = np.clip((yy - horizon) / (47 - horizon), 0, 1)
-    road = (np.abs(xx - (vanish + (32 - vanish) * t)) < 2 + 28 * t) & (yy > horizon)
-    image = np.where(yy <= horizon, 180.0, np.where(road, 100.0, 60.0))
-    image = image + rng.normal(0, 8, image.shape) + rng.integers(-20, 21, n)[:, None, None]
-    return np.clip(image, 0, 255).astype(np.uint8), steer.astype(np.float32)
-
-
 def write_processed(path: Path, n: int, seed: int) -> None:
-    images, steer = synthetic_frames(n, np.random.default_rng(seed))
+    images, steer = synthetic_road_frames(n, np.random.default_rng(seed))
     columns = {
         "scenario": ["synthetic"] * n,
         "weather": ["clear_noon"] * n,
@@ -74,7 +58,7 @@ def trained(tmp_path_factory):
     write_processed(root / "data/processed/joint/val.parquet", 240, seed=2)
     # 6 MCD epochs, not the tiny profile's 3: at 3 the trunk sits at the edge of beating the majority class
     # (0.529 against 0.483 + 0.05), and every head method builds on it
-    metrics = {m: run_train(compose_train(root, f"model={m}", "train.mcd.epochs=6")) for m in METHODS}
+    metrics = {m: as_dict(run_train(compose_train(root, f"model={m}", "train.mcd.epochs=6"))) for m in METHODS}
     return root, metrics
 
 
@@ -140,7 +124,9 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
         posterior = load_posterior(
             root / f"models/joint/{method}/seed0.pt", expected_method=method, expected_classes=bins
         )
-        scores = evaluate(posterior, compute_features(posterior, val), val.labels, 20, torch.Generator().manual_seed(0))
+        # 200 draws: the predictive the reported 20-draw number estimates (two 20-draw MCD estimates differ by ~0.09)
+        features = compute_features(posterior, val)
+        scores = evaluate(posterior, features, val.labels, 200, torch.Generator().manual_seed(0))
         assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
 
 
@@ -196,13 +182,47 @@ def test_the_replicates_stage_trains_each_seed_as_the_single_replicate_command(t
     write_processed(tmp_path / "data/processed/joint/val.parquet", 80, seed=2)
     overrides = [f"paths.root={tmp_path}", "profile=tiny", "progress=false", "experiment=joint", "model=mcd"]
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        swept = run_train_replicates(compose("train_replicates", [*overrides, "replicates=[0,1]"]), overrides)
+        trained = run_train_replicates(compose("train_replicates", [*overrides, "replicates=[0,1]"]), overrides)
+    swept = [as_dict(m) for m in trained.replicates]
     assert [m["seed"] for m in swept] == [0, 1] and swept[0]["val_nll"] != swept[1]["val_nll"]
-    single = run_train(
-        compose_train(tmp_path / "single", "model=mcd", "seed=1", f"paths.processed={tmp_path}/data/processed/joint")
+    single = as_dict(
+        run_train(
+            compose_train(
+                tmp_path / "single", "model=mcd", "seed=1", f"paths.processed={tmp_path}/data/processed/joint"
+            )
+        )
     )
     assert {k: v for k, v in single.items() if k != "train_seconds"} == {
         k: v for k, v in swept[1].items() if k != "train_seconds"
     }
     saved = [torch.load(root / "models/joint/mcd/seed1.pt")["state"] for root in (tmp_path, tmp_path / "single")]
     assert all(torch.equal(saved[0][k], saved[1][k]) for k in saved[0])
+
+
+@pytest.mark.slow
+def test_the_replicates_stage_stacks_a_workers_seeds_and_writes_each_as_its_own_replicate(tmp_path):
+    """One worker: the three seeds of each method trained as one stacked batch, each written as the single-replicate
+    command writes it (model, metrics, curve, MLflow run); each replicate's heads sit on its own trunk."""
+    write_processed(tmp_path / "data/processed/joint/train.parquet", 160, seed=1)
+    write_processed(tmp_path / "data/processed/joint/val.parquet", 80, seed=2)
+    common = [f"paths.root={tmp_path}", "profile=tiny", "progress=false", "experiment=joint", "train.workers=1"]
+    for method in ("mcd", "vi"):
+        overrides = [*common, f"model={method}"]
+        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+            trained = run_train_replicates(compose("train_replicates", [*overrides, "replicates=[0,1,2]"]), overrides)
+        swept = [as_dict(m) for m in trained.replicates]
+        assert [m["seed"] for m in swept] == [0, 1, 2] and {m["batched_replicates"] for m in swept} == {3}
+        for seed, metrics in enumerate(swept):
+            assert json.loads((tmp_path / f"metrics/joint/train/{method}/seed{seed}.json").read_text()) == metrics
+            assert (tmp_path / f"plots/joint/train/{method}/seed{seed}_curve.csv").exists()
+            load_posterior(tmp_path / f"models/joint/{method}/seed{seed}.pt", expected_method=method)
+    trunks = {
+        (m, s): load_posterior(tmp_path / f"models/joint/{m}/seed{s}.pt").trunk.state_dict()
+        for m in ("mcd", "vi")
+        for s in range(3)
+    }
+    for seed in range(3):
+        assert all(torch.equal(trunks["vi", seed][k], trunks["mcd", seed][k]) for k in trunks["mcd", seed])
+    assert not torch.equal(trunks["mcd", 0]["fc.weight"], trunks["mcd", 1]["fc.weight"])
+    client = MlflowClient(store_uris(tmp_path)[0])
+    assert len(client.search_runs([client.get_experiment_by_name("train").experiment_id])) == 6

@@ -37,12 +37,7 @@ class ConcreteDropout(nn.Module):
 
     def relaxed(self, x: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
         """Training pass: x times a concrete mask drawn per element, rescaled by 1/(1 - p)."""
-        p = self.p
-        u = torch.rand(x.shape, generator=generator, dtype=x.dtype)
-        drop = torch.sigmoid(
-            (torch.log(p + EPS) - torch.log1p(-p + EPS) + torch.log(u + EPS) - torch.log1p(-u + EPS)) / self.temperature
-        )
-        return x * (1.0 - drop) / (1.0 - p)
+        return relaxed_dropout(x, self.p, torch.rand(x.shape, generator=generator, dtype=x.dtype), self.temperature)
 
     def sample_masks(self, n: int, generator: torch.Generator | None) -> torch.Tensor:
         """n Bernoulli masks [n, 1, width] (shared by every frame of a batch), already scaled by 1/(1 - p)."""
@@ -52,7 +47,23 @@ class ConcreteDropout(nn.Module):
 
     def regularizer(self, layer: nn.Linear, weight_decay: float, dropout_decay: float) -> torch.Tensor:
         """KL term of the layer: l²/N · ||W||² / (1 - p)  +  2/N · width · (p log p + (1 - p) log(1 - p))."""
-        p = self.p
         squares = layer.weight.pow(2).sum() + layer.bias.pow(2).sum()
-        neg_entropy = p * torch.log(p) + (1.0 - p) * torch.log1p(-p)
-        return (weight_decay * squares / (1.0 - p) + dropout_decay * self.width * neg_entropy).sum()
+        return dropout_regularizer(squares, self.p, self.width, weight_decay, dropout_decay).sum()
+
+
+def relaxed_dropout(x: torch.Tensor, p: torch.Tensor, u: torch.Tensor, temperature: float) -> torch.Tensor:
+    """x times the concrete mask of uniforms u (x's shape), rescaled by 1/(1 - p); p broadcasts against x (one
+    rate, or a rate per replicate [R, 1, 1] for x [R, B, width])."""
+    drop = torch.sigmoid(
+        (torch.log(p + EPS) - torch.log1p(-p + EPS) + torch.log(u + EPS) - torch.log1p(-u + EPS)) / temperature
+    )
+    return x * (1.0 - drop) / (1.0 - p)
+
+
+def dropout_regularizer(
+    squares: torch.Tensor, p: torch.Tensor, width: int, weight_decay: float, dropout_decay: float
+) -> torch.Tensor:
+    """Concrete dropout's KL term of a layer from its weights' sum of squares and its rate (elementwise, so a
+    replicate's terms [R] from squares [R] and rates [R])."""
+    neg_entropy = p * torch.log(p) + (1.0 - p) * torch.log1p(-p)
+    return weight_decay * squares / (1.0 - p) + dropout_decay * width * neg_entropy

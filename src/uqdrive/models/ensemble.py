@@ -10,6 +10,7 @@ with independent draws (sampling without replacement; Hoeffding's bound still ho
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Annotated
 
 import torch
@@ -17,7 +18,7 @@ from pydantic import Field
 
 from uqdrive.models.heads import StoredHeadPosterior, he_init_heads, train_heads
 from uqdrive.models.posterior import Fitted
-from uqdrive.models.training import TrainingData
+from uqdrive.models.training import TrainingData, share_features, shared_frames
 from uqdrive.schema import Count, Int, Positive, schema
 
 
@@ -42,32 +43,46 @@ class EnsemblePosterior(StoredHeadPosterior):
     def fit(
         cls, settings: EnsembleSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
     ) -> Fitted:
-        base = data.base
-        shapes = base.arch.head_shapes(base.num_classes)
-        ensemble = cls.from_heads(base, he_init_heads(settings.members, shapes, generator))
-        members, curve = train_heads(
-            ensemble.samples,
+        return cls.fit_replicates(settings, [data], [generator], progress)[0]
+
+    @classmethod
+    def fit_replicates(
+        cls,
+        settings: EnsembleSettings,
+        data: Sequence[TrainingData],
+        generators: Sequence[torch.Generator],
+        progress: bool = False,
+    ) -> list[Fitted]:
+        """Every replicate's members trained side by side, replicate r's on its own base model's features."""
+        train, val = shared_frames(data)
+        features, val_features = share_features(data)
+        shapes = data[0].base.arch.head_shapes(data[0].base.num_classes)
+        ensembles = [
+            cls.from_heads(d.base, he_init_heads(settings.members, shapes, g)) for d, g in zip(data, generators)
+        ]
+        members, curves = train_heads(
+            torch.stack([e.samples for e in ensembles]),
             shapes,
-            data.train_features,
-            data.train.labels,
-            data.val_features,
-            data.val.labels,
+            features,
+            train.labels,
+            val_features,
+            val.labels,
             epochs=settings.epochs,
             batch_size=settings.batch_size,
             lr=settings.lr,
             prior_sigma=settings.prior_sigma,
-            generator=generator,
+            generators=generators,
             progress=progress,
             desc="ensemble",
-            scored=ensemble,
+            scored=ensembles,
             eval_samples=settings.members,
         )
-        ensemble.load_heads(members)
-        return Fitted(
-            ensemble,
-            curve,
-            {
-                "members": settings.members,
-                "diagnostics": f"{settings.members} members from independent initialisations",
-            },
-        )
+        extra = {
+            "members": settings.members,
+            "diagnostics": f"{settings.members} members from independent initialisations",
+        }
+        fitted = []
+        for ensemble, heads, curve in zip(ensembles, members, curves):
+            ensemble.load_heads(heads)
+            fitted.append(Fitted(ensemble, curve, dict(extra)))
+        return fitted

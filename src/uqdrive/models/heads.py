@@ -1,9 +1,9 @@
 """Heads as flat weight vectors on the fixed trunk, and posteriors that store a set of them.
 
 A head's weights live as one flat vector (layer by layer: W [in, out], then b), so HMC's generic
-kernel can sample them, many heads train side by side as a batch dimension (ensemble members,
-HMC chains' starts), and `head_probs` evaluates a set of stored heads with one batched matmul
-per layer.
+kernel can sample them, many heads train side by side as batch dimensions (replicates, and within
+each its ensemble members or HMC chains' starts), and `head_probs` evaluates a set of stored heads
+with one batched matmul per layer.
 """
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ from abc import abstractmethod
 from collections.abc import Sequence
 
 import torch
-from torch.nn.functional import cross_entropy
 from tqdm import trange
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture, sampled_mlp_logits
 from uqdrive.models.posterior import Posterior, check_draws, per_frame_linear
+from uqdrive.models.stacking import adam, per_replicate, replicate_rows
 from uqdrive.models.training import curve_row, evaluate
 
 Shapes = list[tuple[int, int]]
@@ -63,12 +63,19 @@ def he_init_heads(count: int, shapes: Shapes, generator: torch.Generator) -> tor
 
 
 def head_nll(features: torch.Tensor, labels: torch.Tensor, theta: torch.Tensor, shapes: Shapes) -> torch.Tensor:
-    """Summed softmax negative log-likelihood [k] of each of k heads θ [k, D] on features [N, F] (or [k, N, F])."""
-    logits = sampled_mlp_logits(features, unflatten(theta, shapes))  # [k, N, C]
-    nll = cross_entropy(
-        logits.flatten(0, 1), labels.repeat(len(theta)) if labels.ndim == 1 else labels.flatten(), reduction="none"
-    )
-    return nll.view(len(theta), -1).sum(1)
+    """Summed softmax negative log-likelihood [k] of each of k heads θ [k, D] on features [N, F] (or [k, N, F]),
+    labels [N] (or [k, N]).
+
+    The last layer's logits are laid out classes first [k, C, N], so its matmul's long side and the log-sum-exp's
+    vector run along the frames: HMC's full-batch gradient (4 chains × 4,413 frames × 10 classes) took 9.4 ms with
+    [k, N, C] logits and `cross_entropy` (whose softmax over 10 contiguous classes barely vectorises), 2.1 ms so.
+    """
+    *hidden, (weight, bias) = unflatten(theta, shapes)
+    h = torch.relu(sampled_mlp_logits(features, hidden)) if hidden else features
+    logits = torch.matmul(weight.transpose(1, 2), h.transpose(-1, -2)) + bias.unsqueeze(2)  # [k, C, N]
+    top = logits.detach().amax(1, keepdim=True)
+    log_total = (logits - top).exp().sum(1).log() + top.squeeze(1)
+    return (log_total - logits.gather(1, labels.expand(len(theta), -1).unsqueeze(1)).squeeze(1)).sum(1)
 
 
 def train_heads(
@@ -83,37 +90,44 @@ def train_heads(
     batch_size: int,
     lr: float,
     prior_sigma: float,
-    generator: torch.Generator,
+    generators: Sequence[torch.Generator],
     progress: bool,
     desc: str,
-    scored: Posterior | None = None,
+    scored: Sequence[Posterior] | None = None,
     eval_samples: int = 1,
-) -> tuple[torch.Tensor, list[dict]]:
-    """MAP training of k heads θ [k, D] side by side (Adam; each head its own minibatch order).
+) -> tuple[torch.Tensor, list[list[dict]]]:
+    """MAP training of R replicates' k heads θ [R, k, D] side by side (Adam; each head its own minibatch order),
+    replicate r's on its features [R, N, F] (validation [R, M, F]), its orders from ``generators[r]``.
 
     Loss per frame: cross-entropy + ‖θ‖²/(2σ²N), the MAP of the same N(0, σ²) prior as VI and HMC.
-    `scored` (a posterior viewing θ) is evaluated on validation after each epoch for the curve.
+    ``scored[r]`` (a posterior viewing replicate r's θ) is evaluated on validation after each epoch for its curve.
+    Returns the heads [R, k, D] and the replicates' curves.
     """
+    replicates, heads = theta.shape[:2]
     theta = theta.detach().clone().requires_grad_(True)
-    optimizer = torch.optim.Adam([theta], lr=lr)
-    n_train, heads = len(labels), len(theta)
-    curve = []
+    optimizer = adam([theta], lr)
+    n_train = len(labels)
+    curves: list[list[dict]] = [[] for _ in range(replicates)]
     for epoch in trange(1, epochs + 1, desc=desc, unit="epoch", disable=not progress):
-        order = torch.stack([torch.randperm(n_train, generator=generator) for _ in range(heads)])  # [k, N]
-        total = 0.0
-        for index in order.split(batch_size, dim=1):
-            nll = head_nll(features[index], labels[index], theta, shapes) / index.shape[1]
-            loss = (nll + theta.square().sum(1) / (2 * prior_sigma**2 * n_train)).sum()
+        order = per_replicate(  # [R, k, N]
+            generators, lambda g: torch.stack([torch.randperm(n_train, generator=g) for _ in range(heads)])
+        )
+        totals = torch.zeros(replicates, dtype=torch.float64)
+        for index in order.split(batch_size, dim=2):
+            rows = replicate_rows(features, index).flatten(0, 1)  # [R·k, b, F]
+            nll = head_nll(rows, labels[index].flatten(0, 1), theta.flatten(0, 1), shapes).view(replicates, heads)
+            nll = nll / index.shape[2]
+            loss = (nll + theta.square().sum(2) / (2 * prior_sigma**2 * n_train)).sum()
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-            total += float(nll.detach().sum()) * index.shape[1] / heads
-        if scored is not None:
+            totals += nll.detach().double().sum(1) * index.shape[2] / heads
+        for r, posterior in enumerate(scored or []):
             with torch.no_grad():
-                scored.load_heads(theta.detach())
-            scores = evaluate(scored, val_features, val_labels, eval_samples, generator)
-            curve.append(curve_row(epoch, total / n_train, scores))
-    return theta.detach(), curve
+                posterior.load_heads(theta[r].detach())
+            scores = evaluate(posterior, val_features[r], val_labels, eval_samples, generators[r])
+            curves[r].append(curve_row(epoch, float(totals[r]) / n_train, scores))
+    return theta.detach(), curves
 
 
 class StoredHeadPosterior(Posterior):

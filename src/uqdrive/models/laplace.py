@@ -34,6 +34,7 @@ the covariance then does to the validation metrics.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Literal
 
 import torch
@@ -43,7 +44,7 @@ from uqdrive.models.heads import fixed_layer_features, flatten_mcd_head, head_nl
 from uqdrive.models.metrics import PROB_FLOOR
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, Posterior, check_draws
-from uqdrive.models.training import TrainingData, curve_row, evaluate
+from uqdrive.models.training import TrainingData, curve_row, evaluate, share_features, shared_frames
 from uqdrive.schema import Count, Positive, Seed, schema
 
 PRIOR_GRID = torch.logspace(-4, 4, 161, dtype=torch.float64)  # candidate prior precisions λ (laplace-torch's range)
@@ -202,40 +203,68 @@ class LaplacePosterior(Posterior):
     def fit(
         cls, settings: LaplaceSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
     ) -> Fitted:
-        base = data.base
-        laplace = cls(base.arch, base.bins)
-        laplace.trunk.load_state_dict(base.trunk.state_dict())
-        laplace.trunk.requires_grad_(False)
-        heads, map_curve = train_heads(
-            flatten_mcd_head(base).unsqueeze(0),
-            laplace.shapes,
-            data.train_features,
-            data.train.labels,
-            data.val_features,
-            data.val.labels,
+        return cls.fit_replicates(settings, [data], [generator], progress)[0]
+
+    @classmethod
+    def fit_replicates(
+        cls,
+        settings: LaplaceSettings,
+        data: Sequence[TrainingData],
+        generators: Sequence[torch.Generator],
+        progress: bool = False,
+    ) -> list[Fitted]:
+        """Every replicate's MAP head trained side by side (`train_heads`), then each its own Laplace step."""
+        train, val = shared_frames(data)
+        features, val_features = share_features(data)
+        laplaces = []
+        for d in data:
+            laplace = cls(d.base.arch, d.base.bins)
+            laplace.trunk.load_state_dict(d.base.trunk.state_dict())
+            laplaces.append(laplace.requires_grad_(False))
+        heads, map_curves = train_heads(
+            torch.stack([flatten_mcd_head(d.base).unsqueeze(0) for d in data]),
+            laplaces[0].shapes,
+            features,
+            train.labels,
+            val_features,
+            val.labels,
             epochs=settings.epochs,
             batch_size=settings.batch_size,
             lr=settings.lr,
             prior_sigma=settings.prior_sigma,
-            generator=generator,
+            generators=generators,
             progress=progress,
             desc="laplace map",
-            scored=laplace,
-            eval_samples=data.eval_samples,
+            scored=laplaces,
+            eval_samples=data[0].eval_samples,
         )
-        laplace.load_heads(heads)
-        psi = laplace.last_layer_inputs(data.train_features)
-        weights = laplace.last_layer_weights()
+        return [
+            laplace.fit_covariance(settings, map_head, map_curve, d, g)
+            for laplace, map_head, map_curve, d, g in zip(laplaces, heads, map_curves, data, generators)
+        ]
+
+    def fit_covariance(
+        self,
+        settings: LaplaceSettings,
+        heads: torch.Tensor,
+        map_curve: list[dict],
+        data: TrainingData,
+        generator: torch.Generator,
+    ) -> Fitted:
+        """The Laplace step on the MAP head heads [1, D]: GGN of the last layer, prior precision, covariance."""
+        self.load_heads(heads)
+        psi = self.last_layer_inputs(data.train_features)
+        weights = self.last_layer_weights()
         with torch.no_grad():
-            nll = float(head_nll(data.train_features, data.train.labels, heads, laplace.shapes)[0])
+            nll = float(head_nll(data.train_features, data.train.labels, heads, self.shapes)[0])
         hessian = last_layer_hessian(psi, torch.softmax(psi @ weights, -1))
         evidence = log_evidence(hessian, weights, nll, PRIOR_GRID)
-        precision = laplace.choose_prior_precision(settings, hessian, evidence, data, generator)
-        laplace.covariance.copy_(posterior_covariance(hessian, precision))
-        scores = evaluate(laplace, data.val_features, data.val.labels, data.eval_samples, generator)
+        precision = self.choose_prior_precision(settings, hessian, evidence, data, generator)
+        self.covariance.copy_(posterior_covariance(hessian, precision))
+        scores = evaluate(self, data.val_features, data.val.labels, data.eval_samples, generator)
         curve = [{**row, "laplace": 0} for row in map_curve]
         curve.append(curve_row(settings.epochs + 1, nll / len(data.train.labels), scores, laplace=1))
-        return Fitted(laplace, curve, laplace_metrics(settings, hessian, weights, nll, precision, evidence))
+        return Fitted(self, curve, laplace_metrics(settings, hessian, weights, nll, precision, evidence))
 
 
 def laplace_metrics(

@@ -14,10 +14,21 @@ from torch.nn.functional import cross_entropy
 from tqdm import trange
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.models.concrete_dropout import ConcreteDropout
-from uqdrive.models.pilotnet import Architecture, init_weights
+from uqdrive.data.datasets import FrameSet, to_inputs
+from uqdrive.models.concrete_dropout import ConcreteDropout, dropout_regularizer, relaxed_dropout
+from uqdrive.models.pilotnet import INPUT_SHAPE, Architecture, init_weights
 from uqdrive.models.posterior import Fitted, Posterior, check_draws, per_frame_linear
-from uqdrive.models.training import TrainingData, compute_features, curve_row, evaluate
+from uqdrive.models.stacking import (
+    adam,
+    epoch_batches,
+    per_replicate,
+    stack_parameters,
+    stacked_features,
+    stacked_linear,
+    stacked_trunk,
+    unstack_into,
+)
+from uqdrive.models.training import TrainingData, curve_row, evaluate, shared_frames
 from uqdrive.schema import Count, NonNegative, OpenUnit, Positive, schema
 
 
@@ -47,22 +58,6 @@ class MCDPosterior(Posterior):
     def dropout_rates(self) -> list[float]:
         return [d.p.item() for d in self.dropout]
 
-    def train_logits(self, x: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-        """Training pass with relaxed per-element masks (differentiable in the rates): [B, C]."""
-        h = torch.relu(self.head[0](self.trunk(x)))
-        for k, (drop, layer) in enumerate(zip(self.dropout, self.head[1:])):
-            h = layer(drop.relaxed(h, generator))
-            if k < len(self.dropout) - 1:
-                h = torch.relu(h)
-        return h
-
-    def regularizer(self, num_train: int, lengthscale: float) -> torch.Tensor:
-        """Concrete dropout's KL term per training frame (weight decay l²/N, dropout term 2/N)."""
-        return sum(
-            drop.regularizer(layer, lengthscale**2 / num_train, 2.0 / num_train)
-            for drop, layer in zip(self.dropout, self.head[1:])
-        )
-
     @torch.no_grad()
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         n = check_draws(n)
@@ -91,32 +86,105 @@ class MCDPosterior(Posterior):
     def fit(
         cls, settings: MCDSettings, data: TrainingData, generator: torch.Generator, progress: bool = False
     ) -> Fitted:
-        """Adam on cross-entropy + concrete dropout regulariser, end to end on the frames."""
-        model = init_weights(cls(data.arch, data.bins, settings.init_p, settings.temperature), generator)
-        optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
-        curve = []
+        return cls.fit_replicates(settings, [data], [generator], progress)[0]
+
+    @classmethod
+    def fit_replicates(
+        cls,
+        settings: MCDSettings,
+        data: Sequence[TrainingData],
+        generators: Sequence[torch.Generator],
+        progress: bool = False,
+    ) -> list[Fitted]:
+        """Adam on cross-entropy + concrete dropout regulariser, end to end on the frames, every replicate stacked
+        (`StackedMCD`); replicate r's initialisation, batches and masks from ``generators[r]``."""
+        train, val = shared_frames(data)
+        networks = [cls(d.arch, d.bins, settings.init_p, settings.temperature) for d in data]
+        stacked = StackedMCD([init_weights(n, g) for n, g in zip(networks, generators)])
+        optimizer = adam(stacked.parameters(), settings.lr)
+        curves: list[list[dict]] = [[] for _ in generators]
         for epoch in trange(1, settings.epochs + 1, desc="mcd", unit="epoch", disable=not progress):
-            model.train()
-            total = 0.0
-            for x, y in data.train.batches(settings.batch_size, generator):
-                loss = cross_entropy(model.train_logits(x, generator), y) + model.regularizer(
-                    len(data.train), settings.lengthscale
-                )
+            loss_sums = torch.zeros(len(generators), dtype=torch.float64)
+            for index in epoch_batches(len(train), settings.batch_size, generators):
+                losses = stacked.losses(*stacked.batch(train, index, generators), len(train), settings.lengthscale)
                 optimizer.zero_grad()
-                loss.backward()
+                losses.sum().backward()
                 optimizer.step()
-                total += loss.item() * len(y)
-            model.eval()
-            scores = evaluate(model, compute_features(model, data.val), data.val.labels, data.eval_samples, generator)
-            rates = {f"dropout_p{k + 1}": p for k, p in enumerate(model.dropout_rates())}
-            curve.append(curve_row(epoch, total / len(data.train), scores, **rates))
-        model.requires_grad_(False)
-        rates = model.dropout_rates()
-        return Fitted(
-            model,
-            curve,
-            {
-                **{f"dropout_p{k + 1}": p for k, p in enumerate(rates)},
-                "diagnostics": "learned dropout rates " + ", ".join(f"{p:.3f}" for p in rates),
-            },
-        )
+                loss_sums += losses.detach().double() * index.shape[1]
+            val_features = stacked_features(stacked.template.trunk, stacked.params, val)
+            for r, (network, d, g) in enumerate(zip(stacked.networks_now(), data, generators)):
+                scores = evaluate(network, val_features[r], val.labels, d.eval_samples, g)
+                curves[r].append(curve_row(epoch, float(loss_sums[r]) / len(train), scores, **network.rate_metrics()))
+        return [Fitted(n.requires_grad_(False), c, n.fit_metrics()) for n, c in zip(stacked.networks_now(), curves)]
+
+    def rate_metrics(self) -> dict[str, float]:
+        return {f"dropout_p{k + 1}": p for k, p in enumerate(self.dropout_rates())}
+
+    def fit_metrics(self) -> dict:
+        rates = self.dropout_rates()
+        return {**self.rate_metrics(), "diagnostics": "learned dropout rates " + ", ".join(f"{p:.3f}" for p in rates)}
+
+
+class StackedMCD:
+    """R MCD networks of one shape trained as one (`uqdrive.models.stacking`): the trunk one grouped convolution
+    per layer, the head one `baddbmm` per layer, concrete dropout with each replicate's rate and uniforms."""
+
+    def __init__(self, networks: Sequence[MCDPosterior]) -> None:
+        self.networks = list(networks)
+        self.template = self.networks[0]
+        self.params = stack_parameters(self.networks)
+
+    def parameters(self) -> list[torch.Tensor]:
+        return list(self.params.values())
+
+    def networks_now(self) -> list[MCDPosterior]:
+        """The replicates' networks holding the stacked parameters' current values."""
+        unstack_into(self.params, self.networks)
+        return self.networks
+
+    def rates(self) -> list[torch.Tensor]:
+        """Each dropout layer's rates [R]."""
+        return [torch.sigmoid(self.params[f"dropout.{k}.p_logit"][:, 0]) for k in range(len(self.template.dropout))]
+
+    def train_logits(self, frames: torch.Tensor, uniforms: Sequence[torch.Tensor]) -> torch.Tensor:
+        """Training pass of frames [R, B, 1, 48, 64] with relaxed masks from uniforms [R, B, width] per dropout
+        layer (differentiable in the rates): [R, B, C]."""
+        params, last = self.params, len(self.template.dropout) - 1
+        h = torch.relu(stacked_linear(stacked_trunk(self.template.trunk, params, frames), *self._layer(0)))
+        for k, (drop, p, u) in enumerate(zip(self.template.dropout, self.rates(), uniforms)):
+            h = stacked_linear(relaxed_dropout(h, p.view(-1, 1, 1), u, drop.temperature), *self._layer(k + 1))
+            if k < last:
+                h = torch.relu(h)
+        return h
+
+    def regularizer(self, num_train: int, lengthscale: float) -> torch.Tensor:
+        """Concrete dropout's KL term per training frame of each replicate [R] (`ConcreteDropout.regularizer`)."""
+        total = torch.zeros(len(self.networks))
+        for k, (drop, p) in enumerate(zip(self.template.dropout, self.rates())):
+            weight, bias = self._layer(k + 1)
+            squares = weight.pow(2).sum((1, 2)) + bias.pow(2).sum(1)
+            total = total + dropout_regularizer(squares, p, drop.width, lengthscale**2 / num_train, 2.0 / num_train)
+        return total
+
+    def batch(
+        self, frames: FrameSet, index: torch.Tensor, generators: Sequence[torch.Generator]
+    ) -> tuple[torch.Tensor, list[torch.Tensor], torch.Tensor]:
+        """Each replicate's minibatch ``frames[index[r]]`` [R, b, 1, 48, 64], its dropout uniforms [R, b, width] per
+        layer (drawn from its own generator, as its lone run draws them) and its labels [R, b]."""
+        replicates, size = index.shape
+        x = to_inputs(frames.images[index.flatten()]).view(replicates, size, *INPUT_SHAPE)
+        uniforms = [
+            per_replicate(generators, lambda g, width=drop.width: torch.rand((size, width), generator=g))
+            for drop in self.template.dropout
+        ]
+        return x, uniforms, frames.labels[index]
+
+    def losses(
+        self, x: torch.Tensor, uniforms: list[torch.Tensor], labels: torch.Tensor, num_train: int, lengthscale: float
+    ) -> torch.Tensor:
+        """Each replicate's loss [R] on its minibatch (`batch`): cross-entropy + the regulariser per training frame."""
+        nll = cross_entropy(self.train_logits(x, uniforms).flatten(0, 1), labels.flatten(), reduction="none")
+        return nll.view(labels.shape).mean(1) + self.regularizer(num_train, lengthscale)
+
+    def _layer(self, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.params[f"head.{k}.weight"], self.params[f"head.{k}.bias"]

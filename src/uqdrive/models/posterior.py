@@ -71,6 +71,19 @@ class Posterior(nn.Module, ABC):
     def fit(cls, settings: Any, data: TrainingData, generator: torch.Generator, progress: bool = False) -> Fitted:
         """Fit the method on `data` (frames, or the base model's fixed trunk features)."""
 
+    @classmethod
+    def fit_replicates(
+        cls,
+        settings: Any,
+        data: Sequence[TrainingData],
+        generators: Sequence[torch.Generator],
+        progress: bool = False,
+    ) -> list[Fitted]:
+        """Fit replicate r on ``data[r]`` with ``generators[r]``, each as `fit` alone would. Here one after the other;
+        a method whose replicates train well as one batch (`uqdrive.models.stacking`) overrides it, and its `fit` is
+        this with one replicate."""
+        return [cls.fit(settings, d, g, progress) for d, g in zip(data, generators, strict=True)]
+
     @property
     def num_classes(self) -> int:
         return self.bins.num_classes

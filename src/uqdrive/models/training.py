@@ -7,6 +7,7 @@ leapfrog step reuses the tensor.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -19,6 +20,7 @@ from uqdrive.models.checkpoint import load_posterior
 from uqdrive.models.metrics import classification_metrics
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Posterior
+from uqdrive.models.stacking import FEATURE_ROWS, stacked_features, stacked_trunks
 
 EVAL_CHUNK = 2048  # frames per head evaluation: bounds memory at n draws x chunk x classes
 BASE_METHOD = "mcd"  # the model whose trunk (and head, as a start) the head methods build on
@@ -48,8 +50,35 @@ class TrainingData:
         return compute_features(self.base, self.val)
 
 
+def share_features(data: Sequence[TrainingData]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every replicate's train and validation features [R, N, F] from its base model's trunk: those not yet cached
+    computed with the trunks stacked (`stacked_features`), each replicate's `train_features` and `val_features`
+    then holding its own rows."""
+    train, val = shared_frames(data)
+    missing = [d for d in data if not {"train_features", "val_features"} <= vars(d).keys()]
+    if missing:
+        bases = [d.base for d in missing]
+        params = stacked_trunks(bases)
+        computed = stacked_features(bases[0].trunk, params, train), stacked_features(bases[0].trunk, params, val)
+        for d, train_features, val_features in zip(missing, *computed):
+            d.train_features, d.val_features = train_features, val_features
+    return torch.stack([d.train_features for d in data]), torch.stack([d.val_features for d in data])
+
+
+def shared_frames(data: Sequence[TrainingData]) -> tuple[FrameSet, FrameSet]:
+    """The train and validation frames of replicates trained as one batch: the same frames (each replicate shuffles
+    them its own way), network shape and evaluation, or stacking them means nothing."""
+    first = data[0]
+    for other in data[1:]:
+        if other.train is not first.train or other.val is not first.val:
+            raise ValueError("replicates trained as one batch must share their train and validation frames")
+        if (other.arch, other.bins, other.eval_samples) != (first.arch, first.bins, first.eval_samples):
+            raise ValueError("replicates trained as one batch must share their architecture, classes and eval_samples")
+    return first.train, first.val
+
+
 @torch.no_grad()
-def compute_features(posterior: Posterior, frames: FrameSet, batch_size: int = 512) -> torch.Tensor:
+def compute_features(posterior: Posterior, frames: FrameSet, batch_size: int = FEATURE_ROWS) -> torch.Tensor:
     """Trunk outputs [N, F] of every frame, in order: the cache the head methods train on."""
     return torch.cat([posterior.features(x) for x, _ in frames.batches(batch_size)])
 

@@ -12,7 +12,7 @@ W ~ N(μ, σ²) is N(aμ, a²σ²) per unit, so we draw n·B·units normals inst
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import nn
@@ -22,7 +22,8 @@ from tqdm import trange
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, Posterior, check_draws, per_frame_linear
-from uqdrive.models.training import TrainingData, curve_row, evaluate
+from uqdrive.models.stacking import adam, epoch_batches, per_replicate, replicate_rows, stack_parameters, unstack_into
+from uqdrive.models.training import TrainingData, curve_row, evaluate, share_features, shared_frames
 from uqdrive.schema import ConfigError, Count, Positive, schema
 
 
@@ -82,26 +83,46 @@ class VIPosterior(Posterior):
     def fit(
         cls, settings: VISettings, data: TrainingData, generator: torch.Generator, progress: bool = False
     ) -> Fitted:
-        """Maximise the ELBO (per frame: expected log-likelihood − KL/N) by Adam with one draw per step."""
-        vi = cls.from_mcd(data.base, settings.prior_sigma, settings.init_sigma)
-        features, labels = data.train_features, data.train.labels
-        optimizer = torch.optim.Adam(vi.head_parameters(), lr=settings.lr)
-        n_train = len(labels)
-        curve = []
+        return cls.fit_replicates(settings, [data], [generator], progress)[0]
+
+    @classmethod
+    def fit_replicates(
+        cls,
+        settings: VISettings,
+        data: Sequence[TrainingData],
+        generators: Sequence[torch.Generator],
+        progress: bool = False,
+    ) -> list[Fitted]:
+        """Maximise each replicate's ELBO (per frame: expected log-likelihood − KL/N) by Adam with one draw per step,
+        the replicates' variational parameters stacked; replicate r's batches and draws from ``generators[r]``."""
+        train, val = shared_frames(data)
+        vis = [cls.from_mcd(d.base, settings.prior_sigma, settings.init_sigma) for d in data]
+        params = stack_parameters(vis)
+        features, val_features = share_features(data)
+        optimizer = adam(params.values(), settings.lr)
+        n_train = len(train)
+        curves: list[list[dict]] = [[] for _ in data]
         for epoch in trange(1, settings.epochs + 1, desc="vi", unit="epoch", disable=not progress):
-            total = 0.0
-            for index in torch.randperm(n_train, generator=generator).split(settings.batch_size):
-                logits = vi.head_logits(features[index], 1, generator)[0]
-                loss = cross_entropy(logits, labels[index]) + vi.kl() / n_train
+            totals = torch.zeros(len(data), dtype=torch.float64)
+            for index in epoch_batches(n_train, settings.batch_size, generators):
+                rows, labels = replicate_rows(features, index), train.labels[index]
+                losses = stacked_elbo_losses(params, rows, labels, generators, vis[0].prior_sigma, n_train)
                 optimizer.zero_grad()
-                loss.backward()
+                losses.sum().backward()
                 optimizer.step()
-                total += loss.item() * len(index)
-            scores = evaluate(vi, data.val_features, data.val.labels, data.eval_samples, generator)
-            curve.append(curve_row(epoch, total / n_train, scores, sigma_mean=vi.posterior_sigma_mean()))
-        vi.requires_grad_(False)
-        sigma = vi.posterior_sigma_mean()
-        return Fitted(vi, curve, {"posterior_sigma_mean": sigma, "diagnostics": f"mean posterior σ {sigma:.3f}"})
+                totals += losses.detach().double() * index.shape[1]
+            unstack_into(params, vis)
+            for r, (vi, d, g) in enumerate(zip(vis, data, generators)):
+                scores = evaluate(vi, val_features[r], val.labels, d.eval_samples, g)
+                curves[r].append(
+                    curve_row(epoch, float(totals[r]) / n_train, scores, sigma_mean=vi.posterior_sigma_mean())
+                )
+        return [vi.fitted(curve) for vi, curve in zip(vis, curves)]
+
+    def fitted(self, curve: list[dict]) -> Fitted:
+        self.requires_grad_(False)
+        sigma = self.posterior_sigma_mean()
+        return Fitted(self, curve, {"posterior_sigma_mean": sigma, "diagnostics": f"mean posterior σ {sigma:.3f}"})
 
     def head_parameters(self) -> list[nn.Parameter]:
         return [*self.w_mu, *self.b_mu, *self.w_rho, *self.b_rho]
@@ -130,14 +151,12 @@ class VIPosterior(Posterior):
         moments: list[tuple[torch.Tensor, ...]] | None = None,
     ) -> torch.Tensor:
         """Logits [n, B, C] of n draws (differentiable in the variational parameters unless ``moments`` are given)."""
-        h = features
-        for k, (w_mu, b_mu, w_var, b_var) in enumerate(moments or self._moments()):
-            a = h if k == 0 else torch.relu(h)
-            mean = torch.matmul(a, w_mu) + b_mu
-            var = torch.matmul(a * a, w_var) + b_var
-            shape = (n, *mean.shape) if k == 0 else mean.shape  # the first layer's input is shared by all draws
-            h = mean + var.sqrt() * torch.randn(shape, generator=generator)
-        return h
+
+        def normals(layer: int, shape: torch.Size) -> torch.Tensor:
+            shape = (n, *shape) if layer == 0 else shape  # the first layer's input is shared by all draws
+            return torch.randn(shape, generator=generator)
+
+        return local_reparameterised_logits(features, moments or self._moments(), normals)
 
     @torch.no_grad()
     def head_probs(self, features: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -157,21 +176,69 @@ class VIPosterior(Posterior):
 
     def kl(self) -> torch.Tensor:
         """KL(q || p) in closed form, summed over every head weight and bias; prior N(0, prior_sigma²)."""
-        total = torch.zeros(())
-        for mu, rho in zip([*self.w_mu, *self.b_mu], [*self.w_rho, *self.b_rho]):
-            sigma = softplus(rho)
-            total = (
-                total
-                + (
-                    math.log(self.prior_sigma)
-                    - torch.log(sigma)
-                    + (sigma.square() + mu.square()) / (2 * self.prior_sigma**2)
-                    - 0.5
-                ).sum()
-            )
-        return total
+        mus, rhos = [*self.w_mu, *self.b_mu], [*self.w_rho, *self.b_rho]
+        return gaussian_kl([m.unsqueeze(0) for m in mus], [r.unsqueeze(0) for r in rhos], self.prior_sigma)[0]
 
     def posterior_sigma_mean(self) -> float:
         """Mean posterior standard deviation of the head weights: how far VI moved off a point estimate."""
         sigmas = torch.cat([softplus(r.detach()).flatten() for r in self.w_rho])
         return sigmas.mean().item()
+
+
+def local_reparameterised_logits(
+    features: torch.Tensor,
+    moments: Sequence[tuple[torch.Tensor, ...]],
+    normals: Callable[[int, torch.Size], torch.Tensor],
+) -> torch.Tensor:
+    """Logits of the Gaussian head layers (per layer: weight means, bias means, their variances) by local
+    reparameterisation, ``normals(layer, shape)`` giving the standard normals of a layer whose pre-activation mean
+    has ``shape``: the one sampling path of inference (`head_logits`) and stacked training (`stacked_elbo_losses`)."""
+    h = features
+    for k, (w_mu, b_mu, w_var, b_var) in enumerate(moments):
+        a = h if k == 0 else torch.relu(h)
+        mean = torch.matmul(a, w_mu) + b_mu
+        var = torch.matmul(a * a, w_var) + b_var
+        h = mean + var.sqrt() * normals(k, mean.shape)
+    return h
+
+
+def gaussian_kl(mus: Sequence[torch.Tensor], rhos: Sequence[torch.Tensor], prior_sigma: float) -> torch.Tensor:
+    """Each replicate's KL(N(μ, softplus(ρ)²) || N(0, prior_sigma²)) [R], summed over stacked tensors [R, ...]."""
+    total = torch.zeros(len(mus[0]))
+    for mu, rho in zip(mus, rhos):
+        sigma = softplus(rho)
+        terms = math.log(prior_sigma) - torch.log(sigma) + (sigma.square() + mu.square()) / (2 * prior_sigma**2) - 0.5
+        total = total + terms.flatten(1).sum(1)
+    return total
+
+
+def stacked_elbo_losses(
+    params: dict[str, torch.Tensor],
+    features: torch.Tensor,
+    labels: torch.Tensor,
+    generators: Sequence[torch.Generator],
+    prior_sigma: float,
+    num_train: int,
+) -> torch.Tensor:
+    """Each replicate's negative ELBO per frame [R] on its minibatch features [R, b, F] (labels [R, b]) of its
+    ``num_train`` training frames, with one draw from its own generator: ``params`` stacks VIPosterior's parameters
+    by name (w_mu.0, …)."""
+    layers = range(sum(name.startswith("w_mu.") for name in params))
+    moments = [
+        (
+            params[f"w_mu.{k}"].unsqueeze(1),  # [R, 1, in, out]: broadcast over the draw dimension
+            params[f"b_mu.{k}"][:, None, None],
+            softplus(params[f"w_rho.{k}"]).square().unsqueeze(1),
+            softplus(params[f"b_rho.{k}"]).square()[:, None, None],
+        )
+        for k in layers
+    ]
+
+    def normals(layer: int, shape: torch.Size) -> torch.Tensor:  # shape [R, 1, b, out]: a lone run's (1, b, out)
+        return per_replicate(generators, lambda g: torch.randn(shape[1:], generator=g))
+
+    logits = local_reparameterised_logits(features.unsqueeze(1), moments, normals)[:, 0]  # [R, b, C]
+    nll = cross_entropy(logits.flatten(0, 1), labels.flatten(), reduction="none").view(labels.shape).mean(1)
+    mus = [params[f"{kind}.{k}"] for kind in ("w_mu", "b_mu") for k in layers]
+    rhos = [params[f"{kind}.{k}"] for kind in ("w_rho", "b_rho") for k in layers]
+    return nll + gaussian_kl(mus, rhos, prior_sigma) / num_train

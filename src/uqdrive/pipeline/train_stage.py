@@ -1,6 +1,7 @@
 """The `train` stages: fit one posterior (model=<conf/model yaml>) for one training seed (a replicate), evaluate it
-on validation, save and log it; the DVC stage trains every replicate of params.yaml side by side, each as the
-single-replicate command (`python stages/train.py model=M seed=r`) composes it.
+on validation, save and log it; the DVC stage trains every replicate of params.yaml, each as the single-replicate
+command (`python stages/train.py model=M seed=r`) composes it, a worker's share of them stacked into one batch
+(`Posterior.fit_replicates`: each replicate still draws everything from its own seed).
 
 The model config names its Posterior class by `_target_`; the class checks its settings and fits itself (MCD end
 to end on the processed frames; the head methods on the same replicate's MCD trunk features), so these stages
@@ -21,14 +22,16 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from uqdrive.data.datasets import load_frames
-from uqdrive.files import write_csv, write_json
+from uqdrive.files import write_csv
 from uqdrive.models.checkpoint import save_posterior
 from uqdrive.models.metrics import majority_accuracy
 from uqdrive.models.pilotnet import Architecture
-from uqdrive.models.posterior import posterior_settings
+from uqdrive.models.posterior import Fitted, posterior_settings
+from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.models.training import TrainingData, compute_features, evaluate
 from uqdrive.parallel import ProcessPool
 from uqdrive.plots import save_figure
+from uqdrive.records import as_dict, write_record
 from uqdrive.schema import Count, Str, schema, validate
 from uqdrive.stage import compose_cell, grid
 from uqdrive.stage_schemas import ModelStage, NonEmptySeeds
@@ -56,69 +59,88 @@ class TrainStage(ModelStage):
     train: TrainSection
 
 
-def run_train(cfg: DictConfig) -> dict:
-    stage = validate(TrainStage, cfg)
-    cls, settings = posterior_settings(stage.model)
-    method = cls.method
-    eval_samples = stage.train.eval_samples
-    bins = stage.experiment.bins
-    processed = Path(cfg.paths.processed)
+def run_train(cfg: DictConfig) -> TrainMetrics:
+    return train_replicates([cfg])[0]
+
+
+def fit(stages: list[TrainStage]) -> tuple[list[Fitted], list[dict], float, TrainingData]:
+    """Fit one method's replicates as one batch (`Posterior.fit_replicates`: stacked where the method allows) and
+    score each on validation; the seconds are each replicate's share of the batch."""
+    cls, settings = posterior_settings(stages[0].model)
+    first, bins = stages[0], stages[0].experiment.bins
+    if (
+        any(posterior_settings(s.model) != (cls, settings) for s in stages)
+        or len({s.paths.processed for s in stages}) > 1
+    ):
+        raise ValueError("replicates trained as one batch must share the model settings and the processed frames")
+    processed = Path(first.paths.processed)
     train = load_frames(processed / "train.parquet", bins.num_classes)
     val = load_frames(processed / "val.parquet", bins.num_classes)
-    generator = torch.Generator().manual_seed(int(cfg.seed))
-    threads = stage.train.threads
+    data = [TrainingData(train, val, bins, s.arch, Path(s.train.base_model), s.train.eval_samples) for s in stages]
+    generators = [torch.Generator().manual_seed(s.seed) for s in stages]
     previous_threads = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    data = TrainingData(
-        train,
-        val,
-        bins,
-        stage.arch,
-        Path(stage.train.base_model),
-        eval_samples,
-    )
+    torch.set_num_threads(first.train.threads)
     try:
         started = time.perf_counter()
-        fitted = cls.fit(settings, data, generator, bool(cfg.progress))
-        seconds = time.perf_counter() - started
-        model, curve, extra = fitted.posterior.eval(), fitted.curve, fitted.extra
-        scores = evaluate(model, compute_features(model, val), val.labels, eval_samples, generator)
+        fits = cls.fit_replicates(settings, data, generators, first.progress)
+        seconds = (time.perf_counter() - started) / len(fits)
+        scores = [
+            evaluate(f.posterior.eval(), compute_features(f.posterior, val), val.labels, d.eval_samples, g)
+            for f, d, g in zip(fits, data, generators)
+        ]
     finally:
         torch.set_num_threads(previous_threads)
-    metrics = {
-        "method": method,
-        **{f"val_{k}": v for k, v in scores.items()},
-        "majority_baseline_accuracy": majority_accuracy(train.labels, val.labels, bins.num_classes),
-        "train_frames": len(train),
-        "val_frames": len(val),
-        "eval_samples": eval_samples,
-        "seed": int(cfg.seed),
-        "train_seconds": seconds,
-        **extra,
-    }
-    replicate = cfg.replicate
-    model_path = save_posterior(model, Path(cfg.paths.models) / f"{replicate}.pt", metadata={"metrics": metrics})
-    plots = Path(cfg.paths.plots)
-    curve_csv = write_csv(plots / f"{replicate}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
-    curve_png = save_figure(curve_figure(curve, method, cls.curve_unit), plots / f"{replicate}_curve.png")
-    metrics_json = Path(cfg.paths.metrics) / f"{replicate}.json"
-    write_json(metrics_json, metrics)
+    return fits, scores, seconds, data[0]
 
-    with stage_run(cfg.paths.root, "train", cfg, run_name=f"{cfg.experiment.name}-{method}-{cfg.replicate}"):
-        mlflow.log_metrics({k: float(v) for k, v in metrics.items() if isinstance(v, (int, float))})
+
+def train_replicates(configs: Sequence[DictConfig]) -> list[TrainMetrics]:
+    """Fit one method's replicates (configs that differ by seed only) as one batch, then save, write and log each as
+    its own run. Returns their metrics."""
+    stages = [validate(TrainStage, cfg) for cfg in configs]
+    fits, scores, seconds, data = fit(stages)
+    baseline = majority_accuracy(data.train.labels, data.val.labels, data.bins.num_classes)
+    trained = []
+    for cfg, stage, fitted, score in zip(configs, stages, fits, scores):
+        metrics = TrainMetrics(
+            method=fitted.posterior.method,
+            **{f"val_{k}": v for k, v in score.items()},
+            majority_baseline_accuracy=baseline,
+            train_frames=len(data.train),
+            val_frames=len(data.val),
+            eval_samples=data.eval_samples,
+            seed=stage.seed,
+            train_seconds=seconds,
+            batched_replicates=len(fits),
+            **fitted.extra,
+        )
+        write_replicate(cfg, stage, fitted, metrics)
+        trained.append(metrics)
+    return trained
+
+
+def write_replicate(cfg: DictConfig, stage: TrainStage, fitted: Fitted, metrics: TrainMetrics) -> None:
+    """A trained replicate's model, learning curve and metrics files, then its MLflow run."""
+    model, curve, values = fitted.posterior, fitted.curve, as_dict(metrics)
+    replicate, paths = stage.replicate, stage.paths
+    model_path = save_posterior(model, Path(paths.models) / f"{replicate}.pt", metadata={"metrics": values})
+    plots = Path(paths.plots)
+    curve_csv = write_csv(plots / f"{replicate}_curve.csv", curve)  # DVC plots: x=step, y=val_accuracy
+    curve_png = save_figure(curve_figure(curve, metrics.method, model.curve_unit), plots / f"{replicate}_curve.png")
+    metrics_json = write_record(Path(paths.metrics) / f"{replicate}.json", metrics)
+    run_name = f"{stage.experiment.name}-{metrics.method}-{replicate}"
+    with stage_run(paths.root, "train", cfg, run_name=run_name):
+        mlflow.log_metrics({k: float(v) for k, v in values.items() if isinstance(v, (int, float))})
         for row in curve:
             mlflow.log_metrics({f"curve_{k}": float(v) for k, v in row.items() if k != "step"}, step=int(row["step"]))
         for path in (curve_csv, curve_png, metrics_json, model_path):
             mlflow.log_artifact(str(path))
-    return metrics
 
 
-def describe(m: dict) -> str:
+def describe(m: TrainMetrics) -> str:
     """The line a stage prints for a trained replicate."""
     return (
-        f"train {m['method']} seed {m['seed']}: val accuracy {m['val_accuracy']:.3f} (majority baseline "
-        f"{m['majority_baseline_accuracy']:.3f}), NLL {m['val_nll']:.3f}, ECE {m['val_ece']:.3f} "
-        f"in {m['train_seconds']:.0f} s"
+        f"train {m.method} seed {m.seed}: val accuracy {m.val_accuracy:.3f} (majority baseline "
+        f"{m.majority_baseline_accuracy:.3f}), NLL {m.val_nll:.3f}, ECE {m.val_ece:.3f} in {m.train_seconds:.0f} s"
     )
 
 
@@ -146,29 +168,39 @@ class TrainReplicatesStage(TrainStage):
 
 @dataclass(frozen=True)
 class TrainJob:
-    """The replicates' configs, resolved (a worker process has no Hydra): item i trains the i-th."""
+    """The replicates' configs, resolved (a worker process has no Hydra), in groups: item i trains group i as one
+    batch (`train_replicates`)."""
 
-    configs: tuple[dict, ...]
+    groups: tuple[tuple[dict, ...], ...]
 
     def worker(self) -> TrainJob:
         return self
 
-    def run(self, index: int) -> dict:
-        return run_train(OmegaConf.create(self.configs[index]))
+    def run(self, index: int) -> list[TrainMetrics]:
+        return train_replicates([OmegaConf.create(c) for c in self.groups[index]])
 
     def close(self) -> None:
         """Nothing held between items."""
 
 
-def run_train_replicates(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
-    """Every replicate of ``cfg.replicates``, ``train.workers`` at a time (a process each); each replicate's config
-    checked before any trains. Returns their metrics in replicate order."""
+@dataclass(frozen=True)
+class Trained:
+    """Every replicate of one method, in replicate order."""
+
+    replicates: list[TrainMetrics]
+
+
+def run_train_replicates(cfg: DictConfig, overrides: Sequence[str]) -> Trained:
+    """Every replicate of ``cfg.replicates``, in ``train.workers`` groups of consecutive seeds, each group one batch
+    in a process of its own (a core each: stacking replicates saves per-replicate overhead, a second core doubles
+    throughput); each replicate's config checked before any trains. Returns their metrics in replicate order."""
     stage = validate(TrainReplicatesStage, cfg)
-    cells = grid(seed=cfg.replicates)
-    configs = [compose_cell("train", overrides, cell) for cell in cells]
+    configs = [compose_cell("train", overrides, cell) for cell in grid(seed=stage.replicates)]
     for config in configs:
         validate(TrainStage, config)
-    job = TrainJob(tuple(OmegaConf.to_container(c, resolve=True) for c in configs))
-    with ProcessPool(min(stage.train.workers, len(configs))) as pool:
-        executor = pool.executor(job)
-        return list(executor.run(range(len(configs))))
+    resolved = [OmegaConf.to_container(c, resolve=True) for c in configs]
+    workers = min(stage.train.workers, len(configs))
+    bounds = [round(i * len(configs) / workers) for i in range(workers + 1)]
+    job = TrainJob(tuple(tuple(resolved[start:end]) for start, end in zip(bounds, bounds[1:])))
+    with ProcessPool(workers) as pool:
+        return Trained([metrics for group in pool.executor(job).run(range(workers)) for metrics in group])

@@ -43,7 +43,8 @@ region ends safe (its average η1 ≥ τ certified), unsafe (its average < τ ce
 spent); a safe region may hold points below τ (nothing here assumes safety falls monotonically with noise or
 rain). **Guarantee: family-wise, of region averages.** With probability ≥ 1 − {first.gamma:g}, every verdict of a
 map holds at once. `grid`: the rollouts a grid of the finest regions would need with a per-cell exact interval of
-half-width {first.grid.theta:g}, family-wise at the same γ (each cell's interval, too, is of a region average). `rollouts`: search + the tests' + run ahead of a test and never read (a region's
+half-width {first.grid.theta:g}, family-wise at the same γ (each cell's interval, too, is of a region average).
+`rollouts`: search + the tests' + run ahead of a test and never read (a region's
 rollouts are simulated a full lockstep batch at a time; a test reads only what it asks for, in order).""")
     rows = [
         [
