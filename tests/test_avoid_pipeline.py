@@ -84,13 +84,15 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
 
     client = MlflowClient(store_uris(tmp_path)[0])
     runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
-    by_name = {r.info.run_name.split(" · ")[-1]: r for r in runs}  # the name starts with η̂1
-    assert set(by_name) == {f"mcd-seed0-{c}-{m}" for c in (KNOWN, "fog") for m in Mode} | {"mcd-seed0-calibration"}
-    run = by_name["mcd-seed0-fog-on"]
+    by_name = {r.info.run_name.split(" · η1=")[0]: r for r in runs}  # condition first, the η̂1 last
+    assert set(by_name) == {f"{c} {m} · mcd seed0" for c in (KNOWN, "fog") for m in Mode} | {"calibration · mcd seed0"}
+    run = by_name["fog on · mcd seed0"]
     params = run.data.params
-    assert {k: params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n", "theta")} == {
+    assert {
+        k: params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n", "cell_theta")
+    } == {
         "method": "mcd",
-        "theta": "0.7",
+        "cell_theta": "0.7",
         "condition": "fog",
         "warnings": "on",
         "delta1": "0.7",

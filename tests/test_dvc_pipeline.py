@@ -120,7 +120,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     for row in markdown_rows(report, "method | location | weather"):
         assert row["η̂1"] == fmt(safety.answer(row["method"], row["location"], row["weather"], 0.0).value, 2)
     for row in markdown_rows(report, "method | weather | noise | frames"):
-        assert row["accuracy"] == fmt(evaluated[row["method"]][row["weather"]]["noise0.0"]["accuracy"])
+        assert row["accuracy"] == fmt(evaluated.cell(row["method"], row["weather"], 0.0).accuracy)
     for row in markdown_rows(report, "method | condition"):
         assert row["η̂1"] == fmt(avoided.answer(row["method"], row["condition"], row["warnings"]).value, 2)
     assert 'src="data:image/png;base64,' in (project / "reports/report.html").read_text()

@@ -44,20 +44,21 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     client, logged = runs(tmp_path)
     (run,) = logged
     params = run.data.params
-    assert {
-        k: params[k] for k in ("method", "experiment", "location", "weather", "noise", "theta", "gamma", "scheme", "n")
-    } == {
+    keys = ("method", "experiment", "location", "weather", "noise", "cell_theta", "cell_gamma", "cell_scheme", "n")
+    assert {k: params[k] for k in keys} == {
         "method": "hmc",
         "experiment": "offline",
         "location": "roundabout",
         "weather": "afternoon",
         "noise": "0.05",
-        "theta": "0.7",
-        "gamma": "0.05",
-        "scheme": "chernoff",
+        "cell_theta": "0.7",
+        "cell_gamma": "0.05",
+        "cell_scheme": "chernoff",
         "n": "4",
     }
-    assert not {"safety.theta", "safety.gamma", "safety.scheme"} & set(params)  # each key once
+    assert not {"safety.theta", "safety.gamma", "safety.scheme", "theta", "gamma"} & set(params)  # each key once
+    assert params["frame_draws.scheme"] == "sequential" and not any(k.startswith("safety.draws") for k in params)
+    assert run.info.run_name == f"afternoon σ0.05 roundabout · hmc seed0 · η1={result.cell.eta1:.2f}"
     assert params["safety.base_seed"] == "100000"
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
         assert run.data.metrics[key] == pytest.approx(getattr(result.cell, key))

@@ -21,7 +21,7 @@ def test_flatten_nested_config_to_dotted_params():
 def test_params_are_the_stage_section_and_the_compared_keys_with_project_paths_relative(tmp_path):
     cfg = OmegaConf.create(
         {
-            "safety": {"theta": 0.25, "out": f"{tmp_path}/metrics/safety/a.json"},
+            "safety": {"theta": 0.25, "out": f"{tmp_path}/metrics/safety/a.json", "draws": {"theta": 0.05}},
             "avoid": {"theta": 0.05},
             "paths": {"root": str(tmp_path)},
             "model": {"name": "vi"},
@@ -34,7 +34,8 @@ def test_params_are_the_stage_section_and_the_compared_keys_with_project_paths_r
         }
     )
     assert run_params(cfg, "safety", tmp_path) == {
-        "theta": "0.25",  # compared by: under its short name, once
+        "cell_theta": "0.25",  # compared by: under a name that says whose, once
+        "frame_draws.theta": "0.05",  # the per-frame draws' own θ, apart from the cell's
         "safety.out": "metrics/safety/a.json",
         "method": "vi",
         "weather": "rain",
@@ -57,7 +58,7 @@ def test_stage_run_creates_store_at_root_and_starts_when_the_job_started(tmp_pat
     assert logged.data.params == {"collect.episodes": "3", "location": "obstacle"}
     assert logged.data.metrics == {"frames": 42.0, "route_complete_fraction": 0.5}
     assert logged.info.start_time == 1700000000000 and logged.info.status == "FINISHED"
-    assert logged.info.run_name == "route_complete_fraction=0.5 · obstacle"  # the key metric, seen without set-up
+    assert logged.info.run_name == "obstacle · complete=0.50"  # the key metric, seen without set-up, at fixed precision
     assert logged.info.artifact_uri.startswith(artifact_root)
     assert (tmp_path / "mlartifacts").is_dir()
 
@@ -130,7 +131,7 @@ def test_two_processes_creating_the_store_at_once_both_log(tmp_path):
     for root in roots:
         client = MlflowClient(store_uris(root)[0])
         runs = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
-        assert sorted(r.info.run_name for r in runs) == ["eta1=1 · a", "eta1=1 · b"]
+        assert sorted(r.info.run_name for r in runs) == ["a · η1=1.00", "b · η1=1.00"]
         assert all(r.info.status == "FINISHED" for r in runs)
         assert (root / "a.json").exists() and (root / "b.json").exists()
 

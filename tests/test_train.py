@@ -82,7 +82,7 @@ def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
     for run in runs:
         method = run.data.params["method"]
         assert "model.name" not in run.data.params  # logged once, as method (uqdrive.tracking.COMPARED_BY)
-        assert run.info.run_name == f"val_accuracy={metrics[method]['val_accuracy']:.3g} · joint-{method}-seed0"
+        assert run.info.run_name == f"joint-{method}-seed0 · acc={metrics[method]['val_accuracy']:.3f}"
         assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {"seed0_curve.csv", "seed0_curve.png", "seed0.pt", "seed0.json"} <= artefacts  # in the method's run

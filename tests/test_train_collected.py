@@ -28,4 +28,4 @@ def test_each_method_beats_the_majority_class_on_collected_frames(tmp_path):
         for method in ("mcd", "vi", "hmc"):
             # 6 MCD epochs, not the tiny profile's 3: at 3 the trunk sits at the edge of the majority class
             m = run_train(config("train", f"experiment={experiment}", f"model={method}", "train.mcd.epochs=6"))
-            assert m["val_accuracy"] > m["majority_baseline_accuracy"] + 0.05, (experiment, method, m)
+            assert m.val_accuracy > m.majority_baseline_accuracy + 0.05, (experiment, method, m)

@@ -103,7 +103,48 @@ def describe(error: Mapping[str, Any], cls: type, path: str = "") -> str:
     if error["type"] == "missing" or error["type"] == "missing_argument":
         return f"{key} is required"
     message = error["msg"][0].lower() + error["msg"][1:]
-    return f"{key}={error['input']!r}: {message}"
+    shape = _shape(_type_at(cls, error["loc"]))
+    expected = f"; expected {shape}" if shape.startswith(("[", "{")) else ""
+    return f"{key}={error['input']!r}: {message}{expected}"
+
+
+def _type_at(cls: Any, loc: tuple) -> Any:
+    """The schema's type at ``loc`` (field names and list indices), None where it cannot be followed."""
+    tp = cls
+    for part in loc:
+        inner = _unwrap(tp)
+        if isinstance(part, str) and dataclasses.is_dataclass(inner):
+            tp = typing.get_type_hints(inner, include_extras=True).get(part)
+        elif isinstance(part, int):
+            args = [a for a in typing.get_args(_bare(tp)) if a is not Ellipsis]
+            tp = args[min(part, len(args) - 1)] if args else None
+        else:
+            return None
+    return tp
+
+
+def _bare(tp: Any) -> Any:
+    while typing.get_origin(tp) is Annotated:
+        tp = typing.get_args(tp)[0]
+    return tp
+
+
+def _shape(tp: Any, depth: int = 0) -> str:
+    """What a structured key looks like in a config, e.g. ``[{key: …, range: […, …]}, …]``."""
+    tp = _bare(tp)
+    if depth > 3 or tp is None:
+        return "…"
+    if dataclasses.is_dataclass(tp):
+        hints = typing.get_type_hints(tp, include_extras=True)
+        return "{" + ", ".join(f"{name}: {_shape(hint, depth + 1)}" for name, hint in hints.items()) + "}"
+    origin, args = typing.get_origin(tp), [a for a in typing.get_args(tp) if a is not Ellipsis]
+    if origin in (tuple, list) and args:
+        if Ellipsis in typing.get_args(tp) or origin is list:
+            return f"[{_shape(args[0], depth + 1)}, …]"
+        return "[" + ", ".join(_shape(a, depth + 1) for a in args) + "]"
+    if origin is dict:
+        return "{…: …}"
+    return "…"
 
 
 def _dotted(path: str, loc: tuple) -> str:

@@ -15,10 +15,12 @@ import ctypes
 import functools
 import itertools
 import os
+import shutil
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
 from typing import Protocol, TypeVar
 
 from hydra import compose
@@ -40,7 +42,8 @@ def stage_main(main: Callable[..., R]) -> Callable[..., R]:
       process the launching process's resolver registry, which has none of ours.
     - A bad config value (a `ConfigError`, also one a resolver raised) prints ``error: <message>`` on
       stderr and exits with 2: one line, no traceback (Hydra prints one for any exception leaving the
-      task function). Checks run before any output is opened, so such a run has written nothing.
+      task function). Checks run before any output is opened, so such a run has written nothing, and the run
+      folder Hydra made for it (`outputs/<date>/<time>`: its own config and log) is removed.
     """
 
     @functools.wraps(main)
@@ -55,9 +58,27 @@ def stage_main(main: Callable[..., R]) -> Callable[..., R]:
             if cause is None:
                 raise
             print(f"error: {cause}", file=sys.stderr, flush=True)
+            _remove_rejected_run_folder()
             raise SystemExit(2) from None
 
     return run
+
+
+def _remove_rejected_run_folder() -> None:
+    """Remove a single run's Hydra folder when it holds nothing but Hydra's own files (its config and job log),
+    then its date folder and `outputs/` if they are left empty."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    if not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.RUN:
+        return
+    folder = Path(HydraConfig.get().runtime.output_dir)
+    if not folder.is_dir() or any(p.name != ".hydra" and p.suffix != ".log" for p in folder.iterdir()):
+        return
+    shutil.rmtree(folder, ignore_errors=True)
+    for parent in (folder.parent, folder.parent.parent):
+        if parent.name and parent.is_dir() and not any(parent.iterdir()):
+            parent.rmdir()
 
 
 _task_started = False  # set by `stage_main`: an error before it is Hydra's (composing the config from the overrides)

@@ -50,20 +50,21 @@ COMPARED_BY = {
     "location": "scenario.name",
     "profile": "profile_name",
     "replicate": "seed",  # the training seed
-    "scheme": "{stage}.scheme",
-    "theta": "{stage}.theta",
-    "gamma": "{stage}.gamma",
+    "cell_scheme": "{stage}.scheme",  # how each cell estimates η1 ...
+    "cell_theta": "{stage}.theta",  # ... and its precision
+    "family_gamma": "{stage}.gamma",  # the γ a family-wise sweep splits (each cell's own: cell_gamma, its record's)
 }
+RENAMED = {"{stage}.draws.": "frame_draws."}  # the posterior draws per frame: apart from the cell's θ and γ
 SECTIONS = {"train": ("train", "model", "arch")}  # a stage's own config sections, when not just its name
-# The number each experiment is judged by. MLflow 3.17's runs table shows no metric column until a user
-# picks one (its default columns are Created, Dataset, Duration, …), so the run's name starts with it: the
-# Run Name column shows about 20 characters.
+# The number each experiment is judged by, at a fixed precision. MLflow 3.17's runs table shows no metric column
+# until a user picks one (its default columns are Created, Dataset, Duration, …), so the run's name carries it,
+# after what tells sibling runs apart (the Run Name column shows about 20 characters: the condition first).
 KEY_METRICS = {
-    "safety": "eta1",
-    "avoid": "eta1",
-    "train": "val_accuracy",
-    "collect": "route_complete_fraction",
-    "preprocess": "train_frames",
+    "safety": ("eta1", "η1={:.2f}"),
+    "avoid": ("eta1", "η1={:.2f}"),
+    "train": ("val_accuracy", "acc={:.3f}"),
+    "collect": ("route_complete_fraction", "complete={:.2f}"),
+    "preprocess": ("train_frames", "frames={:.0f}"),
 }
 # Where the block's logging calls go when the store could not be opened: nowhere (every call fails and is
 # skipped), rather than a fresh store made outside the lock.
@@ -139,6 +140,9 @@ def run_params(config: DictConfig | Mapping[str, Any], stage: str, root: str | P
         if value is not None and not isinstance(value, DictConfig):
             params.pop(key, None)
             params[name] = str(value)
+    for old, new in RENAMED.items():
+        old = old.format(stage=stage)
+        params = {(new + k.removeprefix(old) if k.startswith(old) else k): v for k, v in params.items()}
     prefix = f"{Path(root).resolve()}{os.sep}"
     return {k: v.replace(prefix, "") for k, v in params.items()}
 
@@ -204,12 +208,12 @@ def stage_run(
 
 
 def _name_with_key_metric(run_id: str, stage: str, run_name: str | None) -> None:
-    """Start the run's name with the experiment's key metric, so the runs table shows it without set-up."""
-    key = KEY_METRICS.get(stage)
+    """End the run's name with the experiment's key metric, so the runs table shows it without set-up."""
+    key, form = KEY_METRICS.get(stage, (None, ""))
     client = mlflow.MlflowClient()
     value = client.get_run(run_id).data.metrics.get(key) if key else None
     if value is not None:
-        client.update_run(run_id, name=f"{key}={value:.3g} · {run_name or stage}")
+        client.update_run(run_id, name=f"{run_name or stage} · {form.format(value)}")
 
 
 def _terminate(root: str | Path, run_id: str, status: str) -> None:

@@ -7,7 +7,6 @@ classes gets exactly that or a clear error, never a silently wrong network.
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 
 import torch
@@ -41,6 +40,14 @@ def save_posterior(posterior: Posterior, path: str | Path, metadata: dict | None
     return path
 
 
+def _reason(err: Exception) -> str:
+    """What torch found, in its own first sentence, without the advice it appends for its own users (retrying with
+    weights_only=False would run arbitrary code from the file)."""
+    text = str(err).strip()
+    first = text.splitlines()[0].split(". ")[0].rstrip(".") if text else ""
+    return f"{type(err).__name__}: {first}" if first else type(err).__name__
+
+
 def read_checkpoint(path: str | Path) -> dict:
     """The raw payload after checking it is a uqdrive model file of this version."""
     path = Path(path)
@@ -50,10 +57,8 @@ def read_checkpoint(path: str | Path) -> dict:
         raise ValueError(f"{path} is empty (0 bytes): not a uqdrive model file")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as err:
-        raise ValueError(
-            f"{path} is not a uqdrive model file (torch.load failed: {type(err).__name__}: {err})"
-        ) from None
+    except Exception as err:  # noqa: BLE001 - any bytes may reach here; whatever torch trips on, the file is not ours
+        raise ValueError(f"{path} is not a uqdrive model file (torch cannot read it: {_reason(err)})") from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ValueError(f"{path} is not a uqdrive model file (no '{FORMAT}' format tag)")
     if payload.get("version") != VERSION:

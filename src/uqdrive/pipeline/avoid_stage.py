@@ -181,13 +181,15 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
             "middle_guaranteed": cell.rule.tier.middle_guaranteed,
             "n": cell.estimate.n,
         }
-        with stage_run(root, "avoid", cfg, run_name=cell.name, tags={"reused": str(cell.reused).lower()}):
+        name = f"{condition} {mode} · {settings.method} seed{settings.seed}"  # what tells sibling runs apart first
+        tags = {"reused": str(cell.reused).lower(), "cell": cell.name}
+        with stage_run(root, "avoid", cfg, run_name=name, tags=tags):
             mlflow.log_params(params)
             mlflow.log_metrics(numeric_metrics(as_dict(result.cell(condition, mode))))
             for key in (f"cells/{cell.name}", f"cells/{cell.name}.csv"):
                 mlflow.log_artifact(str(paths[key]))
     k = result.calibration
-    with stage_run(root, "avoid", cfg, run_name=f"{settings.name}-calibration"):
+    with stage_run(root, "avoid", cfg, run_name=f"calibration · {settings.method} seed{settings.seed}"):
         mlflow.log_params(
             {
                 "calibrated_delta1": k.delta1,

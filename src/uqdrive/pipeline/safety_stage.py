@@ -270,13 +270,9 @@ def _cell_files(section: SafetySection) -> list[Path]:
 def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: list[Path], reused: bool) -> None:
     """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
     metrics = numeric_metrics({k: v for k, v in as_dict(cell).items() if k not in CELL_PARAMS})
-    with stage_run(
-        stage.paths.root,
-        "safety",
-        cfg,
-        run_name=stage.safety.cell,
-        tags={"reused": str(reused).lower(), "config_hash": cell.config_hash},
-    ):
+    name = f"{cell.weather} σ{cell.noise:g} {cell.location} · {cell.method} seed{cell.replicate}"  # siblings differ
+    tags = {"reused": str(reused).lower(), "config_hash": cell.config_hash, "cell": stage.safety.cell}
+    with stage_run(stage.paths.root, "safety", cfg, run_name=name, tags=tags):
         mlflow.log_params({"n": cell.n, "cell_gamma": cell.gamma})  # the rest: the cell's config (`stage_run`)
         mlflow.log_metrics(metrics)
         for path in artifacts:
