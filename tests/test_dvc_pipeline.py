@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from rendered_plots import chromium, problems, render
 from test_report import markdown_rows
 
 from uqdrive.analysis.method_answers import AvoidSummary, SafetySummary
@@ -72,6 +73,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     for key, value in (("user.name", "uqdrive test"), ("user.email", "test@localhost")):  # dvc exp commits need one
         _git(project, "config", key, value)
     _dvc(project, "init", "-q")
+    shutil.copytree(ROOT / ".dvc/plots", project / ".dvc/plots")  # the project's plot templates
 
     _dvc(project, "repro")
     for scenario in ("obstacle", "roundabout"):
@@ -137,6 +139,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     _dvc(project, "plots", "show")
     page = (project / "dvc_plots/index.html").read_text()
     assert "cdn.jsdelivr" not in page and "vegaEmbed(" in page and '"eta1_unknown"' in page
+    if chromium() is not None:  # as a person sees it: every plot draws data under titled axes, every figure loads
+        drawn = render(project / "dvc_plots/index.html")
+        assert {d.kind for d in drawn} == {"vega", "image"} and not problems(drawn), problems(drawn)
     # bytecode beside every source file (a test run or a benchmark imports what the stages did not): still up to date
     subprocess.run([sys.executable, "-m", "compileall", "-q", str(project / "src")], check=True, timeout=300)
     assert list((project / "src/uqdrive/bench").glob("__pycache__/*.pyc"))

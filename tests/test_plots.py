@@ -5,7 +5,7 @@ import numpy as np
 from uqdrive.plots import safety_hexbin_grid, save_figure
 
 
-def _panel(rng: np.random.Generator, eta1: float) -> dict[str, np.ndarray]:
+def ring_panel(rng: np.random.Generator, eta1: float) -> dict[str, np.ndarray]:
     angle = rng.uniform(0, 2 * np.pi, 400)
     radius = rng.normal(10, 0.5, 400)
     ring = np.linspace(0, 2 * np.pi, 50)
@@ -22,7 +22,7 @@ def _panel(rng: np.random.Generator, eta1: float) -> dict[str, np.ndarray]:
 
 def test_hexbin_panels_have_axes_in_metres_and_one_log_colour_bar_of_visits(tmp_path):
     rng = np.random.default_rng(0)
-    panels = {("mcd", "clear_noon"): _panel(rng, 0.9), ("vi", "rain"): _panel(rng, 0.5)}  # two cells blank
+    panels = {("mcd", "clear_noon"): ring_panel(rng, 0.9), ("vi", "rain"): ring_panel(rng, 0.5)}  # two cells blank
     fig = safety_hexbin_grid(panels, ["mcd", "vi"], ["clear_noon", "rain"], "paths")
     drawn = [ax for ax in fig.axes if ax.collections and ax.get_title()]
     assert len(drawn) == 2
