@@ -93,13 +93,9 @@ def visits_colour_bar(fig: plt.Figure, hexagons: list[PolyCollection], axes: lis
     norm = LogNorm(vmin=1.0, vmax=max(top, 10.0))
     for h in hexagons:
         h.set_norm(norm)
-    fig.colorbar(
-        plt.cm.ScalarMappable(norm=norm, cmap=VISITS),
-        ax=axes,
-        label="visits per hexagon (log scale)",
-        fraction=0.03,
-        pad=0.02,
-    )
+    bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=VISITS), ax=axes, fraction=0.03, pad=0.02)
+    bar.set_label("visits per hexagon (log scale)", fontsize=9)
+    bar.ax.tick_params(labelsize=8)
 
 
 def _panels(axes: np.ndarray, panels: dict[tuple[str, str], dict], rows: list[str], columns: list[str]):
