@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 export PATH := $(BIN):$(PATH)
 
-.PHONY: install repro test lint ui frames clean-venv
+.PHONY: install repro test lint ui frames chromium clean-venv
 
 # uv installs in about 25 s what pip took 2 min for. It does not read pip's config, so it is told where a machine keeps
 # its CPU build of torch (TORCH_WHEELS, where that folder exists): without it, torch==2.13.0 from PyPI is the CUDA
@@ -41,6 +41,11 @@ test: lint
 lint: $(TEST_STAMP)
 	ruff check src stages tests
 	ruff format --check src stages tests
+
+# Debian's Chromium for the browser test of `dvc plots show`'s page (tests/test_plots_page.py; skipped without it,
+# failed in CI). apt needs root; nothing is downloaded at test time.
+chromium:
+	command -v chromium >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium; }
 
 ui: $(STAMP)
 	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"

@@ -96,6 +96,18 @@ def test_no_stage_depends_on_code_it_does_not_import():
         assert not unused, f"{stage.name} depends on code it does not import: {unused}"
 
 
+def test_no_stage_imports_a_file_dvc_ignores():
+    """Each stage's code dep is `src/uqdrive`, less the tools .dvcignore hides: DVC would not see a change to one."""
+    from dvc.repo import Repo
+
+    with Repo(str(ROOT)) as repo:
+        ignored = {
+            s.name: [f.as_posix() for f in s.imports if repo.dvcignore.is_ignored_file(str(ROOT / f))] for s in stages()
+        }
+        assert repo.dvcignore.is_ignored_file(str(ROOT / "src/uqdrive/cli.py"))  # the check sees .dvcignore
+    assert not {name: files for name, files in ignored.items() if files}
+
+
 def test_every_listed_dep_exists_once():
     for stage in stages():
         paths = [d.as_posix() for d in stage.deps]

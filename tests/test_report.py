@@ -284,11 +284,18 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert "Figure missing: `plots/envelope/mcd-seed0/map.png`" in text
 
     headline = json.loads((tmp_path / "metrics/summary.json").read_text())
-    assert headline["safety_vi"] == pytest.approx(np.mean([a.value for a in safety.answers if a.method == "vi"]))
-    assert headline["avoid_on_mcd"] == avoid.answer("mcd", "unknown mixture", "on").value
-    assert headline["acc_avoid_vi"] == pytest.approx(np.mean(accuracy))
-    assert len(headline) == len(METHODS) * (len(EXPERIMENTS) + 4) + 1
-    assert headline["findings"] == findings.supported
+    assert list(headline)[:3] == ["theta", "gamma", "n_replicates"]  # `dvc exp show`'s first columns
+    assert (headline["theta"], headline["gamma"], headline["n_replicates"]) == (0.25, 0.05, len(SEEDS))
+    vi_answers = [a.value for a in safety.answers if a.method == "vi"]
+    assert headline["offline_safety"]["vi"] == pytest.approx(np.mean(vi_answers))
+    assert headline["avoid_unknown_on"]["mcd"] == avoid.answer("mcd", "unknown mixture", "on").value
+    assert headline["avoid_unknown_off"]["mcd"] == avoid.answer("mcd", "unknown mixture", "off").value
+    assert headline["val_accuracy"]["avoid"]["vi"] == pytest.approx(np.mean(accuracy))
+    per_method = [k for k, v in headline.items() if isinstance(v, dict) and k != "val_accuracy"]
+    assert per_method == ["offline_safety", "avoid_unknown_on", "avoid_unknown_off", "avoid_unknown_calibrated"]
+    assert all(list(headline[k]) == list(METHODS) for k in per_method)
+    assert list(headline["val_accuracy"]) == list(EXPERIMENTS)
+    assert headline["findings_supported"] == findings.supported
 
     html = (tmp_path / "reports/report.html").read_text()
     figures = len(EXPERIMENTS) * len(METHODS) + 2  # learning curves, one hexbin, vi's map; the rest are missing

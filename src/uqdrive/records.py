@@ -34,9 +34,10 @@ def record(cls: type[R] | None = None, *, open_keys: bool = False):
     return wrap if cls is None else wrap(cls)
 
 
-def write_record(path: str | Path, value: Any) -> Path:
-    """The one writer of every stage's metrics file."""
-    write_json(path, as_dict(value))
+def write_record(path: str | Path, value: Any, sort_keys: bool = True) -> Path:
+    """The one writer of every stage's metrics file; ``sort_keys=False``: the record's own order (what a reader
+    meets first, e.g. `dvc exp show`'s columns)."""
+    write_json(path, as_dict(value), sort_keys=sort_keys)
     return Path(path)
 
 

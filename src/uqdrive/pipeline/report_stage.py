@@ -70,7 +70,7 @@ def run_report(cfg: DictConfig) -> ReportFiles:
         tmp.write_text(report.markdown)
     with atomic_path(html_path) as tmp:
         tmp.write_text(report.html())
-    write_record(stage.report.summary, headline)
+    write_record(stage.report.summary, headline, sort_keys=False)  # the comparison keys first in `dvc exp show`
     with stage_run(stage.paths.root, "report", cfg, run_name="report"):
         mlflow.log_artifact(str(md_path))
         mlflow.log_artifact(str(html_path))

@@ -22,7 +22,7 @@ from omegaconf import DictConfig
 
 from uqdrive.files import write_csv
 from uqdrive.models.posterior import posterior_from_config
-from uqdrive.plots import safety_hexbin, save_figure
+from uqdrive.plots import safety_hexbin, save_figure, visits_colour_bar
 from uqdrive.records import as_dict, read_record, write_record
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
@@ -189,10 +189,11 @@ def cell_figure(plan: CellPlan, positions: CellPositions, estimate: Estimate) ->
         f"{plan.method} · {where.scenario.name} · {where.weather.name} · noise {where.noise:g}: "
         f"η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
     )
-    fig, ax = plt.subplots(figsize=(5, 5))
+    fig, ax = plt.subplots(figsize=(5.6, 5))
     p = positions
-    safety_hexbin(ax, p.x, p.y, p.route, p.edges, tuple(p.extent), title, p.road)
+    hexagons = safety_hexbin(ax, p.x, p.y, p.route, p.edges, tuple(p.extent), title, p.road)
     ax.legend(loc="lower left", fontsize=7)
+    visits_colour_bar(fig, [hexagons] if hexagons is not None else [], [ax])
     return fig
 
 

@@ -47,12 +47,24 @@ class Scope:
     locations: tuple[str, ...]
 
 
-@record(open_keys=True)
+@record
 class Headline:
-    """metrics/summary.json, the numbers an experiment is compared by (DVC's one metrics file: `dvc exp show`),
-    flat and short-named so they fit a terminal; per driven method the keys `headline_metrics` lists."""
+    """metrics/summary.json, the numbers an experiment is compared by (DVC's one metrics file: `dvc exp show` shows
+    its keys first, nested keys as dotted columns such as ``offline_safety.vi``), in this order, the run's
+    comparison keys first: the loosest (θ, γ) of every closed-loop cell (each η̂1 within θ of η1 with probability at
+    least 1 − γ) and how many training replicates each number averages; per driven method, η̂1 over the offline
+    sweep's cells and in collision avoidance's unknown conditions (warnings on, off, calibrated); each experiment's
+    validation accuracy; how many findings are supported."""
 
-    findings: int
+    theta: float
+    gamma: float
+    n_replicates: int
+    offline_safety: dict[str, float]
+    avoid_unknown_on: dict[str, float]
+    avoid_unknown_off: dict[str, float]
+    avoid_unknown_calibrated: dict[str, float]
+    val_accuracy: dict[str, dict[str, float]]  # experiment → method
+    findings_supported: int
 
 
 def _git_commit(root: Path) -> str:
@@ -136,17 +148,30 @@ def sample_counts_section(report: Report, cells: list[SafetyCell], look_size: in
 
 
 def headline_metrics(scope: Scope, run: Run, findings: Findings) -> Headline:
-    """Per driven method, the mean validation accuracy of each
-    experiment's replicates (`acc_<experiment>_<method>`), the offline η̂1 over every cell of the sweep
-    (`safety_<method>`), the unknown-mixture η̂1 in collision avoidance with warnings off, on and calibrated
-    (`avoid_off_<method>`, …), and how many findings are supported."""
-    seeds = scope.replicates
-    headline: dict[str, float] = {}
-    for m in scope.methods:
-        for e in scope.experiments:
-            headline[f"acc_{e}_{m}"] = sum(run.trained[e, m, r].val_accuracy for r in seeds) / len(seeds)
-        answers = [a.value for a in run.safety.answers if a.method == m]
-        headline[f"safety_{m}"] = sum(answers) / len(answers)
-        for mode, short in ((Mode.OFF, "off"), (Mode.ON, "on"), (Mode.CALIBRATED, "cal")):
-            headline[f"avoid_{short}_{m}"] = run.avoid.answer(m, UNKNOWN, mode).value
-    return Headline(findings=findings.supported, **headline)
+    """The headline numbers (`Headline`): means over the replicates, η̂1 of the unknown mixture per warnings mode."""
+    seeds, methods = scope.replicates, scope.methods
+    guarantees = [(c.theta, c.gamma) for c in run.cells] + [
+        (cell.theta, cell.gamma) for result in run.avoided for modes in result.cells.values() for cell in modes.values()
+    ]
+
+    def offline_safety(method: str) -> float:
+        answers = [a.value for a in run.safety.answers if a.method == method]
+        return sum(answers) / len(answers)
+
+    def avoid_unknown(mode: Mode) -> dict[str, float]:
+        return {m: run.avoid.answer(m, UNKNOWN, mode).value for m in methods}
+
+    return Headline(
+        theta=max(theta for theta, _ in guarantees),
+        gamma=max(gamma for _, gamma in guarantees),
+        n_replicates=len(seeds),
+        offline_safety={m: offline_safety(m) for m in methods},
+        avoid_unknown_on=avoid_unknown(Mode.ON),
+        avoid_unknown_off=avoid_unknown(Mode.OFF),
+        avoid_unknown_calibrated=avoid_unknown(Mode.CALIBRATED),
+        val_accuracy={
+            e: {m: sum(run.trained[e, m, r].val_accuracy for r in seeds) / len(seeds) for m in methods}
+            for e in scope.experiments
+        },
+        findings_supported=findings.supported,
+    )

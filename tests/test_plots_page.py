@@ -1,0 +1,95 @@
+"""`dvc plots show` as a person sees it: every plot of dvc.yaml, on the committed run's plot data, rendered in headless
+Chromium, draws data marks under titled axes, and every figure loads (tests/rendered_plots.py reads the page back)."""
+
+import csv
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+from rendered_plots import INSTALL_HINT, chromium, problems, render
+from test_plots import ring_panel
+
+from uqdrive.plots import safety_hexbin_grid
+from uqdrive.plots_page import write_page
+
+ROOT = Path(__file__).resolve().parents[1]
+IMAGE_PLOTS = ("plots/safety/summary", "plots/evaluate/figures", "plots/avoid/summary")  # figures git does not keep
+
+
+def require_chromium() -> None:
+    """Skip where Chromium cannot be had; CI installs it (.ci/run), so there a missing one fails."""
+    if chromium() is None:
+        if os.environ.get("CI"):
+            pytest.fail(INSTALL_HINT)
+        pytest.skip(INSTALL_HINT)
+
+
+def dvc(project: Path, *args: str) -> str:
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    result = subprocess.run(
+        [sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result.stdout
+
+
+def plots_project(tmp_path: Path) -> Path:
+    """A DVC project with this checkout's dvc.yaml, plot templates and page, the committed run's plot data (its
+    params: every plot it drew) and a figure in each image folder (git keeps no PNG)."""
+    project = tmp_path / "project"
+    project.mkdir()
+    for name in ("dvc.yaml", "params.yaml"):
+        shutil.copy(ROOT / name, project / name)
+    shutil.copytree(ROOT / "plots", project / "plots", ignore=shutil.ignore_patterns("*.png"))
+    subprocess.run(["git", "init", "-q"], cwd=project, check=True, timeout=60)
+    dvc(project, "init", "-q")
+    shutil.copytree(ROOT / ".dvc/plots", project / ".dvc/plots")
+    write_page(project / ".dvc/plots_page.html")
+    dvc(project, "config", "plots.html_template", "plots_page.html")
+    rng = np.random.default_rng(0)
+    figure = safety_hexbin_grid({("mcd", "rain"): ring_panel(rng, 0.9)}, ["mcd"], ["rain"], "paths")
+    for folder in IMAGE_PLOTS:
+        (project / folder).mkdir(parents=True, exist_ok=True)
+        figure.savefig(project / folder / "figure.png")
+    plt.close(figure)
+    return project
+
+
+@pytest.mark.slow
+def test_every_plot_of_plots_show_draws_data_under_titled_axes(tmp_path):
+    require_chromium()
+    project = plots_project(tmp_path)
+    dvc(project, "plots", "show")
+    drawn = render(project / "dvc_plots/index.html")
+    assert not problems(drawn), "\n".join(problems(drawn))
+    by_plot = {d.plot: d for d in drawn}
+    assert {"plots_offline_class_histogram_csv", "plots_evaluate_reliability_csv"} <= set(by_plot)
+    assert {d.kind for d in drawn} == {"vega", "image"}
+    histogram = by_plot["plots_offline_class_histogram_csv"]
+    assert histogram.axis_titles == ("frames (square-root scale)", "steering class centre (positive = left)")
+    with (project / "plots/evaluate/reliability.csv").open() as f:
+        conditions = len({(row["weather"], row["noise"]) for row in csv.DictReader(f)})  # a panel each
+    reliability = by_plot["plots_evaluate_reliability_csv"]
+    assert reliability.axis_titles.count("mean confidence of the bin") == min(conditions, 3)  # one per column
+
+
+@pytest.mark.slow
+def test_the_check_fails_on_a_plot_with_no_data_marks_or_untitled_axes(tmp_path):
+    """Mutants of the templates: bars on a log scale from a zero baseline draw nothing; axes with no title."""
+    require_chromium()
+    project = plots_project(tmp_path)
+    histogram = project / ".dvc/plots/class_histogram.json"
+    histogram.write_text(histogram.read_text().replace('"type": "sqrt"', '"type": "log"'))
+    reliability = project / ".dvc/plots/reliability.json"
+    reliability.write_text(reliability.read_text().replace('"<DVC_METRIC_X_LABEL>"', "null"))
+    targets = ["plots/offline/class_histogram.csv", "plots/evaluate/reliability.csv", "plots/evaluate/conditions.csv"]
+    dvc(project, "plots", "show", *targets)
+    found = problems(render(project / "dvc_plots/index.html"))
+    assert len(found) == 2, found
+    assert found[0].startswith("plots_offline_class_histogram_csv: no data marks")
+    assert found[1].startswith("plots_evaluate_reliability_csv: axes without titles")
