@@ -38,6 +38,7 @@ STAGES = {
     "train_replicates": lambda cfg: run_train_replicates(cfg, []),
     "safety": run_safety,
     "safety_sweep": first(run_safety_sweep),
+    "gym_safety_sweep": first(run_safety_sweep),
     "evaluate": run_evaluate,
     "avoid": run_avoid,
     "safety_summary": run_safety_summary,
@@ -83,6 +84,11 @@ BAD = {
         ("+scenario.ring_radiuss=20", "scenario.ring_radiuss: unknown key; did you mean 'ring_radius'?"),
         ("weather.shadow=sometimes", "weather.shadow='sometimes': input should be a valid boolean"),
         ("camera.width=4", "camera.width=4: input should be greater than or equal to 8"),
+    ],
+    "gym_safety_sweep": [
+        ("+sweep.world_axes=1", "sweep.world_axes: unknown key; did you mean 'world_axis'?"),
+        ("sweep.world_axis={key: 3, values: {a: 1}}", "sweep.world_axis.key=3: input should be a valid string"),
+        ("sweep.noises=[-1]", "sweep.noises[0]=-1: input should be greater than or equal to 0"),
     ],
     "evaluate": [
         ("+evaluate.sample=3", "evaluate.sample: unknown key; did you mean 'samples'?"),

@@ -58,7 +58,7 @@ def safety_hexbin(
 ) -> None:
     """The paper's offline-safety panel: where the rollouts drove (log counts) on the road map, the
     reference trajectory and the safe set's edges, so unsafe paths show as mass outside the edges."""
-    if road is not None:
+    if road is not None and road.size:  # an empty raster: a world whose road uqdrive does not know
         ax.imshow(road, extent=extent, origin="lower", cmap="gray", vmin=-1.5, vmax=2.5, interpolation="nearest")
     inside = (x >= extent[0]) & (x <= extent[1]) & (y >= extent[2]) & (y <= extent[3])
     if inside.any():
