@@ -16,6 +16,7 @@ from test_stage_sweeps import sweep
 
 import uqdrive.safety.runner as runner
 from uqdrive.pipeline.collect_stage import run_collect
+from uqdrive.pipeline.findings_stage import run_findings
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety, run_safety_sweep
 from uqdrive.schema import ConfigError
 from uqdrive.tracking import store_uris
@@ -96,18 +97,38 @@ def test_the_cell_identity_covers_the_envs_kwargs_its_packages_and_the_modules_i
     assert {"uqdrive.sim.gym_world", "uqdrive.sim.gym_highway"} <= set(digested[-1])
 
 
-def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_of_its_own(random_models, tmp_path):
+def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and_the_findings_test_them(
+    random_models, stage_config, tmp_path
+):
     shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")
     model = f"safety.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
     axis = "sweep.world_axis={key: env_kwargs.rate, values: {calm: 0.1, wild: 0.9}}"
-    grid = ("sweep.methods=[mcd]", "sweep.replicates=[0]", "sweep.noises=[0.0]", axis)
+    grid = ("sweep.methods=[mcd,vi]", "sweep.replicates=[0]", "sweep.noises=[0.0]", axis)
     cells = sweep(run_safety_sweep, "gym_safety_sweep", tmp_path, model, *ALL_TENTHS, *COIN, *grid)
-    assert [c["location"] for _, c in cells] == ["coin-calm", "coin-wild"]
-    for (config, cell), rate in zip(cells, (0.1, 0.9)):
+    assert [(c["method"], c["location"]) for _, c in cells] == [
+        ("mcd", "coin-calm"),
+        ("mcd", "coin-wild"),
+        ("vi", "coin-calm"),
+        ("vi", "coin-wild"),
+    ]
+    for (config, cell), rate in zip(cells, (0.1, 0.9, 0.1, 0.9)):
         seeds = range(cell["base_seed"], cell["base_seed"] + cell["n"])
         assert config.gym_world.env_kwargs.rate == rate
         assert cell["outcomes"] == "".join("0" if coin_crash_step(s, rate) else "1" for s in seeds)
     assert cells[0][1]["config_hash"] != cells[1][1]["config_hash"]
+
+    assert stage_config("gym_findings").locations == ["highway_roundabout-idm", "highway_roundabout-aggressive"]
+    cells_dir = f"findings.cells_dir={tmp_path}/metrics/safety"
+    grid = ("world=coin", "locations=[coin-calm,coin-wild]", "methods=[mcd,vi]", "replicates=[0]", "noises=[0.0]")
+    findings = run_findings(stage_config("gym_findings", *grid, cells_dir))
+    names = [f.name for f in findings.findings]
+    assert names == ["mcd vs vi at coin-calm-env-noise0.0", "mcd vs vi at coin-wild-env-noise0.0"] + [
+        f"{m}: coin-wild-env-noise0.0 vs the training condition" for m in ("mcd", "vi")
+    ]
+    assert {f.experiment for f in findings.findings} == {"coin"} and {c.family for c in findings.claims} == {
+        "exploratory"
+    }
+    assert (tmp_path / "metrics/coin/findings.json").exists()
 
 
 @pytest.fixture

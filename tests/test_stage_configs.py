@@ -44,6 +44,7 @@ STAGES = {
     "safety_summary": run_safety_summary,
     "avoid_summary": run_avoid_summary,
     "findings": run_findings,
+    "gym_findings": run_findings,
     "report": run_report,
     "envelope": run_envelope,
 }
@@ -122,6 +123,11 @@ BAD = {
         ("+findings.alhpa=0.1", "findings.alhpa: unknown key; did you mean 'alpha'?"),
         ("replicates=[first]", "replicates[0]='first': input should be a valid integer"),
         ("findings.alpha=0", "findings.alpha=0: input should be greater than 0"),
+    ],
+    "gym_findings": [
+        ("+findings.cell_dir=x", "findings.cell_dir: unknown key; did you mean 'cells_dir'?"),
+        ("findings.experiment=1", "findings.experiment=1: input should be a valid string"),
+        ("findings.margin=1", "findings.margin=1: input should be less than 1"),
     ],
     "report": [
         ("+report.outdir=x", "report.outdir: unknown key; did you mean 'out_dir'?"),

@@ -28,6 +28,7 @@ from uqdrive.files import write_csv
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import safety_hexbin, save_figure
 from uqdrive.records import as_dict, read_record, write_record
+from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
@@ -141,7 +142,7 @@ class SafetySweepStage(SafetyStage):
         if axis is None:
             return [{}]
         return [
-            {f"++gym_world.{axis.key}": value, "gym_world.name": f"{name}-{label}"}
+            {f"++gym_world.{axis.key}": value, "gym_world.name": world_location(name, label)}
             for label, value in axis.values.items()
         ]
 
