@@ -63,7 +63,8 @@ def safety_hexbin(
     inside = (x >= extent[0]) & (x <= extent[1]) & (y >= extent[2]) & (y <= extent[3])
     if inside.any():
         ax.hexbin(x[inside], y[inside], gridsize=60, extent=extent, bins="log", cmap="viridis", mincnt=1)
-    ax.plot(route[:, 0], route[:, 1], "w--", lw=1.0, label="reference")
+    if len(route):  # none in a world whose road uqdrive does not know
+        ax.plot(route[:, 0], route[:, 1], "w--", lw=1.0, label="reference")
     if boundaries is not None:
         for edge in boundaries:
             ax.plot(edge[:, 0], edge[:, 1], "r-", lw=0.8)

@@ -319,10 +319,14 @@ def _entry_module(config: GymWorldConfig) -> str:
     """The module that defines the env ``config.env_id`` names (``module:Id-v0``, as `gymnasium.make` takes it: the
     module registers the id when imported, in a worker process too)."""
     _hooks_class(config.hooks)  # first: importing the hooks registers their package's env ids
+    gymnasium = _gymnasium()
     module, _, env_id = config.env_id.rpartition(":")
-    if module:
-        importlib.import_module(module)
-    entry = _gymnasium().spec(env_id).entry_point
+    try:
+        if module:
+            importlib.import_module(module)
+        entry = gymnasium.spec(env_id).entry_point
+    except (ImportError, gymnasium.error.Error) as err:
+        raise ConfigError(f"gym_world.env_id={config.env_id!r}: {err}") from None
     return entry.split(":")[0] if isinstance(entry, str) else entry.__module__
 
 
