@@ -163,3 +163,10 @@ def test_collect_records_the_worlds_own_expert_in_grey_network_frames(stage_conf
     table = pq.read_table(tmp_path / "data/raw/highway_roundabout.parquet").to_pydict()
     assert set(table["scenario"]) == {"highway_roundabout"} and set(table["weather"]) == {"env"}
     assert all(-1 <= s <= 1 for s in table["steering"]) and table["seed"][0] == 1000
+
+
+def test_collect_refuses_a_world_whose_hooks_know_no_expert_before_any_work(stage_config, tmp_path):
+    with pytest.raises(ConfigError) as err:
+        run_collect(stage_config("collect", "gym_world=uqdrive_roundabout"))
+    assert str(err.value).startswith("gym_world.hooks='info': uqdrive.sim.gym_env:uqdrive/Roundabout-v0 has no expert")
+    assert list(tmp_path.iterdir()) == []

@@ -298,6 +298,15 @@ def refuse_conditions(config: GymWorldConfig, scenario: Any, weather: Any) -> No
             raise ConfigError(f"{key}={name!r}: {config.env_id} has no {key} condition (the world is the env)")
 
 
+def require_expert(config: GymWorldConfig) -> None:
+    """Refuse, in one line, a world whose hooks know no expert (what labels a collection's frames)."""
+    if _hooks_class(config.hooks).expert is InfoHooks.expert:
+        raise ConfigError(
+            f"gym_world.hooks={config.hooks!r}: {config.env_id} has no expert these hooks know of, so no frames to "
+            "label; collect in a world whose hooks have one (hooks: highway)"
+        )
+
+
 def world_identity(config: GymWorldConfig) -> dict[str, Any]:
     """Everything a Gymnasium world's rollouts depend on beyond project code, for a cell's identity hash: the
     config (env id, kwargs, hooks, safe set, horizon) and the versions of Gymnasium, the env's own distribution
