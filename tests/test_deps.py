@@ -2,8 +2,13 @@
 
 import functools
 import shlex
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+
+import pytest
+import yaml
 
 from uqdrive.deps import SRC, files_digest, import_closure, stage_closure
 
@@ -61,55 +66,81 @@ class StageCode:
         return any(f == d or d in f.parents for d in self.deps)
 
 
+def with_gym_world() -> Path:
+    """A copy of the pipeline's definition with the Gymnasium proof turned on (its stages exist only then)."""
+    project = Path(tempfile.mkdtemp(prefix="uqdrive-gym-dvc-"))
+    (project / ".dvc").mkdir()
+    (project / ".dvc/config").write_text("[core]\n    no_scm = True\n")
+    shutil.copy(ROOT / "dvc.yaml", project / "dvc.yaml")
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    (project / "params.yaml").write_text(yaml.safe_dump({**params, "gym_worlds": ["highway_roundabout"]}))
+    return project
+
+
 @functools.cache
-def stages() -> tuple[StageCode, ...]:
-    """Every stage of dvc.yaml, its closure computed once per distinct script (the matrix stages share one)."""
+def stages(gym: bool = False) -> tuple[StageCode, ...]:
+    """Every stage of dvc.yaml (``gym``: with the Gymnasium proof's stages), its closure computed once per distinct
+    script (the matrix stages share one)."""
     from dvc.repo import Repo
 
     closures: dict[str, list[Path]] = {}
     out = []
-    with Repo(str(ROOT)) as repo:
+    with Repo(str(with_gym_world() if gym else ROOT)) as repo:
         for stage in repo.index.stages:
             script = next(arg for arg in shlex.split(stage.cmd) if arg.endswith(".py"))
             if script not in closures:
                 closures[script] = [p.relative_to(ROOT) for p in stage_closure(ROOT / script, ROOT / "conf")]
-            out.append(StageCode(stage.addressing, [Path(d.def_path) for d in stage.deps], closures[script]))
+            out.append(StageCode(stage.name, [Path(d.def_path) for d in stage.deps], closures[script]))
     return tuple(out)
 
 
-def missing_deps() -> dict[str, list[str]]:
+def missing_deps(gym: bool = False) -> dict[str, list[str]]:
     """Stage → project files its script imports that none of its deps covers (a folder covers what is under it)."""
-    missing = {s.name: sorted(f.as_posix() for f in s.imports if not s.covered(f)) for s in stages()}
+    missing = {s.name: sorted(f.as_posix() for f in s.imports if not s.covered(f)) for s in stages(gym)}
     return {name: files for name, files in missing.items() if files}
 
 
-def test_every_stage_depends_on_every_project_file_it_imports():
-    missing = missing_deps()
+GYM = pytest.mark.parametrize("gym", [False, True], ids=["default", "gym_worlds"])
+
+
+def test_the_gymnasium_proofs_stages_exist_only_when_params_name_a_world():
+    assert not [s for s in stages() if s.name.startswith("gym_")]
+    assert {s.name.split("@")[0] for s in stages(gym=True) if s.name.startswith("gym_")} == {
+        f"gym_{name}" for name in ("collect", "preprocess", "train_mcd", "train", "safety", "findings")
+    }
+
+
+@GYM
+def test_every_stage_depends_on_every_project_file_it_imports(gym):
+    missing = missing_deps(gym)
     assert not missing, "\n".join(f"{stage}: {', '.join(files)}" for stage, files in missing.items())
 
 
-def test_no_stage_depends_on_code_it_does_not_import():
+@GYM
+def test_no_stage_depends_on_code_it_does_not_import(gym):
     """A listed source file or folder the stage never imports would rerun it for nothing."""
-    for stage in stages():
+    for stage in stages(gym):
         code = [d for d in stage.deps if d.parts[0] in ("src", "stages")]
         unused = [d.as_posix() for d in code if not any(f == d or d in f.parents for f in stage.imports)]
         assert not unused, f"{stage.name} depends on code it does not import: {unused}"
 
 
-def test_no_stage_imports_a_file_dvc_ignores():
+@GYM
+def test_no_stage_imports_a_file_dvc_ignores(gym):
     """Each stage's code dep is `src/uqdrive`, less the tools .dvcignore hides: DVC would not see a change to one."""
     from dvc.repo import Repo
 
     with Repo(str(ROOT)) as repo:
         ignored = {
-            s.name: [f.as_posix() for f in s.imports if repo.dvcignore.is_ignored_file(str(ROOT / f))] for s in stages()
+            s.name: [f.as_posix() for f in s.imports if repo.dvcignore.is_ignored_file(str(ROOT / f))] for s in stages(gym)
         }
         assert repo.dvcignore.is_ignored_file(str(ROOT / "src/uqdrive/cli.py"))  # the check sees .dvcignore
     assert not {name: files for name, files in ignored.items() if files}
 
 
-def test_every_listed_dep_exists_once():
-    for stage in stages():
+@GYM
+def test_every_listed_dep_exists_once(gym):
+    for stage in stages(gym):
         paths = [d.as_posix() for d in stage.deps]
         assert len(paths) == len(set(paths)), f"{stage.name} lists a dep twice"
         code = [p for p in paths if p.split("/")[0] in ("src", "stages", "conf")]  # not other stages' outputs

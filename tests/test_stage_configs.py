@@ -38,11 +38,13 @@ STAGES = {
     "train_replicates": lambda cfg: run_train_replicates(cfg, []),
     "safety": run_safety,
     "safety_sweep": first(run_safety_sweep),
+    "gym_safety_sweep": first(run_safety_sweep),
     "evaluate": run_evaluate,
     "avoid": run_avoid,
     "safety_summary": run_safety_summary,
     "avoid_summary": run_avoid_summary,
     "findings": run_findings,
+    "gym_findings": run_findings,
     "report": run_report,
     "envelope": run_envelope,
 }
@@ -84,6 +86,11 @@ BAD = {
         ("weather.shadow=sometimes", "weather.shadow='sometimes': input should be a valid boolean"),
         ("camera.width=4", "camera.width=4: input should be greater than or equal to 8"),
     ],
+    "gym_safety_sweep": [
+        ("+sweep.world_axes=1", "sweep.world_axes: unknown key; did you mean 'world_axis'?"),
+        ("sweep.world_axis={key: 3, values: {a: 1}}", "sweep.world_axis.key=3: input should be a valid string"),
+        ("sweep.noises=[-1]", "sweep.noises[0]=-1: input should be greater than or equal to 0"),
+    ],
     "evaluate": [
         ("+evaluate.sample=3", "evaluate.sample: unknown key; did you mean 'samples'?"),
         ("evaluate.eps=wide", "evaluate.eps='wide': input should be a valid number"),
@@ -116,6 +123,11 @@ BAD = {
         ("+findings.alhpa=0.1", "findings.alhpa: unknown key; did you mean 'alpha'?"),
         ("replicates=[first]", "replicates[0]='first': input should be a valid integer"),
         ("findings.alpha=0", "findings.alpha=0: input should be greater than 0"),
+    ],
+    "gym_findings": [
+        ("+findings.cell_dir=x", "findings.cell_dir: unknown key; did you mean 'cells_dir'?"),
+        ("findings.experiment=1", "findings.experiment=1: input should be a valid string"),
+        ("findings.margin=1", "findings.margin=1: input should be less than 1"),
     ],
     "report": [
         ("+report.outdir=x", "report.outdir: unknown key; did you mean 'out_dir'?"),

@@ -63,13 +63,14 @@ def safety_hexbin(
     """The paper's offline-safety panel: where the rollouts drove (visits per hexagon, log colour scale) on the
     road map, the reference trajectory and the safe set's edges, so unsafe paths show as mass outside the edges.
     Returns the hexagons (None when no position is inside) for a colour bar (`visits_colour_bar`)."""
-    if road is not None:
+    if road is not None and road.size:  # an empty raster: a world whose road uqdrive does not know
         ax.imshow(road, extent=extent, origin="lower", cmap="gray", vmin=-1.5, vmax=2.5, interpolation="nearest")
     inside = (x >= extent[0]) & (x <= extent[1]) & (y >= extent[2]) & (y <= extent[3])
     hexagons = None
     if inside.any():
         hexagons = ax.hexbin(x[inside], y[inside], gridsize=60, extent=extent, norm=LogNorm(), cmap=VISITS, mincnt=1)
-    ax.plot(route[:, 0], route[:, 1], "w--", lw=1.0, label="reference")
+    if len(route):  # none in a world whose road uqdrive does not know
+        ax.plot(route[:, 0], route[:, 1], "w--", lw=1.0, label="reference")
     if boundaries is not None:
         for edge in boundaries:
             ax.plot(edge[:, 0], edge[:, 1], "r-", lw=0.8)

@@ -6,6 +6,8 @@
 - `${posteriors:ROOT}` is every trained posterior: `mcd` (the trunk every head sits on) and params.yaml's `heads`.
 - `${noise_label:NOISE}` is the one text of a noise level in cell names and paths: `noise=0` and
   `noise=0.0` are one cell.
+- `${world_locations:WORLD,AXIS}` is every location a Gymnasium world's safety sweep drives: ``<world>-<label>`` per
+  value of its condition axis (``sweep.world_axis``), or the world alone (AXIS null).
 - `${output_root:ROOT,OUTPUTS}` is where a run writes: the project's pipeline folders when asked
   (`outputs=pipeline`, what `dvc.yaml`'s commands pass), else the run's own Hydra folder (`outputs/<date>/<time>`,
   or the sweep's folder for a multirun), so an ad-hoc run or sweep never overwrites a tracked pipeline output.
@@ -53,6 +55,16 @@ def condition_label(location: str, weather: str, noise: object) -> str:
     return f"{location}-{weather}-noise{noise_label(noise)}"
 
 
+def world_location(world: str, label: str) -> str:
+    """The location of a Gymnasium world at its condition axis' value ``label``."""
+    return f"{world}-{label}"
+
+
+def world_locations(world: str, axis: object) -> list[str]:
+    """Every location of a Gymnasium world's sweep over ``axis`` (``{key, values: {label: value}}``; None: none)."""
+    return [world] if axis is None else [world_location(world, label) for label in axis["values"]]  # type: ignore[index]
+
+
 def output_root(root: str, outputs: str) -> str:
     """``root`` with ``outputs=pipeline`` or outside a Hydra job (a config composed in code); else the job's own
     folder: hydra.run.dir for a single run, hydra.sweep.dir for a multirun."""
@@ -69,6 +81,7 @@ def register_resolvers() -> None:
         ("params", read_param),
         ("posteriors", posteriors),
         ("noise_label", noise_label),
+        ("world_locations", world_locations),
         ("output_root", output_root),
     ):
         if not OmegaConf.has_resolver(name):

@@ -40,14 +40,15 @@ LOCK_TIMEOUT_S = 600.0  # a migration takes seconds; a lock held this long is a 
 INTERRUPT_GRACE_S = 20.0  # after Ctrl-C or SIGTERM, clean-up time before the signal's default action ends a sweep
 PARENT_RUN_ENV = "UQDRIVE_MLFLOW_PARENT_RUN"  # "<experiment id>:<run id>" of the sweep's parent run
 JOB_START_ENV = "UQDRIVE_JOB_START_MS"  # set at Hydra's job start: the run's start time
-# The keys runs are compared by, logged under these short names (config key, ``{stage}`` for the stage's own
-# section; absent keys are skipped), each once: a section key logged here is not logged again under its full name.
+# The keys runs are compared by, logged under these short names (config key, or the first present of several;
+# ``{stage}`` for the stage's own section; absent keys are skipped), each once: a section key logged here is not
+# logged again under its full name.
 COMPARED_BY = {
     "method": "model.name",
     "experiment": "experiment.name",
     "weather": "weather.name",
     "noise": "noise",
-    "location": "scenario.name",
+    "location": ("gym_world.name", "scenario.name"),  # a Gymnasium world's name, else the pybullet scenario's
     "profile": "profile_name",
     "replicate": "seed",  # the training seed
     "cell_scheme": "{stage}.scheme",  # how each cell estimates η1 ...
@@ -134,12 +135,14 @@ def run_params(config: DictConfig | Mapping[str, Any], stage: str, root: str | P
         value = OmegaConf.select(config, section, default=None)
         if isinstance(value, DictConfig):
             params.update(flatten(value, prefix=f"{section}."))
-    for name, key in COMPARED_BY.items():
-        key = key.format(stage=stage)
-        value = OmegaConf.select(config, key, default=None)
-        if value is not None and not isinstance(value, DictConfig):
-            params.pop(key, None)
-            params[name] = str(value)
+    for name, keys in COMPARED_BY.items():
+        for key in (keys,) if isinstance(keys, str) else keys:
+            key = key.format(stage=stage)
+            value = OmegaConf.select(config, key, default=None)
+            if value is not None and not isinstance(value, DictConfig):
+                params.pop(key, None)
+                params[name] = str(value)
+                break
     for old, new in RENAMED.items():
         old = old.format(stage=stage)
         params = {(new + k.removeprefix(old) if k.startswith(old) else k): v for k, v in params.items()}

@@ -95,8 +95,11 @@ def _comparison(name: str, pairs: dict[int, tuple[Cell, Cell]]) -> Comparison:
     return Comparison(name, {r: _table(a, b) for r, (a, b) in pairs.items()})
 
 
-def safety_comparisons(cells: list[SafetyCell], methods: list[str], training: tuple) -> Iterator[tuple]:
-    """(experiment, kind, topic, a, b, comparison) of the offline-safety sweep."""
+def safety_comparisons(
+    cells: list[SafetyCell], methods: list[str], training: tuple, experiment: str = "offline"
+) -> Iterator[tuple]:
+    """(experiment, kind, topic, a, b, comparison) of the offline-safety sweep (``experiment``: whose controllers
+    drove it: the offline one, or a Gymnasium world's)."""
     by = {(c.method, c.replicate, c.condition): c for c in cells}
     replicates = sorted({c.replicate for c in cells})
     conditions = list(dict.fromkeys(c.condition for c in cells))
@@ -105,7 +108,7 @@ def safety_comparisons(cells: list[SafetyCell], methods: list[str], training: tu
         for x, y in itertools.combinations(methods, 2):
             pairs = {r: (by[x, r, condition], by[y, r, condition]) for r in replicates}
             comparison = _comparison(f"{x} vs {y} at {label}", pairs)
-            yield "offline", "method", f"{x} vs {y}", f"{x} {label}", f"{y} {label}", comparison
+            yield experiment, "method", f"{x} vs {y}", f"{x} {label}", f"{y} {label}", comparison
     for method in methods if training in conditions else ():
         for condition in conditions:
             if condition == training:
@@ -114,14 +117,14 @@ def safety_comparisons(cells: list[SafetyCell], methods: list[str], training: tu
             pairs = {r: (by[method, r, condition], by[method, r, training]) for r in replicates}
             name = f"{method}: {label} vs the training condition"
             topic = condition[0] if condition[0] != training[0] else label  # another location: one topic, all weathers
-            yield "offline", "condition", topic, f"{method} {label}", f"{method} {base}", _comparison(name, pairs)
+            yield experiment, "condition", topic, f"{method} {label}", f"{method} {base}", _comparison(name, pairs)
 
 
 def avoid_comparisons(results: list[AvoidResult], methods: list[str]) -> Iterator[tuple]:
-    """(experiment, kind, topic, a, b, comparison) of collision avoidance."""
+    """(experiment, kind, topic, a, b, comparison) of collision avoidance (none without results)."""
     by = {(r.method, r.replicate): r for r in results}
     replicates = sorted({r.replicate for r in results})
-    conditions = results[0].conditions
+    conditions = results[0].conditions if results else []
     for condition in conditions:
         for x, y in itertools.combinations(methods, 2):
             pairs = {r: (by[x, r].cells[condition][Mode.OFF], by[y, r].cells[condition][Mode.OFF]) for r in replicates}

@@ -160,7 +160,7 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
             sides = {r: ([by[x, r, condition]], [by[y, r, condition]]) for r in replicates}
             out.append(_Claim(f"{x} vs {y} at {label}", "offline", x, y, None, sides))
     avoid = {(r.method, r.replicate): r for r in results}
-    for condition in results[0].conditions:
+    for condition in results[0].conditions if results else ():
         for x, y in itertools.combinations(methods, 2):
             sides = {
                 r: ([avoid[x, r].cell(condition, Mode.OFF)], [avoid[y, r].cell(condition, Mode.OFF)])
@@ -245,16 +245,18 @@ def method_claims(
     training: tuple,
     alpha: float,
     margin: float,
+    paper: bool = True,
 ) -> list[ClaimRecord]:
     """Every family of method claims, each decided at family-wise error ``alpha``; ``margin``: δ of equivalence
-    (η1 units, and lane half-widths for the margin family)."""
+    (η1 units, and lane half-widths for the margin family). ``paper``: the cells are the paper's offline experiment,
+    so its claims are made (not for a Gymnasium world's cells, which only the exploratory family compares)."""
     location, _, noise = training
-    offline = offline_claims(cells, methods, location, noise)
-    paper_family = [*offline, *warning_claims(results, methods)]
-    out = [
-        *_decide("paper", paper_family, margin, alpha),
-        *_decide("exploratory", exploratory_claims(cells, results, methods), margin, alpha),
-    ]
+    offline = offline_claims(cells, methods, location, noise) if paper else []
+    families = {
+        "paper": [*offline, *(warning_claims(results, methods) if results else [])],
+        "exploratory": exploratory_claims(cells, results, methods),
+    }
+    out = [record for family, claims in families.items() if claims for record in _decide(family, claims, margin, alpha)]
     pairs = [c for c in offline if c.a != "mcd dry"]
     if pairs and has_margins(pairs):
         out += _decide("margin", pairs, margin, alpha, on_margins=True)

@@ -1,5 +1,6 @@
-"""The `collect` stage: autopilot episodes in one scenario (`uqdrive.sim.episodes`) → one parquet row per camera
-frame, a mosaic of frames, the collection's metrics."""
+"""The `collect` stage: expert episodes in one scenario (`uqdrive.sim.episodes`: the autopilot, or a Gymnasium world's
+own expert with ``gym_world=<conf/gym_world/ file>``) → one parquet row per camera frame, a mosaic of frames, the
+collection's metrics."""
 
 from __future__ import annotations
 
@@ -17,14 +18,15 @@ from tqdm import tqdm
 from uqdrive.data.frames import encode_png
 from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
 from uqdrive.files import atomic_path
+from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.parallel import ProcessPool
 from uqdrive.plots import mosaic
 from uqdrive.records import as_dict, record, write_record
-from uqdrive.schema import Count, NonNegative, Seed, Str, schema, validate
-from uqdrive.sim import ScenarioConfig, WeatherConfig
-from uqdrive.sim.condition import Condition
+from uqdrive.schema import Count, Seed, Str, schema, validate
+from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig
 from uqdrive.sim.episodes import EpisodeJob
+from uqdrive.sim.gym_world import require_expert
 from uqdrive.stage_schemas import Stage
 from uqdrive.tracking import stage_run
 
@@ -45,19 +47,23 @@ class CollectSection:
 
 
 @schema(root=True)
-class CollectStage(SimConfig, Stage):
-    """`stages/collect.py` (and each condition of `stages/heldout.py`)."""
+class CollectStage(WorldChoice, SimConfig, Stage):
+    """`stages/collect.py` (and each condition of `stages/heldout.py`), in a pybullet location or a Gymnasium world
+    (`WorldChoice`; there the world's own control rate and horizon, and frames at the network's size)."""
 
-    scenario: ScenarioConfig
-    weather: WeatherConfig
-    noise: NonNegative
     collect: CollectSection
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.gym_world is not None:
+            require_expert(self.gym_world)
 
 
 @record
 class Collection:
-    """metrics/collect/<scenario>.json: episodes and frames recorded, how the episodes ended, the render size (every
-    frame is delivered at the network's 64x48)."""
+    """metrics/collect/<scenario>.json: episodes and frames recorded, how the episodes ended (a Gymnasium world has no
+    route: an episode it did not end early ends by timeout), the render size (every frame is delivered at the
+    network's 64x48)."""
 
     episodes: int
     frames: int
@@ -71,8 +77,7 @@ class Collection:
 
 def episode_job(stage: CollectStage) -> EpisodeJob:
     sim = SimConfig(stage.control_hz, stage.horizon_s, stage.camera, stage.vehicle, stage.autopilot)
-    where = Condition(stage.scenario, stage.weather, stage.noise)
-    return EpisodeJob(sim, where, stage.collect.base_seed, stage.collect.mosaic_columns, encode_png)
+    return EpisodeJob(sim, stage.condition(), stage.collect.base_seed, stage.collect.mosaic_columns, encode_png)
 
 
 def iter_episodes(
@@ -80,8 +85,8 @@ def iter_episodes(
 ) -> Iterator[dict[str, list]]:
     """Yield one column batch per episode, in episode order whatever the worker count. ``pool``: worker
     processes shared with other collections (the `heldout` stage's conditions), else the stage's own."""
-    collect = stage.collect
-    executor = (pool or ProcessPool(collect.workers)).executor(episode_job(stage), owns_pool=pool is None)
+    collect, job = stage.collect, episode_job(stage)
+    executor = (pool or ProcessPool(collect.workers)).executor(job, owns_pool=pool is None)
     progress = tqdm(
         executor.run(range(collect.episodes)),
         total=collect.episodes,
@@ -96,8 +101,8 @@ def iter_episodes(
                 mosaic_frames.extend(picks)
             n = len(rows["step"])
             yield {
-                "scenario": [stage.scenario.name] * n,
-                "weather": [stage.weather.name] * n,
+                "scenario": [job.where.location] * n,
+                "weather": [job.where.weather_name] * n,
                 "noise": [stage.noise] * n,
                 "episode": [episode] * n,
                 "seed": [seed] * n,
@@ -121,8 +126,8 @@ def run_collect(cfg: DictConfig, pool: ProcessPool | None = None) -> Collection:
         episodes_collision=outcomes["collision"],
         episodes_off_road=outcomes["off_road"],
         episodes_timeout=outcomes["timeout"],
-        render_width=stage.camera.width,
-        render_height=stage.camera.height,
+        render_width=INPUT_WIDTH if stage.gym_world else stage.camera.width,
+        render_height=INPUT_HEIGHT if stage.gym_world else stage.camera.height,
     )
     image = encode_png(mosaic(mosaic_frames, collect.mosaic_columns))
     write_record(collect.metrics, collection)
@@ -140,5 +145,5 @@ def describe(collection: Collection, path: str) -> str:
     c = collection
     return (
         f"collect: {c.frames} frames from {c.episodes} episodes (route completed in {c.route_complete_fraction:.0%}, "
-        f"rendered at {c.render_width}x{c.render_height}) -> {path}"
+        f"{c.episodes_timeout} to the horizon, rendered at {c.render_width}x{c.render_height}) -> {path}"
     )

@@ -1,6 +1,7 @@
 """The `findings` stage: the family of paired comparisons over the offline-safety cells and the avoid results, each
 decided by its exact test and the family's correction (`uqdrive.analysis.comparisons`), written to
-metrics/findings.json."""
+metrics/findings.json. The same over a Gymnasium world's safety sweep (conf/gym_findings.yaml): its cells alone, no
+avoid results and none of the paper's claims (they are about its roundabout)."""
 
 from __future__ import annotations
 
@@ -21,8 +22,9 @@ from uqdrive.stage_schemas import SafetyGrid
 class FindingsSection:
     alpha: OpenUnit  # family-wise error of each family (the controller-level one; each method-level one)
     margin: OpenUnit  # δ: two methods within ±δ of each other are equivalent (a method-level verdict)
+    experiment: Str  # whose controllers drove the cells: offline (the paper's), or a Gymnasium world's experiment
     cells_dir: Str
-    results_dir: Str
+    results_dir: Str | None  # the avoid results; None: none (a Gymnasium world's findings)
     out: Str
 
 
@@ -40,9 +42,10 @@ def run_findings(cfg: DictConfig) -> Findings:
     methods, settings = list(stage.methods), stage.findings
     training = (stage.locations[0], stage.train_weather, 0.0)
     cells = read_safety_cells(settings.cells_dir, stage)
-    results = read_avoid_results(settings.results_dir, methods, list(stage.replicates))
-    family = [*safety_comparisons(cells, methods, training), *avoid_comparisons(results, methods)]
-    claims = method_claims(cells, results, methods, training, settings.alpha, settings.margin)
+    results = read_avoid_results(settings.results_dir, methods, list(stage.replicates)) if settings.results_dir else []
+    family = [*safety_comparisons(cells, methods, training, settings.experiment), *avoid_comparisons(results, methods)]
+    paper = settings.experiment == "offline"
+    claims = method_claims(cells, results, methods, training, settings.alpha, settings.margin, paper)
     findings = dataclasses.replace(decide(family, settings.alpha), margin=settings.margin, claims=claims)
     write_record(Path(settings.out), findings)
     return findings

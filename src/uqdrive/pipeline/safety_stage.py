@@ -1,5 +1,7 @@
 """The `safety` stage: η1 of one offline controller in one sweep cell (method × replicate × location × weather ×
-noise), each cell as the single-cell command composes it, the whole sweep in one process.
+noise), each cell as the single-cell command composes it, the whole sweep in one process. The location may be a
+Gymnasium world (``gym_world=highway_roundabout``: no weather of ours; its sweep varies one of the env's own
+conditions, ``sweep.world_axis``, each value a location of its own).
 
 Every cell drives the same rollout seeds (base_seed + i), so methods and conditions are compared
 on paired runs: the same start jitter, rain streaks and sensor noise.
@@ -15,28 +17,32 @@ import math
 from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
 from pathlib import Path
+from typing import Annotated, Any
 
 import matplotlib.pyplot as plt
 import mlflow
 from omegaconf import DictConfig
+from pydantic import Field
 
 from uqdrive.files import write_csv
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import safety_hexbin, save_figure, visits_colour_bar
 from uqdrive.records import as_dict, read_record, write_record
+from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import PolicySpec, RolloutJob
-from uqdrive.safety.positions import CellPositions, cell_positions, write_positions
+from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
+from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
 from uqdrive.safety.safe_sets import safe_set_for
-from uqdrive.schema import Bool, Count, NonNegative, Positive, Str, invalid, schema, validate
-from uqdrive.sim import build_geometry
-from uqdrive.sim.condition import Condition
-from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
+from uqdrive.sim import CameraConfig, VehicleConfig, build_geometry
+from uqdrive.sim.condition import Condition, WorldChoice
+from uqdrive.sim.config import SimConfig
 from uqdrive.stage import grid, run_cells
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Sweep, training_stage
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
 from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq import Estimate
 from uqdrive.uq.multiplicity import split_gamma
@@ -55,7 +61,7 @@ class SafetySection(EstimatorSettings):
     eps: Positive  # η2's ball, steering units
     family_wise: Bool  # the sweep spends γ over its cells: every cell within ±θ at once with probability ≥ 1 − γ
     family_size: Count  # cells γ is spread over (the sweep sets it to its cell count); 1 unless family_wise
-    half_width: Positive | None  # corridor half-width (m); None = the lane
+    half_width: Positive | None  # corridor half-width (m); None = the lane (a gym_world: its safe_if, no corridor)
     cell: Str
     out: Str
     positions: Str
@@ -64,12 +70,11 @@ class SafetySection(EstimatorSettings):
 
 
 @schema(root=True)
-class SafetyStage(SimConfig, ModelStage):
-    """`stages/safety.py`: one cell of the offline-safety sweep."""
+class SafetyStage(WorldChoice, SimConfig, ModelStage):
+    """`stages/safety.py`: one cell of the offline-safety sweep, in a pybullet location or a Gymnasium world
+    (`WorldChoice`); in a Gymnasium world, T and the control rate are the world's (gym_world.horizon_steps,
+    gym_world.control_hz), and the car, camera and safety.horizon_s are the pybullet world's, unused."""
 
-    scenario: ScenarioConfig
-    weather: WeatherConfig
-    noise: NonNegative
     executor: ExecutorSettings
     safety: SafetySection
 
@@ -79,6 +84,10 @@ class SafetyStage(SimConfig, ModelStage):
             raise invalid("safety.speed", self.safety.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         if self.safety.family_size != 1 and not self.safety.family_wise:
             raise invalid("safety.family_size", self.safety.family_size, "must be 1 unless safety.family_wise")
+        if self.gym_world is not None and self.safety.half_width is not None:
+            raise invalid(
+                "safety.half_width", self.safety.half_width, "is a lane's: a gym_world is judged by its safe_if"
+            )
 
     @property
     def estimator(self) -> EstimatorSettings:
@@ -90,11 +99,52 @@ class SafetyStage(SimConfig, ModelStage):
         )
 
 
+@schema
+class WorldAxis:
+    """A condition of a Gymnasium world that a sweep varies: ``key`` under `gym_world` (e.g.
+    ``env_kwargs.config.other_vehicles_type``) and its value per label; each value is a location of its own, named
+    ``<gym_world.name>-<label>``."""
+
+    key: Str
+    values: Annotated[dict[Annotated[str, Field(pattern=r"^[A-Za-z0-9_.]+$")], Any], Field(min_length=1)]
+
+
+@schema(kw_only=True)
+class SafetySweep(Sweep):
+    """The offline-safety sweep's cells: in the pybullet world, methods × replicates × locations × weathers × noises;
+    in a Gymnasium world, methods × replicates × the values of ``world_axis`` (or the one world) × noises."""
+
+    weathers: Names = ()  # conf/weather/: at least one in the pybullet world, none in a Gymnasium world
+    world_axis: WorldAxis | None = None
+
+
 @schema(root=True)
 class SafetySweepStage(SafetyStage):
     """`stages/safety_sweep.py`: every cell of `sweep` (each cell is also checked as a `SafetyStage`)."""
 
-    sweep: Sweep
+    sweep: SafetySweep
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        s = self.sweep
+        if self.gym_world is None and not s.weathers:
+            raise invalid("sweep.weathers", [], "must name at least one weather (conf/weather/)")
+        if self.gym_world is None and s.world_axis is not None:
+            raise invalid("sweep.world_axis", s.world_axis.key, "varies a gym_world; name one (conf/gym_world/)")
+        if self.gym_world is not None:
+            for key, names in (("locations", s.locations), ("weathers", s.weathers)):
+                if names:
+                    raise invalid(f"sweep.{key}", list(names), f"must be empty: {self.gym_world.env_id} is the world")
+
+    def world_variants(self) -> list[dict[str, Any]]:
+        """Each location of a Gymnasium sweep as a cell's overrides (one empty set: the named world alone)."""
+        axis, name = self.sweep.world_axis, self.gym_world.name
+        if axis is None:
+            return [{}]
+        return [
+            {f"++gym_world.{axis.key}": value, "gym_world.name": world_location(name, label)}
+            for label, value in axis.values.items()
+        ]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,17 +178,31 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
     spec = PolicySpec(
         "bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws
     )
-    job = RolloutJob(
-        policy=spec,
-        where=Condition(stage.scenario, stage.weather, stage.noise),
-        base_seed=stage.estimator.base_seed,
-        camera=stage.camera,
-        vehicle=stage.vehicle,
-        control_hz=stage.control_hz,
-        horizon_s=safety.horizon_s,
-        half_width=safety.half_width,
-    )
+    job = RolloutJob(spec, stage.condition(), stage.estimator.base_seed, **world_settings(stage))
     return CellPlan(stage, method, job, estimate_key(job, stage.estimator, __name__))
+
+
+def world_settings(stage: SafetyStage) -> dict[str, Any]:
+    """The job's car, camera, control rate, horizon and corridor: the pybullet world's from the config; a Gymnasium
+    world's rate and horizon are its own, and it has no car, camera or corridor of ours (defaults, so that no
+    setting the rollouts do not read enters the cell's identity)."""
+    world = stage.gym_world
+    if world is not None:
+        hz = float(world.control_hz)
+        return {
+            "camera": CameraConfig(),
+            "vehicle": VehicleConfig(),
+            "control_hz": hz,
+            "horizon_s": world.horizon_steps / hz,
+        }
+    s = stage.safety
+    return {
+        "camera": stage.camera,
+        "vehicle": stage.vehicle,
+        "control_hz": stage.control_hz,
+        "horizon_s": s.horizon_s,
+        "half_width": s.half_width,
+    }
 
 
 def reusable_result(path: str | Path, key: str) -> SafetyCell | None:
@@ -158,8 +222,8 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
         method=plan.method,
         replicate=stage.seed,
         experiment=stage.experiment.name,
-        location=where.scenario.name,
-        weather=where.weather.name,
+        location=where.location,
+        weather=where.weather_name,
         noise=where.noise,
         theta=estimate.theta,
         gamma=estimate.gamma,
@@ -186,7 +250,7 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
 def cell_figure(plan: CellPlan, positions: CellPositions, estimate: Estimate) -> plt.Figure:
     where = plan.job.where
     title = (
-        f"{plan.method} · {where.scenario.name} · {where.weather.name} · noise {where.noise:g}: "
+        f"{plan.method} · {where.location} · {where.weather_name} · noise {where.noise:g}: "
         f"η̂1 = {estimate.value:.2f} [{estimate.low:.2f}, {estimate.high:.2f}]"
     )
     fig, ax = plt.subplots(figsize=(5.6, 5))
@@ -209,10 +273,7 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> SafetyRun:
         return SafetyRun(previous, reused=True)
     with nullcontext(runner) if runner else CellRunner.of(plan.stage.executor, plan.stage.progress) as cells:
         run = cells.estimate(f"safety {section.cell}", plan.job, plan.stage.estimator, plan.key, section.rollout_log)
-    job = plan.job
-    geometry = build_geometry(job.where.scenario)
-    safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
-    positions = cell_positions(run.results, geometry, safe_set, run.outcome.value)
+    positions = positions_of(plan.job, run.results, run.outcome.value)
     cell = safety_cell(plan, run)
     figure = save_figure(cell_figure(plan, positions, run.outcome), Path(section.plots_dir) / f"{section.cell}.png")
     table = write_csv(Path(section.plots_dir) / f"{section.cell}.csv", [r.summary() for r in run.results])
@@ -224,13 +285,31 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> SafetyRun:
     return SafetyRun(cell, run.reused)
 
 
-def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, SafetyRun]]:
-    """Every cell of ``cfg.sweep`` (methods × replicates × locations × weathers × noises) in this process, on one
-    cell runner (one pool of workers with the process backend); yields each cell's config and result as it
-    finishes (`uqdrive.stage.run_cells`)."""
-    stage = validate(SafetySweepStage, cfg)
+def positions_of(job: RolloutJob, results: Sequence[RolloutResult], eta1: float) -> CellPositions:
+    """Where the cell's rollouts went, on the road of its location (a Gymnasium world's road is the env's: none)."""
+    where: Condition = job.where
+    if where.gym_world is not None:
+        return world_positions(results, eta1)
+    geometry = build_geometry(where.scenario)
+    safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
+    return cell_positions(results, geometry, safe_set, eta1)
+
+
+def sweep_cells(stage: SafetySweepStage) -> list[dict[str, Any]]:
+    """The sweep's cells as overrides, the last axis varying fastest: methods × replicates × locations × weathers ×
+    noises, or in a Gymnasium world methods × replicates × the world's variants × noises."""
     s = stage.sweep
-    cells = grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
+    if stage.gym_world is None:
+        return grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
+    cells = grid(model=s.methods, seed=s.replicates, world=stage.world_variants(), noise=s.noises)
+    return [{"model": c["model"], "seed": c["seed"], **c["world"], "noise": c["noise"]} for c in cells]
+
+
+def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, SafetyRun]]:
+    """Every cell of ``cfg.sweep`` (`sweep_cells`) in this process, on one cell runner (one pool of workers with the
+    process backend); yields each cell's config and result as it finishes (`uqdrive.stage.run_cells`)."""
+    stage = validate(SafetySweepStage, cfg)
+    cells = sweep_cells(stage)
     if stage.safety.family_wise:  # every cell at γ/m: the whole sweep within ±θ at once with probability ≥ 1 − γ
         cells = [{**cell, "safety.family_size": len(cells)} for cell in cells]
     runner = CellRunner.of(stage.executor, stage.progress)

@@ -1,8 +1,9 @@
 """Run many rollouts in parallel: the project's process pool (`uqdrive.parallel`, default) or Ray actors
 (``executor=ray``), each worker stepping several rollouts in lockstep.
 
-Each worker owns up to ``lockstep`` `DrivingEnv`s (each its own pybullet client) and one policy with a
-slot per env for its whole life. A request's indices are dealt to the workers in chunks of consecutive
+Each worker owns up to ``lockstep`` worlds — `DrivingEnv`s (each its own pybullet client), or `GymWorld`s where the
+job's conditions name a Gymnasium world (judged by `InfoSafeSet`) — and one policy with a slot per world for its
+whole life. A request's indices are dealt to the workers in chunks of consecutive
 indices; a worker runs its chunk ``lockstep`` rollouts at a time, one batched network forward per control
 step (`run_rollouts`). A rollout is named only by its index i and uses seed ``base_seed + i``, its draws
 come from its own slot's generator and its frame features do not depend on the frames beside it, and
@@ -25,12 +26,14 @@ from uqdrive.models.checkpoint import load_posterior
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.rollout import RolloutResult, run_rollouts
+from uqdrive.safety.info_safe_set import InfoSafeSet
+from uqdrive.safety.rollout import RolloutResult, World, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.safety.warnings import WarningController, WarningRule
 from uqdrive.schema import ConfigError
 from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, ConditionSource
+from uqdrive.sim.gym_world import GymWorld, GymWorldConfig
 
 BACKENDS = ("process", "ray")
 POLICIES = ("bnn", "autopilot", "constant")
@@ -128,32 +131,37 @@ class ChunkActor:
         return self.worker.run(indices)
 
 
-_spare_envs: dict[str, list[DrivingEnv]] = {}
+_spare_envs: dict[str, list[World]] = {}
 """Envs a closed worker left in this process, by the settings they were built with (camera, car, control rate,
-horizon): the next job with the same settings takes them, since a sweep's cells differ in weather, noise and
-location, each a reset away (a new location rebuilds the world on the same pybullet client). A stage of many
-cells so builds each env once per process instead of once per cell (≈ 0.15 s each); only the last settings'
-envs are kept."""
+horizon; for Gymnasium worlds, that they are): the next job with the same settings takes them, since a sweep's cells
+differ in weather, noise and location, each a reset away (a new location rebuilds the world on the same pybullet
+client, or remakes the Gymnasium env). A stage of many cells so builds each env once per process instead of once per
+cell (≈ 0.15 s each); only the last settings' envs are kept."""
 
 
 class WorkerEnvs:
     """A worker's envs for its whole life, at most ``width``: taken from the process's spares (`_spare_envs`), built
     as a chunk first needs them (a worker given 2 rollouts builds 2 worlds, not ``width``), left to the next job of
     the process at close. An env's state is set by each rollout's reset alone, so where it came from changes no
-    result."""
+    result. A job whose first rollout drives a Gymnasium world (`Condition.gym_world`) gets `GymWorld`s of it."""
 
     def __init__(self, job: Any, width: int):
         if width < 1:
             raise ValueError(f"lockstep width={width!r} must be >= 1")
         self.job, self.width = job, width
-        self.key = repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))  # envs of one key interchange
-        self.envs: list[DrivingEnv] = _spare_envs.pop(self.key, [])
+        self.gym_world: GymWorldConfig | None = job.condition(0).gym_world
+        # envs of one key interchange
+        self.key = "gym" if self.gym_world else repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))
+        self.envs: list[World] = _spare_envs.pop(self.key, [])
 
-    def first(self, count: int) -> list[DrivingEnv]:
+    def first(self, count: int) -> list[World]:
         """The first ``count`` envs (at most ``width``), built where missing."""
         count, job = min(count, self.width), self.job
         while len(self.envs) < count:
-            self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
+            if self.gym_world is not None:
+                self.envs.append(GymWorld(self.gym_world))
+            else:
+                self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
         return self.envs[:count]
 
     def close(self) -> None:
@@ -168,20 +176,24 @@ class WorkerEnvs:
 class RolloutWorker:
     """Up to ``width`` envs (`WorkerEnvs`) and one policy, reused for every chunk the worker runs, each rollout reset
     to its own condition (one torch thread: the parallelism is across workers, and a second intra-op thread only
-    adds contention). The safe set is rebuilt only for a new location."""
+    adds contention). The safe set is rebuilt only for a new location (a Gymnasium world's: its `InfoSafeSet`)."""
 
     def __init__(self, job: RolloutJob, width: int = 1):
         self.slots = WorkerEnvs(job, width)
         torch.set_num_threads(1)
         self.job = job
         self.policy = job.policy.build(job.control_hz)
-        self._scenario: ScenarioConfig | None = None
-        self._safe_set: SafeSet | None = None
+        self._scenario: ScenarioConfig | GymWorldConfig | None = None
+        self._safe_set: SafeSet | InfoSafeSet | None = None
 
-    def safe_set(self, scenario: ScenarioConfig) -> SafeSet:
+    def safe_set(self, scenario: ScenarioConfig | GymWorldConfig) -> SafeSet | InfoSafeSet:
         if self._safe_set is None or scenario != self._scenario:
             vehicle = self.job.vehicle
-            self._safe_set = safe_set_for(build_geometry(scenario), vehicle.width, vehicle.length, self.job.half_width)
+            if isinstance(scenario, GymWorldConfig):
+                self._safe_set = InfoSafeSet.of(scenario)
+            else:
+                geometry = build_geometry(scenario)
+                self._safe_set = safe_set_for(geometry, vehicle.width, vehicle.length, self.job.half_width)
             self._scenario = scenario
         return self._safe_set
 

@@ -46,6 +46,14 @@ def road_raster(geometry: ScenarioGeometry, extent: np.ndarray, cell: float = RO
     return geometry.is_paved(np.stack([gx.ravel(), gy.ravel()], axis=1)).reshape(gx.shape)
 
 
+def _visited(results: Sequence[RolloutResult]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every visited position (x, y) and its rollout index."""
+    if not results:
+        return np.zeros(0, int), np.zeros(0), np.zeros(0)
+    rollout = np.concatenate([np.full(len(r.x), i) for i, r in enumerate(results)])
+    return rollout, np.concatenate([r.x for r in results]), np.concatenate([r.y for r in results])
+
+
 def cell_positions(
     results: Sequence[RolloutResult], geometry: ScenarioGeometry, safe_set: SafeSet, eta1: float
 ) -> CellPositions:
@@ -54,12 +62,20 @@ def cell_positions(
     left, right = edges if edges is not None else (np.zeros((0, 2)), np.zeros((0, 2)))
     lo, hi = route.min(0) - EXTENT_MARGIN, route.max(0) + EXTENT_MARGIN
     extent = np.array([lo[0], hi[0], lo[1], hi[1]])
-    if results:
-        rollout = np.concatenate([np.full(len(r.x), i) for i, r in enumerate(results)])
-        x, y = np.concatenate([r.x for r in results]), np.concatenate([r.y for r in results])
-    else:
-        rollout, x, y = np.zeros(0, int), np.zeros(0), np.zeros(0)
+    rollout, x, y = _visited(results)
     return CellPositions(rollout, x, y, route, left, right, extent, road_raster(geometry, extent), eta1)
+
+
+def world_positions(results: Sequence[RolloutResult], eta1: float) -> CellPositions:
+    """The positions of a cell in a world whose road uqdrive does not know (a Gymnasium world: the env draws its own):
+    no route, no safe-set edges, an empty road raster, the extent around the visited positions."""
+    rollout, x, y = _visited(results)
+    points = np.stack([x, y], axis=1) if len(x) else np.zeros((1, 2))
+    lo, hi = points.min(0) - EXTENT_MARGIN, points.max(0) + EXTENT_MARGIN
+    none = np.zeros((0, 2))
+    return CellPositions(
+        rollout, x, y, none, none, none, np.array([lo[0], hi[0], lo[1], hi[1]]), np.zeros((0, 0), bool), eta1
+    )
 
 
 def write_positions(path: str | Path, positions: CellPositions) -> Path:

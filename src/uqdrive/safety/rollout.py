@@ -14,9 +14,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from uqdrive.safety.controller import Command, Policy
+from uqdrive.safety.info_safe_set import InfoSafeSet
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, safe_set_for
 from uqdrive.sim import DrivingEnv
 from uqdrive.sim.condition import Condition
+from uqdrive.sim.gym_world import GymWorld
+
+World = DrivingEnv | GymWorld  # a Gymnasium world drives as the pybullet one (`uqdrive.sim.gym_world`)
 
 STOPPED_SPEED = 1e-6  # m/s: the car tracks a speed command of 0 exactly, so this means stopped
 
@@ -65,12 +69,12 @@ class RolloutResult:
 
 
 def run_rollout(
-    env: DrivingEnv,
+    env: World,
     policy: Policy,
     seed: int,
     condition: Condition,
     half_width: float | None = None,
-    safe_set: SafeSet | None = None,
+    safe_set: SafeSet | InfoSafeSet | None = None,
 ) -> RolloutResult:
     """Drive one episode until the env ends it (collision, off road, route complete or horizon T)
     or the policy has handed over and the car has stopped.
@@ -87,7 +91,7 @@ class _Episode:
 
     index: int
     seed: int
-    env: DrivingEnv
+    env: World
     obs: np.ndarray | None
     info: dict
     termination: str
@@ -95,12 +99,12 @@ class _Episode:
 
 
 def run_rollouts(
-    envs: Sequence[DrivingEnv],
+    envs: Sequence[World],
     policy: Policy,
     seeds: Sequence[int],
     conditions: Sequence[Condition],
     half_width: float | None = None,
-    safe_set: SafeSet | None = None,
+    safe_set: SafeSet | InfoSafeSet | None = None,
 ) -> list[RolloutResult]:
     """The rollouts of ``seeds`` (in that order), each at its own of ``conditions``, ``len(envs)`` at a time in
     lockstep: each control step asks the policy for the commands of every running slot at once, and a slot whose
@@ -146,10 +150,17 @@ def run_rollouts(
     return results
 
 
-def _result(episode: _Episode, safe_set: SafeSet | None, half_width: float | None) -> RolloutResult:
+def _own_safe_set(env: World, half_width: float | None) -> SafeSet | InfoSafeSet:
+    """The safe set of the location ``env`` is at: its scenario's, or its Gymnasium world's predicate."""
+    if isinstance(env, GymWorld):
+        return InfoSafeSet.of(env.config)
+    return safe_set_for(env.geometry, env.vehicle_config.width, env.vehicle_config.length, half_width)
+
+
+def _result(episode: _Episode, safe_set: SafeSet | InfoSafeSet | None, half_width: float | None) -> RolloutResult:
     """Judge a finished episode (before its env starts another)."""
     env, commands = episode.env, episode.commands
-    safe_set = safe_set or safe_set_for(env.geometry, env.vehicle_config.width, env.vehicle_config.length, half_width)
+    safe_set = safe_set or _own_safe_set(env, half_width)
     eta2 = [c.eta2 for c in commands]
     mi = [c.mutual_information for c in commands]
     log = env.trajectory

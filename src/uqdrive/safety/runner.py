@@ -5,9 +5,11 @@ A cell's identity hashes everything its rollouts depend on and nothing they do n
 paths): the model file's bytes, the job (world, policy, seeds), what consumes the outcomes (estimator or test),
 and every project source file a rollout runs — the runner's own import closure (executors, controllers, the
 simulator, the estimators), the posterior's module (loaded by name from the model file, so no static import
-reaches it) and the stage module that shapes the cell's result. Finished rollouts are appended to the cell's log
-under that identity; a rerun replays them and simulates only the rest, and a log of another identity is
-started afresh.
+reaches it) and the stage module that shapes the cell's result. A cell that drives a Gymnasium world has that
+world's identity in place of its config (`uqdrive.sim.gym_world.world_identity`: the config and the versions of the
+env's packages) and the modules that world loads by name in its code digest (`world_modules`: the hooks, a uqdrive
+env). Finished rollouts are appended to the cell's log under that identity; a rerun replays them and simulates only
+the rest, and a log of another identity is started afresh.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from uqdrive.safety.cells import EstimatorSettings, OutcomeStream, file_digest
 from uqdrive.safety.executors import LOCKSTEP, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
+from uqdrive.sim.condition import Condition, Mixture
+from uqdrive.sim.gym_world import GymWorldConfig, world_identity, world_modules
 from uqdrive.uq import Estimate
 
 T = TypeVar("T")
@@ -47,19 +51,39 @@ def model_module(model_path: str | Path) -> str:
     return str(read_checkpoint(model_path)["target"]).rpartition(".")[0]
 
 
+def gym_worlds(where: Any) -> list[GymWorldConfig]:
+    """The Gymnasium worlds a job's rollouts drive: its condition's, or its mixture's variants' (none: pybullet)."""
+    conditions = where.variants if isinstance(where, Mixture) else (where,)
+    return [c.gym_world for c in conditions if isinstance(c, Condition) and c.gym_world is not None]
+
+
+def where_identity(where: Any) -> Any:
+    """A condition source as its identity sees it: a Gymnasium world by `world_identity`; anything else as itself."""
+    if isinstance(where, Mixture):
+        return {"mixture": where.name, "variants": [where_identity(v) for v in where.variants]}
+    if isinstance(where, Condition) and where.gym_world is not None:
+        return {"gym_world": world_identity(where.gym_world), "noise": where.noise, "name": where.name}
+    return where
+
+
 def job_identity(job: Any) -> dict:
     """The job as plain data, less the model file's path (its bytes are hashed instead: a retrained model at the
-    same path is a new cell, the same model elsewhere is not)."""
+    same path is a new cell, the same model elsewhere is not); where it drives a Gymnasium world, that world's
+    identity (`where_identity`)."""
     fields = dict(job.__dict__)
     policy = getattr(job, "policy", None)
     if policy is not None and dataclasses.is_dataclass(policy):
         fields["policy"] = {k: v for k, v in policy.__dict__.items() if k != "model_path"}
+    if gym_worlds(fields.get("where")):
+        fields["where"] = where_identity(fields["where"])
     return fields
 
 
 def cell_key(job: Any, consumer: Mapping[str, Any], model_path: str | Path | None, stage_module: str) -> str:
-    """The identity hash of a cell: model bytes, job, ``consumer`` (the estimator's or test's settings), code."""
-    modules = [stage_module, *([model_module(model_path)] if model_path else [])]
+    """The identity hash of a cell: model bytes, job, ``consumer`` (the estimator's or test's settings), code (the
+    modules a Gymnasium world loads by name among it)."""
+    worlds = [module for world in gym_worlds(getattr(job, "where", None)) for module in world_modules(world)]
+    modules = [stage_module, *([model_module(model_path)] if model_path else []), *worlds]
     identity = {
         "model_sha256": file_digest(model_path) if model_path else None,
         "code": code_digest(modules),

@@ -26,6 +26,33 @@ class AutopilotAction:
     perturbed: bool
 
 
+class SteeringPerturbation:
+    """Seeded pushes off an expert's steering (``perturb_*`` of `AutopilotConfig`): now and then, for
+    ``perturb_duration_s``, an offset is added to the label; the label stays the expert's, so the data also shows
+    how to come back. Used by the autopilot and by a Gymnasium world's expert (`uqdrive.sim.episodes`)."""
+
+    def __init__(self, config: AutopilotConfig, control_hz: float, seed: int):
+        self.config = config
+        self._rng = np.random.default_rng(seed)
+        self._steps = max(1, int(round(config.perturb_duration_s * control_hz)))
+        self._left = 0
+        self._offset = 0.0
+
+    def apply(self, label: float) -> tuple[float, bool]:
+        """The steer to apply for the expert's ``label`` this step, and whether it is perturbed."""
+        cfg = self.config
+        # one uniform draw per step, perturbing or not, so the stream never depends on the path
+        u = self._rng.random(2)
+        if self._left == 0 and u[0] < cfg.perturb_prob:
+            self._left = self._steps
+            self._offset = cfg.perturb_magnitude * (0.5 + 0.5 * abs(2 * u[1] - 1)) * (1 if u[1] >= 0.5 else -1)
+        perturbed = self._left > 0
+        steer = float(np.clip(label + self._offset, -1.0, 1.0)) if perturbed else label
+        if perturbed:
+            self._left -= 1
+        return steer, perturbed
+
+
 class Autopilot:
     """Pure pursuit from the rear axle towards a speed-dependent lookahead point on the route."""
 
@@ -42,10 +69,7 @@ class Autopilot:
         self.config = config or AutopilotConfig()
         self.max_steer = math.radians(vehicle.max_steer_deg)
         self._curv = np.abs(route.curvature())
-        self._rng = np.random.default_rng(seed)
-        self._perturb_steps = max(1, int(round(self.config.perturb_duration_s * control_hz)))
-        self._left = 0
-        self._offset = 0.0
+        self._perturbation = SteeringPerturbation(self.config, control_hz, seed)
 
     def _speed(self, s: float, v: float) -> float:
         cfg = self.config
@@ -68,14 +92,5 @@ class Autopilot:
         dist = max(math.hypot(dx, dy), 1e-6)
         angle = math.atan2(2.0 * self.vehicle.wheelbase * math.sin(alpha), dist)
         label = float(np.clip(angle / self.max_steer, -1.0, 1.0))
-
-        # one uniform draw per step, perturbing or not, so the stream never depends on the path
-        u = self._rng.random(2)
-        if self._left == 0 and u[0] < cfg.perturb_prob:
-            self._left = self._perturb_steps
-            self._offset = cfg.perturb_magnitude * (0.5 + 0.5 * abs(2 * u[1] - 1)) * (1 if u[1] >= 0.5 else -1)
-        perturbed = self._left > 0
-        steer = float(np.clip(label + self._offset, -1.0, 1.0)) if perturbed else label
-        if perturbed:
-            self._left -= 1
+        steer, perturbed = self._perturbation.apply(label)
         return AutopilotAction(steer, self._speed(s + half, v), label, perturbed)

@@ -1,5 +1,5 @@
 """Where a rollout drives: a `Condition` (location, weather, sensor noise, under a name), or a `Mixture` of them
-whose rollout draws its variant from its seed.
+whose rollout draws its variant from its seed; and `WorldChoice`, what a stage's config says about it.
 
 Every closed-loop stage speaks of conditions: a cell of the offline-safety sweep, an avoid cell ("known", "fog",
 "white_van"), a point of an envelope's condition space, a held-out evaluation's weather × noise. A rollout job
@@ -9,30 +9,48 @@ asks its source for rollout i's condition (`condition(index, seed)`); a `Conditi
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
+from pydantic import model_validator
 
 from uqdrive.resolvers import condition_label
+from uqdrive.schema import NonNegative, invalid, schema
 from uqdrive.sim.config import ScenarioConfig, WeatherConfig
+from uqdrive.sim.gym_world import GymWorldConfig, refuse_conditions
 
 VARIANT_STREAM = 0xA401D  # a mixture's variant draw: its own random stream of a rollout seed, apart from the episode's
+NO_WEATHER = "env"  # a Gymnasium world's weather in cell names and records: the env's own, none of ours
 
 
 @dataclasses.dataclass(frozen=True)
 class Condition:
-    """A location (``scenario``), a ``weather`` (a blend of two is one weather) and sensor ``noise`` σ; ``name``: what
+    """A location (``scenario``: a pybullet scenario, or a Gymnasium world, whose env is the whole world and has no
+    ``weather`` of ours: None), a ``weather`` (a blend of two is one weather) and sensor ``noise`` σ; ``name``: what
     a stage calls it (an avoid variant's name), else `label`."""
 
-    scenario: ScenarioConfig
-    weather: WeatherConfig
+    scenario: ScenarioConfig | GymWorldConfig
+    weather: WeatherConfig | None
     noise: float = 0.0
     name: str = ""
 
     @property
+    def gym_world(self) -> GymWorldConfig | None:
+        """The Gymnasium world this condition drives in (None: the pybullet world)."""
+        return self.scenario if isinstance(self.scenario, GymWorldConfig) else None
+
+    @property
+    def location(self) -> str:
+        return self.scenario.name
+
+    @property
+    def weather_name(self) -> str:
+        return NO_WEATHER if self.weather is None else self.weather.name
+
+    @property
     def label(self) -> str:
         """location-weather-noise<σ>: the condition in cell names and paths."""
-        return condition_label(self.scenario.name, self.weather.name, self.noise)
+        return condition_label(self.location, self.weather_name, self.noise)
 
     @property
     def title(self) -> str:
@@ -79,3 +97,40 @@ class Mixture:
 
     def condition(self, index: int, seed: int) -> Condition:
         return self.variants[self.variant(seed)]
+
+
+@schema(root=True)
+class WorldChoice:
+    """A stage that drives a world (conf/<stage>.yaml): a pybullet location (``scenario``) in a ``weather``, or a
+    Gymnasium world (``gym_world=<conf/gym_world/ file>``, which unsets the scenario and weather: its env is the
+    whole world), seen with sensor ``noise`` σ. A scenario or weather beside a gym_world is refused, naming it."""
+
+    scenario: ScenarioConfig | None = None
+    weather: WeatherConfig | None = None
+    gym_world: GymWorldConfig | None = None
+    noise: NonNegative
+
+    @model_validator(mode="before")
+    @classmethod
+    def _unnamed_scenario_fields(cls, data: Any) -> Any:
+        """Scenario fields without a scenario named (a profile's tweaks for the kinds that read them, e.g. tiny's
+        obstacle road) are no scenario: beside a gym_world they are dropped; a named scenario is refused."""
+        if isinstance(data, dict) and data.get("gym_world") is not None:
+            scenario = data.get("scenario")
+            if isinstance(scenario, dict) and "name" not in scenario:
+                return {k: v for k, v in data.items() if k != "scenario"}
+        return data
+
+    def __post_init__(self) -> None:
+        if self.gym_world is not None:
+            refuse_conditions(self.gym_world, self.scenario, self.weather)
+        elif self.scenario is None or self.weather is None:
+            key = "scenario" if self.scenario is None else "weather"
+            raise invalid(key, None, "is required: a scenario and a weather (conf/), or a gym_world (conf/gym_world/)")
+        after = getattr(super(), "__post_init__", None)  # the stage's other bases' checks
+        if after is not None:
+            after()
+
+    def condition(self, name: str = "") -> Condition:
+        """Where the stage drives."""
+        return Condition(self.gym_world or self.scenario, self.weather, self.noise, name)

@@ -255,14 +255,18 @@ class SimConfig(Section):
 
 
 def register_schemas() -> None:
-    """The world's defaults in Hydra's ConfigStore, which conf/scenario/, conf/weather/ and conf/sim.yaml extend
-    (`scenario_schema`, `weather_schema`, `sim_schema`): for the stages that compose them. Top-level nodes, not
-    options of the groups they fill, so `weather=weather_schema` is no weather and `--help` lists none."""
+    """The world's defaults in Hydra's ConfigStore, which conf/scenario/, conf/weather/, conf/gym_world/ and
+    conf/sim.yaml extend (`scenario_schema`, `weather_schema`, `gym_world_schema`, `sim_schema`): for the stages that
+    compose them. Top-level nodes, not options of the groups they fill, so `weather=weather_schema` is no weather and
+    `--help` lists none."""
     from hydra.core.config_store import ConfigStore
+
+    from .gym_world import GymWorldConfig  # here: it imports this module
 
     store = ConfigStore.instance()
     store.store(name="scenario_schema", node=defaults(ScenarioConfig))
     store.store(name="weather_schema", node=defaults(WeatherConfig))
+    store.store(name="gym_world_schema", node=defaults(GymWorldConfig))
     store.store(name="sim_schema", node=defaults(SimConfig))
 
 
@@ -287,11 +291,12 @@ def _load_group_file(path: Path) -> Any:
     defaults = config.pop("defaults", None)
     if defaults is None:
         return config
+    entries = [entry for entry in defaults if isinstance(entry, str)]  # not `override /group: …`: other groups'
     parts = [
         config if entry == "_self_" else _load_group_file(path.with_name(f"{entry}.yaml"))
-        for entry in defaults
+        for entry in entries
         if not entry.split("@")[0].endswith("_schema")  # the schema's defaults: from_config fills them in
     ]
-    if "_self_" not in defaults:
+    if "_self_" not in entries:
         parts.append(config)
     return OmegaConf.merge(*parts)

@@ -14,6 +14,10 @@ Frames are delivered as uqdrive's camera delivers them: RGB uint8 [48, 64, 3], h
 grey frame), so `preprocess_frame` gives the grey frame back exactly; sensor noise (σ in units of full intensity)
 is the camera's own `add_noise`, seeded by the rollout seed. A condition the env does not have (a scenario, a
 weather) is refused, never ignored.
+
+In a rollout's `uqdrive.sim.condition.Condition` a Gymnasium world is the location (its ``scenario``), with no
+weather: ``Condition(GymWorldConfig(...), None, noise)``. A world resets to the config it is handed, remaking its env
+when the config differs (as `DrivingEnv` rebuilds its world for another scenario).
 """
 
 from __future__ import annotations
@@ -22,11 +26,11 @@ import importlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Any, ClassVar, Literal, Protocol
+from typing import Annotated, Any, ClassVar, Literal, Protocol
 
 import cv2
 import numpy as np
-from pydantic import Field
+from pydantic import Field, Strict
 
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.schema import Bool, ConfigError, Count, Positive, Str, schema
@@ -43,6 +47,8 @@ _HOOKS = {"info": "uqdrive.sim.gym_world:InfoHooks", "highway": "uqdrive.sim.gym
 class GymWorldConfig(Section):
     """A Gymnasium env as a world: ``gymnasium.make(env_id, **env_kwargs)``, read through ``hooks``.
 
+    ``name``: the location's name in cells, files and runs (a condition of the env, e.g. other env_kwargs, is
+    another location under another name).
     ``safe_if``: info key → the value it must have at every step for the path to be safe (`InfoSafeSet`).
     ``horizon_steps``: the episode ends by timeout after this many steps (T = horizon_steps / control_hz),
     or earlier if the env truncates it. ``control_hz``: decisions per simulated second (the info's ``t``).
@@ -50,6 +56,7 @@ class GymWorldConfig(Section):
 
     section: ClassVar[str] = "gym_world"
 
+    name: Annotated[str, Strict(), Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")] = "gym_world"  # a file name
     env_id: Str = "uqdrive/Roundabout-v0"
     env_kwargs: dict[str, Any] = Field(default_factory=dict)
     hooks: Literal["info", "highway"] = "info"
@@ -153,16 +160,7 @@ class GymWorld:
     ``timeout`` (``horizon_steps``, or the env truncated it)."""
 
     def __init__(self, config: GymWorldConfig):
-        gymnasium = _gymnasium()
-        self.config = config
-        hooks_cls = _hooks_class(config.hooks)
-        try:
-            self.env = gymnasium.make(config.env_id, **hooks_cls.env_kwargs(config.env_kwargs))
-        except gymnasium.error.Error as err:
-            raise ConfigError(f"gym_world.env_id={config.env_id!r}: {err}") from None
-        self.hooks: WorldHooks = hooks_cls(self.env, config)
-        self.control_hz = float(config.control_hz)
-        self.dt = 1.0 / self.control_hz
+        self._make(config)
         self.noise = 0.0
         self.render_enabled = True
         self._noise_rng = np.random.default_rng(0)
@@ -173,16 +171,36 @@ class GymWorld:
         self._log: dict[str, list[float]] = {k: [] for k in _TRAJECTORY_KEYS}
         self.last_info: dict[str, Any] = {}
 
+    def _make(self, config: GymWorldConfig) -> None:
+        """The env of ``config`` and its hooks (the config's control rate and horizon with them)."""
+        gymnasium = _gymnasium()
+        hooks_cls = _hooks_class(config.hooks)
+        try:
+            env = gymnasium.make(config.env_id, **hooks_cls.env_kwargs(config.env_kwargs))
+        except gymnasium.error.Error as err:
+            raise ConfigError(f"gym_world.env_id={config.env_id!r}: {err}") from None
+        self.config, self.env = config, env
+        self.hooks: WorldHooks = hooks_cls(env, config)
+        self.control_hz = float(config.control_hz)
+        self.dt = 1.0 / self.control_hz
+
     def reset(
-        self, seed: int, scenario: Any = None, weather: Any = None, noise: float = 0.0, render: bool = True
+        self,
+        seed: int,
+        scenario: GymWorldConfig | None = None,
+        weather: Any = None,
+        noise: float = 0.0,
+        render: bool = True,
     ) -> np.ndarray | None:
         """Start the episode of rollout seed ``seed`` (the env's ``reset(seed=seed)``; the sensor noise drawn from
-        the same seed); returns the first frame (None when ``render`` is False). ``scenario`` and ``weather`` must be
-        None: the env is its own world, and has no weather."""
-        for key, value in (("scenario", scenario), ("weather", weather)):
-            if value is not None:
-                name = getattr(value, "name", value)
-                raise ConfigError(f"{key}={name!r}: {self.config.env_id} has no {key} condition (the world is the env)")
+        the same seed); returns the first frame (None when ``render`` is False). ``scenario``: this world's location,
+        a `GymWorldConfig` (the env is remade if it differs from the current one) or None (the current one); any
+        other scenario, and any ``weather``, is refused: the env is its own world, and has no weather."""
+        world = scenario if isinstance(scenario, GymWorldConfig) else self.config
+        refuse_conditions(world, None if scenario is world else scenario, weather)
+        if world != self.config:
+            self.env.close()
+            self._make(world)
         self.noise = check_noise(noise)
         self.render_enabled = bool(render)
         obs, env_info = self.env.reset(seed=int(seed))
@@ -271,6 +289,24 @@ class GymWorld:
         self.close()
 
 
+def refuse_conditions(config: GymWorldConfig, scenario: Any, weather: Any) -> None:
+    """A scenario or weather of uqdrive's (anything not None) where ``config``'s env is the world: one line naming
+    the key (its value by name) and the env."""
+    for key, value in (("scenario", scenario), ("weather", weather)):
+        if value is not None:
+            name = getattr(value, "name", value)
+            raise ConfigError(f"{key}={name!r}: {config.env_id} has no {key} condition (the world is the env)")
+
+
+def require_expert(config: GymWorldConfig) -> None:
+    """Refuse, in one line, a world whose hooks know no expert (what labels a collection's frames)."""
+    if _hooks_class(config.hooks).expert is InfoHooks.expert:
+        raise ConfigError(
+            f"gym_world.hooks={config.hooks!r}: {config.env_id} has no expert these hooks know of, so no frames to "
+            "label; collect in a world whose hooks have one (hooks: highway)"
+        )
+
+
 def world_identity(config: GymWorldConfig) -> dict[str, Any]:
     """Everything a Gymnasium world's rollouts depend on beyond project code, for a cell's identity hash: the
     config (env id, kwargs, hooks, safe set, horizon) and the versions of Gymnasium, the env's own distribution
@@ -289,9 +325,17 @@ def world_modules(config: GymWorldConfig) -> list[str]:
 
 
 def _entry_module(config: GymWorldConfig) -> str:
-    """The module that defines the env ``config.env_id`` names."""
+    """The module that defines the env ``config.env_id`` names (``module:Id-v0``, as `gymnasium.make` takes it: the
+    module registers the id when imported, in a worker process too)."""
     _hooks_class(config.hooks)  # first: importing the hooks registers their package's env ids
-    entry = _gymnasium().spec(config.env_id).entry_point
+    gymnasium = _gymnasium()
+    module, _, env_id = config.env_id.rpartition(":")
+    try:
+        if module:
+            importlib.import_module(module)
+        entry = gymnasium.spec(env_id).entry_point
+    except (ImportError, gymnasium.error.Error) as err:
+        raise ConfigError(f"gym_world.env_id={config.env_id!r}: {err}") from None
     return entry.split(":")[0] if isinstance(entry, str) else entry.__module__
 
 

@@ -1,0 +1,172 @@
+"""The closed-loop stages in a Gymnasium world (`gym_world=<conf/gym_world/ file>`): a safety cell through
+`run_safety` on a stub env whose crash rate is known, HighwayEnv's roundabout end to end, a condition the env lacks
+refused in one line, the cell identity over the env's kwargs and packages, a sweep over one of the env's conditions,
+expert data collected in the world."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from conftest import ALL_TENTHS
+from mlflow.tracking import MlflowClient
+from test_gym_world import COIN_ID, CRASH_RATE, coin_crash_step
+from test_stage_sweeps import sweep
+
+import uqdrive.safety.runner as runner
+from uqdrive.pipeline.collect_stage import run_collect
+from uqdrive.pipeline.findings_stage import run_findings
+from uqdrive.pipeline.safety_stage import plan_cell, run_safety, run_safety_sweep
+from uqdrive.schema import ConfigError
+from uqdrive.tracking import store_uris
+from uqdrive.uq import clopper_pearson_interval
+
+ROOT = Path(__file__).resolve().parents[1]
+COIN = (
+    "gym_world=uqdrive_roundabout",
+    f"gym_world.env_id={COIN_ID}",
+    "gym_world.name=coin",
+    "gym_world.horizon_steps=12",
+)
+
+
+@pytest.fixture
+def gym_safety(stage_config, random_models):
+    """A safety cell's config in a Gymnasium world, driving the random-weight models (overrides appended)."""
+
+    def make(*overrides: str):
+        model = f"safety.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+        return stage_config("safety", model, *ALL_TENTHS, *overrides)
+
+    return make
+
+
+def test_a_gym_cell_through_the_stage_is_each_seeds_coin_and_its_exact_interval_covers_the_rate(gym_safety, tmp_path):
+    cfg = gym_safety(*COIN, "safety.scheme=clopper_pearson", "safety.theta=0.15", "executor.workers=1")
+    cell = run_safety(cfg).cell
+    seeds = range(cell.base_seed, cell.base_seed + cell.n)
+    assert cell.outcomes == "".join("0" if coin_crash_step(s, CRASH_RATE) else "1" for s in seeds)  # each run's own
+    assert (cell.location, cell.weather, cell.scheme, cell.guaranteed) == ("coin", "env", "clopper_pearson", True)
+    assert (cell.eta1_low, cell.eta1_high) == clopper_pearson_interval(cell.outcomes.count("1"), cell.n, 0.05)
+    assert cell.eta1_low <= 1 - CRASH_RATE <= cell.eta1_high and cell.collision_rate == pytest.approx(1 - cell.eta1)
+    assert (tmp_path / "metrics/safety/mcd-seed0-coin-env-noise0.0.json").exists()
+    assert (tmp_path / "plots/safety/cells/mcd-seed0-coin-env-noise0.0.png").stat().st_size > 5000
+    assert run_safety(cfg).reused
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("weather=rain", f"weather='rain': {COIN_ID} has no weather condition (the world is the env)"),
+        ("scenario=roundabout", f"scenario='roundabout': {COIN_ID} has no scenario condition (the world is the env)"),
+        ("safety.half_width=2", "safety.half_width=2.0 is a lane's: a gym_world is judged by its safe_if"),
+        ("gym_world.env_id=nowhere.envs:No-v0", "gym_world.env_id='nowhere.envs:No-v0': No module named 'nowhere'"),
+    ],
+)
+def test_a_condition_the_env_lacks_is_refused_in_one_line_before_anything_is_written(
+    gym_safety, tmp_path, override, message
+):
+    with pytest.raises(ConfigError) as err:
+        run_safety(gym_safety(*COIN, override))
+    assert str(err.value) == message
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_sweep_refuses_the_pybullet_worlds_axes_beside_a_gym_world(stage_config, tmp_path):
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")
+    with pytest.raises(ConfigError, match=r"^sweep.weathers=\['rain'\] must be empty: .* is the world$"):
+        next(run_safety_sweep(stage_config("gym_safety_sweep", *COIN, "sweep.weathers=[rain]"), []))
+
+
+def test_the_cell_identity_covers_the_envs_kwargs_its_packages_and_the_modules_it_loads_by_name(
+    gym_safety, monkeypatch
+):
+    key = plan_cell(gym_safety(*COIN)).key
+    assert plan_cell(gym_safety(*COIN)).key == key
+    assert plan_cell(gym_safety(*COIN, "++gym_world.env_kwargs.rate=0.5")).key != key  # another crash rate
+    assert plan_cell(gym_safety(*COIN, "gym_world.safe_if.off_road=true")).key != key
+    job = plan_cell(gym_safety(*COIN)).job
+    assert runner.job_identity(job)["where"]["gym_world"]["packages"]["gymnasium"] == "1.4.0"
+    real = runner.world_identity
+    monkeypatch.setattr(runner, "world_identity", lambda c: {**real(c), "packages": {"gymnasium": "9.9"}})
+    assert plan_cell(gym_safety(*COIN)).key != key  # another Gymnasium: another cell
+    digested: list = []
+    monkeypatch.setattr(runner, "code_digest", lambda modules: digested.append(modules) or "digest")
+    pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
+    plan_cell(gym_safety("gym_world=highway_roundabout"))
+    assert {"uqdrive.sim.gym_world", "uqdrive.sim.gym_highway"} <= set(digested[-1])
+
+
+def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and_the_findings_test_them(
+    random_models, stage_config, tmp_path
+):
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")
+    model = f"safety.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    axis = "sweep.world_axis={key: env_kwargs.rate, values: {calm: 0.1, wild: 0.9}}"
+    grid = ("sweep.methods=[mcd,vi]", "sweep.replicates=[0]", "sweep.noises=[0.0]", axis)
+    cells = sweep(run_safety_sweep, "gym_safety_sweep", tmp_path, model, *ALL_TENTHS, *COIN, *grid)
+    assert [(c["method"], c["location"]) for _, c in cells] == [
+        ("mcd", "coin-calm"),
+        ("mcd", "coin-wild"),
+        ("vi", "coin-calm"),
+        ("vi", "coin-wild"),
+    ]
+    for (config, cell), rate in zip(cells, (0.1, 0.9, 0.1, 0.9)):
+        seeds = range(cell["base_seed"], cell["base_seed"] + cell["n"])
+        assert config.gym_world.env_kwargs.rate == rate
+        assert cell["outcomes"] == "".join("0" if coin_crash_step(s, rate) else "1" for s in seeds)
+    assert cells[0][1]["config_hash"] != cells[1][1]["config_hash"]
+
+    assert stage_config("gym_findings").locations == ["highway_roundabout-idm", "highway_roundabout-aggressive"]
+    cells_dir = f"findings.cells_dir={tmp_path}/metrics/safety"
+    grid = ("world=coin", "locations=[coin-calm,coin-wild]", "methods=[mcd,vi]", "replicates=[0]", "noises=[0.0]")
+    findings = run_findings(stage_config("gym_findings", *grid, cells_dir))
+    names = [f.name for f in findings.findings]
+    assert names == ["mcd vs vi at coin-calm-env-noise0.0", "mcd vs vi at coin-wild-env-noise0.0"] + [
+        f"{m}: coin-wild-env-noise0.0 vs the training condition" for m in ("mcd", "vi")
+    ]
+    assert {f.experiment for f in findings.findings} == {"coin"} and {c.family for c in findings.claims} == {
+        "exploratory"
+    }
+    assert (tmp_path / "metrics/coin/findings.json").exists()
+
+
+@pytest.fixture
+def highway(gym_safety):
+    pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
+    return gym_safety
+
+
+def test_highway_roundabout_runs_a_tiny_safety_cell_end_to_end_through_the_stage(highway, tmp_path):
+    cfg = highway("gym_world=highway_roundabout", "gym_world.horizon_steps=15", "noise=0.05")
+    result = run_safety(cfg)
+    cell = result.cell
+    assert not result.reused and cell.n == 4 and len(cell.outcomes) == 4  # chernoff_n(0.7, 0.05)
+    assert (cell.location, cell.weather, cell.noise) == ("highway_roundabout", "env", 0.05)
+    assert cell.steps <= 4 * 15 and cell.max_corridor_use != cell.max_corridor_use  # NaN: no corridor
+    saved = json.loads((tmp_path / "metrics/safety/mcd-seed0-highway_roundabout-env-noise0.05.json").read_text())
+    assert saved["outcomes"] == cell.outcomes
+    client = MlflowClient(store_uris(tmp_path)[0])
+    (run,) = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
+    assert run.data.params["location"] == "highway_roundabout" and "weather" not in run.data.params
+    again = run_safety(highway("gym_world=highway_roundabout", "gym_world.horizon_steps=15", "noise=0.05"))
+    assert again.reused and again.cell.outcomes == cell.outcomes
+
+
+def test_collect_records_the_worlds_own_expert_in_grey_network_frames(stage_config, tmp_path):
+    pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
+    cfg = stage_config("collect", "gym_world=highway_roundabout", "gym_world.horizon_steps=10", "collect.workers=1")
+    collection = run_collect(cfg)
+    assert (collection.episodes, collection.frames) == (2, 20)  # tiny: 2 episodes of 10 steps
+    assert (collection.render_width, collection.render_height) == (64, 48)
+    table = pq.read_table(tmp_path / "data/raw/highway_roundabout.parquet").to_pydict()
+    assert set(table["scenario"]) == {"highway_roundabout"} and set(table["weather"]) == {"env"}
+    assert all(-1 <= s <= 1 for s in table["steering"]) and table["seed"][0] == 1000
+
+
+def test_collect_refuses_a_world_whose_hooks_know_no_expert_before_any_work(stage_config, tmp_path):
+    with pytest.raises(ConfigError) as err:
+        run_collect(stage_config("collect", "gym_world=uqdrive_roundabout"))
+    assert str(err.value).startswith("gym_world.hooks='info': uqdrive.sim.gym_env:uqdrive/Roundabout-v0 has no expert")
+    assert list(tmp_path.iterdir()) == []
