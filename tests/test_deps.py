@@ -131,9 +131,8 @@ def test_no_stage_imports_a_file_dvc_ignores(gym):
     from dvc.repo import Repo
 
     with Repo(str(ROOT)) as repo:
-        ignored = {
-            s.name: [f.as_posix() for f in s.imports if repo.dvcignore.is_ignored_file(str(ROOT / f))] for s in stages(gym)
-        }
+        hidden = repo.dvcignore.is_ignored_file
+        ignored = {s.name: [f.as_posix() for f in s.imports if hidden(str(ROOT / f))] for s in stages(gym)}
         assert repo.dvcignore.is_ignored_file(str(ROOT / "src/uqdrive/cli.py"))  # the check sees .dvcignore
     assert not {name: files for name, files in ignored.items() if files}
 
