@@ -62,6 +62,10 @@ def test_a_gym_cell_through_the_stage_is_each_seeds_coin_and_its_exact_interval_
         ("scenario=roundabout", f"scenario='roundabout': {COIN_ID} has no scenario condition (the world is the env)"),
         ("safety.half_width=2", "safety.half_width=2.0 is a lane's: a gym_world is judged by its safe_if"),
         ("gym_world.env_id=nowhere.envs:No-v0", "gym_world.env_id='nowhere.envs:No-v0': No module named 'nowhere'"),
+        (
+            "safety.model_path=/nonexistent/mcd.pt",
+            "safety.model_path=/nonexistent/mcd.pt does not exist; train it first: dvc repro gym_train_mcd@offline",
+        ),
     ],
 )
 def test_a_condition_the_env_lacks_is_refused_in_one_line_before_anything_is_written(

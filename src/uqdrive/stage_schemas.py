@@ -35,9 +35,11 @@ class Experiment:
     bins: SteeringBins
 
 
-def training_stage(experiment: str, method: str) -> str:
-    """The DVC stage that trains ``experiment``'s ``method``, every replicate (MCD: the trunk the heads sit on)."""
-    return f"train_mcd@{experiment}" if method == "mcd" else f"train@{experiment}-{method}"
+def training_stage(experiment: str, method: str, gym: bool = False) -> str:
+    """The DVC stage that trains ``experiment``'s ``method``, every replicate (MCD: the trunk the heads sit on); a
+    Gymnasium world's experiment trains in dvc.yaml's gym_ stages."""
+    stage = f"train_mcd@{experiment}" if method == "mcd" else f"train@{experiment}-{method}"
+    return f"gym_{stage}" if gym else stage
 
 
 @schema

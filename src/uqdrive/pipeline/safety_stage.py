@@ -174,7 +174,13 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
     model_path = Path(safety.model_path)
-    cell_posterior("safety.model_path", model_path, method, bins, training_stage(stage.experiment.name, method))
+    cell_posterior(
+        "safety.model_path",
+        model_path,
+        method,
+        bins,
+        training_stage(stage.experiment.name, method, stage.gym_world is not None),
+    )
     spec = PolicySpec(
         "bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws
     )
