@@ -15,7 +15,9 @@ from test_gym_world import COIN_ID, CRASH_RATE, coin_crash_step
 from test_stage_sweeps import sweep
 
 import uqdrive.safety.runner as runner
+from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.collect_stage import run_collect
+from uqdrive.pipeline.envelope_stage import run_envelope
 from uqdrive.pipeline.findings_stage import run_findings
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety, run_safety_sweep
 from uqdrive.schema import ConfigError
@@ -173,4 +175,15 @@ def test_collect_refuses_a_world_whose_hooks_know_no_expert_before_any_work(stag
     with pytest.raises(ConfigError) as err:
         run_collect(stage_config("collect", "gym_world=uqdrive_roundabout"))
     assert str(err.value).startswith("gym_world.hooks='info': uqdrive.sim.gym_env:uqdrive/Roundabout-v0 has no expert")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("stage", "run"), [("avoid", run_avoid), ("envelope", run_envelope)])
+def test_the_stages_built_for_the_pybullet_world_refuse_a_gym_world_in_one_line(stage_config, tmp_path, stage, run):
+    with pytest.raises(ConfigError) as err:
+        run(stage_config(stage, "+gym_world=uqdrive_roundabout"))
+    assert str(err.value) == (
+        f"gym_world=uqdrive_roundabout: the {stage} stage drives uqdrive's pybullet world only; "
+        "a Gymnasium world runs in the safety stage (python stages/safety.py gym_world=…)"
+    )
     assert list(tmp_path.iterdir()) == []

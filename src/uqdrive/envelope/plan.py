@@ -22,7 +22,7 @@ from uqdrive.safety.executors import PolicySpec, RolloutJob
 from uqdrive.schema import ConfigError, Count, NonNegative, Positive, Seed, Str, invalid, schema, validate
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, refuse_gym_world, training_stage
 from uqdrive.uq.multiplicity import split_gamma
 
 Axes = Annotated[tuple[AxisSettings, ...], Field(min_length=2, max_length=3)]
@@ -115,6 +115,7 @@ class Envelope:
 def build_envelope(cfg: DictConfig) -> Envelope:
     """Validate the stage's config, every condition of a lattice over the axes and the model file, before any
     rollout (a bad value is one line naming its key)."""
+    refuse_gym_world(cfg, "envelope")
     stage = validate(EnvelopeStage, cfg)
     env = stage.envelope
     method = posterior_from_config(stage.model).method

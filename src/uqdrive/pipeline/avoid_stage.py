@@ -37,6 +37,7 @@ from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
 from uqdrive.safety.warnings import WarningRule
 from uqdrive.sim.condition import Condition, Mixture
+from uqdrive.stage_schemas import refuse_gym_world
 from uqdrive.tracking import numeric_metrics, stage_run
 
 Cells = dict[tuple[str, Mode], Cell]
@@ -209,6 +210,7 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
 
 def run_avoid(cfg: DictConfig) -> AvoidResult:
     """All cells of one method, the calibration and its closed-loop check: drive, compute, plot, write, log."""
+    refuse_gym_world(cfg, "avoid")
     settings = build_settings(cfg)
     start = time.perf_counter()
     cells, calib, traces = drive(settings)
