@@ -4,6 +4,7 @@ clear error on a missing input."""
 import dataclasses
 import json
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.pipeline.report_stage import run_report
 from uqdrive.records import write_record
 from uqdrive.report.document import fmt
-from uqdrive.report.findings_text import findings_markdown
+from uqdrive.report.findings_text import claims_markdown, findings_markdown
 from uqdrive.safety.cell_records import (
     AvoidCell,
     AvoidResult,
@@ -29,6 +30,7 @@ from uqdrive.safety.cell_records import (
     Mode,
     SafetyCell,
 )
+from uqdrive.uq.verdict import Verdict
 
 METHODS, WEATHERS, NOISES, SEEDS = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05), (0, 1)
 EXPERIMENTS, LOCATIONS, CONDITIONS = ("avoid", "offline"), ("roundabout", "roundabout_large"), ("known", "fog")
@@ -319,3 +321,19 @@ def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp
     ):
         run_report(stage_config("report", f"paths.root={tmp_path}/again"))
     assert not (tmp_path / "reports").exists()
+
+
+def test_a_claim_no_replicate_separates_shows_the_interval_that_decided_it_and_plans_nothing():
+    """Every replicate at 1.00 on both sides: the t interval is [0, 0], but the ±δ test's (variance floored at the
+    margin's) is what leaves the claim undecided, and with no spread there is no power to plan from."""
+    claim = SimpleNamespace(
+        family="paper", name="hmc safer than mcd offline", paper=None, a_rates=[1.0] * 3, b_rates=[1.0] * 3,
+        estimate=0.0, low=0.0, high=0.0, equivalence_low=-0.12, equivalence_high=0.12, verdict=Verdict.UNDECIDED,
+        reason="the interval holds 0 and reaches past the margin", sd=0.0, detectable=0.0, needed=2, margin=0.1,
+        replicates=[0, 1, 2], pairs=14, level=0.005, assumption="i.i.d. replicates",
+    )  # fmt: skip
+    row = markdown_rows(
+        claims_markdown(SimpleNamespace(claims=[claim], margin=0.1, alpha=0.05)), "claim (A safer than B)"
+    )[0]
+    assert row["Δ̂ [interval]"] == "+0.00 [+0.00, +0.00], ±δ test [-0.12, +0.12]"
+    assert row["detects"] == "no spread to plan from"

@@ -35,8 +35,21 @@ def _interval(low: float, high: float) -> str:
     return f"[{low:+.2f}, {high:+.2f}]"
 
 
+def _estimate(claim) -> str:
+    """Δ̂ and its interval; where the verdict rests on the equivalence interval (wider: its variance is floored at the
+    margin's) and that differs, that one too, so "undecided" is read against the interval that decided it."""
+    text = f"{claim.estimate:+.2f} {_interval(claim.low, claim.high)}"
+    equivalence = (claim.equivalence_low, claim.equivalence_high)
+    if claim.verdict in (Verdict.EQUIVALENT, Verdict.UNDECIDED) and equivalence != (claim.low, claim.high):
+        text += f", ±δ test {_interval(*equivalence)}"
+    return text
+
+
 def _detectable(claim) -> str:
-    """The smallest difference this design detects at 80 % power, and the replicates that would detect δ."""
+    """The smallest difference this design detects at 80 % power, and the replicates that would detect δ (none to
+    say where no replicate's pair differs: no spread to plan from)."""
+    if claim.sd == 0:
+        return "no spread to plan from"
     detects = "none below 1" if claim.detectable > 1 else f"{claim.detectable:.2f}"
     needed = f", δ = {claim.margin:g} needs {claim.needed} replicates" if claim.needed else ""
     return detects + needed
@@ -52,7 +65,7 @@ def claims_markdown(findings) -> str:
             c.name,
             c.paper or "–",
             f"{sum(c.a_rates) / len(c.a_rates):.2f} vs {sum(c.b_rates) / len(c.b_rates):.2f}",
-            f"{c.estimate:+.2f} {_interval(c.low, c.high)}",
+            _estimate(c),
             WORDS[c.verdict] + (f" ({c.reason})" if c.verdict is Verdict.UNDECIDED else ""),
             _detectable(c),
         ]
