@@ -1,4 +1,7 @@
 import functools
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -69,3 +72,13 @@ def pytest_collection_modifyitems(items):
     pytest-xdist worker takes the next test file in this order, so the longest runs beside the rest of the suite
     instead of after most of it."""
     items.sort(key=lambda item: (item.path.name != "test_dvc_pipeline.py", item.get_closest_marker("slow") is None))
+
+
+def dvc(project: Path, *args: str, timeout: float = 300) -> str:
+    """``dvc <args>`` in ``project`` with this interpreter's DVC; fails the test with DVC's own output."""
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    result = subprocess.run(
+        [sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True, text=True, timeout=timeout
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result.stdout

@@ -1,7 +1,6 @@
 """`dvc repro` end to end on the tiny profile, in a copy of the project: the README's main command."""
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -10,6 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from conftest import dvc
 from rendered_plots import chromium, problems, render
 from test_report import markdown_rows
 
@@ -41,15 +41,6 @@ def _metrics_of_experiments(shown: object) -> list[dict]:
     return found
 
 
-def _dvc(project: Path, *args: str) -> str:
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
-    result = subprocess.run(
-        [sys.executable, "-m", "dvc", *args], cwd=project, env=env, capture_output=True, text=True, timeout=1800
-    )
-    assert result.returncode == 0, result.stdout + result.stderr
-    return result.stdout
-
-
 @pytest.mark.slow
 def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     project = tmp_path / "project"
@@ -72,10 +63,10 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     _git(project, "init", "-q")
     for key, value in (("user.name", "uqdrive test"), ("user.email", "test@localhost")):  # dvc exp commits need one
         _git(project, "config", key, value)
-    _dvc(project, "init", "-q")
+    dvc(project, "init", "-q")
     shutil.copytree(ROOT / ".dvc/plots", project / ".dvc/plots")  # the project's plot templates
 
-    _dvc(project, "repro")
+    dvc(project, "repro", timeout=1800)
     for scenario in ("obstacle", "roundabout"):
         assert (project / f"data/raw/{scenario}.parquet").exists()
         assert json.loads((project / f"metrics/collect/{scenario}.json").read_text())["frames"] > 0
@@ -127,7 +118,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         assert row["η̂1"] == fmt(avoided.answer(row["method"], row["condition"], row["warnings"]).value, 2)
     assert 'src="data:image/png;base64,' in (project / "reports/report.html").read_text()
 
-    assert "Data and pipelines are up to date" in _dvc(project, "status")
+    assert "Data and pipelines are up to date" in dvc(project, "status")
     # `dvc plots show` draws offline: the page `make install` writes carries Vega, Vega-Lite and Vega-Embed
     subprocess.run(
         [sys.executable, "-m", "uqdrive.cli", "plots-page", "--out", ".dvc/plots_page.html"],
@@ -135,8 +126,8 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         check=True,
         timeout=300,
     )
-    _dvc(project, "config", "plots.html_template", "plots_page.html")
-    _dvc(project, "plots", "show")
+    dvc(project, "config", "plots.html_template", "plots_page.html")
+    dvc(project, "plots", "show")
     page = (project / "dvc_plots/index.html").read_text()
     assert "cdn.jsdelivr" not in page and "vegaEmbed(" in page and '"eta1_unknown"' in page
     if chromium() is not None:  # as a person sees it: every plot draws data under titled axes, every figure loads
@@ -147,9 +138,9 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert list((project / "src/uqdrive/bench").glob("__pycache__/*.pyc"))
     with (project / "src/uqdrive/bench/__init__.py").open("a") as bench:  # a tool no stage runs (.dvcignore)
         bench.write("# an edit to a benchmark\n")
-    assert "Data and pipelines are up to date" in _dvc(project, "status")
+    assert "Data and pipelines are up to date" in dvc(project, "status")
     stamp = (project / "data/raw/obstacle.parquet").stat().st_mtime_ns
-    again = _dvc(project, "repro")
+    again = dvc(project, "repro", timeout=1800)
     assert "Running stage" not in again, again
     assert (project / "data/raw/obstacle.parquet").stat().st_mtime_ns == stamp
 
@@ -160,7 +151,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     rain_logs = {p.name: p.read_text() for p in (project / "cache/rollouts/safety").glob("*-rain-*.jsonl")}
     ran = sorted(
         line.split("'")[1]
-        for line in _dvc(project, "exp", "run", "-S", "weathers=[rain,afternoon]").splitlines()
+        for line in dvc(project, "exp", "run", "-S", "weathers=[rain,afternoon]", timeout=1800).splitlines()
         if line.startswith("Running stage")
     )
     assert ran == [
@@ -175,6 +166,6 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert len(rain_logs) == 2  # 1 method x 2 replicates
     assert {p.name: p.read_text() for p in (project / "cache/rollouts/safety").glob("*-rain-*.jsonl")} == rain_logs
     assert len(list((project / "cache/rollouts/safety").glob("*-afternoon-*.jsonl"))) == 2
-    summaries = _metrics_of_experiments(json.loads(_dvc(project, "exp", "show", "--json")))
+    summaries = _metrics_of_experiments(json.loads(dvc(project, "exp", "show", "--json")))
     assert len(summaries) >= 2  # the baseline and the experiment
     assert all(isinstance(m["offline_safety"]["mcd"], float) for m in summaries)
