@@ -136,7 +136,7 @@ class InfoHooks:
         return np.array([steer, speed][: self.action_size], dtype=self.dtype)
 
     def expert(self) -> tuple[float, float]:
-        raise NotImplementedError(f"gym_world.hooks='info': {self.env_id!r} has no expert these hooks know of")
+        raise ConfigError(f"gym_world.hooks='info': {self.env_id!r} has no expert these hooks know of")
 
 
 @dataclass

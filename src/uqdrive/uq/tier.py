@@ -23,6 +23,7 @@ The middle tier is guaranteed (some η2 gets it with probability ≥ 1 − γ) o
 
 from __future__ import annotations
 
+import abc
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
@@ -67,7 +68,7 @@ class _EdgeTest:
         return "above" if n == self.cap else None
 
 
-class TierRule:
+class TierRule(abc.ABC):
     """What both tier rules share: their looks, per-look decision tables (read by the controller through `run`
     and by the calibration's replay through `tiers`: one rule, two readers), the exact error and its check.
     A subclass sets ``delta1``, ``delta2``, ``theta``, ``gamma``, ``looks``, defines `decide` and calls `_settle`."""
@@ -79,9 +80,9 @@ class TierRule:
     gamma: float
     looks: tuple[int, ...]
 
+    @abc.abstractmethod
     def decide(self, k: int, n: int) -> int | None:
         """The tier after n draws (a look) with k successes; None: draw on."""
-        raise NotImplementedError
 
     def _settle(self) -> None:
         """Tabulate the decisions, compute the exact error (once per setting and process) and refuse one above γ."""
