@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from conftest import ALL_TENTHS
@@ -20,6 +21,8 @@ from uqdrive.pipeline.collect_stage import run_collect
 from uqdrive.pipeline.envelope_stage import run_envelope
 from uqdrive.pipeline.findings_stage import run_findings
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety, run_safety_sweep
+from uqdrive.safety.avoidance import build_settings
+from uqdrive.safety.cell_records import Mode
 from uqdrive.schema import ConfigError
 from uqdrive.tracking import store_uris
 from uqdrive.uq import clopper_pearson_interval
@@ -124,14 +127,24 @@ def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and
         assert cell["outcomes"] == "".join("0" if coin_crash_step(s, rate) else "1" for s in seeds)
     assert cells[0][1]["config_hash"] != cells[1][1]["config_hash"]
 
+    unknown = stage_config("gym_avoid", "gym_world=highway_roundabout").avoid.unknown  # gym_axis' values but the first
+    assert [(u["name"], u["world"]) for u in unknown] == [
+        ("aggressive", {"env_kwargs.config.other_vehicles_type": "highway_env.vehicle.behavior.AggressiveVehicle"})
+    ]
+    for method in ("mcd", "vi"):  # the warning system in the same world, its unknown condition the wild coin
+        avoid = ("experiment.name=coin", f"model={method}", "avoid.unknown=[{name:wild,world:{env_kwargs:{rate:0.9}}}]")
+        run_avoid(stage_config("gym_avoid", *ALL_TENTHS, *COIN, *avoid, model.replace("safety.", "avoid.")))
+    assert (tmp_path / "metrics/coin/avoid/vi-seed0.json").exists()
+
     assert stage_config("gym_findings").locations == ["highway_roundabout-idm", "highway_roundabout-aggressive"]
     cells_dir = f"findings.cells_dir={tmp_path}/metrics/safety"
     grid = ("world=coin", "locations=[coin-calm,coin-wild]", "methods=[mcd,vi]", "replicates=[0]", "noises=[0.0]")
     findings = run_findings(stage_config("gym_findings", *grid, cells_dir))
     names = [f.name for f in findings.findings]
-    assert names == ["mcd vs vi at coin-calm-env-noise0.0", "mcd vs vi at coin-wild-env-noise0.0"] + [
+    assert names[:4] == ["mcd vs vi at coin-calm-env-noise0.0", "mcd vs vi at coin-wild-env-noise0.0"] + [
         f"{m}: coin-wild-env-noise0.0 vs the training condition" for m in ("mcd", "vi")
     ]
+    assert any("wild" in name and "warnings" in name for name in names[4:]), names
     assert {f.experiment for f in findings.findings} == {"coin"} and {c.family for c in findings.claims} == {
         "exploratory"
     }
@@ -178,7 +191,7 @@ def test_collect_refuses_a_world_whose_hooks_know_no_expert_before_any_work(stag
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize(("stage", "run"), [("avoid", run_avoid), ("envelope", run_envelope)])
+@pytest.mark.parametrize(("stage", "run"), [("envelope", run_envelope)])
 def test_the_stages_built_for_the_pybullet_world_refuse_a_gym_world_in_one_line(stage_config, tmp_path, stage, run):
     with pytest.raises(ConfigError) as err:
         run(stage_config(stage, "+gym_world=uqdrive_roundabout"))
@@ -187,3 +200,53 @@ def test_the_stages_built_for_the_pybullet_world_refuse_a_gym_world_in_one_line(
         "a Gymnasium world runs in the safety stage (python stages/safety.py gym_world=…)"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+RISKY = "avoid.unknown=[{name:risky,world:{env_kwargs:{rate:0.7}}}]"  # the coin env with another crash rate
+
+
+@pytest.mark.slow
+def test_the_avoid_stage_runs_in_a_gym_world_whose_unknown_condition_is_the_world_changed(avoid_config, tmp_path):
+    cfg = avoid_config(*COIN, RISKY, "executor.workers=1", "avoid.min_rollouts=12")
+    result = run_avoid(cfg)
+    assert result.conditions == ["known", "risky"] and result.horizon_s == pytest.approx(12 / 15)
+    for condition, rate in (("known", CRASH_RATE), ("risky", 0.7)):
+        off = result.cells[condition][Mode.OFF]
+        seeds = range(off.base_seed, off.base_seed + 12)  # warnings off: each run is its seed's coin
+        assert off.outcomes == "".join("0" if coin_crash_step(s, rate) else "1" for s in seeds)
+        assert off.passed_rate == off.outcomes.count("1") / 12  # the safe runs drove to the horizon
+        assert off.handover_distances == [] and off.handover_rate == 0  # no obstacle; warnings only counted
+        on = result.cells[condition][Mode.ON]
+        assert set(on.terminations) <= {"timeout", "collision", "handover"}
+        assert on.terminations.get("handover", 0) <= round(on.handover_rate * 12)  # stopped, or crashed braking
+        assert on.handover_distance_min is None
+    saved = json.loads((tmp_path / "metrics/avoid/mcd-seed0.json").read_text())
+    assert saved["calibration"]["calibration_runs"] == {"known": 12, "risky": 12}
+    with np.load(tmp_path / "data/avoid/mcd-seed0/traces/mcd-seed0-risky-off.npz") as data:
+        assert data["obstacle"].size == 0 and (np.diff(data["distance"][data["rollout"] == 0]) < 0).all()
+    for name in ("trajectories", "warnings", "tradeoff"):
+        assert (tmp_path / f"plots/avoid/mcd-seed0/{name}.png").stat().st_size > 5000
+    (risky,) = build_settings(cfg).unknown  # the world changed, as a location of its own
+    assert (risky.location, risky.scenario.env_kwargs, risky.weather_name) == ("coin-risky", {"rate": 0.7}, "env")
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (("avoid.unknown=[{name:fog,weather:fog}]",), "avoid.unknown[0].weather='fog' is uqdrive's: "),
+        (("avoid.unknown=[{name:x,world:{horizon_steps:0}}]",), "avoid.unknown[0].world.horizon_steps=0: "),
+        (("avoid.unknown=[{name:x,world:{env_id.sub:1}}]",), "avoid.unknown[0].world.env_id.sub=1: gym_world.env_id "),
+    ],
+)
+def test_a_gym_worlds_unknown_condition_of_ours_or_a_bad_change_is_refused_in_one_line(
+    avoid_config, tmp_path, overrides, message
+):
+    with pytest.raises(ConfigError) as err:
+        run_avoid(avoid_config(*COIN, *overrides))
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_world_change_without_a_gym_world_is_refused_in_one_line(avoid_config, tmp_path):
+    with pytest.raises(ConfigError, match=r"^avoid.unknown\[0\].world=\{'horizon_steps': 3\} changes a gym_world"):
+        run_avoid(avoid_config("avoid.unknown=[{name:x,world:{horizon_steps:3}}]"))

@@ -33,18 +33,19 @@ class LineEnv(gymnasium.Env):
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
-        self.x = float(self.np_random.uniform(0, 1))
+        self.x, self.speed = float(self.np_random.uniform(0, 1)), 1.0
         return self._obs(), self._info()
 
     def step(self, action):
-        self.x += float(action[1]) / 15
+        self.speed = float(action[1])
+        self.x += self.speed / 15
         return self._obs(), 0.0, False, False, self._info()
 
     def _obs(self):
         return np.full((24, 32), 100 + int(self.x * 10) % 50, np.uint8)  # mid-grey: the noise is never clipped
 
     def _info(self):
-        return dict(x=self.x, y=0.0, yaw=0.0, speed=1.0, collision=False, off_road=False, lateral_deviation=0.0)
+        return dict(x=self.x, y=0.0, yaw=0.0, speed=self.speed, collision=False, off_road=False, lateral_deviation=0.0)
 
 
 class CoinCrash(gymnasium.Wrapper):

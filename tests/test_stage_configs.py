@@ -41,6 +41,7 @@ STAGES = {
     "gym_safety_sweep": first(run_safety_sweep),
     "evaluate": run_evaluate,
     "avoid": run_avoid,
+    "gym_avoid": run_avoid,
     "safety_summary": run_safety_summary,
     "avoid_summary": run_avoid_summary,
     "findings": run_findings,
@@ -90,6 +91,11 @@ BAD = {
         ("+sweep.world_axes=1", "sweep.world_axes: unknown key; did you mean 'world_axis'?"),
         ("sweep.world_axis={key: 3, values: {a: 1}}", "sweep.world_axis.key=3: input should be a valid string"),
         ("sweep.noises=[-1]", "sweep.noises[0]=-1: input should be greater than or equal to 0"),
+    ],
+    "gym_avoid": [
+        ("avoid.unknown=[{name: x, wrld: {}}]", "avoid.unknown[0].wrld: unknown key; did you mean 'world'?"),
+        ("avoid.unknown=[{name: x, world: 3}]", "avoid.unknown[0].world=3: input should be a valid dictionary"),
+        ("avoid.unknown=[{name: x, noise: -1}]", "avoid.unknown[0].noise=-1: input should be greater than or equal"),
     ],
     "evaluate": [
         ("+evaluate.sample=3", "evaluate.sample: unknown key; did you mean 'samples'?"),

@@ -215,14 +215,18 @@ def avoid_trajectories(ax: plt.Axes, panel: dict, title: str, vmax: float = 1.0)
     """The paper's collision-avoidance panel: each path on the obstacle road coloured by the mutual
     information of the frame seen there; × marks a collision, ■ a hand-over (stopped). Returns the
     colour mapping for a colour bar. ``panel``: paths (x, y, mi, termination), obstacle (x, y,
-    length, width), road (x from, x to, right edge, centre line, left edge)."""
+    length, width), road (x from, x to, right edge, centre line, left edge); both empty in a Gymnasium world (its
+    road is the env's: the paths alone, at equal scale)."""
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Rectangle
 
-    road, (ox, oy, length, width) = panel["road"], panel["obstacle"]
-    ax.axhspan(road[2], road[4], color="0.35", zorder=0)
-    ax.axhline(road[3], color="w", ls="--", lw=0.8, zorder=1)
-    ax.add_patch(Rectangle((ox - length / 2, oy - width / 2), length, width, color="tab:red", zorder=3))
+    road, obstacle = np.asarray(panel["road"]), np.asarray(panel["obstacle"])
+    if road.size:
+        ax.axhspan(road[2], road[4], color="0.35", zorder=0)
+        ax.axhline(road[3], color="w", ls="--", lw=0.8, zorder=1)
+    if obstacle.size:
+        ox, oy, length, width = obstacle
+        ax.add_patch(Rectangle((ox - length / 2, oy - width / 2), length, width, color="tab:red", zorder=3))
     norm = plt.Normalize(0.0, vmax)
     xs = [0.0]
     for path in panel["paths"]:
@@ -235,9 +239,14 @@ def avoid_trajectories(ax: plt.Axes, panel: dict, title: str, vmax: float = 1.0)
             marker = {"collision": ("x", "tab:red"), "handover": ("s", "orange")}.get(path["termination"])
             if marker:
                 ax.plot(x[-1], y[-1], marker[0], color=marker[1], ms=5, mec="k", mew=0.5, zorder=5)
-    starts = [float(np.min(p["x"])) for p in panel["paths"] if len(p["x"])]
-    ax.set_xlim(min(starts, default=road[0]) - 2, max(max(xs), ox + length) + 2)
-    ax.set_ylim(road[2] - 1, road[4] + 1)
+    if road.size:
+        starts = [float(np.min(p["x"])) for p in panel["paths"] if len(p["x"])]
+        ax.set_xlim(min(starts, default=road[0]) - 2, max(max(xs), obstacle[0] + obstacle[2]) + 2)
+        ax.set_ylim(road[2] - 1, road[4] + 1)
+    else:
+        ax.autoscale_view()
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_ylabel("y (m)", fontsize=8)
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("x (m)", fontsize=8)
     return plt.cm.ScalarMappable(norm=norm, cmap="plasma")
@@ -263,12 +272,16 @@ def avoid_trajectories_figure(
 
 
 def avoid_signals_figure(
-    runs: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]], configured, calibrated, title: str
+    runs: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]],
+    configured,
+    calibrated,
+    title: str,
+    distance: str = "distance to the obstacle along the road (m)",
 ) -> plt.Figure:
     """The paper's Figure "warnings": η2 (top) and mutual information (bottom) against the distance to
-    the obstacle, one line per rollout (red: it collided), with the thresholds δ1, δ2 and τ of the
-    configured (dashed) and calibrated (dotted) warning systems. ``runs[condition]``: (distance,
-    η2, MI, termination) per rollout."""
+    the obstacle (``distance``: what the distances are), one line per rollout (red: it collided), with the
+    thresholds δ1, δ2 and τ of the configured (dashed) and calibrated (dotted) warning systems.
+    ``runs[condition]``: (distance, η2, MI, termination) per rollout."""
     fig, axes = plt.subplots(2, len(runs), figsize=(4.5 * len(runs), 5.5), squeeze=False, sharex=True)
     for j, (condition, rows) in enumerate(runs.items()):
         top, bottom = axes[0, j], axes[1, j]
@@ -283,7 +296,7 @@ def avoid_signals_figure(
         top.set_title(f"{condition}", fontsize=9)
         top.set_ylabel("η2 (decision confidence)")
         bottom.set_ylabel("mutual information (nats)")
-        bottom.set_xlabel("distance to the obstacle along the road (m)")
+        bottom.set_xlabel(distance)
         top.set_ylim(-0.02, 1.02)
         bottom.set_ylim(bottom=0)
     axes[0, 0].invert_xaxis()

@@ -8,6 +8,8 @@
   `noise=0.0` are one cell.
 - `${world_locations:WORLD,AXIS}` is every location a Gymnasium world's safety sweep drives: ``<world>-<label>`` per
   value of its condition axis (``sweep.world_axis``), or the world alone (AXIS null).
+- `${world_unknown:AXIS,NOISES}` is a Gymnasium world's unknown conditions for the avoid stage: the axis' other
+  values and the noisier frames (conf/gym_avoid.yaml).
 - `${output_root:ROOT,OUTPUTS}` is where a run writes: the project's pipeline folders when asked
   (`outputs=pipeline`, what `dvc.yaml`'s commands pass), else the run's own Hydra folder (`outputs/<date>/<time>`,
   or the sweep's folder for a multirun), so an ad-hoc run or sweep never overwrites a tracked pipeline output.
@@ -65,6 +67,15 @@ def world_locations(world: str, axis: object) -> list[str]:
     return [world] if axis is None else [world_location(world, label) for label in axis["values"]]  # type: ignore[index]
 
 
+def world_unknown(axis: object, noises: object) -> list[dict]:
+    """A Gymnasium world's unknown conditions for the avoid stage: each value of ``axis`` but the first (the one
+    collected in), and each noise σ > 0 of ``noises`` (`UnknownCondition`s)."""
+    values = list(axis["values"].items())[1:] if axis is not None else []  # type: ignore[index]
+    changed = [{"name": label, "world": {axis["key"]: value}} for label, value in values]  # type: ignore[index]
+    noisier = [{"name": f"noise{noise_label(n)}", "noise": n} for n in noises if float(n) > 0]  # type: ignore[attr-defined]
+    return changed + noisier
+
+
 def output_root(root: str, outputs: str) -> str:
     """``root`` with ``outputs=pipeline`` or outside a Hydra job (a config composed in code); else the job's own
     folder: hydra.run.dir for a single run, hydra.sweep.dir for a multirun."""
@@ -82,6 +93,7 @@ def register_resolvers() -> None:
         ("posteriors", posteriors),
         ("noise_label", noise_label),
         ("world_locations", world_locations),
+        ("world_unknown", world_unknown),
         ("output_root", output_root),
     ):
         if not OmegaConf.has_resolver(name):

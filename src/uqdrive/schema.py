@@ -157,12 +157,12 @@ def _dotted(path: str, loc: tuple) -> str:
 def _field_names(cls: Any, loc: tuple) -> list[str]:
     """Keys the schema allows at ``loc`` inside ``cls`` (for an unknown key's hint)."""
     for part in loc:
-        cls = _unwrap(cls)
-        if dataclasses.is_dataclass(cls) and isinstance(part, str):
-            cls = typing.get_type_hints(cls, include_extras=True).get(part)
-        else:
-            args = [a for a in typing.get_args(cls) if a is not Ellipsis]
+        if isinstance(part, int) or typing.get_origin(_bare(cls)) is dict:  # an item of a list or mapping: its type
+            args = [a for a in typing.get_args(_bare(cls)) if a is not Ellipsis]
             cls = args[-1] if args else None
+            continue
+        cls = _unwrap(cls)
+        cls = typing.get_type_hints(cls, include_extras=True).get(part) if dataclasses.is_dataclass(cls) else None
     cls = _unwrap(cls)
     return [f.name for f in dataclasses.fields(cls)] if dataclasses.is_dataclass(cls) else []
 

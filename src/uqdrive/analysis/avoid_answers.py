@@ -31,7 +31,7 @@ def avoid_result(
     cells: dict[tuple[str, Mode], Cell],
     calib: Calibration,
     traces: Traces,
-    geometries: dict[str, ScenarioGeometry],
+    geometries: dict[str, ScenarioGeometry | None],
     seconds: float,
 ) -> AvoidResult:
     """metrics/avoid/<method>-<replicate>.json from the stage's finished cells and calibration: every cell's
@@ -85,7 +85,7 @@ def avoid_result(
 
 
 def cell_metrics(
-    cell: Cell, cruise: float, geometry: ScenarioGeometry, fixed_rollouts: int, family_size: int
+    cell: Cell, cruise: float, geometry: ScenarioGeometry | None, fixed_rollouts: int, family_size: int
 ) -> AvoidCell:
     """η̂1 with its interval, autonomy, passed and timeout rates, hand-over distances, warning counts, and each
     run's verdict in rollout order (``fixed_rollouts``: how many every cell runs whatever the outcomes)."""

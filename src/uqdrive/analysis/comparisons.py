@@ -121,8 +121,10 @@ def safety_comparisons(
 
 
 def avoid_comparisons(results: list[AvoidResult], methods: list[str]) -> Iterator[tuple]:
-    """(experiment, kind, topic, a, b, comparison) of collision avoidance (none without results)."""
+    """(experiment, kind, topic, a, b, comparison) of collision avoidance (none without results); the experiment is
+    the results' (whose controllers drove: the obstacle road's, or a Gymnasium world's)."""
     by = {(r.method, r.replicate): r for r in results}
+    experiment = results[0].experiment if results else ""
     replicates = sorted({r.replicate for r in results})
     conditions = results[0].conditions if results else []
     for condition in conditions:
@@ -130,7 +132,7 @@ def avoid_comparisons(results: list[AvoidResult], methods: list[str]) -> Iterato
             pairs = {r: (by[x, r].cells[condition][Mode.OFF], by[y, r].cells[condition][Mode.OFF]) for r in replicates}
             name = f"{x} vs {y} at {condition}, warnings off"
             a, b = f"{x} {condition} off", f"{y} {condition} off"
-            yield "avoid", "method", f"{x} vs {y}", a, b, _comparison(name, pairs)
+            yield experiment, "method", f"{x} vs {y}", a, b, _comparison(name, pairs)
     for method in methods:
         for condition in conditions[1:]:
             pairs = {
@@ -139,7 +141,7 @@ def avoid_comparisons(results: list[AvoidResult], methods: list[str]) -> Iterato
             }
             name = f"{method}: {condition} vs {conditions[0]}, warnings off"
             a, b = f"{method} {condition} off", f"{method} {conditions[0]} off"
-            yield "avoid", "condition", condition, a, b, _comparison(name, pairs)
+            yield experiment, "condition", condition, a, b, _comparison(name, pairs)
         for with_warnings, without in PAIRS:
             for condition in conditions:
                 cells = {r: by[method, r].cells[condition] for r in replicates}
@@ -147,7 +149,7 @@ def avoid_comparisons(results: list[AvoidResult], methods: list[str]) -> Iterato
                 name = f"{method}: {with_warnings} vs {without} at {condition}"
                 a, b = f"{method} {condition} {with_warnings}", f"{method} {condition} {without}"
                 yield (
-                    "avoid",
+                    experiment,
                     "warnings",
                     f"{with_warnings} vs {without} at {condition}",
                     a,

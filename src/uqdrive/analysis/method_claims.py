@@ -122,8 +122,9 @@ def offline_claims(cells: list[SafetyCell], methods: Sequence[str], location: st
     return out
 
 
-def warning_claims(results: list[AvoidResult], methods: Sequence[str]) -> list[_Claim]:
-    """Per method, warnings on (and calibrated, on fresh seeds) against none in the unknown conditions."""
+def warning_claims(results: list[AvoidResult], methods: Sequence[str], as_paper: bool = True) -> list[_Claim]:
+    """Per method, warnings on (and calibrated, on fresh seeds) against none in the unknown conditions; with the
+    paper's numbers beside its own claim when ``as_paper`` (the obstacle road's results)."""
     out = []
     for method in methods:
         mine = [r for r in results if r.method == method]
@@ -135,17 +136,11 @@ def warning_claims(results: list[AvoidResult], methods: Sequence[str]) -> list[_
                 )
                 for r in mine
             }
-            text = (
-                f"{paper.AVOID_UNKNOWN_ON:g} vs {paper.AVOID_UNKNOWN_OFF:g}"
-                if (method, with_warnings)
-                == (
-                    paper.AVOID_METHOD,
-                    Mode.ON,
-                )
-                else None
-            )
+            paper_pair = as_paper and (method, with_warnings) == (paper.AVOID_METHOD, Mode.ON)
+            text = f"{paper.AVOID_UNKNOWN_ON:g} vs {paper.AVOID_UNKNOWN_OFF:g}" if paper_pair else None
             name = f"{method}: warnings {with_warnings} safer than {without}, unknown conditions"
-            out.append(_Claim(name, "avoid", f"{method} {with_warnings}", f"{method} {without}", text, sides))
+            experiment = results[0].experiment
+            out.append(_Claim(name, experiment, f"{method} {with_warnings}", f"{method} {without}", text, sides))
     return out
 
 
@@ -158,7 +153,7 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
         label = condition_label(*condition)
         for x, y in itertools.combinations(methods, 2):
             sides = {r: ([by[x, r, condition]], [by[y, r, condition]]) for r in replicates}
-            out.append(_Claim(f"{x} vs {y} at {label}", "offline", x, y, None, sides))
+            out.append(_Claim(f"{x} vs {y} at {label}", cells[0].experiment, x, y, None, sides))
     avoid = {(r.method, r.replicate): r for r in results}
     for condition in results[0].conditions if results else ():
         for x, y in itertools.combinations(methods, 2):
@@ -167,7 +162,7 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
                 for m, r in avoid
                 if m == x
             }
-            out.append(_Claim(f"{x} vs {y} at {condition}, warnings off", "avoid", x, y, None, sides))
+            out.append(_Claim(f"{x} vs {y} at {condition}, warnings off", results[0].experiment, x, y, None, sides))
         for method, (with_warnings, without) in itertools.product(methods, PAIRS):
             sides = {
                 r: ([avoid[method, r].cell(condition, with_warnings)], [avoid[method, r].cell(condition, without)])
@@ -175,7 +170,8 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
                 if m == method
             }
             name = f"{method}: warnings {with_warnings} vs {without} at {condition}"
-            out.append(_Claim(name, "avoid", f"{method} {with_warnings}", f"{method} {without}", None, sides))
+            experiment = results[0].experiment
+            out.append(_Claim(name, experiment, f"{method} {with_warnings}", f"{method} {without}", None, sides))
     return out
 
 
@@ -249,12 +245,14 @@ def method_claims(
 ) -> list[ClaimRecord]:
     """Every family of method claims, each decided at family-wise error ``alpha``; ``margin``: δ of equivalence
     (η1 units, and lane half-widths for the margin family). ``paper``: the cells are the paper's offline experiment,
-    so its claims are made (not for a Gymnasium world's cells, which only the exploratory family compares)."""
+    so its claims are made (not for a Gymnasium world's cells, which only the exploratory family compares: there
+    the warnings' claims over the unknown conditions are exploratory too)."""
     location, _, noise = training
     offline = offline_claims(cells, methods, location, noise) if paper else []
+    warnings = warning_claims(results, methods, paper) if results else []
     families = {
-        "paper": [*offline, *(warning_claims(results, methods) if results else [])],
-        "exploratory": exploratory_claims(cells, results, methods),
+        "paper": [*offline, *warnings] if paper else [],
+        "exploratory": [*exploratory_claims(cells, results, methods), *([] if paper else warnings)],
     }
     out = [record for family, claims in families.items() if claims for record in _decide(family, claims, margin, alpha)]
     pairs = [c for c in offline if c.a != "mcd dry"]

@@ -27,7 +27,7 @@ from uqdrive.plots import (
     save_figure,
 )
 from uqdrive.records import as_dict, write_record
-from uqdrive.safety.avoid_cells import Cell, distances, panel, traces_of
+from uqdrive.safety.avoid_cells import Cell, distance_label, distances, panel, traces_of
 from uqdrive.safety.avoid_files import write_cell_data, write_cell_table, write_signals, write_tradeoff
 from uqdrive.safety.avoidance import AvoidSettings, build_settings
 from uqdrive.safety.calibration import Calibration, calibrate
@@ -37,7 +37,6 @@ from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
 from uqdrive.safety.warnings import WarningRule
 from uqdrive.sim.condition import Condition, Mixture
-from uqdrive.stage_schemas import refuse_gym_world
 from uqdrive.tracking import numeric_metrics, stage_run
 
 Cells = dict[tuple[str, Mode], Cell]
@@ -135,8 +134,11 @@ def plot(settings: AvoidSettings, cells: Cells, calib: Calibration) -> dict[str,
         ]
         for c in names
     }
-    title = f"{settings.name}, warnings off: uncertainty approaching the obstacle"
-    figures["warnings"] = avoid_signals_figure(signals, settings.rule.config, calib.rule.config, title)
+    gym = settings.known.gym_world is not None
+    title = f"{settings.name}, warnings off: uncertainty approaching " + ("the run's end" if gym else "the obstacle")
+    figures["warnings"] = avoid_signals_figure(
+        signals, settings.rule.config, calib.rule.config, title, distance_label(geometries[names[0]])
+    )
     title = f"{settings.name}: unknown-condition safety against known autonomy (replayed)"
     figures["tradeoff"] = avoid_tradeoff_figure(
         calib.table, calib.chosen, configured_index(calib, settings), calib.target, title
@@ -210,7 +212,6 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
 
 def run_avoid(cfg: DictConfig) -> AvoidResult:
     """All cells of one method, the calibration and its closed-loop check: drive, compute, plot, write, log."""
-    refuse_gym_world(cfg, "avoid")
     settings = build_settings(cfg)
     start = time.perf_counter()
     cells, calib, traces = drive(settings)

@@ -1,7 +1,7 @@
 """The `findings` stage: the family of paired comparisons over the offline-safety cells and the avoid results, each
 decided by its exact test and the family's correction (`uqdrive.analysis.comparisons`), written to
-metrics/findings.json. The same over a Gymnasium world's safety sweep (conf/gym_findings.yaml): its cells alone, no
-avoid results and none of the paper's claims (they are about its roundabout)."""
+metrics/findings.json. The same over a Gymnasium world's safety sweep and avoid results (conf/gym_findings.yaml),
+without the paper's claims (they are about its roundabout)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ class FindingsSection:
     margin: OpenUnit  # δ: two methods within ±δ of each other are equivalent (a method-level verdict)
     experiment: Str  # whose controllers drove the cells: offline (the paper's), or a Gymnasium world's experiment
     cells_dir: Str
-    results_dir: Str | None  # the avoid results; None: none (a Gymnasium world's findings)
+    results_dir: Str | None  # the avoid results; None: none
     out: Str
 
 

@@ -32,13 +32,13 @@ from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.executors import PolicySpec, RolloutJob, job_world
 from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
 from uqdrive.safety.safe_sets import safe_set_for
 from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
-from uqdrive.sim import CameraConfig, VehicleConfig, build_geometry
+from uqdrive.sim import build_geometry
 from uqdrive.sim.condition import Condition, WorldChoice
 from uqdrive.sim.config import SimConfig
 from uqdrive.stage import grid, run_cells
@@ -189,26 +189,10 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
 
 
 def world_settings(stage: SafetyStage) -> dict[str, Any]:
-    """The job's car, camera, control rate, horizon and corridor: the pybullet world's from the config; a Gymnasium
-    world's rate and horizon are its own, and it has no car, camera or corridor of ours (defaults, so that no
-    setting the rollouts do not read enters the cell's identity)."""
-    world = stage.gym_world
-    if world is not None:
-        hz = float(world.control_hz)
-        return {
-            "camera": CameraConfig(),
-            "vehicle": VehicleConfig(),
-            "control_hz": hz,
-            "horizon_s": world.horizon_steps / hz,
-        }
+    """The job's car, camera, control rate, horizon (`job_world`) and, in the pybullet world, its corridor."""
     s = stage.safety
-    return {
-        "camera": stage.camera,
-        "vehicle": stage.vehicle,
-        "control_hz": stage.control_hz,
-        "horizon_s": s.horizon_s,
-        "half_width": s.half_width,
-    }
+    world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s)
+    return world if stage.gym_world is not None else {**world, "half_width": s.half_width}
 
 
 def reusable_result(path: str | Path, key: str) -> SafetyCell | None:

@@ -1,5 +1,9 @@
 """One collision-avoidance cell (condition × warnings mode): its rollouts, the warning levels and hand-over places
-read off them, distances along the obstacle road, the traces the threshold calibration replays, a figure panel."""
+read off them, distances along the obstacle road, the traces the threshold calibration replays, a figure panel.
+
+A Gymnasium world (geometry None) has no road of ours and no fixed hazard: progress is metres driven along the run's
+own path, a frame's distance is the metres left before the run ended (where an unsafe run crashed or left the
+road), and no hand-over has a distance to an obstacle."""
 
 from __future__ import annotations
 
@@ -39,9 +43,12 @@ def levels(cell: Cell, result: RolloutResult) -> np.ndarray:
     return cell.rule.levels(result.eta2_counts, result.mi_stages)
 
 
-def progress_along(geometry: ScenarioGeometry, result: RolloutResult) -> tuple[np.ndarray, float]:
-    """Metres along the route at each decision frame, and where the run ended."""
-    s, _ = geometry.route.project(np.stack([result.x, result.y], axis=1))
+def progress_along(geometry: ScenarioGeometry | None, result: RolloutResult) -> tuple[np.ndarray, float]:
+    """Metres along the route (None: along the run's own path) at each decision frame, and where the run ended."""
+    if geometry is None:
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(result.x), np.diff(result.y)))])
+    else:
+        s, _ = geometry.route.project(np.stack([result.x, result.y], axis=1))
     return s[:-1], float(s[-1])
 
 
@@ -50,9 +57,15 @@ def obstacle_progress(geometry: ScenarioGeometry) -> float:
     return float(s[0])
 
 
-def distances(result: RolloutResult, geometry: ScenarioGeometry) -> np.ndarray:
-    """Metres to the obstacle along the road at each decision frame."""
-    return obstacle_progress(geometry) - progress_along(geometry, result)[0]
+def distances(result: RolloutResult, geometry: ScenarioGeometry | None) -> np.ndarray:
+    """Metres to the obstacle along the road at each decision frame (None: to where the run ended)."""
+    s, end = progress_along(geometry, result)
+    return (end if geometry is None else obstacle_progress(geometry)) - s
+
+
+def distance_label(geometry: ScenarioGeometry | None) -> str:
+    """What `distances` measures, for an axis."""
+    return "metres driven before the run ended" if geometry is None else "distance to the obstacle along the road (m)"
 
 
 def handed_over(cell: Cell) -> list[bool]:
@@ -63,9 +76,10 @@ def handed_over(cell: Cell) -> list[bool]:
     return [bool(np.isin(r.warning, handover_levels).any()) for r in cell.results]
 
 
-def handover_distances(cell: Cell, geometry: ScenarioGeometry) -> list[float]:
-    """Distance to the obstacle at the first hand-over frame of each run that handed over (warnings on)."""
-    if cell.mode.warnings_off:
+def handover_distances(cell: Cell, geometry: ScenarioGeometry | None) -> list[float]:
+    """Distance to the obstacle at the first hand-over frame of each run that handed over (warnings on; none in a
+    Gymnasium world: it has no obstacle)."""
+    if cell.mode.warnings_off or geometry is None:
         return []
     handover_levels = [lv for lv, a in zip(LEVELS, cell.rule.config.actions) if a.handover]
     out = []
@@ -76,7 +90,7 @@ def handover_distances(cell: Cell, geometry: ScenarioGeometry) -> list[float]:
     return out
 
 
-def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry], first: int) -> Traces:
+def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry | None], first: int) -> Traces:
     """Rollouts 0 … ``first`` − 1 of the warnings-off ``cells`` as replay input (a number fixed in advance, so
     exact tests on them hold whatever a sequential scheme did next): each frame's recorded η2 counts at the rule's
     looks and MI stages; group g = the g-th cell's condition."""
@@ -88,18 +102,24 @@ def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry], first:
     return Traces.from_runs(runs, cells[0].rule.looks)
 
 
-def obstacle_box(geometry: ScenarioGeometry) -> np.ndarray:
+def obstacle_box(geometry: ScenarioGeometry | None) -> np.ndarray:
+    """x, y, length, width of the obstacle (empty: a Gymnasium world has none of ours to draw)."""
+    if geometry is None:
+        return np.zeros(0)
     ob = geometry.obstacles[0]
     return np.array([ob.x, ob.y, ob.size[0], ob.size[1]])
 
 
-def road_box(geometry: ScenarioGeometry) -> np.ndarray:
-    """x range of the road and its lane edges (y), for drawing the straight obstacle road."""
+def road_box(geometry: ScenarioGeometry | None) -> np.ndarray:
+    """x range of the road and its lane edges (y), for drawing the straight obstacle road (empty: a Gymnasium
+    world's road is the env's)."""
+    if geometry is None:
+        return np.zeros(0)
     cfg = geometry.config
     return np.array([0.0, cfg.road_length, -cfg.lane_width, 0.0, cfg.lane_width * (cfg.num_lanes - 1)])
 
 
-def panel(cell: Cell, geometry: ScenarioGeometry) -> dict:
+def panel(cell: Cell, geometry: ScenarioGeometry | None) -> dict:
     """One figure panel: the cell's paths coloured by mutual information on the road."""
     paths = [
         {"x": r.x[:-1], "y": r.y[:-1], "mi": r.mutual_information, "termination": r.termination} for r in cell.results

@@ -31,7 +31,7 @@ def write_cell_table(path: Path, cell: Cell) -> Path:
     return write_csv(path, rows)
 
 
-def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry) -> Path:
+def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry | None) -> Path:
     """Per-frame traces of a cell (npz) for the summary figure: positions, distance to the obstacle, η2, MI, level."""
     frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
     for i, r in enumerate(cell.results):
@@ -58,7 +58,7 @@ def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry) -> Path:
     return path
 
 
-def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioGeometry]) -> Path:
+def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioGeometry | None]) -> Path:
     """η2 and MI per frame against the distance to the obstacle (a DVC plot)."""
     return write_csv(
         path,

@@ -1,6 +1,12 @@
 """The collision-avoidance experiment's plan: its config (unknown conditions, threshold calibration, the stage's
 whole schema) and the validated settings a run works from (`build_settings`): the known and unknown conditions,
-the warnings-off policy and the rollout job of each cell."""
+the warnings-off policy and the rollout job of each cell.
+
+The world is uqdrive's obstacle road, or any Gymnasium world (``gym_world=<conf/gym_world/ file>``): the known
+condition is the world as configured, each unknown one the world with some of its own config changed
+(``avoid.unknown[i].world``: dotted keys under gym_world, e.g. the other vehicles' driver) or its frames noisier. A
+Gymnasium world has no fixed hazard: a run is judged by its ``safe_if``, distances are metres driven along its own
+path, and its rate and horizon are the world's."""
 
 from __future__ import annotations
 
@@ -13,11 +19,12 @@ from omegaconf import DictConfig
 from pydantic import Field
 
 from uqdrive.models.posterior import posterior_from_config
+from uqdrive.resolvers import world_location
 from uqdrive.safety.calibration import min_calibration_runs
 from uqdrive.safety.cell_records import Mode
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.executors import PolicySpec, RolloutJob, job_world
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig, WarningRule
 from uqdrive.schema import (
@@ -34,8 +41,9 @@ from uqdrive.schema import (
     validate,
 )
 from uqdrive.sim import CameraConfig, ScenarioGeometry, VehicleConfig, build_geometry
-from uqdrive.sim.condition import Condition, Mixture
+from uqdrive.sim.condition import Condition, Mixture, WorldChoice
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.sim.gym_world import GymWorldConfig
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
 from uqdrive.uq.multiplicity import split_gamma
 
@@ -45,12 +53,14 @@ UNKNOWN = "unknown"  # the mixture cell's condition (avoid.unknown_as=mixture)
 
 @schema
 class UnknownCondition:
-    """One unknown condition of the avoid stage: a weather loaded under `weathers`, sensor noise, scenario changes."""
+    """One unknown condition of the avoid stage: a weather loaded under `weathers`, sensor noise, scenario changes;
+    in a Gymnasium world, changes of the world's own config (``world``) and sensor noise."""
 
     name: Str
     weather: Str | None = None  # None: the known weather
     noise: NonNegative = 0.0
     scenario: dict[str, Any] = Field(default_factory=dict)  # fields of the obstacle scenario to change
+    world: dict[str, Any] = Field(default_factory=dict)  # dotted keys under gym_world to change (a gym world's)
 
     def __post_init__(self) -> None:
         if self.name in (KNOWN, UNKNOWN):
@@ -90,7 +100,6 @@ class AvoidSection(EstimatorSettings):
     eps: Positive
     draws: DrawSettings  # fixed (the paper's) or sequential; warnings-off cells record what calibration replays
     validation_seed: Seed
-    known_noise: NonNegative
     family_wise: Bool  # spend γ over this controller's cells (conditions × modes): all of them at once
     unknown: Annotated[tuple[UnknownCondition, ...], Field(min_length=1)]
     unknown_as: Literal["cells", "mixture"]  # a cell per variant, or one whose rollouts draw theirs (avoid_mixture)
@@ -108,11 +117,10 @@ class AvoidSection(EstimatorSettings):
 
 
 @schema(root=True)
-class AvoidStage(SimConfig, ModelStage):
-    """`stages/avoid.py`: collision avoidance with the warning system, one method."""
+class AvoidStage(WorldChoice, SimConfig, ModelStage):
+    """`stages/avoid.py`: collision avoidance with the warning system, one method; the known condition is the
+    stage's world (`WorldChoice`: the obstacle road in the training weather, or a Gymnasium world) at ``noise``."""
 
-    scenario: ScenarioConfig
-    weather: WeatherConfig  # the known condition
     weathers: dict[str, WeatherConfig]  # those `avoid.unknown` may name
     warning: WarningConfig
     executor: ExecutorSettings
@@ -120,6 +128,12 @@ class AvoidStage(SimConfig, ModelStage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.gym_world is not None:
+            self._check_gym_unknown()
+            return
+        for i, condition in enumerate(self.avoid.unknown):
+            if condition.world:
+                raise invalid(f"avoid.unknown[{i}].world", condition.world, "changes a gym_world; name one or drop it")
         if self.scenario.kind != "obstacle":
             raise invalid("scenario.kind", self.scenario.kind, "must be 'obstacle' for the avoid stage")
         if self.avoid.speed > self.vehicle.max_speed:
@@ -134,6 +148,19 @@ class AvoidStage(SimConfig, ModelStage):
                     f"{condition.weather}",
                 )
             validate(ScenarioConfig, {**self.scenario.to_dict(), **condition.scenario}, f"avoid.unknown[{i}].scenario")
+
+    def _check_gym_unknown(self) -> None:
+        """A Gymnasium world's unknown conditions change its own config or noise; a weather or scenario of ours is
+        refused (the env has none), and each changed world is checked here, before any rollout."""
+        for i, condition in enumerate(self.avoid.unknown):
+            for key in ("weather", "scenario"):
+                if getattr(condition, key):
+                    raise invalid(
+                        f"avoid.unknown[{i}].{key}",
+                        getattr(condition, key),
+                        f"is uqdrive's: {self.gym_world.env_id} has no {key} condition (change its config: world)",
+                    )
+            unknown_world(self.gym_world, condition, f"avoid.unknown[{i}].world")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,38 +202,55 @@ class AvoidSettings:
         return RolloutJob(policy, where, base_seed, self.camera, self.vehicle, self.control_hz, self.horizon_s)
 
     def replay_args(self) -> dict[str, float]:
-        """The car and calibration settings the threshold replay needs (`uqdrive.safety.calibration.replay`)."""
+        """The car and calibration settings the threshold replay needs (`uqdrive.safety.calibration.replay`); a
+        Gymnasium world's car is not ours: the replay brakes it within our car's limits, from cruise speed."""
+        scenario = self.known.scenario
+        start = self.spec.speed if isinstance(scenario, GymWorldConfig) else scenario.start_speed
         return {
             "control_hz": self.control_hz,
             "cruise": self.spec.speed,
-            "start_speed": min(self.known.scenario.start_speed, self.vehicle.max_speed),
+            "start_speed": min(start, self.vehicle.max_speed),
             "max_accel": self.vehicle.max_accel,
             "max_brake": self.vehicle.max_brake,
             "margin_m": self.calibration.margin_m,
         }
 
-    def geometries(self) -> dict[str, ScenarioGeometry]:
-        """Road geometry per condition name, for distances along the road."""
+    def geometries(self) -> dict[str, ScenarioGeometry | None]:
+        """Road geometry per condition name, for distances along the road (None: a Gymnasium world, whose road is
+        the env's own; distances are then along each run's path)."""
 
-        def scenario(where: Condition | Mixture) -> ScenarioConfig:  # a mixture's road: the known one's
-            return where.scenario if isinstance(where, Condition) else self.known.scenario
+        def geometry(where: Condition | Mixture) -> ScenarioGeometry | None:  # a mixture's road: the known one's
+            scenario = where.scenario if isinstance(where, Condition) else self.known.scenario
+            return None if isinstance(scenario, GymWorldConfig) else build_geometry(scenario)
 
-        return {c.name: build_geometry(scenario(c)) for c in self.conditions}
+        return {c.name: geometry(c) for c in self.conditions}
+
+
+def unknown_world(world: GymWorldConfig, item: UnknownCondition, key: str) -> GymWorldConfig:
+    """A Gymnasium world's unknown condition: the world with the condition's changes, as its own location."""
+    return world.changed(item.world, world_location(world.name, item.name), key)
 
 
 def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...] | tuple[Mixture]:
-    """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather;
-    with ``unknown_as: mixture``, one mixture whose rollouts draw among them (roads and obstacle places alike)."""
-    weathers = {stage.weather.name: stage.weather, **stage.weathers}
-    each = tuple(
-        Condition(
-            ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
-            weathers[item.weather or stage.weather.name],
-            item.noise,
-            item.name,
+    """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather (a
+    Gymnasium world: the world with the condition's changes); with ``unknown_as: mixture``, one mixture whose
+    rollouts draw among them (roads and obstacle places alike)."""
+    if stage.gym_world is not None:
+        each = tuple(
+            Condition(unknown_world(stage.gym_world, item, "avoid.unknown.world"), None, item.noise, item.name)
+            for item in stage.avoid.unknown
         )
-        for item in stage.avoid.unknown
-    )
+    else:
+        weathers = {stage.weather.name: stage.weather, **stage.weathers}
+        each = tuple(
+            Condition(
+                ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
+                weathers[item.weather or stage.weather.name],
+                item.noise,
+                item.name,
+            )
+            for item in stage.avoid.unknown
+        )
     return each if stage.avoid.unknown_as == "cells" else (Mixture(UNKNOWN, each),)
 
 
@@ -243,7 +287,13 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         avoid.estimator, gamma=split_gamma(avoid.gamma, family_size), base_seed=stage.rollout_seeds(avoid.base_seed)
     )
     method = posterior_from_config(stage.model).method
-    horizon = check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
+    world = stage.gym_world
+    horizon = (
+        avoid.horizon_s
+        if world
+        else check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
+    )
+    car = job_world(world, stage.camera, stage.vehicle, float(stage.control_hz), horizon)
     calibration = avoid.calibration
     needed = min_calibration_runs(calibration.autonomy_target, calibration.gamma, calibration.calibration_fraction)
     fixed = max(estimator.fixed_rollouts(), avoid.min_rollouts)
@@ -257,7 +307,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
-    trained_by = training_stage(stage.experiment.name, method)
+    trained_by = training_stage(stage.experiment.name, method, world is not None)
     cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
     rule = WarningRule(warning, avoid.draws)  # refused here, before any rollout, if its tier rule errs above γ
     spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)
@@ -270,13 +320,13 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         rule,
         estimator,
         stage.rollout_seeds(avoid.validation_seed),
-        Condition(stage.scenario, stage.weather, avoid.known_noise, KNOWN),
+        stage.condition(KNOWN),
         _unknown_conditions(stage),
         calibration,
-        stage.camera,
-        stage.vehicle,
-        float(stage.control_hz),
-        horizon,
+        car["camera"],
+        car["vehicle"],
+        car["control_hz"],
+        car["horizon_s"],
         stage.executor,
         stage.progress,
         family_size,

@@ -110,6 +110,23 @@ class RolloutJob:
         return self.where.condition(index, self.base_seed + index)
 
 
+def job_world(
+    world: GymWorldConfig | None, camera: CameraConfig, vehicle: VehicleConfig, control_hz: float, horizon_s: float
+) -> dict[str, Any]:
+    """A `RolloutJob`'s car, camera, control rate and horizon: the pybullet world's as given; a Gymnasium world's
+    rate and horizon are its own (``horizon_steps``), and it has no car or camera of ours (defaults, so that no
+    setting its rollouts do not read enters a cell's identity)."""
+    if world is not None:
+        hz = float(world.control_hz)
+        return {
+            "camera": CameraConfig(),
+            "vehicle": VehicleConfig(),
+            "control_hz": hz,
+            "horizon_s": world.horizon_steps / hz,
+        }
+    return {"camera": camera, "vehicle": vehicle, "control_hz": control_hz, "horizon_s": horizon_s}
+
+
 @dataclasses.dataclass(frozen=True)
 class LockstepJob:
     """What a worker pool runs: chunks of ``job``'s rollout indices, ``width`` rollouts at a time."""

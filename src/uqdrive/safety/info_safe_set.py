@@ -2,9 +2,9 @@
 
 A path is safe when every recorded step (the reset's included) has each ``safe_if`` key at its required value
 (e.g. HighwayEnv: ``crashed: false, on_road: true``) and the episode did not end in a collision or off the road.
-There is no goal beyond staying safe for the horizon, so ``reached_goal`` is always True (a run that ends
-early has failed the predicate or been handed over), and no corridor: ``left_corridor`` says the predicate failed
-at some step, ``corridor_use`` is NaN.
+There is no goal beyond staying safe to the horizon, so ``reached_goal`` says the run was safe and drove to its end
+(the horizon, or the env ended it otherwise), not stopped by a hand-over; there is no corridor: ``left_corridor``
+says the predicate failed at some step, ``corridor_use`` is NaN.
 """
 
 from __future__ import annotations
@@ -40,7 +40,9 @@ class InfoSafeSet:
         held = all(bool(info[key]) == value for info in infos for key, value in self.safe_if.items())
         collision = termination == "collision" or any(info["collision"] for info in infos)
         off_road = termination == "off_road" or any(info["off_road"] for info in infos)
-        return PathVerdict(held and not (collision or off_road), collision, off_road, not held, True, math.nan)
+        safe = held and not (collision or off_road)
+        reached = safe and termination in ("timeout", "terminated")
+        return PathVerdict(safe, collision, off_road, not held, reached, math.nan)
 
     def boundaries(self) -> None:
         """No corridor to draw."""

@@ -33,7 +33,7 @@ import numpy as np
 from pydantic import Field, Strict
 
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
-from uqdrive.schema import Bool, ConfigError, Count, Positive, Str, schema
+from uqdrive.schema import Bool, ConfigError, Count, Positive, Str, schema, validate
 
 from .camera import add_noise
 from .config import Section, check_noise
@@ -64,6 +64,20 @@ class GymWorldConfig(Section):
     safe_if: dict[str, Bool] = Field(default_factory=lambda: {"collision": False, "off_road": False})
     horizon_steps: Count = 600
     control_hz: Positive = 15.0
+
+    def changed(self, changes: Mapping[str, Any], name: str, key: str = "world") -> GymWorldConfig:
+        """This world with each dotted key of ``changes`` set (e.g. ``env_kwargs.config.other_vehicles_type``), as
+        the location ``name``: one of the env's own conditions. ``key``: where ``changes`` came from, for errors."""
+        data = self.to_dict()
+        for dotted, value in changes.items():
+            *parents, last = dotted.split(".")
+            node = data
+            for part in parents:
+                node = node.setdefault(part, {})
+                if not isinstance(node, dict):
+                    raise ConfigError(f"{key}.{dotted}={value!r}: gym_world.{part} is not a mapping")
+            node[last] = value
+        return validate(GymWorldConfig, {**data, "name": name}, key)
 
 
 class WorldHooks(Protocol):
