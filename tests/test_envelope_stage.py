@@ -115,7 +115,7 @@ def test_any_numbers_of_the_world_are_axes(envelope_config):
         ),
         (
             "envelope.axes=[{key:weather.shadow,range:[0,1]},{key:noise,range:[0,0.2]}]",
-            "envelope.axes[0].key='weather.shadow' must be noise, weather.blend or a number of scenario or weather",
+            "envelope.axes[0].key='weather.shadow' must be noise, weather.blend, a number of scenario or weather",
         ),
         (
             "envelope.axes=[{key:scenario.ring_radius,range:[2,24]},{key:noise,range:[0,0.2]}]",

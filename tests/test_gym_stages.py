@@ -191,15 +191,48 @@ def test_collect_refuses_a_world_whose_hooks_know_no_expert_before_any_work(stag
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize(("stage", "run"), [("envelope", run_envelope)])
-def test_the_stages_built_for_the_pybullet_world_refuse_a_gym_world_in_one_line(stage_config, tmp_path, stage, run):
+RATE_AXES = "envelope.axes=[{key:noise,range:[0,0.1]},{key:gym_world.env_kwargs.rate,range:[0,1]}]"
+
+
+@pytest.mark.slow
+def test_the_envelope_maps_a_gym_world_over_a_number_of_its_config_and_each_verdict_holds_for_its_region(
+    stage_config, random_models, tmp_path
+):
+    """The coin env's crash rate as an axis: a region's η1 averaged over it is 1 − its mean rate, whatever the
+    network (every run ends at the coin), so each verdict is checked against the truth."""
+    model = f"envelope.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    budgets = ("envelope.threshold=0.5", "envelope.certify_budget=null", "++gym_world.env_kwargs.rate=0.5")
+    cfg = stage_config("envelope", model, *ALL_TENTHS, *COIN, RATE_AXES, *budgets, "executor.workers=1")
+    result = run_envelope(cfg).result
+    assert [a.key for a in result.axes] == ["noise", "gym_world.env_kwargs.rate"]
+    decided = [r for r in result.regions if r.verdict != "undecided"]
+    assert {"safe", "unsafe"} <= {r.verdict for r in decided}, [r.verdict for r in result.regions]
+    for region in decided:
+        low, high = region.bounds["gym_world.env_kwargs.rate"]
+        assert (region.verdict == "safe") == (1 - (low + high) / 2 >= 0.5), region
+    assert (tmp_path / "plots/envelope/mcd-seed0/map.png").stat().st_size > 5000
+
+
+@pytest.mark.parametrize(
+    ("axes", "message"),
+    [
+        ("[{key:noise,range:[0,0.1]},{key:weather.fog_density,range:[0,1]}]", "envelope.axes: weather.fog_density is"),
+        ("[{key:noise,range:[0,0.1]},{key:gym_world.env_id,range:[0,1]}]", "envelope.axes: gym_world.env_id="),
+    ],
+)
+def test_an_envelope_axis_the_gym_world_lacks_is_refused_in_one_line(
+    stage_config, random_models, tmp_path, axes, message
+):
+    model = f"envelope.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
     with pytest.raises(ConfigError) as err:
-        run(stage_config(stage, "+gym_world=uqdrive_roundabout"))
-    assert str(err.value) == (
-        f"gym_world=uqdrive_roundabout: the {stage} stage drives uqdrive's pybullet world only; "
-        "a Gymnasium world runs in the safety stage (python stages/safety.py gym_world=…)"
-    )
-    assert list(tmp_path.iterdir()) == []
+        run_envelope(stage_config("envelope", model, *ALL_TENTHS, *COIN, f"envelope.axes={axes}"))
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+def test_an_envelope_axis_over_a_gym_world_without_one_is_refused_in_one_line(stage_config, random_models):
+    model = f"envelope.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    with pytest.raises(ConfigError, match=r"^envelope.axes: gym_world.env_kwargs.rate varies a gym_world; name one"):
+        run_envelope(stage_config("envelope", model, *ALL_TENTHS, RATE_AXES))
 
 
 RISKY = "avoid.unknown=[{name:risky,world:{env_kwargs:{rate:0.7}}}]"  # the coin env with another crash rate

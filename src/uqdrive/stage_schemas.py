@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.schema import Bool, ConfigError, Count, MethodName, NonNegative, Seed, Str, schema
+from uqdrive.schema import Bool, Count, MethodName, NonNegative, Seed, Str, schema
 
 Names = tuple[Str, ...]
 MethodNames = tuple[MethodName, ...]  # conf/model/<name>.yaml
@@ -40,18 +40,6 @@ def training_stage(experiment: str, method: str, gym: bool = False) -> str:
     Gymnasium world's experiment trains in dvc.yaml's gym_ stages."""
     stage = f"train_mcd@{experiment}" if method == "mcd" else f"train@{experiment}-{method}"
     return f"gym_{stage}" if gym else stage
-
-
-def refuse_gym_world(cfg: Any, stage: str) -> None:
-    """One line for ``+gym_world=…`` on a stage built for uqdrive's pybullet world only (warnings and envelopes
-    on a Gymnasium world are not built): refused before anything resolves, not ignored."""
-    world = cfg.get("gym_world") if hasattr(cfg, "get") else None
-    if world is not None:
-        name = world.get("name", "?") if hasattr(world, "get") else world
-        raise ConfigError(
-            f"gym_world={name}: the {stage} stage drives uqdrive's pybullet world only; "
-            "a Gymnasium world runs in the safety stage (python stages/safety.py gym_world=…)"
-        )
 
 
 @schema

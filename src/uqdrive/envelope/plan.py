@@ -1,5 +1,6 @@
 """An operating envelope's plan (conf/envelope.yaml): its schema, and the validated stage it runs — the condition
-space, the controller, the rollout jobs that drive it — checked before any rollout."""
+space, the controller, the rollout jobs that drive it — checked before any rollout. The world is uqdrive's or a
+Gymnasium world (``gym_world=…``: its axes are noise and numbers of its own config, `uqdrive.envelope.space`)."""
 
 from __future__ import annotations
 
@@ -18,11 +19,11 @@ from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, Con
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.safety.cells import cell_posterior
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob
-from uqdrive.schema import ConfigError, Count, NonNegative, Positive, Seed, Str, invalid, schema, validate
-from uqdrive.sim.condition import Condition
-from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, refuse_gym_world, training_stage
+from uqdrive.safety.executors import PolicySpec, RolloutJob, job_world
+from uqdrive.schema import ConfigError, Count, Positive, Seed, Str, invalid, schema, validate
+from uqdrive.sim.condition import WorldChoice
+from uqdrive.sim.config import SimConfig, WeatherConfig
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
 from uqdrive.uq.multiplicity import split_gamma
 
 Axes = Annotated[tuple[AxisSettings, ...], Field(min_length=2, max_length=3)]
@@ -51,19 +52,20 @@ class EnvelopeSection(CertifySettings):
 
 
 @schema(root=True)
-class EnvelopeStage(SimConfig, ModelStage):
-    """`stages/envelope.py`: the certified map of one controller (``model``) over ``envelope.axes``."""
+class EnvelopeStage(WorldChoice, SimConfig, ModelStage):
+    """`stages/envelope.py`: the certified map of one controller (``model``) over ``envelope.axes``, around the
+    stage's world (`WorldChoice`: its scenario, weather and noise, unless an axis varies them; or a Gymnasium world,
+    whose rate and horizon are its own)."""
 
-    scenario: ScenarioConfig
-    weather: WeatherConfig  # the weather of every condition, unless an axis is weather.blend
     weathers: dict[str, WeatherConfig]  # those envelope.blend may name
-    noise: NonNegative  # the sensor noise of every condition, unless an axis is noise
     executor: ExecutorSettings
     envelope: EnvelopeSection
 
     def __post_init__(self) -> None:
         super().__post_init__()
         env = self.envelope
+        if self.gym_world is not None:
+            return  # its axes are checked against the world (`ConditionSpace`)
         if env.speed > self.vehicle.max_speed:
             raise invalid("envelope.speed", env.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         if any(a.key == BLEND for a in env.axes):
@@ -100,38 +102,30 @@ class Envelope:
 
     def job(self, source: Listed | UniformIn, base_seed: int) -> RolloutJob:
         s = self.stage
-        return RolloutJob(
-            policy=self.policy,
-            where=source,
-            base_seed=base_seed,
-            camera=s.camera,
-            vehicle=s.vehicle,
-            control_hz=s.control_hz,
-            horizon_s=s.envelope.horizon_s,
-            half_width=s.envelope.half_width,
-        )
+        world = job_world(s.gym_world, s.camera, s.vehicle, s.control_hz, s.envelope.horizon_s)
+        half_width = None if s.gym_world is not None else s.envelope.half_width
+        return RolloutJob(policy=self.policy, where=source, base_seed=base_seed, half_width=half_width, **world)
 
 
 def build_envelope(cfg: DictConfig) -> Envelope:
     """Validate the stage's config, every condition of a lattice over the axes and the model file, before any
     rollout (a bad value is one line naming its key)."""
-    refuse_gym_world(cfg, "envelope")
     stage = validate(EnvelopeStage, cfg)
     env = stage.envelope
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
-    trained_by = training_stage(stage.experiment.name, method)
+    trained_by = training_stage(stage.experiment.name, method, stage.gym_world is not None)
     cell_posterior("envelope.model_path", Path(env.model_path), method, bins, trained_by)
-    axes = tuple(Axis.of(a) for a in env.axes)
+    base = stage.condition()
     blend = None
-    if any(a.key == BLEND for a in axes):
+    if any(a.key == BLEND for a in env.axes) and stage.gym_world is None:
         blend = (stage.weathers[env.blend.start], stage.weathers[env.blend.to])
     try:
-        space = ConditionSpace(axes, Condition(stage.scenario, stage.weather, stage.noise), blend)
+        space = ConditionSpace(tuple(Axis.of(a, base) for a in env.axes), base, blend)
     except ValueError as err:
         raise ConfigError(str(err)) from None
     space.check()
-    _check_budget(env, len(axes))
+    _check_budget(env, space.dim)
     policy = PolicySpec("bnn", env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
     return Envelope(stage, method, space, policy)
 

@@ -2,8 +2,10 @@
 
 An axis is ``noise`` (the sensor noise σ), ``weather.blend`` (the fraction t of the way between two weathers,
 `uqdrive.sim.config.blend_weather`), or a number of the location or the weather (``scenario.ring_radius``,
-``weather.fog_density``). Search and certification work in the unit cube [0, 1]^d; `ConditionSpace` maps a
-point of it to the world a rollout drives in, checked by the same schemas as any cell's world.
+``weather.fog_density``); in a Gymnasium world, ``noise`` or a number of the world's own config
+(``gym_world.<dotted key>``, e.g. ``gym_world.env_kwargs.config.observation.scaling``, the zoom of HighwayEnv's
+view). Search and certification work in the unit cube [0, 1]^d; `ConditionSpace` maps a point of it to the world a
+rollout drives in, checked by the same schemas as any cell's world.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from uqdrive.sim.config import ScenarioConfig, WeatherConfig, blend_weather, che
 
 NOISE = "noise"
 BLEND = "weather.blend"
+GYM = "gym_world."  # the prefix of an axis over a number of a Gymnasium world's config
 _SECTIONS = {"scenario": ScenarioConfig, "weather": WeatherConfig}
 CHECK_POINTS = 5  # per axis: the lattice of conditions checked before any rollout (both ends included)
 
@@ -45,11 +48,12 @@ class AxisSettings:
     range: tuple[Float, Float]
 
     def __post_init__(self) -> None:
-        if self.key not in AXIS_KEYS:
+        if self.key not in AXIS_KEYS and not self.key.startswith(GYM):
             raise invalid(
                 "key",
                 self.key,
-                "must be noise, weather.blend or a number of scenario or weather (e.g. scenario.ring_radius)",
+                "must be noise, weather.blend, a number of scenario or weather (e.g. scenario.ring_radius) or of "
+                "a gym_world (gym_world.<key>)",
             )
         if not self.range[0] < self.range[1]:
             raise invalid("range", list(self.range), "must be [low, high] with low < high")
@@ -75,12 +79,30 @@ class Axis:
     integer: bool = False
 
     @classmethod
-    def of(cls, settings: AxisSettings) -> Axis:
-        return cls(settings.key, settings.range[0], settings.range[1], _NUMBERS.get(settings.key, False))
+    def of(cls, settings: AxisSettings, base: Condition | None = None) -> Axis:
+        """The axis of ``settings`` over the ``base`` world (a Gymnasium world's number: whole if it is there)."""
+        integer = _NUMBERS.get(settings.key, False)
+        if base is not None and settings.key.startswith(GYM):
+            integer = type(gym_number(base, settings.key)) is int
+        return cls(settings.key, settings.range[0], settings.range[1], integer)
 
     def value(self, unit: float) -> float | int:
         v = self.low + unit * (self.high - self.low)
         return round(v) if self.integer else float(v)
+
+
+def gym_number(base: Condition, key: str) -> float | int:
+    """The number an axis ``gym_world.<dotted key>`` varies, as ``base``'s Gymnasium world has it; one line where
+    the world is ours, or the key is not a number of it."""
+    world = base.gym_world
+    if world is None:
+        raise ConfigError(f"envelope.axes: {key} varies a gym_world; name one (conf/gym_world/) or drop the axis")
+    value: object = world.to_dict()
+    for part in key.removeprefix(GYM).split("."):
+        value = value.get(part) if isinstance(value, dict) else None
+    if type(value) not in (int, float):
+        raise ConfigError(f"envelope.axes: {key}={value!r} is not a number of gym_world {world.name!r}")
+    return value  # type: ignore[return-value]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,6 +118,15 @@ class ConditionSpace:
         keys = [a.key for a in self.axes]
         if len(set(keys)) != len(keys):
             raise ConfigError(f"envelope.axes: each key at most once, got {keys}")
+        for key in keys:
+            if key.startswith(GYM):
+                gym_number(self.base, key)
+        ours = [k for k in keys if k != NOISE and not k.startswith(GYM)]
+        if self.base.gym_world is not None and ours:
+            raise ConfigError(
+                f"envelope.axes: {ours[0]} is uqdrive's world; {self.base.gym_world.env_id} is the world: "
+                "vary noise or a number of gym_world (gym_world.<key>)"
+            )
         if (BLEND in keys) != (self.blend is not None):
             raise ValueError("a weather.blend axis needs the two weathers it blends, and only it")
 
@@ -116,6 +147,11 @@ class ConditionSpace:
     def condition(self, unit: Sequence[float]) -> Condition:
         """The condition at a point of the unit cube, each part checked by its schema (`ConfigError` if invalid)."""
         values = self.values(unit)
+        noise = check_noise(values[NOISE]) if NOISE in values else self.base.noise
+        world = self.base.gym_world
+        if world is not None:
+            changes = {k.removeprefix(GYM): v for k, v in values.items() if k.startswith(GYM)}
+            return Condition(world.changed(changes, world.name, "envelope.axes"), None, noise)
         weather = self.base.weather
         if self.blend is not None:
             weather = blend_weather(*self.blend, float(values[BLEND]))
@@ -129,7 +165,6 @@ class ConditionSpace:
             scenario = ScenarioConfig.from_config({**scenario.to_dict(), **changes["scenario"]})
         if changes["weather"]:
             weather = WeatherConfig.from_config({**weather.to_dict(), **changes["weather"]})
-        noise = check_noise(values[NOISE]) if NOISE in values else self.base.noise
         return Condition(scenario, weather, noise)
 
     def check(self) -> None:
