@@ -6,7 +6,9 @@ at every stage of its π(o) draws, to the cap: the streams a warning controller 
 `refined_mutual_information`), so its warning levels, and whether and where it first acts, are exactly the
 controller's until its first action changes a command.
 Past a slow-down the replay keeps the recorded path and replays the speed only: in closed loop the path departs
-from the recorded one, which is why calibrated rules are checked in closed loop on fresh seeds.
+from the recorded one, which is why calibrated rules are checked in closed loop on fresh seeds. In a Gymnasium
+world the car is the env's: speeds and stopping distances are replayed with uqdrive's car's limits as a model of
+it, which only the replayed safety (the choice among certified candidates) reads, never the certified autonomy.
 """
 
 from __future__ import annotations
