@@ -173,6 +173,23 @@ def test_highway_roundabout_runs_a_tiny_safety_cell_end_to_end_through_the_stage
     assert again.reused and again.cell.outcomes == cell.outcomes
 
 
+@pytest.mark.slow
+def test_highway_roundabouts_warning_system_runs_end_to_end_with_aggressive_drivers_as_the_unknown(
+    stage_config, random_models, tmp_path
+):
+    pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")  # gym_axis: IDM as collected, then aggressive
+    model = f"avoid.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    world = ("gym_world=highway_roundabout", "gym_world.horizon_steps=15")
+    result = run_avoid(stage_config("gym_avoid", model, *ALL_TENTHS, *world))
+    assert result.conditions == ["known", "aggressive"] and result.horizon_s == 1.0
+    for condition in result.conditions:
+        for mode in Mode:
+            cell = result.cells[condition][mode]
+            assert sum(cell.terminations.values()) == len(cell.outcomes) >= 4 and cell.handover_distance_min is None
+    assert (tmp_path / "metrics/avoid/avoid/mcd-seed0.json").exists()  # under the experiment's own folder
+
+
 def test_collect_records_the_worlds_own_expert_in_grey_network_frames(stage_config, tmp_path):
     pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
     cfg = stage_config("collect", "gym_world=highway_roundabout", "gym_world.horizon_steps=10", "collect.workers=1")
