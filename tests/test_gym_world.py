@@ -13,7 +13,7 @@ from gymnasium import spaces
 from uqdrive.network_input import preprocess_frame
 from uqdrive.safety.controller import Command, ConstantPolicy
 from uqdrive.safety.info_safe_set import InfoSafeSet
-from uqdrive.safety.rollout import run_rollouts
+from uqdrive.safety.rollout import run_rollouts, stopped_speed
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig
 from uqdrive.sim.condition import Condition
@@ -230,3 +230,18 @@ def _same(a, b) -> bool:
     """Identical outcomes and paths (NaN fields compare equal)."""
     summaries = json.dumps([r.summary() for r in a], default=str) == json.dumps([r.summary() for r in b], default=str)
     return summaries and all(np.array_equal(x.x, y.x) and np.array_equal(x.y, y.y) for x, y in zip(a, b))
+
+
+def test_a_highway_car_braking_for_a_hand_over_stops_well_within_the_worlds_horizon() -> None:
+    """HighwayEnv's car tracks a speed of 0 asymptotically (8 m/s × (14/15)^step): it must count as stopped at
+    the world's stopped_speed long before the configured horizon, or no hand-over there would ever end."""
+    pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
+    config = GymWorldConfig.from_yaml(find_conf() / "gym_world" / "highway_roundabout.yaml")
+    with GymWorld(config) as world:
+        world.reset(0, render=False)
+        steps = 0
+        while world.last_info["speed"] > config.stopped_speed and not world.done:
+            world.step(0.0, 0.0)
+            steps += 1
+    assert world.last_info["speed"] <= config.stopped_speed and steps <= config.horizon_steps / 2, steps
+    assert stopped_speed(world) == config.stopped_speed == 0.1

@@ -25,6 +25,12 @@ World = DrivingEnv | GymWorld  # a Gymnasium world drives as the pybullet one (`
 STOPPED_SPEED = 1e-6  # m/s: the car tracks a speed command of 0 exactly, so this means stopped
 
 
+def stopped_speed(env: World) -> float:
+    """The speed at or below which a car braking for a hand-over has stopped: ours tracks 0 exactly; a Gymnasium
+    world's car says its own (``GymWorldConfig.stopped_speed``)."""
+    return env.config.stopped_speed if isinstance(env, GymWorld) else STOPPED_SPEED
+
+
 def _empty() -> np.ndarray:
     return np.zeros(0)
 
@@ -140,7 +146,9 @@ def run_rollouts(
             episode.commands.append(command)
             episode.obs, episode.info = episode.env.step(command.steer, command.speed)
             episode.termination = episode.info["termination"]
-            stopped = not episode.termination and command.handover and episode.info["speed"] <= STOPPED_SPEED
+            stopped = (
+                not episode.termination and command.handover and episode.info["speed"] <= stopped_speed(episode.env)
+            )
             if stopped:
                 episode.termination = HANDOVER
             if stopped or episode.env.done:

@@ -33,7 +33,7 @@ import numpy as np
 from pydantic import Field, Strict
 
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
-from uqdrive.schema import Bool, ConfigError, Count, Positive, Str, schema, validate
+from uqdrive.schema import Bool, ConfigError, Count, NonNegative, Positive, Str, schema, validate
 
 from .camera import add_noise
 from .config import Section, check_noise
@@ -52,6 +52,8 @@ class GymWorldConfig(Section):
     ``safe_if``: info key → the value it must have at every step for the path to be safe (`InfoSafeSet`).
     ``horizon_steps``: the episode ends by timeout after this many steps (T = horizon_steps / control_hz),
     or earlier if the env truncates it. ``control_hz``: decisions per simulated second (the info's ``t``).
+    ``stopped_speed``: m/s at or below which a car braking for a hand-over has stopped (an env's car may approach 0
+    only asymptotically: HighwayEnv's, tracking a speed of 0, takes longer than its 15 s episode to reach 1e-6).
     """
 
     section: ClassVar[str] = "gym_world"
@@ -64,6 +66,7 @@ class GymWorldConfig(Section):
     safe_if: dict[str, Bool] = Field(default_factory=lambda: {"collision": False, "off_road": False})
     horizon_steps: Count = 600
     control_hz: Positive = 15.0
+    stopped_speed: NonNegative = 0.1
 
     def changed(self, changes: Mapping[str, Any], name: str, key: str = "world") -> GymWorldConfig:
         """This world with each dotted key of ``changes`` set (e.g. ``env_kwargs.config.other_vehicles_type``), as
