@@ -28,6 +28,10 @@ from uqdrive.models.checkpoint import save_posterior
             ["gym_step", "--world", "uqdrive", "--steps", "30", "--repeats", "1"],
             r"RESULT gym_step adapter_over_env=[\d.]+",
         ),
+        (  # HighwayEnv's roundabout through the adapter, as the rollout bench names it
+            ["rollout", "--env", "highway", "--steps", "30", "--repeats", "1"],
+            r"RESULT gym_step adapter_over_env=[\d.]+",
+        ),
         (
             "train --replicates 2 --train-frames 32 --val-frames 16 --methods mcd vi --steps 1 --repeats 1 "
             "--override train.mcd.epochs=1 --override arch.conv=[4,4,4,4,4]".split(),

@@ -15,6 +15,8 @@ with the chosen draws and with the paper's fixed draws (another seed of the fixe
 disagree where the posterior is split).
 Targets: overhead <= 1.3, speedup2 >= 1.7, agreement >= 0.99. ``env_speedup`` (the env-only ratio of the two
 cameras) is what rendering alone gains; render_speedup is that gain diluted by the controller's per-step cost.
+``--env highway``: HighwayEnv's roundabout instead, a closed-loop step through the Gymnasium adapter against the
+env's own step (`uqdrive.bench.gym_step_bench`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from pathlib import Path
 import torch
 import yaml
 
+from uqdrive.bench import gym_step_bench
 from uqdrive.bench.posterior_bench import random_posteriors
 from uqdrive.models.checkpoint import load_posterior, save_posterior
 from uqdrive.parallel import ProcessPool
@@ -194,6 +197,13 @@ def parse(argv: list[str]) -> argparse.Namespace:
     )
     ap.add_argument("--frames", type=int, default=40, help="recorded frames per weather x noise for the agreement")
     ap.add_argument("--weather", default="clear_noon")
+    ap.add_argument(
+        "--env",
+        choices=("pybullet", "highway"),
+        default="pybullet",
+        help="highway: HighwayEnv's roundabout, a closed-loop step through the Gymnasium adapter against the env's "
+        "own step (`uqdrive bench gym_step --world highway`, with --steps and --repeats)",
+    )
     args = ap.parse_args(argv)
     if args.chunks < 4:
         ap.error(f"--chunks={args.chunks} must be >= 4: 2 workers time only the chunks after their first one")
@@ -247,6 +257,8 @@ def report_cameras(args: argparse.Namespace, cameras: dict, timings: dict, heade
 
 def main(argv: list[str]) -> int:
     args = parse(argv)
+    if args.env == "highway":
+        return gym_step_bench.main(["--world", "highway", "--steps", str(args.steps), "--repeats", str(args.repeats)])
     torch.set_num_threads(1)
     experiment = yaml.safe_load((CONF / "experiment" / f"{args.experiment}.yaml").read_text())
     scenario = ScenarioConfig.from_yaml(CONF / "scenario" / f"{experiment['scenarios'][0]}.yaml")
