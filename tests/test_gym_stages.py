@@ -34,6 +34,7 @@ COIN = (
     "gym_world.name=coin",
     "gym_world.horizon_steps=12",
 )
+COIN_RATE = f"++gym_world.env_kwargs.rate={CRASH_RATE}"  # the known world sets the key its conditions change
 
 
 @pytest.fixture
@@ -133,7 +134,7 @@ def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and
     ]
     for method in ("mcd", "vi"):  # the warning system in the same world, its unknown condition the wild coin
         avoid = ("experiment.name=coin", f"model={method}", "avoid.unknown=[{name:wild,world:{env_kwargs:{rate:0.9}}}]")
-        run_avoid(stage_config("gym_avoid", *ALL_TENTHS, *COIN, *avoid, model.replace("safety.", "avoid.")))
+        run_avoid(stage_config("gym_avoid", *ALL_TENTHS, *COIN, COIN_RATE, *avoid, model.replace("safety.", "avoid.")))
     assert (tmp_path / "metrics/coin/avoid/vi-seed0.json").exists()
 
     assert stage_config("gym_findings").locations == ["highway_roundabout-idm", "highway_roundabout-aggressive"]
@@ -144,7 +145,7 @@ def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and
     assert names[:4] == ["mcd vs vi at coin-calm-env-noise0.0", "mcd vs vi at coin-wild-env-noise0.0"] + [
         f"{m}: coin-wild-env-noise0.0 vs the training condition" for m in ("mcd", "vi")
     ]
-    assert any("wild" in name and "warnings" in name for name in names[4:]), names
+    assert {f"{m}: on vs off at {c}" for m in ("mcd", "vi") for c in ("known", "wild")} <= set(names), names
     assert {f.experiment for f in findings.findings} == {"coin"} and {c.family for c in findings.claims} == {
         "exploratory"
     }
@@ -181,12 +182,13 @@ def test_highway_roundabouts_warning_system_runs_end_to_end_with_aggressive_driv
     shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")  # gym_axis: IDM as collected, then aggressive
     model = f"avoid.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
     world = ("gym_world=highway_roundabout", "gym_world.horizon_steps=15")
-    result = run_avoid(stage_config("gym_avoid", model, *ALL_TENTHS, *world))
+    cfg = stage_config("gym_avoid", model, *ALL_TENTHS, *world)
+    known, (aggressive,) = build_settings(cfg).known, build_settings(cfg).unknown
+    drivers = [c.scenario.env_kwargs["config"]["other_vehicles_type"].rpartition(".")[2] for c in (known, aggressive)]
+    assert drivers == ["IDMVehicle", "AggressiveVehicle"] and aggressive.location == "highway_roundabout-aggressive"
+    result = run_avoid(cfg)
     assert result.conditions == ["known", "aggressive"] and result.horizon_s == 1.0
-    for condition in result.conditions:
-        for mode in Mode:
-            cell = result.cells[condition][mode]
-            assert sum(cell.terminations.values()) == len(cell.outcomes) >= 4 and cell.handover_distance_min is None
+    assert {len(result.cells[c][m].outcomes) for c in result.conditions for m in Mode} == {4}  # every cell ran
     assert (tmp_path / "metrics/avoid/avoid/mcd-seed0.json").exists()  # under the experiment's own folder
 
 
@@ -230,11 +232,32 @@ def test_the_envelope_maps_a_gym_world_over_a_number_of_its_config_and_each_verd
     assert (tmp_path / "plots/envelope/mcd-seed0/map.png").stat().st_size > 5000
 
 
+def test_an_envelope_cell_in_a_gym_world_holds_the_worlds_identity_and_code(stage_config, random_models, monkeypatch):
+    from uqdrive.envelope.plan import build_envelope
+
+    model = f"envelope.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    envelope = build_envelope(stage_config("envelope", model, *ALL_TENTHS, *COIN, COIN_RATE, RATE_AXES))
+    job = envelope.job(envelope.uniform_in((0.0, 0.0), (1.0, 1.0)), 0)
+    where = runner.job_identity(job)["where"]
+    assert set(where["gym_world"]["packages"]) >= {"gymnasium"} and where["gym_world"]["config"]["name"] == "coin"
+    digested = []
+    monkeypatch.setattr(runner, "code_digest", lambda modules: digested.append(modules) or "x")
+    runner.cell_key(job, {}, None, __name__)
+    assert "uqdrive.sim.gym_world" in digested[-1]  # the modules the world loads by name
+
+
 @pytest.mark.parametrize(
     ("axes", "message"),
     [
         ("[{key:noise,range:[0,0.1]},{key:weather.fog_density,range:[0,1]}]", "envelope.axes: weather.fog_density is"),
-        ("[{key:noise,range:[0,0.1]},{key:gym_world.env_id,range:[0,1]}]", "envelope.axes: gym_world.env_id="),
+        (
+            "[{key:noise,range:[0,0.1]},{key:gym_world.horizon_steps,range:[10,20]}]",
+            f"envelope.axes: gym_world.horizon_steps: a condition of {COIN_ID} is a key of its env_kwargs",
+        ),
+        (
+            "[{key:noise,range:[0,0.1]},{key:gym_world.env_kwargs.rat,range:[0,1]}]",
+            "envelope.axes: gym_world.env_kwargs.rat: gym_world 'coin' sets no env_kwargs.rat",
+        ),
     ],
 )
 def test_an_envelope_axis_the_gym_world_lacks_is_refused_in_one_line(
@@ -242,7 +265,7 @@ def test_an_envelope_axis_the_gym_world_lacks_is_refused_in_one_line(
 ):
     model = f"envelope.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
     with pytest.raises(ConfigError) as err:
-        run_envelope(stage_config("envelope", model, *ALL_TENTHS, *COIN, f"envelope.axes={axes}"))
+        run_envelope(stage_config("envelope", model, *ALL_TENTHS, *COIN, COIN_RATE, f"envelope.axes={axes}"))
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
 
 
@@ -257,7 +280,7 @@ RISKY = "avoid.unknown=[{name:risky,world:{env_kwargs:{rate:0.7}}}]"  # the coin
 
 @pytest.mark.slow
 def test_the_avoid_stage_runs_in_a_gym_world_whose_unknown_condition_is_the_world_changed(avoid_config, tmp_path):
-    cfg = avoid_config(*COIN, RISKY, "executor.workers=1", "avoid.min_rollouts=12")
+    cfg = avoid_config(*COIN, COIN_RATE, RISKY, "executor.workers=1", "avoid.min_rollouts=12")
     result = run_avoid(cfg)
     assert result.conditions == ["known", "risky"] and result.horizon_s == pytest.approx(12 / 15)
     for condition, rate in (("known", CRASH_RATE), ("risky", 0.7)):
@@ -265,11 +288,9 @@ def test_the_avoid_stage_runs_in_a_gym_world_whose_unknown_condition_is_the_worl
         seeds = range(off.base_seed, off.base_seed + 12)  # warnings off: each run is its seed's coin
         assert off.outcomes == "".join("0" if coin_crash_step(s, rate) else "1" for s in seeds)
         assert off.passed_rate == off.outcomes.count("1") / 12  # the safe runs drove to the horizon
-        assert off.handover_distances == [] and off.handover_rate == 0  # no obstacle; warnings only counted
-        on = result.cells[condition][Mode.ON]
-        assert set(on.terminations) <= {"timeout", "collision", "handover"}
-        assert on.terminations.get("handover", 0) <= round(on.handover_rate * 12)  # stopped, or crashed braking
-        assert on.handover_distance_min is None
+        on = result.cells[condition][Mode.ON]  # the same runs until a hand-over stops them: never less safe
+        assert on.terminations["handover"] > 0 and set(on.terminations) <= {"timeout", "collision", "handover"}
+        assert all(a >= b for a, b in zip(on.outcomes, off.outcomes)), (on.outcomes, off.outcomes)
     saved = json.loads((tmp_path / "metrics/avoid/mcd-seed0.json").read_text())
     assert saved["calibration"]["calibration_runs"] == {"known": 12, "risky": 12}
     with np.load(tmp_path / "data/avoid/mcd-seed0/traces/mcd-seed0-risky-off.npz") as data:
@@ -280,19 +301,36 @@ def test_the_avoid_stage_runs_in_a_gym_world_whose_unknown_condition_is_the_worl
     assert (risky.location, risky.scenario.env_kwargs, risky.weather_name) == ("coin-risky", {"rate": 0.7}, "env")
 
 
+def test_a_gym_worlds_unknown_conditions_as_one_mixture_draw_each_runs_world_and_keep_its_identity(avoid_config):
+    two = "avoid.unknown=[{name:calm,world:{env_kwargs.rate:0.1}},{name:wild,world:{env_kwargs.rate:0.9}}]"
+    settings = build_settings(avoid_config(*COIN, COIN_RATE, two, "avoid.unknown_as=mixture"))
+    (mixture,) = settings.unknown
+    job = settings.job(mixture, None, settings.estimator.base_seed)
+    rates = {job.condition(i).scenario.env_kwargs["rate"] for i in range(16)}
+    assert rates == {0.1, 0.9} and [v.location for v in mixture.variants] == ["coin-calm", "coin-wild"]
+    variants = runner.job_identity(job)["where"]["variants"]
+    assert [v["gym_world"]["config"]["env_kwargs"] for v in variants] == [{"rate": 0.1}, {"rate": 0.9}]
+
+
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
         (("avoid.unknown=[{name:fog,weather:fog}]",), "avoid.unknown[0].weather='fog' is uqdrive's: "),
-        (("avoid.unknown=[{name:x,world:{horizon_steps:0}}]",), "avoid.unknown[0].world.horizon_steps=0: "),
-        (("avoid.unknown=[{name:x,world:{env_id.sub:1}}]",), "avoid.unknown[0].world.env_id.sub=1: gym_world.env_id "),
+        (
+            ("avoid.unknown=[{name:x,world:{horizon_steps:9}}]",),
+            f"avoid.unknown[0].world.horizon_steps: a condition of {COIN_ID} is a key of its env_kwargs",
+        ),
+        (
+            ("avoid.unknown=[{name:x,world:{env_kwargs.rat:0.5}}]",),  # misspelt: the world sets no such key
+            "avoid.unknown[0].world.env_kwargs.rat: gym_world 'coin' sets no env_kwargs.rat",
+        ),
     ],
 )
 def test_a_gym_worlds_unknown_condition_of_ours_or_a_bad_change_is_refused_in_one_line(
     avoid_config, tmp_path, overrides, message
 ):
     with pytest.raises(ConfigError) as err:
-        run_avoid(avoid_config(*COIN, *overrides))
+        run_avoid(avoid_config(*COIN, COIN_RATE, *overrides))
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
     assert list(tmp_path.iterdir()) == []
 

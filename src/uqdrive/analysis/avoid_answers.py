@@ -106,7 +106,8 @@ def cell_metrics(
         "collision_rate": float(np.mean([r.collision for r in results])),
         "off_road_rate": float(np.mean([r.off_road for r in results])),
         "passed_rate": float(np.mean([r.reached_goal for r in results])),
-        # ran out of time before passing the obstacle without having stopped: no answer, never safe
+        # ran out of time before passing the obstacle without having stopped: no answer, never safe (a Gymnasium
+        # world has no goal beyond its horizon: a timeout there is unsafe only if its safe_if failed)
         "timeout_before_obstacle_rate": float(
             np.mean([r.termination == "timeout" and not r.reached_goal for r in results])
         ),

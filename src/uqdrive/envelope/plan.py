@@ -55,7 +55,8 @@ class EnvelopeSection(CertifySettings):
 class EnvelopeStage(WorldChoice, SimConfig, ModelStage):
     """`stages/envelope.py`: the certified map of one controller (``model``) over ``envelope.axes``, around the
     stage's world (`WorldChoice`: its scenario, weather and noise, unless an axis varies them; or a Gymnasium world,
-    whose rate and horizon are its own)."""
+    whose rate and horizon are its own: the car, camera, envelope.horizon_s and envelope.half_width are then the
+    pybullet world's, unused)."""
 
     weathers: dict[str, WeatherConfig]  # those envelope.blend may name
     executor: ExecutorSettings

@@ -29,6 +29,11 @@ class Listed:
     def title(self) -> str:
         return f"{len(self.points)} listed conditions"
 
+    @property
+    def base(self) -> Condition:
+        """The world the axes vary (what a cell's identity reads beyond the points)."""
+        return self.space.base
+
     def point(self, index: int, seed: int) -> np.ndarray:
         return np.asarray(self.points[index], dtype=float)
 
@@ -47,6 +52,11 @@ class UniformIn:
     @property
     def title(self) -> str:
         return f"uniform in {self.low}–{self.high}"
+
+    @property
+    def base(self) -> Condition:
+        """The world the axes vary (what a cell's identity reads beyond the box)."""
+        return self.space.base
 
     def point(self, index: int, seed: int) -> np.ndarray:
         u = np.random.default_rng([CONDITION_STREAM, seed]).random(len(self.low))

@@ -92,17 +92,15 @@ class Axis:
 
 
 def gym_number(base: Condition, key: str) -> float | int:
-    """The number an axis ``gym_world.<dotted key>`` varies, as ``base``'s Gymnasium world has it; one line where
-    the world is ours, or the key is not a number of it."""
+    """The number an axis ``gym_world.env_kwargs.<…>`` varies, as ``base``'s Gymnasium world sets it; one line
+    where the world is ours, or the key is not a number the world sets (`GymWorldConfig.condition_slot`)."""
     world = base.gym_world
     if world is None:
         raise ConfigError(f"envelope.axes: {key} varies a gym_world; name one (conf/gym_world/) or drop the axis")
-    value: object = world.to_dict()
-    for part in key.removeprefix(GYM).split("."):
-        value = value.get(part) if isinstance(value, dict) else None
+    value = world.condition_value(key.removeprefix(GYM), f"envelope.axes: {key}")
     if type(value) not in (int, float):
-        raise ConfigError(f"envelope.axes: {key}={value!r} is not a number of gym_world {world.name!r}")
-    return value  # type: ignore[return-value]
+        raise ConfigError(f"envelope.axes: {key}={value!r} is not a number")
+    return value
 
 
 @dataclasses.dataclass(frozen=True)

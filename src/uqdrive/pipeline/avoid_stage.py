@@ -1,10 +1,12 @@
 """The `avoid` stage: real-time collision avoidance with the three-tier warning system (the paper's section
-"Real-time Collision Avoidance"), for one controller of the `avoid` experiment.
+"Real-time Collision Avoidance"), for one controller of the `avoid` experiment (or of a Gymnasium world's:
+conf/gym_avoid.yaml).
 
-On the obstacle road, one cell per condition × warnings mode, every cell on the same seeds: the known condition
-(the training weather) and the unknown ones (a cell per variant, or one mixture cell), warnings off and on (the
-configured thresholds). Thresholds are then calibrated on the warnings-off rollouts and checked in closed loop on
-fresh seeds (off again and calibrated). A cell whose rollout log holds its identity is replayed, not rerun.
+On the obstacle road (or in the Gymnasium world), one cell per condition × warnings mode, every cell on the same
+seeds: the known condition (the training weather; the world as collected) and the unknown ones (a cell per variant,
+or one mixture cell), warnings off and on (the configured thresholds). Thresholds are then calibrated on the
+warnings-off rollouts and checked in closed loop on fresh seeds (off again and calibrated). A cell whose rollout log
+holds its identity is replayed, not rerun.
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ class FindingsSection:
     margin: OpenUnit  # δ: two methods within ±δ of each other are equivalent (a method-level verdict)
     experiment: Str  # whose controllers drove the cells: offline (the paper's), or a Gymnasium world's experiment
     cells_dir: Str
-    results_dir: Str | None  # the avoid results; None: none
+    results_dir: Str  # the avoid results
     out: Str
 
 
@@ -42,7 +42,7 @@ def run_findings(cfg: DictConfig) -> Findings:
     methods, settings = list(stage.methods), stage.findings
     training = (stage.locations[0], stage.train_weather, 0.0)
     cells = read_safety_cells(settings.cells_dir, stage)
-    results = read_avoid_results(settings.results_dir, methods, list(stage.replicates)) if settings.results_dir else []
+    results = read_avoid_results(settings.results_dir, methods, list(stage.replicates))
     family = [*safety_comparisons(cells, methods, training, settings.experiment), *avoid_comparisons(results, methods)]
     paper = settings.experiment == "offline"
     claims = method_claims(cells, results, methods, training, settings.alpha, settings.margin, paper)

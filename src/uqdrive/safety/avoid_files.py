@@ -1,5 +1,6 @@
 """The files an avoid stage writes per cell and for its calibration: per-rollout tables and the trade-off (CSV, DVC
-plot data), per-frame traces (npz, for the summary figure) and η2 / MI against the distance to the obstacle."""
+plot data), per-frame traces (npz, for the summary figure) and η2 / MI against the distance to the obstacle (in a
+Gymnasium world: the metres before the run ended, `uqdrive.safety.avoid_cells.distances`)."""
 
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ def write_cell_table(path: Path, cell: Cell) -> Path:
 
 
 def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry | None) -> Path:
-    """Per-frame traces of a cell (npz) for the summary figure: positions, distance to the obstacle, η2, MI, level."""
+    """Per-frame traces of a cell (npz) for the summary figure: positions, distance (`distances`), η2, MI, level;
+    the obstacle and road boxes (empty in a Gymnasium world)."""
     frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
     for i, r in enumerate(cell.results):
         for key, value in (
@@ -59,7 +61,7 @@ def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry | None) -
 
 
 def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioGeometry | None]) -> Path:
-    """η2 and MI per frame against the distance to the obstacle (a DVC plot)."""
+    """η2 and MI per frame against the distance (`distances`; a DVC plot)."""
     return write_csv(
         path,
         [

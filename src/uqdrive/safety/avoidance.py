@@ -95,8 +95,8 @@ class AvoidSection(EstimatorSettings):
 
     model_path: Str
     name: Str  # <method>-<replicate>: the stage's cells, files and runs
-    horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked)
-    speed: Positive  # cruise speed (m/s), at most vehicle.max_speed
+    horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked); a gym world's own
+    speed: Positive  # cruise speed (m/s), at most vehicle.max_speed (a gym world: its car's own limits)
     eps: Positive
     draws: DrawSettings  # fixed (the paper's) or sequential; warnings-off cells record what calibration replays
     validation_seed: Seed
@@ -119,7 +119,9 @@ class AvoidSection(EstimatorSettings):
 @schema(root=True)
 class AvoidStage(WorldChoice, SimConfig, ModelStage):
     """`stages/avoid.py`: collision avoidance with the warning system, one method; the known condition is the
-    stage's world (`WorldChoice`: the obstacle road in the training weather, or a Gymnasium world) at ``noise``."""
+    stage's world (`WorldChoice`: the obstacle road in the training weather, or a Gymnasium world) at ``noise``. In a
+    Gymnasium world, T and the control rate are the world's (gym_world.horizon_steps, gym_world.control_hz), and the
+    car, camera and avoid.horizon_s are the pybullet world's, unused (the replay's car model aside)."""
 
     weathers: dict[str, WeatherConfig]  # those `avoid.unknown` may name
     warning: WarningConfig
@@ -227,8 +229,9 @@ class AvoidSettings:
 
 
 def unknown_world(world: GymWorldConfig, item: UnknownCondition, key: str) -> GymWorldConfig:
-    """A Gymnasium world's unknown condition: the world with the condition's changes, as its own location."""
-    return world.changed(item.world, world_location(world.name, item.name), key)
+    """A Gymnasium world's unknown condition: the world with the condition's changes, as its own location (only
+    noisier frames: the world itself)."""
+    return world.changed(item.world, world_location(world.name, item.name), key) if item.world else world
 
 
 def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...] | tuple[Mixture]:

@@ -112,8 +112,10 @@ class AvoidCell:
     full_speed_fraction: float
     collision_rate: float
     off_road_rate: float
-    passed_rate: float
-    timeout_before_obstacle_rate: float
+    passed_rate: float  # past the obstacle (a Gymnasium world: safe to the end of its episode)
+    timeout_before_obstacle_rate: (
+        float  # timed out short of the goal (a Gymnasium world: its safe_if failed at the last step)
+    )
     handover_distance_min: float | None
     handover_distance_median: float | None
     handover_distances: list[float]

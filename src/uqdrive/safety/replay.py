@@ -8,7 +8,9 @@ controller's until its first action changes a command.
 Past a slow-down the replay keeps the recorded path and replays the speed only: in closed loop the path departs
 from the recorded one, which is why calibrated rules are checked in closed loop on fresh seeds. In a Gymnasium
 world the car is the env's: speeds and stopping distances are replayed with uqdrive's car's limits as a model of
-it, which only the replayed safety (the choice among certified candidates) reads, never the certified autonomy.
+it, and a run counts as saved when it stops short of where it ended along its own path, which with moving traffic
+does not mean the collision is avoided; only the replayed safety (the choice among certified candidates) reads
+this, never the certified autonomy.
 """
 
 from __future__ import annotations

@@ -18,11 +18,10 @@ from uqdrive.safety.info_safe_set import InfoSafeSet
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, safe_set_for
 from uqdrive.sim import DrivingEnv
 from uqdrive.sim.condition import Condition
+from uqdrive.sim.config import STOPPED_SPEED
 from uqdrive.sim.gym_world import GymWorld
 
 World = DrivingEnv | GymWorld  # a Gymnasium world drives as the pybullet one (`uqdrive.sim.gym_world`)
-
-STOPPED_SPEED = 1e-6  # m/s: the car tracks a speed command of 0 exactly, so this means stopped
 
 
 def stopped_speed(env: World) -> float:

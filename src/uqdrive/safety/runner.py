@@ -51,10 +51,17 @@ def model_module(model_path: str | Path) -> str:
     return str(read_checkpoint(model_path)["target"]).rpartition(".")[0]
 
 
+def _conditions(where: Any) -> tuple[Any, ...]:
+    """The conditions a source's identity rests on: a condition, a mixture's variants, an envelope source's base
+    world (its ``base``: the axes' values are the source's own fields)."""
+    if isinstance(where, Mixture):
+        return where.variants
+    return (where,) if isinstance(where, Condition) else (getattr(where, "base", None),)
+
+
 def gym_worlds(where: Any) -> list[GymWorldConfig]:
-    """The Gymnasium worlds a job's rollouts drive: its condition's, or its mixture's variants' (none: pybullet)."""
-    conditions = where.variants if isinstance(where, Mixture) else (where,)
-    return [c.gym_world for c in conditions if isinstance(c, Condition) and c.gym_world is not None]
+    """The Gymnasium worlds a job's rollouts drive (none: pybullet)."""
+    return [c.gym_world for c in _conditions(where) if isinstance(c, Condition) and c.gym_world is not None]
 
 
 def where_identity(where: Any) -> Any:
@@ -63,6 +70,8 @@ def where_identity(where: Any) -> Any:
         return {"mixture": where.name, "variants": [where_identity(v) for v in where.variants]}
     if isinstance(where, Condition) and where.gym_world is not None:
         return {"gym_world": world_identity(where.gym_world), "noise": where.noise, "name": where.name}
+    if gym_worlds(where):  # an envelope's source over a Gymnasium world
+        return {"source": where, "gym_world": world_identity(where.base.gym_world)}
     return where
 
 

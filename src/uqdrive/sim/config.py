@@ -204,6 +204,9 @@ class CameraConfig(Section):
             raise invalid("far", self.far, f"must be > camera.near ({self.near})")
 
 
+STOPPED_SPEED = 1e-6  # m/s: the car tracks a speed command of 0 exactly, so this means stopped
+
+
 @schema
 class VehicleConfig(Section):
     """Kinematic bicycle of a full-size car; pose refers to the body centre."""

@@ -36,7 +36,7 @@ from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.schema import Bool, ConfigError, Count, NonNegative, Positive, Str, schema, validate
 
 from .camera import add_noise
-from .config import Section, check_noise
+from .config import STOPPED_SPEED, Section, check_noise
 
 STATE_KEYS = ("x", "y", "yaw", "speed", "collision", "off_road", "lateral_deviation")
 _TRAJECTORY_KEYS = ("t", "x", "y", "yaw", "speed", "steering")
@@ -52,8 +52,9 @@ class GymWorldConfig(Section):
     ``safe_if``: info key → the value it must have at every step for the path to be safe (`InfoSafeSet`).
     ``horizon_steps``: the episode ends by timeout after this many steps (T = horizon_steps / control_hz),
     or earlier if the env truncates it. ``control_hz``: decisions per simulated second (the info's ``t``).
-    ``stopped_speed``: m/s at or below which a car braking for a hand-over has stopped (an env's car may approach 0
-    only asymptotically: HighwayEnv's, tracking a speed of 0, takes longer than its 15 s episode to reach 1e-6).
+    ``stopped_speed``: m/s at or below which a car braking for a hand-over has stopped: by default uqdrive's car's
+    (it tracks 0 exactly); an env's car may approach 0 only asymptotically (HighwayEnv's, tracking a speed of 0,
+    takes longer than its 15 s episode to reach 1e-6: conf/gym_world/highway_roundabout.yaml sets 0.1).
     """
 
     section: ClassVar[str] = "gym_world"
@@ -66,21 +67,46 @@ class GymWorldConfig(Section):
     safe_if: dict[str, Bool] = Field(default_factory=lambda: {"collision": False, "off_road": False})
     horizon_steps: Count = 600
     control_hz: Positive = 15.0
-    stopped_speed: NonNegative = 0.1
+    stopped_speed: NonNegative = STOPPED_SPEED
 
-    def changed(self, changes: Mapping[str, Any], name: str, key: str = "world") -> GymWorldConfig:
-        """This world with each dotted key of ``changes`` set (e.g. ``env_kwargs.config.other_vehicles_type``), as
-        the location ``name``: one of the env's own conditions. ``key``: where ``changes`` came from, for errors."""
+    def changed(self, changes: Mapping[str, Any], name: str, key: str) -> GymWorldConfig:
+        """This world with each key of ``changes`` set (dotted, e.g. ``env_kwargs.config.other_vehicles_type``, or
+        nested), as the location ``name``: one of the env's own conditions (``key``: where ``changes`` came from)."""
         data = self.to_dict()
-        for dotted, value in changes.items():
-            *parents, last = dotted.split(".")
-            node = data
-            for part in parents:
-                node = node.setdefault(part, {})
-                if not isinstance(node, dict):
-                    raise ConfigError(f"{key}.{dotted}={value!r}: gym_world.{part} is not a mapping")
+        for dotted, value in _leaves(changes):
+            node, last = self.condition_slot(data, dotted, f"{key}.{dotted}")
             node[last] = value
         return validate(GymWorldConfig, {**data, "name": name}, key)
+
+    def condition_value(self, dotted: str, key: str) -> Any:
+        """The value this world has at ``dotted``, a condition of its env (`condition_slot`)."""
+        node, last = self.condition_slot(self.to_dict(), dotted, key)
+        return node[last]
+
+    def condition_slot(self, data: dict[str, Any], dotted: str, key: str) -> tuple[dict[str, Any], str]:
+        """Where ``dotted`` sits in ``data`` (this world's config as a dict). A condition of a Gymnasium world is a
+        key of its env's kwargs that the world already sets: never its rate, horizon, safe set or expert (the rollouts
+        run to the world's), and never a new key (a misspelt one would be a condition identical to the known one)."""
+        parts = dotted.split(".")
+        if parts[0] != "env_kwargs" or len(parts) < 2:
+            raise ConfigError(f"{key}: a condition of {self.env_id} is a key of its env_kwargs (env_kwargs.<key>)")
+        node: Any = data
+        for part in parts[:-1]:
+            node = node.get(part) if isinstance(node, dict) else None
+        if not isinstance(node, dict) or parts[-1] not in node:
+            raise ConfigError(f"{key}: gym_world {self.name!r} sets no {dotted} (a condition changes a key it sets)")
+        return node, parts[-1]
+
+
+def _leaves(changes: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every leaf of ``changes`` (nested mappings flattened)."""
+    out = []
+    for k, v in changes.items():
+        if isinstance(v, Mapping) and v:
+            out += _leaves(v, f"{prefix}{k}.")
+        else:
+            out.append((f"{prefix}{k}", v))
+    return out
 
 
 class WorldHooks(Protocol):
