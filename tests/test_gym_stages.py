@@ -89,6 +89,13 @@ def test_the_sweep_refuses_the_pybullet_worlds_axes_beside_a_gym_world(stage_con
         next(run_safety_sweep(stage_config("gym_safety_sweep", *COIN, "sweep.weathers=[rain]"), []))
 
 
+def test_the_sweep_refuses_an_axis_over_a_key_the_world_does_not_set_in_one_line(stage_config, tmp_path):
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")
+    axis = "sweep.world_axis={key: env_kwargs.rat, values: {calm: 0.1}}"  # misspelt: an identical world otherwise
+    with pytest.raises(ConfigError, match=r"^sweep.world_axis.env_kwargs.rat: gym_world 'coin' sets no env_kwargs.rat"):
+        next(run_safety_sweep(stage_config("gym_safety_sweep", *COIN, COIN_RATE, axis), []))
+
+
 def test_the_cell_identity_covers_the_envs_kwargs_its_packages_and_the_modules_it_loads_by_name(
     gym_safety, monkeypatch
 ):
@@ -115,7 +122,7 @@ def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and
     model = f"safety.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
     axis = "sweep.world_axis={key: env_kwargs.rate, values: {calm: 0.1, wild: 0.9}}"
     grid = ("sweep.methods=[mcd,vi]", "sweep.replicates=[0]", "sweep.noises=[0.0]", axis)
-    cells = sweep(run_safety_sweep, "gym_safety_sweep", tmp_path, model, *ALL_TENTHS, *COIN, *grid)
+    cells = sweep(run_safety_sweep, "gym_safety_sweep", tmp_path, model, *ALL_TENTHS, *COIN, COIN_RATE, *grid)
     assert [(c["method"], c["location"]) for _, c in cells] == [
         ("mcd", "coin-calm"),
         ("mcd", "coin-wild"),

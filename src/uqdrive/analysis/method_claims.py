@@ -125,7 +125,7 @@ def offline_claims(cells: list[SafetyCell], methods: Sequence[str], location: st
 def warning_claims(results: list[AvoidResult], methods: Sequence[str], as_paper: bool = True) -> list[_Claim]:
     """Per method, warnings on (and calibrated, on fresh seeds) against none in the unknown conditions; with the
     paper's numbers beside its own claim when ``as_paper`` (the obstacle road's results)."""
-    out = []
+    out, experiment = [], results[0].experiment
     for method in methods:
         mine = [r for r in results if r.method == method]
         for with_warnings, without in PAIRS:
@@ -139,7 +139,6 @@ def warning_claims(results: list[AvoidResult], methods: Sequence[str], as_paper:
             paper_pair = as_paper and (method, with_warnings) == (paper.AVOID_METHOD, Mode.ON)
             text = f"{paper.AVOID_UNKNOWN_ON:g} vs {paper.AVOID_UNKNOWN_OFF:g}" if paper_pair else None
             name = f"{method}: warnings {with_warnings} safer than {without}, unknown conditions"
-            experiment = results[0].experiment
             out.append(_Claim(name, experiment, f"{method} {with_warnings}", f"{method} {without}", text, sides))
     return out
 
@@ -155,6 +154,7 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
             sides = {r: ([by[x, r, condition]], [by[y, r, condition]]) for r in replicates}
             out.append(_Claim(f"{x} vs {y} at {label}", cells[0].experiment, x, y, None, sides))
     avoid = {(r.method, r.replicate): r for r in results}
+    experiment = results[0].experiment if results else ""
     for condition in results[0].conditions if results else ():
         for x, y in itertools.combinations(methods, 2):
             sides = {
@@ -162,7 +162,7 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
                 for m, r in avoid
                 if m == x
             }
-            out.append(_Claim(f"{x} vs {y} at {condition}, warnings off", results[0].experiment, x, y, None, sides))
+            out.append(_Claim(f"{x} vs {y} at {condition}, warnings off", experiment, x, y, None, sides))
         for method, (with_warnings, without) in itertools.product(methods, PAIRS):
             sides = {
                 r: ([avoid[method, r].cell(condition, with_warnings)], [avoid[method, r].cell(condition, without)])
@@ -170,7 +170,6 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
                 if m == method
             }
             name = f"{method}: warnings {with_warnings} vs {without} at {condition}"
-            experiment = results[0].experiment
             out.append(_Claim(name, experiment, f"{method} {with_warnings}", f"{method} {without}", None, sides))
     return out
 

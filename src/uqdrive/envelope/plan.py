@@ -103,9 +103,9 @@ class Envelope:
 
     def job(self, source: Listed | UniformIn, base_seed: int) -> RolloutJob:
         s = self.stage
-        world = job_world(s.gym_world, s.camera, s.vehicle, s.control_hz, s.envelope.horizon_s)
-        half_width = None if s.gym_world is not None else s.envelope.half_width
-        return RolloutJob(policy=self.policy, where=source, base_seed=base_seed, half_width=half_width, **world)
+        env = s.envelope
+        world = job_world(s.gym_world, s.camera, s.vehicle, s.control_hz, env.horizon_s, env.half_width)
+        return RolloutJob(policy=self.policy, where=source, base_seed=base_seed, **world)
 
 
 def build_envelope(cfg: DictConfig) -> Envelope:

@@ -136,10 +136,10 @@ def plot(settings: AvoidSettings, cells: Cells, calib: Calibration) -> dict[str,
         ]
         for c in names
     }
-    gym = settings.known.gym_world is not None
-    title = f"{settings.name}, warnings off: uncertainty approaching " + ("the run's end" if gym else "the obstacle")
+    known = geometries[names[0]]
+    title = f"{settings.name}, warnings off: uncertainty approaching " + ("the obstacle" if known else "the run's end")
     figures["warnings"] = avoid_signals_figure(
-        signals, settings.rule.config, calib.rule.config, title, distance_label(geometries[names[0]])
+        signals, settings.rule.config, calib.rule.config, title, distance_label(known)
     )
     title = f"{settings.name}: unknown-condition safety against known autonomy (replayed)"
     figures["tradeoff"] = avoid_tradeoff_figure(

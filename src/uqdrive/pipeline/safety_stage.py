@@ -135,6 +135,8 @@ class SafetySweepStage(SafetyStage):
             for key, names in (("locations", s.locations), ("weathers", s.weathers)):
                 if names:
                     raise invalid(f"sweep.{key}", list(names), f"must be empty: {self.gym_world.env_id} is the world")
+            for label, value in s.world_axis.values.items() if s.world_axis else ():  # a key the world sets
+                self.gym_world.changed({s.world_axis.key: value}, label, "sweep.world_axis")
 
     def world_variants(self) -> list[dict[str, Any]]:
         """Each location of a Gymnasium sweep as a cell's overrides (one empty set: the named world alone)."""
@@ -184,15 +186,10 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
     spec = PolicySpec(
         "bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws
     )
-    job = RolloutJob(spec, stage.condition(), stage.estimator.base_seed, **world_settings(stage))
-    return CellPlan(stage, method, job, estimate_key(job, stage.estimator, __name__))
-
-
-def world_settings(stage: SafetyStage) -> dict[str, Any]:
-    """The job's car, camera, control rate, horizon (`job_world`) and, in the pybullet world, its corridor."""
     s = stage.safety
-    world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s)
-    return world if stage.gym_world is not None else {**world, "half_width": s.half_width}
+    world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
+    job = RolloutJob(spec, stage.condition(), stage.estimator.base_seed, **world)
+    return CellPlan(stage, method, job, estimate_key(job, stage.estimator, __name__))
 
 
 def reusable_result(path: str | Path, key: str) -> SafetyCell | None:

@@ -206,8 +206,8 @@ class AvoidSettings:
     def replay_args(self) -> dict[str, float]:
         """The car and calibration settings the threshold replay needs (`uqdrive.safety.calibration.replay`); a
         Gymnasium world's car is not ours: the replay brakes it within our car's limits, from cruise speed."""
-        scenario = self.known.scenario
-        start = self.spec.speed if isinstance(scenario, GymWorldConfig) else scenario.start_speed
+        known = self.known
+        start = self.spec.speed if known.gym_world is not None else known.scenario.start_speed
         return {
             "control_hz": self.control_hz,
             "cruise": self.spec.speed,
@@ -222,8 +222,8 @@ class AvoidSettings:
         the env's own; distances are then along each run's path)."""
 
         def geometry(where: Condition | Mixture) -> ScenarioGeometry | None:  # a mixture's road: the known one's
-            scenario = where.scenario if isinstance(where, Condition) else self.known.scenario
-            return None if isinstance(scenario, GymWorldConfig) else build_geometry(scenario)
+            condition = where if isinstance(where, Condition) else self.known
+            return None if condition.gym_world is not None else build_geometry(condition.scenario)
 
         return {c.name: geometry(c) for c in self.conditions}
 

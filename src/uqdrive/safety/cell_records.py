@@ -113,9 +113,8 @@ class AvoidCell:
     collision_rate: float
     off_road_rate: float
     passed_rate: float  # past the obstacle (a Gymnasium world: safe to the end of its episode)
-    timeout_before_obstacle_rate: (
-        float  # timed out short of the goal (a Gymnasium world: its safe_if failed at the last step)
-    )
+    # timed out short of the goal (a Gymnasium world: its safe_if failed at the last step)
+    timeout_before_obstacle_rate: float
     handover_distance_min: float | None
     handover_distance_median: float | None
     handover_distances: list[float]

@@ -111,11 +111,16 @@ class RolloutJob:
 
 
 def job_world(
-    world: GymWorldConfig | None, camera: CameraConfig, vehicle: VehicleConfig, control_hz: float, horizon_s: float
+    world: GymWorldConfig | None,
+    camera: CameraConfig,
+    vehicle: VehicleConfig,
+    control_hz: float,
+    horizon_s: float,
+    half_width: float | None = None,
 ) -> dict[str, Any]:
-    """A `RolloutJob`'s car, camera, control rate and horizon: the pybullet world's as given; a Gymnasium world's
-    rate and horizon are its own (``horizon_steps``), and it has no car or camera of ours (defaults, so that no
-    setting its rollouts do not read enters a cell's identity)."""
+    """A `RolloutJob`'s car, camera, control rate, horizon and corridor: the pybullet world's as given; a Gymnasium
+    world's rate and horizon are its own (``horizon_steps``), and it has no car, camera or corridor of ours
+    (defaults, so that no setting its rollouts do not read enters a cell's identity)."""
     if world is not None:
         hz = float(world.control_hz)
         return {
@@ -123,8 +128,15 @@ def job_world(
             "vehicle": VehicleConfig(),
             "control_hz": hz,
             "horizon_s": world.horizon_steps / hz,
+            "half_width": None,
         }
-    return {"camera": camera, "vehicle": vehicle, "control_hz": control_hz, "horizon_s": horizon_s}
+    return {
+        "camera": camera,
+        "vehicle": vehicle,
+        "control_hz": control_hz,
+        "horizon_s": horizon_s,
+        "half_width": half_width,
+    }
 
 
 @dataclasses.dataclass(frozen=True)
