@@ -1,5 +1,6 @@
-"""DVC stage `findings`: every comparison the report states, decided by exact paired tests over the training
-replicates, Holm-corrected over the whole family (metrics/findings.json)."""
+"""DVC stage `findings`: every comparison the report states, decided over the training replicates — for these
+trained controllers (a majority of them, exact) and for the method (sign test and betting interval, valid whatever
+the training runs do), Bonferroni within each family (metrics/findings.json)."""
 
 import hydra
 from omegaconf import DictConfig
@@ -15,7 +16,8 @@ def main(cfg: DictConfig) -> None:
     findings = run_findings(cfg)
     for f in findings.findings:
         if f.supported:
-            print(f"supported: {f.name}: {f.effect:+.2f} [{f.low:+.2f}, {f.high:+.2f}], adjusted p {f.adjusted_p:.2g}")
+            interval = f"[{f.low:+.2f}, {f.high:+.2f}]"
+            print(f"supported: {f.name}: {f.effect:+.2f} {interval}, p {f.p_value:.2g} at level {f.level:.2g}")
     print(
         f"findings: {findings.supported} of {findings.comparisons} comparisons supported at family-wise "
         f"alpha={findings.alpha:g} -> {cfg.findings.out}"

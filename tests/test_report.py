@@ -230,7 +230,10 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         "vi: warnings on safer than off, unknown conditions",
     }
     on = next(c for c in paper if c.name == "vi: warnings on safer than off, unknown conditions")
-    assert claims[on.name]["paper"] == "0.9 vs 0" and claims[on.name]["Δ̂ [interval]"].startswith(f"{on.estimate:+.2f}")
+    assert (
+        claims[on.name]["paper"] == "0.9 vs 0"
+        and f"mean {on.estimate:+.2f}" in claims[on.name]["runs won; mean Δ̂ [interval]"]
+    )
     assert {c.family for c in findings.claims} == {"paper", "exploratory"}  # the synthetic cells record no margins
     assert findings.supported > 0  # rain with noise breaks both methods in every replicate (0.2 against 0.9)
     rows = markdown_rows(text, "method | location | weather")
@@ -323,17 +326,19 @@ def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp
     assert not (tmp_path / "reports").exists()
 
 
-def test_a_claim_no_replicate_separates_shows_the_interval_that_decided_it_and_plans_nothing():
-    """Every replicate at 1.00 on both sides: the t interval is [0, 0], but the ±δ test's (variance floored at the
-    margin's) is what leaves the claim undecided, and with no spread there is no power to plan from."""
+def test_an_undecided_claim_shows_both_estimands_and_the_runs_that_would_decide_it():
+    """Every replicate at 1.00 on both sides: no run differs, the mean's betting interval is wide, and the report
+    says what would decide it (differing runs for the sign test, runs for ±δ whatever the spread)."""
     claim = SimpleNamespace(
         family="paper", name="hmc safer than mcd offline", paper=None, a_rates=[1.0] * 3, b_rates=[1.0] * 3,
-        estimate=0.0, low=0.0, high=0.0, equivalence_low=-0.12, equivalence_high=0.12, verdict=Verdict.UNDECIDED,
-        reason="the interval holds 0 and reaches past the margin", sd=0.0, detectable=0.0, needed=2, margin=0.1,
-        replicates=[0, 1, 2], pairs=14, level=0.005, assumption="i.i.d. replicates",
+        estimate=0.0, low=-0.9, high=0.9, ahead=0, behind=0, verdict=Verdict.UNDECIDED, margin=0.1,
+        differing_runs_needed=19, equivalence_runs_needed=3145, replicates=[0, 1, 2], pairs=14, level=0.005,
+        assumption="none beyond i.i.d. training runs",
     )  # fmt: skip
     row = markdown_rows(
         claims_markdown(SimpleNamespace(claims=[claim], margin=0.1, alpha=0.05)), "claim (A safer than B)"
     )[0]
-    assert row["Δ̂ [interval]"] == "+0.00 [+0.00, +0.00], ±δ test [-0.12, +0.12]"
-    assert row["detects"] == "no spread to plan from"
+    assert row["runs won; mean Δ̂ [interval]"] == "A higher in 0, B in 0 of 3 runs; mean +0.00 [-0.90, +0.90]"
+    assert (
+        row["would decide it"] == "19 differing runs (sign test, A safer in 9 of 10); 3145 runs for ±0.1 (any spread)"
+    )

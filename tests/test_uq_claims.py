@@ -1,30 +1,30 @@
-"""Method claims across training replicates: the paired t's numbers against scipy, its floors, power and planning,
-and the verdicts' error rates by simulation: training runs whose rates spread by a beta distribution (A and B
-correlated through a shared training run), paired Bernoulli rollouts in each replicate, 10,000 repetitions a design,
-each error rate's exact (Clopper–Pearson) upper bound below α."""
+"""Method claims across training runs: each verdict's error and the mean interval's misses by simulation, 10,000
+repetitions a design, at a claim's level 0.05 and at the paper family's (0.05 over 10 claims: 0.005), the 95 %
+Clopper–Pearson upper limit of each error below its stated level (level/2 per verdict kind and per end) — under
+uniform and Beta spreads of training runs, rates piled at 0 or 1, training runs that fail outright with probability
+0.05 and 0.1, and bimodal runs; at the equivalence margin ±δ as well as for superiority. A mutant deciding by
+Student's t fails them; the sign test's and Hoeffding's planning counts are checked by exact sums."""
 
-import itertools
+import math
 
 import numpy as np
 import pytest
-from scipy import stats
+from scipy import special, stats
 
+from uqdrive.uq.betting import mean_interval
 from uqdrive.uq.claims import (
-    MarginClaim,
     MethodClaim,
-    claim_verdicts,
+    ScoreClaim,
     decide_claim,
     decide_claims,
-    detectable_difference,
-    replicate_t,
-    replicate_t_means,
-    replicates_needed,
+    equivalence_runs_needed,
+    sign_runs_needed,
 )
-from uqdrive.uq.multiplicity import split_gamma
 from uqdrive.uq.paired import PairedTable
 from uqdrive.uq.verdict import Reason, Verdict
 
-ALPHA, MARGIN, REPS = 0.05, 0.1, 10_000
+REPS, MARGIN, RUNS = 10_000, 0.1, 10
+LEVELS = (0.05, 0.005)
 
 
 def upper(count: int, reps: int = REPS) -> float:
@@ -32,178 +32,222 @@ def upper(count: int, reps: int = REPS) -> float:
     return float(stats.beta.ppf(0.975, count + 1, reps - count)) if count < reps else 1.0
 
 
-def replicate_rates(rng, shape, mean_a, mean_b, concentration, shared=0.5):
-    """η_A,r ~ Beta(κ m_A, κ (1 − m_A)) and η_B,r likewise, correlated: each is G/(G + H) of gamma variables, a
-    ``shared`` fraction of the smaller shapes' gamma parts common to both (one training run's trunk)."""
-    shapes = [(concentration * m, concentration * (1 - m)) for m in (mean_a, mean_b)]
-    common = [shared * min(s[i] for s in shapes) for i in (0, 1)]
-    g, h = rng.gamma(common[0], size=shape), rng.gamma(common[1], size=shape)
-    rates = []
-    for alpha, beta in shapes:
-        own_g, own_h = rng.gamma(alpha - common[0], size=shape), rng.gamma(beta - common[1], size=shape)
-        rates.append((g + own_g) / (g + own_g + h + own_h))
-    return rates
+def beta(mean: float, concentration: float):
+    return lambda rng, size: rng.beta(concentration * mean, concentration * (1 - mean), size)
 
 
-def tables(rng, replicates, n, mean_a, mean_b, concentration, same_world=0.5):
-    """Each replicate's (a_only, b_only) from n paired rollouts: a rollout's two outcomes share its world with
-    probability ``same_world`` (then they fail together as far as the rates allow), else are independent."""
-    eta_a, eta_b = replicate_rates(rng, (REPS, replicates), mean_a, mean_b, concentration)
-    p_a = same_world * np.maximum(eta_a - eta_b, 0) + (1 - same_world) * eta_a * (1 - eta_b)
-    p_b = same_world * np.maximum(eta_b - eta_a, 0) + (1 - same_world) * eta_b * (1 - eta_a)
-    a_only = rng.binomial(n, p_a)
-    b_only = rng.binomial(n - a_only, np.clip(p_b / np.maximum(1 - p_a, 1e-12), 0, 1))
-    return a_only, b_only
+def fails(probability: float, otherwise: float = 1.0):
+    """A training run that fails outright (rate 0) with ``probability``, else drives at rate ``otherwise``."""
+    return lambda rng, size: np.where(rng.random(size) < probability, 0.0, otherwise)
 
 
-def verdict_counts(rng, replicates, n, mean_a, mean_b, concentration, same_world=0.5) -> dict[str, int]:
-    a_only, b_only = tables(rng, replicates, n, mean_a, mean_b, concentration, same_world)
-    verdicts = claim_verdicts(replicate_t(a_only, b_only, n, ALPHA, MARGIN), MARGIN)
-    return {v: int(np.sum(verdicts == v)) for v in Verdict}
+def bimodal(low: float, high: float, share_low: float):
+    return lambda rng, size: np.where(rng.random(size) < share_low, low, high)
 
 
-DESIGNS = list(itertools.product((14, 50, 100), (2, 4, 8)))
+def constant(rate: float):
+    return lambda rng, size: np.full(size, rate)
 
 
-@pytest.mark.parametrize("mean", [0.5, 0.9, 0.97])
-def test_no_difference_is_rarely_called_one(mean):
-    """A and B equally safe over training runs: runs spread wide and piling at 0 and 1 (κ = 2), moderately (30),
-    or hardly at all (1000: every replicate's difference is rollout noise, many coincide). A claim's SUPPORTED
-    (and, for the claim the other way, REFUTED) is wrong here; each is one tail of the interval (nominal α/2)."""
-    rng = np.random.default_rng(int(mean * 100))
-    for (n, replicates), concentration in itertools.product(DESIGNS, (2, 30, 1000)):
-        counts = verdict_counts(rng, replicates, n, mean, mean, concentration)
-        design = (n, replicates, concentration, counts)
-        assert upper(counts[Verdict.SUPPORTED]) < ALPHA and upper(counts[Verdict.REFUTED]) < ALPHA, design
+# Designs where A and B are exchangeable: P(A's run higher) = ½ and the mean difference 0, both exactly.
+SPREADS = {
+    "uniform": lambda rng, size: rng.uniform(size=size),
+    "beta 0.9, κ 2": beta(0.9, 2),
+    "piled at 1": beta(0.97, 2),
+    "piled at 0": beta(0.03, 2),
+    "fails outright 0.05": fails(0.05),
+    "fails outright 0.1": fails(0.1, 0.95),
+    "bimodal": bimodal(0.34, 1.0, 0.3),
+}
 
 
-@pytest.mark.parametrize("mean", [0.5, 0.9, 0.97])
-def test_a_difference_at_the_margin_is_rarely_called_equivalent(mean):
-    """True mean difference +δ and −δ (δ = 0.1; A's mean rate ``mean``, B's δ lower, then the other way round):
-    EQUIVALENT is wrong, and so is the verdict against the true sign; both lie in one tail of the interval.
-    Training runs spread moderately (κ = 30) with rollouts sharing half their worlds, or hardly at all with
-    nested worlds (the less safe fails wherever the safer does): there, at 14 rollouts, both replicates often
-    show no discordant pair at all, which only the margin's variance floor keeps from reading as equivalence."""
-    rng = np.random.default_rng(int(mean * 1000))
-    for (n, replicates), (concentration, same_world) in itertools.product(DESIGNS, ((30, 0.5), (1000, 1.0))):
-        plus = verdict_counts(rng, replicates, n, mean, mean - MARGIN, concentration, same_world)
-        minus = verdict_counts(rng, replicates, n, mean - MARGIN, mean, concentration, same_world)
-        wrong_plus = plus[Verdict.EQUIVALENT] + plus[Verdict.REFUTED]
-        wrong_minus = minus[Verdict.EQUIVALENT] + minus[Verdict.SUPPORTED]
-        assert upper(wrong_plus) < ALPHA and upper(wrong_minus) < ALPHA, (n, replicates, concentration, plus, minus)
+def differences(rng, a, b, n: int, runs: int = RUNS) -> np.ndarray:
+    """Each replicate's paired η̂_A − η̂_B from n rollouts a side: [REPS, runs]."""
+    eta_a, eta_b = a(rng, (REPS, runs)), b(rng, (REPS, runs))
+    return (rng.binomial(n, eta_a) - rng.binomial(n, eta_b)) / n
 
 
-def test_the_t_assumption_is_what_the_equivalence_rests_on():
-    """Where training runs pile at 1 and rarely fail (rates Beta(1.94, 0.06) against Beta(1.74, 0.26)), most
-    replicates show no difference and the mean difference rests on the rare failures: EQUIVALENT at the margin
-    is then far more frequent than α — the verdict is only as good as the assumption it states."""
-    counts = verdict_counts(np.random.default_rng(3), 4, 100, 0.97, 0.97 - MARGIN, 2)
-    assert counts[Verdict.EQUIVALENT] / REPS > 2 * ALPHA
+def sign_verdicts(diffs: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """SUPPORTED and REFUTED of every repetition, through `decide_claim`'s own sign test on each."""
+    ahead, behind = np.sum(diffs > 0, -1), np.sum(diffs < 0, -1)
+    tail = special.bdtrc(np.maximum(ahead, behind) - 1, ahead + behind, 0.5)
+    rejects = (ahead + behind > 0) & (np.minimum(1, 2 * tail) <= level)
+    return rejects & (ahead > behind), rejects & (behind > ahead)
 
 
-def test_a_family_split_by_bonferroni_makes_no_false_verdict_with_probability_at_most_alpha():
-    """Four claims with no difference, on independent data: any SUPPORTED or REFUTED among them is false."""
-    rng = np.random.default_rng(4)
-    level = split_gamma(ALPHA, 4)
-    wrong = np.zeros(REPS, bool)
-    for mean in (0.5, 0.7, 0.9, 0.97):
-        a_only, b_only = tables(rng, 8, 100, mean, mean, 30)
-        verdicts = claim_verdicts(replicate_t(a_only, b_only, 100, level, MARGIN), MARGIN)
-        wrong |= (verdicts == Verdict.SUPPORTED) | (verdicts == Verdict.REFUTED)
-    assert upper(int(wrong.sum())) < ALPHA
+def test_sign_verdicts_here_are_decide_claims():
+    """The vectorised reading above and `decide_claim` agree on 2,000 random replicate sets."""
+    rng = np.random.default_rng(0)
+    for _ in range(2_000):
+        runs, n = int(rng.integers(2, 12)), int(rng.integers(5, 40))
+        a, b = rng.integers(0, n + 1, runs), rng.integers(0, n + 1, runs)
+        tables = {r: PairedTable(n, max(0, x - y), max(0, y - x)) for r, (x, y) in enumerate(zip(a, b))}
+        level = float(rng.choice([0.05, 0.005, 0.3]))
+        result = decide_claim(MethodClaim("c", tables, MARGIN), level)
+        supported, refuted = sign_verdicts(np.array([[t.effect for t in tables.values()]]), level)
+        assert (result.verdict is Verdict.SUPPORTED) == bool(supported[0])
+        assert (result.verdict is Verdict.REFUTED) == bool(refuted[0])
 
 
-def claim(effects_a_only: list[tuple[int, int]], n: int = 50, margin: float = MARGIN) -> MethodClaim:
-    return MethodClaim("a vs b", {r: PairedTable(n, a, b) for r, (a, b) in enumerate(effects_a_only)}, margin)
+@pytest.mark.parametrize("level", LEVELS)
+@pytest.mark.parametrize("spread", list(SPREADS))
+@pytest.mark.parametrize("n", [29, 87])
+def test_no_difference_is_rarely_called_one(level, spread, n):
+    """A and B exchangeable: a SUPPORTED (or REFUTED) is false, and either end of the mean's interval past 0 is
+    a miss; each at most level/2."""
+    rng = np.random.default_rng([n, len(spread), int(level * 1000)])
+    diffs = differences(rng, SPREADS[spread], SPREADS[spread], n)
+    supported, refuted = sign_verdicts(diffs, level)
+    mean = mean_interval(diffs, -1.0, 1.0, level)
+    counts = [int(supported.sum()), int(refuted.sum()), int(np.sum(mean.low > 0)), int(np.sum(mean.high < 0))]
+    assert max(upper(c) for c in counts) < level / 2, counts
 
 
-def test_the_interval_and_p_value_are_students_paired_t():
-    counts = [(12, 2), (9, 4), (15, 1), (8, 5)]
-    result = decide_claim(claim(counts), ALPHA)
-    differences = [(a - b) / 50 for a, b in counts]
-    reference = stats.ttest_1samp(differences, 0.0)
-    low, high = reference.confidence_interval(1 - ALPHA)
-    assert (result.estimate, result.low, result.high) == pytest.approx((np.mean(differences), low, high))
-    assert result.p_value == pytest.approx(reference.pvalue) and result.sd == pytest.approx(np.std(differences, ddof=1))
-    assert result.verdict is Verdict.SUPPORTED and result.reason is Reason.DECIDED and "normal" in result.assumption
-    assert result.detectable == detectable_difference(result.sd, 4, ALPHA)
-    assert result.needed == replicates_needed(result.sd, MARGIN, ALPHA)
-    assert decide_claim(claim([(b, a) for a, b in counts]), ALPHA).verdict is Verdict.REFUTED
+# Skewed designs: (A's runs, B's runs, the mean difference)
+SKEWED = {
+    # A's run fails outright 1 in 20, else never fails; B's always 0.95: the mean difference is 0, A's run the
+    # higher most of the time (so SUPPORTED is right for the sign estimand; the mean's interval must hold 0)
+    "A fails outright 0.05, B 0.95": (fails(0.05), constant(0.95), 0.0),
+}
 
 
-def test_replicates_that_coincide_are_floored_by_their_rollout_noise():
-    """Two replicates each with one pair A alone safe: the sample variance is 0, the interval is not a point."""
-    result = decide_claim(claim([(1, 0), (1, 0)], n=14), ALPHA)
-    within = (1 / 14 - (1 / 14) ** 2) / 14
-    assert result.sd == pytest.approx(np.sqrt(within)) and result.low < 0 < result.high
-    assert result.verdict is Verdict.UNDECIDED and result.reason is Reason.INTERVAL_TOO_WIDE
+@pytest.mark.parametrize("level", LEVELS)
+def test_a_run_that_fails_outright_leaves_the_mean_interval_valid(level):
+    a, b, truth = SKEWED["A fails outright 0.05, B 0.95"]
+    diffs = differences(np.random.default_rng(5), a, b, 29)
+    mean = mean_interval(diffs, -1.0, 1.0, level)
+    counts = int(np.sum(mean.low > truth)), int(np.sum(mean.high < truth))
+    assert max(upper(c) for c in counts) < level / 2, counts
 
 
-def test_every_cell_at_one_is_equivalent_only_when_the_margin_floor_allows():
-    """Every cell 1.00: no difference anywhere, the interval [0, 0]; EQUIVALENT needs the equivalence interval, its
-    variance at least δ(1 − δ)/n, inside ±δ: 8 replicates of 100 rollouts, not 2 of 14."""
-    many = decide_claim(claim([(0, 0)] * 8, n=100), ALPHA)
-    few = decide_claim(claim([(0, 0)] * 2, n=14), ALPHA)
-    assert (many.low, many.high, many.p_value) == (0.0, 0.0, 1.0) and many.verdict is Verdict.EQUIVALENT
-    half = stats.t.ppf(1 - ALPHA / 2, 7) * np.sqrt(MARGIN * (1 - MARGIN) / 100 / 8)
-    assert many.equivalence_high == pytest.approx(half)
-    assert few.verdict is Verdict.UNDECIDED and few.equivalence_high > MARGIN
+@pytest.mark.parametrize("level", LEVELS)
+def test_the_sign_test_holds_where_the_mean_and_the_median_part(level):
+    """Per training run: A safe and B not (+1) with probability 0.4; else A at 0.95, B at 1 (A's η̂ lower or
+    tied). P(A higher | differ) = 0.4 / (0.4 + 0.6 (1 − 0.95^29)) < ½ while the mean difference is +0.37: a
+    SUPPORTED is false for the sign estimand, and the mean's interval must still cover +0.37."""
+    rng = np.random.default_rng(9)
+    first = rng.random((REPS, RUNS)) < 0.4
+    eta_a, eta_b = np.where(first, 1.0, 0.95), np.where(first, 0.0, 1.0)
+    diffs = (rng.binomial(29, eta_a) - rng.binomial(29, eta_b)) / 29
+    supported, _ = sign_verdicts(diffs, level)
+    truth = 0.4 - 0.6 * 0.05
+    mean = mean_interval(diffs, -1.0, 1.0, level)
+    counts = [int(supported.sum()), int(np.sum(mean.low > truth)), int(np.sum(mean.high < truth))]
+    assert max(upper(c) for c in counts) < level / 2, counts
 
 
-def test_one_replicate_decides_nothing():
-    result = decide_claim(claim([(20, 0)]), ALPHA)
-    assert (result.low, result.high, result.p_value) == (-1.0, 1.0, 1.0) and result.detectable == np.inf
-    assert result.needed is None
-    assert result.verdict is Verdict.UNDECIDED and result.reason is Reason.TOO_FEW_REPLICATES
+def equivalent(diffs: np.ndarray, level: float) -> np.ndarray:
+    """EQUIVALENT as `decide_claim` reads it (the sign test decided nothing, the mean's interval in ±δ)."""
+    supported, refuted = sign_verdicts(diffs, level)
+    mean = mean_interval(diffs, -1.0, 1.0, level)
+    return ~supported & ~refuted & (mean.low > -MARGIN) & (mean.high < MARGIN)
+
+
+# Designs whose mean difference is exactly the margin δ = 0.1 (or −δ): EQUIVALENT is false there.
+AT_MARGIN = {
+    "B fails outright 0.1, A never": (constant(1.0), fails(0.1), 0.1),
+    "A fails outright 0.1, B never": (fails(0.1), constant(1.0), -0.1),
+    "beta spreads 0.95 and 0.85, κ 2": (beta(0.95, 2), beta(0.85, 2), 0.1),
+    "bimodal B": (constant(0.9), bimodal(0.6, 0.9, 1 / 3), 0.1),
+}
+
+
+@pytest.mark.parametrize("level", LEVELS)
+@pytest.mark.parametrize("design", list(AT_MARGIN))
+@pytest.mark.parametrize("runs", [10, 200])
+def test_a_difference_at_the_margin_is_rarely_called_equivalent(level, design, runs):
+    """With 200 runs the interval is narrow enough to call equivalence often nearer 0, so these designs test it
+    where it could err; with 10 it never can."""
+    a, b, _ = AT_MARGIN[design]
+    diffs = differences(np.random.default_rng([runs, len(design)]), a, b, 29, runs)
+    count = int(equivalent(diffs, level).sum())
+    assert upper(count) < level / 2, count
+
+
+def test_equivalence_is_reached_with_enough_alike_runs():
+    """The check above is not vacuous: 200 runs of two alike methods (rates near 0.97) decide equivalence
+    within ±0.1 in most repetitions at 0.005."""
+    same = beta(0.97, 50)
+    diffs = differences(np.random.default_rng(2), same, same, 87, 200)
+    assert equivalent(diffs, 0.005).mean() > 0.5
+
+
+def students_t(diffs: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mutant: Student's t interval across the runs, as the claims used before."""
+    mean, sd = diffs.mean(-1), diffs.std(-1, ddof=1)
+    half = stats.t.ppf(1 - level / 2, diffs.shape[-1] - 1) * sd / math.sqrt(diffs.shape[-1])
+    return mean - half, mean + half
+
+
+def test_a_students_t_mutant_fails_these_checks():
+    """The same designs under the t: its "mean above 0" where A's run fails outright 1 in 20, and its
+    equivalence at the margin where B's fails outright 1 in 10, far above level/2."""
+    a, b, truth = SKEWED["A fails outright 0.05, B 0.95"]
+    diffs = differences(np.random.default_rng(5), a, b, 29)
+    low, _ = students_t(diffs, 0.005)
+    assert stats.beta.ppf(0.025, int(np.sum(low > truth)), REPS) > 0.0025
+    a, b, _ = AT_MARGIN["B fails outright 0.1, A never"]
+    diffs = differences(np.random.default_rng(6), a, b, 29)
+    low, high = students_t(diffs, 0.005)
+    false_equivalent = int(np.sum((low > -MARGIN) & (high < MARGIN)))
+    assert stats.beta.ppf(0.025, false_equivalent, REPS) > 0.0025
+
+
+def claim(effects: list[tuple[int, int]], n: int = 50) -> MethodClaim:
+    return MethodClaim("a safer than b", {r: PairedTable(n, a, b) for r, (a, b) in enumerate(effects)}, MARGIN)
+
+
+def test_ten_agreeing_runs_decide_a_claim_and_nine_of_ten_do_not_at_the_paper_level():
+    agreeing = decide_claim(claim([(5, 0)] * 10), 0.005)
+    assert agreeing.verdict is Verdict.SUPPORTED and agreeing.ahead == 10 and agreeing.behind == 0
+    assert agreeing.p_value == pytest.approx(2 / 1024) and agreeing.share_low > 0.5
+    assert agreeing.differing_runs_needed is None and agreeing.equivalence_runs_needed is None
+    nine = decide_claim(claim([(5, 0)] * 9 + [(0, 3)]), 0.005)
+    assert nine.verdict is Verdict.UNDECIDED and nine.reason is Reason.NOT_DECIDED
+    assert nine.p_value == pytest.approx(2 * 11 / 1024) and nine.share_low <= 0.5 <= nine.share_high
+    assert nine.differing_runs_needed == sign_runs_needed(0.005) and nine.equivalence_runs_needed > 1000
+    refuted = decide_claim(claim([(0, 4)] * 10), 0.005)
+    assert refuted.verdict is Verdict.REFUTED and refuted.share_high < 0.5
+    alike = decide_claim(claim([(0, 0)] * 10), 0.005)
+    assert alike.verdict is Verdict.UNDECIDED and alike.low < -0.4 and alike.high > 0.4  # ten runs bound no mean
+    assert decide_claim(claim([(3, 0)]), 0.05).reason is Reason.TOO_FEW_REPLICATES
 
 
 def test_a_family_puts_each_claim_at_alpha_over_m():
-    family = [claim([(12, 2), (9, 4), (15, 1)]), claim([(3, 2), (4, 4), (5, 1)]), claim([(1, 9), (0, 4), (2, 8)])]
-    results = decide_claims(family, ALPHA)
-    assert [r.level for r in results] == [ALPHA / 3] * 3
-    assert [(r.low, r.high) for r in results] == [(r.low, r.high) for r in (decide_claim(c, ALPHA / 3) for c in family)]
+    claims = [claim([(5, 0)] * 10), claim([(0, 0)] * 10)]
+    first, second = decide_claims(claims, 0.05)
+    assert first.level == second.level == pytest.approx(0.025) and first.verdict is Verdict.SUPPORTED
+    assert first.assumption == "none beyond i.i.d. training runs" and "P(a run of A" in first.estimand
     with pytest.raises(ValueError, match="at least one claim"):
-        decide_claims([], ALPHA)
+        decide_claims([], 0.05)
 
 
-@pytest.mark.parametrize("replicates, sd", [(3, 0.1), (5, 0.2), (10, 0.05)])
-def test_the_detectable_difference_is_detected_with_80_percent_power(replicates, sd):
-    """Normal replicate differences at the detectable mean: the paired t rejects on their side 80 % of the time."""
-    difference = detectable_difference(sd, replicates, ALPHA)
-    draws = np.random.default_rng(replicates).normal(difference, sd, (REPS, replicates))
-    reference = stats.ttest_1samp(draws, 0.0, axis=1)
-    power = np.mean((reference.pvalue <= ALPHA) & (reference.statistic > 0))
-    assert power == pytest.approx(0.8, abs=0.015)
+def test_a_score_claim_is_decided_by_the_sign_test_alone():
+    wider = ScoreClaim("vi keeps a wider margin", {r: np.array([0.3, 0.1, 0.2]) for r in range(10)}, MARGIN)
+    result = decide_claim(wider, 0.005)
+    assert result.verdict is Verdict.SUPPORTED and result.low is None and result.high is None
+    assert result.estimate == pytest.approx(0.2) and "mean over training runs" not in result.estimand
+    level = decide_claim(ScoreClaim("alike", {r: np.zeros(3) for r in range(10)}, MARGIN), 0.005)
+    assert level.verdict is Verdict.UNDECIDED and level.equivalence_runs_needed is None  # never equivalent
 
 
-def test_replicates_needed_is_the_fewest_that_detect_the_target():
-    needed = replicates_needed(0.1, 0.1, ALPHA)
-    assert detectable_difference(0.1, needed, ALPHA) <= 0.1 < detectable_difference(0.1, needed - 1, ALPHA)
-    assert needed == 10 and replicates_needed(0.01, 0.5, ALPHA) == 2
-    assert detectable_difference(0.0, 4, ALPHA) == 0.0 and detectable_difference(0.1, 1, ALPHA) == np.inf
+@pytest.mark.parametrize("level", LEVELS)
+def test_the_sign_tests_runs_needed_reach_the_power_and_one_fewer_does_not(level):
+    """Exact binomial sums, written here: the critical count, then the power at a share of 0.9."""
+
+    def power(m: int) -> float:
+        critical = next((k for k in range(m + 1) if 2 * stats.binom.sf(k - 1, m, 0.5) <= level), None)
+        return 0.0 if critical is None else float(stats.binom.sf(critical - 1, m, 0.9))
+
+    needed = sign_runs_needed(level)
+    assert power(needed) >= 0.8 and all(power(m) < 0.8 for m in range(1, needed))
 
 
-def test_margin_claims_keep_their_size_under_a_spread_of_training_runs():
-    """The continuous version (per-run margin differences): replicate means spread between training runs, runs
-    within a replicate noisy, equal means. 10,000 repetitions per design: the CP upper end of each kind's error
-    rate stays below α (each verdict kind is one tail: nominal α/2)."""
-    rng = np.random.default_rng(7)
-    for replicates, runs, spread in ((4, 14, 0.2), (8, 50, 0.05), (8, 14, 1.0)):
-        shifts = rng.normal(0.0, spread, (REPS, replicates, 1))
-        draws = shifts + rng.standard_t(5, (REPS, replicates, runs)) * 0.3  # heavy-tailed runs
-        above = below = 0
-        for repetition in draws:
-            result = replicate_t_means(list(repetition), ALPHA)
-            above, below = above + bool(result.low > 0), below + bool(result.high < 0)
-        assert upper(above) < ALPHA and upper(below) < ALPHA, (replicates, runs, spread, above, below)
-
-
-def test_a_margin_claim_is_decided_from_the_replicates_means():
-    rng = np.random.default_rng(3)
-    ahead = {r: rng.normal(0.3, 0.1, 20) for r in range(8)}  # A keeps 0.3 more of its lane than B, every replicate
-    (result,) = decide_claims([MarginClaim("A vs B margin", ahead, margin=0.1)], 0.05)
-    assert result.verdict == Verdict.SUPPORTED and result.replicates == tuple(range(8))
-    level = [MarginClaim("same", {r: rng.normal(0.0, 0.01, 20) for r in range(8)}, margin=0.1)]
-    assert decide_claims(level, 0.05)[0].verdict == Verdict.EQUIVALENT
-    with pytest.raises(ValueError, match="at least two finite paired differences"):
-        replicate_t_means([np.array([0.1]), np.array([0.2, 0.3])], 0.05)
+def test_hoeffdings_runs_decide_equivalence_whatever_the_spread():
+    """At the runs needed, the widest spread on [−1, 1] (runs at ±1, mean 0) keeps Hoeffding's interval inside
+    ±δ with probability ≥ 0.8 by Hoeffding's own bound; the number grows as 1/δ²."""
+    runs = equivalence_runs_needed(0.1, 0.005)
+    half = math.sqrt(2 * math.log(2 / 0.005) / runs)
+    excursion = 0.1 - half
+    assert excursion > 0 and 2 * math.exp(-runs * excursion**2 / 2) <= 0.2
+    assert equivalence_runs_needed(0.2, 0.005) == pytest.approx(runs / 4, rel=0.01)

@@ -14,7 +14,6 @@ from uqdrive.uq.paired import (
     mcnemar_p,
     paired_table,
     paired_test,
-    stratified_p,
 )
 
 
@@ -51,14 +50,6 @@ def test_mcnemar_p_equals_the_enumerated_swap_distribution(table, both):
     a, b = outcomes(table, both)
     assert paired_table(a, b) == table
     assert mcnemar_p(table) == pytest.approx(float(swap_p(list(zip(a, b)))), abs=1e-12)
-
-
-def test_stratified_p_equals_swaps_enumerated_across_all_replicates():
-    tables = [PairedTable(6, 3, 0), PairedTable(5, 1, 2), PairedTable(6, 2, 0)]
-    pairs = [pair for t in tables for pair in zip(*outcomes(t, 1))]
-    assert stratified_p(tables) == pytest.approx(float(swap_p(pairs)), abs=1e-12)
-    # pooling the discordant pairs is the stratified test; a single table is McNemar's
-    assert stratified_p(tables) == mcnemar_p(PairedTable(17, 6, 2)) and stratified_p(tables[:1]) == mcnemar_p(tables[0])
 
 
 def test_p_value_convention_on_known_tables():

@@ -14,6 +14,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bound": ("uqdrive.uq.bound_table", "sample counts of each estimation scheme for (theta, gamma)"),
     "findings": ("uqdrive.report.findings_text", "print metrics/findings.json as the report states it"),
     "frames": ("uqdrive.frame_gallery", "write one example camera frame per weather to docs/"),
+    "redecide": ("uqdrive.analysis.redecide", "re-decide a findings file's recorded counts with the current tests"),
     "plots-page": ("uqdrive.plots_page", "write the page `dvc plots show` fills, its scripts inlined (no CDN)"),
 }
 

@@ -77,9 +77,9 @@ class Paths:
 
 SEED_BLOCK = 1_000_000
 """Rollout seeds per training replicate. Replicate r drives seeds base + r·SEED_BLOCK + i, so no two replicates
-share a world: their paired tables are independent, which the stratified exact test across replicates (findings
-"for these trained controllers") and the t-test across replicates (method-level claims) both need. Within a
-replicate every cell drives the same seeds, so its methods, conditions and warnings modes pair by seed."""
+share a world: their paired runs are independent, which the betting interval over the controllers (findings "for
+these trained controllers") and the sign test and betting interval across replicates (method-level claims) need.
+Within a replicate every cell drives the same seeds, so its methods, conditions and warnings modes pair by seed."""
 
 
 @schema(root=True)

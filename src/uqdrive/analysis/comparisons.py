@@ -6,10 +6,9 @@ A fixed family of comparisons, each between two cells on the same rollout seeds,
 - collision avoidance: method vs method at each condition (warnings off); each unknown condition vs the known
   one (warnings off), per method; warnings on vs off, and calibrated vs off on the fresh seeds, per method and
   condition.
-Each is decided by the stratified exact McNemar test over its replicates (exact: replicates drive disjoint seed
-blocks, so their tables are independent), Holm's correction over the whole family (family-wise error ≤ α), and the
-agreement rule: a finding needs every replicate to show a non-zero difference of its sign (`uqdrive.uq.family`).
-Only the first k rollouts of a cell enter, k fixed in advance (`fixed_rollouts`), so the
+Each is decided for the average over these controllers (the mean of the replicates' controllers' gains, with a
+betting interval valid however unlike they are; `uqdrive.uq.family`) with Bonferroni's correction over the whole
+family (family-wise error ≤ α). Only the first k rollouts of a cell enter, k fixed in advance (`fixed_rollouts`), so the
 exact tests hold whatever a sequential scheme did next.
 """
 
@@ -19,12 +18,13 @@ import dataclasses
 import itertools
 from collections.abc import Iterator
 
+import numpy as np
+
 from uqdrive.analysis.method_claims import ClaimRecord
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import PAIRS, AvoidCell, AvoidResult, Mode, SafetyCell
-from uqdrive.uq.family import Comparison, decide_findings
-from uqdrive.uq.paired import PairedTable, paired_table
+from uqdrive.uq.family import ESTIMAND, Comparison, decide_findings
 from uqdrive.uq.verdict import Reason, Verdict
 
 Cell = SafetyCell | AvoidCell
@@ -33,12 +33,9 @@ Cell = SafetyCell | AvoidCell
 @record
 class FindingRecord:
     """One comparison of the controller-level family ("for these trained controllers"): "A vs B" (``a``, ``b``: the
-    two cells' labels), η̂_A − η̂_B over the replicates' paired runs (``effect``); the stratified exact test's raw
-    and Holm-adjusted p-values and the ``level`` Holm grants it; ``share_low``/``share_high``: the inversion of that
-    test at that level, for π (the share of discordant pairs in which A alone is safe), and ``low``/``high`` the
-    same on the difference scale at the observed ``discordance`` — either excludes 0 (½) exactly when the test
-    rejects (``significant``); ``supported``: significant and every replicate shows a non-zero difference of the
-    pooled sign (``verdict``, and the ``reason`` where undecided); per replicate the discordant counts."""
+    two cells' labels). ``effect``: the average over the controllers of η̂_A − η̂_B on their first ``runs`` runs
+    each; ``low``/``high``: its betting interval at level 1 − ``level`` (α over the family's comparisons);
+    ``supported`` ⇔ the interval excludes 0 ⇔ ``p_value`` ≤ ``level``; per replicate the discordant counts."""
 
     name: str
     experiment: str
@@ -49,32 +46,24 @@ class FindingRecord:
     effect: float
     low: float
     high: float
-    share: float
-    share_low: float
-    share_high: float
-    discordance: float
+    runs: int
     p_value: float
-    adjusted_p: float
     level: float
-    significant: bool
-    consistent: bool
     supported: bool
     verdict: Verdict
     reason: Reason
     alpha: float
     replicates: list[int]
-    agreeing: list[int]
-    opposing: list[int]
-    pairs: int
     a_only: dict[int, int]
     b_only: dict[int, int]
+    estimand: str = ESTIMAND
 
 
 @record
 class Findings:
-    """metrics/findings.json: both levels of answer. ``findings``: the controller-level family (exact tests across
-    the replicates' paired runs, Holm at ``alpha``); ``claims``: the method-level families (t across replicates,
-    Bonferroni at ``alpha`` within each; ``margin``: δ of equivalence)."""
+    """metrics/findings.json: both levels of answer. ``findings``: the controller-level family (a majority of these
+    controllers, Bonferroni at ``alpha``); ``claims``: the method-level families (sign test and betting interval
+    across training runs, Bonferroni at ``alpha`` within each; ``margin``: δ of equivalence)."""
 
     alpha: float
     comparisons: int
@@ -84,15 +73,16 @@ class Findings:
     claims: list[ClaimRecord] = dataclasses.field(default_factory=list)
 
 
-def _table(a: Cell, b: Cell) -> PairedTable:
+def _outcomes(a: Cell, b: Cell) -> tuple[np.ndarray, np.ndarray]:
+    """The two cells' outcomes paired by seed, the first k of each (k fixed in advance: `fixed_rollouts`)."""
     k = min(a.fixed_rollouts, b.fixed_rollouts)
     if a.base_seed != b.base_seed:
         raise ValueError(f"cells on other rollout seeds ({a.base_seed}, {b.base_seed}) are not paired")
-    return paired_table(a.safe[:k], b.safe[:k])
+    return np.asarray(a.safe[:k], bool), np.asarray(b.safe[:k], bool)
 
 
 def _comparison(name: str, pairs: dict[int, tuple[Cell, Cell]]) -> Comparison:
-    return Comparison(name, {r: _table(a, b) for r, (a, b) in pairs.items()})
+    return Comparison(name, {r: _outcomes(a, b) for r, (a, b) in pairs.items()})
 
 
 def safety_comparisons(
@@ -171,23 +161,14 @@ def decide(family: list[tuple], alpha: float) -> Findings:
             effect=f.effect,
             low=f.low,
             high=f.high,
-            share=f.share,
-            share_low=f.share_low,
-            share_high=f.share_high,
-            discordance=f.discordance,
+            runs=f.runs,
             p_value=f.p_value,
-            adjusted_p=f.adjusted_p,
             level=f.level,
-            significant=f.significant,
-            consistent=f.consistent,
             supported=f.supported,
             verdict=f.verdict,
             reason=f.reason,
             alpha=f.alpha,
-            replicates=list(f.replicates),
-            agreeing=list(f.agreeing),
-            opposing=list(f.opposing),
-            pairs=sum(t.n for t in f.tables.values()),
+            replicates=list(f.tables),
             a_only={r: t.a_only for r, t in f.tables.items()},
             b_only={r: t.b_only for r, t in f.tables.items()},
         )

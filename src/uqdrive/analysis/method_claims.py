@@ -1,14 +1,17 @@
 """Method-level answers: claims about posterior families (the mean over training runs), decided across replicates.
 
-Three families, each at family-wise error α on its own (Bonferroni within it, `uqdrive.uq.claims`):
+Three families, each at family-wise error α on its own (Bonferroni within it; sign test and betting interval,
+valid whatever the training runs do, `uqdrive.uq.claims`):
 
 - ``paper``: the paper's comparisons, fixed in advance — offline safety at the training location without noise
   over the sweep's weathers (VI > HMC > MCD, as the paper ranks them), MCD without rain against MCD in rain, and
   per method the warnings (on, and calibrated on fresh seeds) against none in the unknown conditions (the
   paper's VI: 0.00 → 0.90);
 - ``exploratory``: every method pair at every condition of both experiments, and the warnings per condition;
-- ``margin``: the paper's offline method pairs on each run's margin (`PathVerdict.margin`), a separate estimand
-  (how far inside its lane a controller stays), never η1.
+- ``margin``: the paper's offline method pairs on each run's margin (`PathVerdict.margin`: the worst signed distance
+  to the lane's edge over a run, in lane half-widths), a separate estimand, never η1. Its variance comes almost
+  all from runs that leave the lane (their margin is negative and far from 0), so it measures how far failing runs
+  go off the road more than how centred safe runs stay; unbounded, so decided by the sign test alone.
 
 A claim reads "A is safer than B". Replicate r gives one paired difference from its cells on its own seeds
 (pooled claims concatenate the pairs of their conditions); replicates drive disjoint seeds, so the differences
@@ -26,7 +29,7 @@ from uqdrive import paper
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import PAIRS, AvoidCell, AvoidResult, Mode, SafetyCell
-from uqdrive.uq.claims import ClaimResult, MarginClaim, MethodClaim, decide_claims
+from uqdrive.uq.claims import ClaimResult, MethodClaim, ScoreClaim, decide_claims
 from uqdrive.uq.paired import paired_table
 from uqdrive.uq.verdict import Reason, Verdict  # noqa: F401  (record field types)
 
@@ -36,10 +39,12 @@ RAIN = "rain"
 
 @record
 class ClaimRecord:
-    """One claim "``a`` is safer than ``b``" (``family``: paper, exploratory or margin) decided over the replicates:
-    Δ̂ (the mean of ``per_replicate``), its interval and equivalence interval at ``level``, the verdict and, if
-    undecided, the reason; ``detectable``: the |Δ| this design detects with 80 % power; ``needed``: replicates that
-    would detect ``margin``; ``a_rates``, ``b_rates``: each replicate's two sides; ``paper``: the paper's numbers."""
+    """One claim "``a`` is safer than ``b``" (``family``: paper, exploratory or margin) decided over the replicates
+    (`uq.claims.ClaimResult`, whose fields it carries): the sign test's ``ahead``/``behind`` runs and its interval
+    for the share of differing runs A wins, the mean difference ``estimate`` and its betting interval
+    ``low``/``high`` (None: an unbounded score), the verdict and, if undecided, the reason and the runs that would
+    decide it; ``per_replicate``: each replicate's difference (``unit``), ``a_rates``, ``b_rates`` its two sides;
+    ``paper``: the paper's numbers."""
 
     family: str
     name: str
@@ -47,15 +52,17 @@ class ClaimRecord:
     a: str
     b: str
     paper: str | None
+    unit: str
     estimate: float
-    low: float
-    high: float
-    equivalence_low: float
-    equivalence_high: float
+    low: float | None
+    high: float | None
+    ahead: int
+    behind: int
+    share_low: float
+    share_high: float
     p_value: float
-    sd: float
-    detectable: float
-    needed: int | None
+    differing_runs_needed: int | None
+    equivalence_runs_needed: int | None
     level: float
     margin: float
     replicates: list[int]
@@ -65,6 +72,7 @@ class ClaimRecord:
     pairs: int
     verdict: Verdict
     reason: Reason
+    estimand: str
     assumption: str
 
 
@@ -180,9 +188,7 @@ def _decide(
     for claim in claims:
         _check_paired(claim.sides)
     if on_margins:
-        decided = decide_claims(
-            [MarginClaim(c.name, {r: c.margins(r) for r in c.sides}, margin) for c in claims], alpha
-        )
+        decided = decide_claims([ScoreClaim(c.name, {r: c.margins(r) for r in c.sides}, margin) for c in claims], alpha)
     else:
         tables = [{r: paired_table(*c.outcomes(r)) for r in c.sides} for c in claims]
         decided = decide_claims([MethodClaim(c.name, t, margin) for c, t in zip(claims, tables)], alpha)
@@ -191,34 +197,58 @@ def _decide(
 
 def _record(family: str, claim: _Claim, decided: ClaimResult, on_margins: bool) -> ClaimRecord:
     sides = [claim.outcomes(r) if not on_margins else _margin_sides(claim, r) for r in claim.sides]
-    a_rates, b_rates = [float(np.mean(a)) for a, _ in sides], [float(np.mean(b)) for _, b in sides]
+    rates = [float(np.mean(a)) for a, _ in sides], [float(np.mean(b)) for _, b in sides]
+    what = (claim.name, claim.experiment, claim.a, claim.b, None if on_margins else claim.paper)
+    return claim_record(family, what, decided, rates, len(sides[0][0]), on_margins)
+
+
+def claim_record(
+    family: str,
+    what: tuple[str, str, str, str, str | None],
+    decided: ClaimResult,
+    rates: tuple[list[float], list[float]],
+    pairs: int,
+    on_margins: bool,
+) -> ClaimRecord:
+    """The record of a decided claim: ``what`` is (name, experiment, a, b, the paper's numbers); ``rates`` each
+    replicate's A and B (η̂1, or mean margin); ``pairs``: paired runs per replicate."""
+    name, experiment, a, b, paper_text = what
+    a_rates, b_rates = rates
     return ClaimRecord(
         family=family,
-        name=claim.name,
-        experiment=claim.experiment,
-        a=claim.a,
-        b=claim.b,
-        paper=claim.paper,
+        name=_margin_name(name) if on_margins else name,
+        experiment=experiment,
+        a=a,
+        b=b,
+        paper=paper_text,
+        unit="lane half-widths" if on_margins else "η1",
         estimate=decided.estimate,
         low=decided.low,
         high=decided.high,
-        equivalence_low=decided.equivalence_low,
-        equivalence_high=decided.equivalence_high,
+        ahead=decided.ahead,
+        behind=decided.behind,
+        share_low=decided.share_low,
+        share_high=decided.share_high,
         p_value=decided.p_value,
-        sd=decided.sd,
-        detectable=decided.detectable,
-        needed=decided.needed,
+        differing_runs_needed=decided.differing_runs_needed,
+        equivalence_runs_needed=decided.equivalence_runs_needed,
         level=decided.level,
         margin=decided.margin,
         replicates=list(decided.replicates),
-        per_replicate=[a - b for a, b in zip(a_rates, b_rates)],
+        per_replicate=[x - y for x, y in zip(a_rates, b_rates)],
         a_rates=a_rates,
         b_rates=b_rates,
-        pairs=len(sides[0][0]),
+        pairs=pairs,
         verdict=decided.verdict,
         reason=decided.reason,
+        estimand=decided.estimand,
         assumption=decided.assumption,
     )
+
+
+def _margin_name(name: str) -> str:
+    """ "vi safer than hmc offline" → "vi keeps a wider margin than hmc offline": never an η1 claim's name."""
+    return name.replace(" safer than ", " keeps a wider margin than ")
 
 
 def _margin_sides(claim: _Claim, replicate: int) -> tuple[np.ndarray, np.ndarray]:
@@ -243,9 +273,9 @@ def method_claims(
     paper: bool = True,
 ) -> list[ClaimRecord]:
     """Every family of method claims, each decided at family-wise error ``alpha``; ``margin``: δ of equivalence
-    (η1 units, and lane half-widths for the margin family). ``paper``: the cells are the paper's offline experiment,
-    so its claims are made (not for a Gymnasium world's cells, which only the exploratory family compares: there
-    the warnings' claims over the unknown conditions are exploratory too)."""
+    (η1 units; the margin family, unbounded, is never called equivalent). ``paper``: the cells are the paper's
+    offline experiment, so its claims are made (not for a Gymnasium world's cells, which only the exploratory family
+    compares: there the warnings' claims over the unknown conditions are exploratory too)."""
     location, _, noise = training
     offline = offline_claims(cells, methods, location, noise) if paper else []
     warnings = warning_claims(results, methods, paper) if results else []

@@ -31,28 +31,25 @@ WORDS = {
 }
 
 
-def _interval(low: float, high: float) -> str:
-    return f"[{low:+.2f}, {high:+.2f}]"
+def _interval(low: float | None, high: float | None) -> str:
+    return "[no bounded range]" if low is None or high is None else f"[{low:+.2f}, {high:+.2f}]"
 
 
 def _estimate(claim) -> str:
-    """Δ̂ and its interval; where the verdict rests on the equivalence interval (wider: its variance is floored at the
-    margin's) and that differs, that one too, so "undecided" is read against the interval that decided it."""
-    text = f"{claim.estimate:+.2f} {_interval(claim.low, claim.high)}"
-    equivalence = (claim.equivalence_low, claim.equivalence_high)
-    if claim.verdict in (Verdict.EQUIVALENT, Verdict.UNDECIDED) and equivalence != (claim.low, claim.high):
-        text += f", ±δ test {_interval(*equivalence)}"
+    """The two estimands: the runs each side won (the sign test's) and the mean difference with its betting
+    interval — the one that decided equivalence, or would have."""
+    runs = f"A higher in {claim.ahead}, B in {claim.behind} of {len(claim.replicates)} runs"
+    return f"{runs}; mean {claim.estimate:+.2f} {_interval(claim.low, claim.high)}"
+
+
+def _needed(claim) -> str:
+    """What would decide an undecided claim, whatever the spread of training runs."""
+    if claim.verdict is not Verdict.UNDECIDED:
+        return "–"
+    text = f"{claim.differing_runs_needed} differing runs (sign test, A safer in 9 of 10)"
+    if claim.equivalence_runs_needed:
+        text += f"; {claim.equivalence_runs_needed} runs for ±{claim.margin:g} (any spread)"
     return text
-
-
-def _detectable(claim) -> str:
-    """The smallest difference this design detects at 80 % power, and the replicates that would detect δ (none to
-    say where no replicate's pair differs: no spread to plan from)."""
-    if claim.sd == 0:
-        return "no spread to plan from"
-    detects = "none below 1" if claim.detectable > 1 else f"{claim.detectable:.2f}"
-    needed = f", δ = {claim.margin:g} needs {claim.needed} replicates" if claim.needed else ""
-    return detects + needed
 
 
 def claims_markdown(findings) -> str:
@@ -66,8 +63,8 @@ def claims_markdown(findings) -> str:
             c.paper or "–",
             f"{sum(c.a_rates) / len(c.a_rates):.2f} vs {sum(c.b_rates) / len(c.b_rates):.2f}",
             _estimate(c),
-            WORDS[c.verdict] + (f" ({c.reason})" if c.verdict is Verdict.UNDECIDED else ""),
-            _detectable(c),
+            WORDS[c.verdict],
+            _needed(c),
         ]
         for c in paper
     ]
@@ -75,21 +72,29 @@ def claims_markdown(findings) -> str:
     first = paper[0]
     text = [
         f"**The paper's claims, for the method** (each posterior family over its training runs: "
-        f"{len(first.replicates)} replicates, {first.pairs} paired runs each). Each claim is decided by Student's t "
-        f"across replicates of the paired difference, at {fmt(first.level, 4)} each (Bonferroni over the "
-        f"{len(paper)} claims: family-wise error ≤ {findings.alpha:g}), assuming {first.assumption}. Verdicts: "
-        f"supported, refuted, equivalent within ±{findings.margin:g}, or undecided. **{decided} of {len(paper)} "
-        "decided.**",
-        table(["claim (A safer than B)", "paper", "ours: A vs B", "Δ̂ [interval]", "verdict", "detects"], rows),
+        f"{len(first.replicates)} replicates, {first.pairs} paired runs each). Supported or refuted: the exact sign "
+        "test of P(A's run scores higher than its paired B's, among runs that differ) = ½; equivalent within "
+        f"±{findings.margin:g}: the betting interval for the mean difference, valid for every spread of training runs "
+        f"on [−1, 1]. Each claim at {fmt(first.level, 4)} (Bonferroni over the {len(paper)} claims: family-wise "
+        f"error ≤ {findings.alpha:g}); assumption: {first.assumption}. **{decided} of {len(paper)} decided.**",
+        table(
+            [
+                "claim (A safer than B)",
+                "paper",
+                "ours: A vs B",
+                "runs won; mean Δ̂ [interval]",
+                "verdict",
+                "would decide it",
+            ],
+            rows,
+        ),
     ]
-    for family, title in (("exploratory", "Exploratory"), ("margin", "Margins (a separate estimand, not η1)")):
+    for family, title in (("exploratory", "Exploratory"), ("margin", "Margins (lane half-widths, not η1)")):
         members = [c for c in findings.claims if c.family == family]
         if members:
             counts = {v: sum(c.verdict is v for c in members) for v in Verdict}
             listed = "; ".join(
-                f"{c.name}: {WORDS[c.verdict]} {c.estimate:+.2f} {_interval(c.low, c.high)}"
-                for c in members
-                if c.verdict is not Verdict.UNDECIDED
+                f"{c.name}: {WORDS[c.verdict]} ({_estimate(c)})" for c in members if c.verdict is not Verdict.UNDECIDED
             )
             text.append(
                 f"**{title}, for the method**: {len(members)} claims, supported {counts[Verdict.SUPPORTED]}, "
@@ -100,8 +105,8 @@ def claims_markdown(findings) -> str:
 
 
 def _safer(f) -> tuple[str, str]:
-    """The finding as "X safer than Y" and the gain in η̂1 with its interval, read in that direction."""
-    if f.effect > 0:
+    """The finding as "X safer than Y" and the average gain in η̂1 with its interval, read in that direction."""
+    if f.low > 0 or (f.high >= 0 and f.effect > 0):
         return f"**{f.a}** safer than {f.b}", f"+{f.effect:.2f} {_interval(f.low, f.high)}"
     return f"**{f.b}** safer than {f.a}", f"+{-f.effect:.2f} {_interval(-f.high, -f.low)}"
 
@@ -114,12 +119,14 @@ def controller_markdown(findings) -> str:
     """Supported controller-level findings, grouped by kind; within a kind, those that say one thing of many cells
     (e.g. every method is less safe at one location in every weather) are one row."""
     supported = [f for f in findings.findings if f.supported]
+    first = findings.findings[0] if findings.findings else None
+    design = f"{len(first.replicates)} controllers, {first.runs} runs each" if first else "no comparisons"
     lines = [
-        f"**For these trained controllers**: {findings.comparisons} comparisons, each on paired rollouts (the same "
-        f"seeds) of every training replicate, decided by the stratified exact McNemar test with Holm's correction "
-        f"over all of them (family-wise error ≤ {findings.alpha:g}); supported only if every replicate shows a "
-        f"difference of the same sign. **{findings.supported} supported.** The interval is the inversion of the "
-        "finding's own test at the level Holm grants it, on the difference scale at the observed discordance."
+        f"**For these trained controllers** ({design}): {findings.comparisons} comparisons, each on paired rollouts "
+        "(the same seeds). A finding's interval is for **the average gain over these controllers**: the betting "
+        "interval for the mean of their paired differences, valid however unlike the controllers are, Bonferroni "
+        f"over all comparisons (family-wise error ≤ {findings.alpha:g}); supported exactly when it excludes 0. "
+        f"**{findings.supported} supported.**"
     ]
     for (experiment, kind), title in KINDS.items():
         group = [f for f in supported if (f.experiment, f.kind) == (experiment, kind)]
@@ -129,21 +136,15 @@ def controller_markdown(findings) -> str:
             members = sorted(members, key=lambda f: -abs(f.effect))
             what, gain = _safer(members[0])
             if len(members) > 1:
-                controllers = sorted({_method(f.a) for f in members})
-                what = f"{what} (and alike for {len(members) - 1} more: {', '.join(controllers)})"
-                gains = [abs(f.effect) for f in members]
-                gain = f"{min(gains):.2f}–{max(gains):.2f}"
-            adjusted = max(f.adjusted_p for f in members)
-            rows.append([what, gain, fmt(adjusted, 4) if adjusted >= 1e-4 else f"{adjusted:.1e}"])
+                methods = ", ".join(sorted({_method(f.a) for f in members}))
+                what = f"{what} (and {len(members) - 1} more alike; methods in all: {methods})"
+                gains = sorted({round(abs(f.effect), 2) for f in members})
+                gain = f"{gains[0]:.2f}" if len(gains) == 1 else f"{gains[0]:.2f} to {gains[-1]:.2f}"
+            largest = max(f.p_value for f in members)
+            rows.append([what, gain, fmt(largest, 4) if largest >= 1e-4 else f"{largest:.1e}"])
         if rows:
-            lines.append(f"**{title}**\n\n" + table(["finding", "η̂1 gained [interval]", "adjusted p (largest)"], rows))
-    opposed = [f for f in findings.findings if f.significant and not f.supported]
-    if opposed:
-        lines.append(
-            "Significant but not supported: "
-            + "; ".join(f"{f.name} ({f.effect:+.2f}; {f.reason})" for f in opposed)
-            + "."
-        )
+            header = ["finding", "average η̂1 gained [interval]", "p (largest)"]
+            lines.append(f"**{title}**\n\n" + table(header, rows))
     return "\n\n".join(lines)
 
 

@@ -3,12 +3,13 @@ sequential threshold tests with exact error.
 
 Knows nothing of the simulator, data or models: it takes posterior class probabilities
 ``[n, B, C]`` and the class centres, or 0/1 outcomes.
-Comparisons of cells on the same seeds: exact paired tests (`paired`), Holm and Bonferroni (`multiplicity`),
-intervals over training replicates (`replicates`); the two levels of answer: a family of findings for these
-trained controllers (`family`) and method claims over training runs (`claims`), with their `verdict`;
+Comparisons of cells on the same seeds: exact paired tests (`paired`), Bonferroni (`multiplicity`),
+intervals over training replicates (`replicates`, `betting`); the two levels of answer: a family of findings for
+these trained controllers (`family`) and method claims over training runs (`claims`), with their `verdict`;
 Learn-then-Test (`ltt`).
 """
 
+from uqdrive.uq.betting import MeanInterval, mean_interval
 from uqdrive.uq.bounds import (
     chernoff_n,
     clopper_pearson_interval,
@@ -18,11 +19,11 @@ from uqdrive.uq.bounds import (
 from uqdrive.uq.claims import (
     ClaimResult,
     MethodClaim,
+    ScoreClaim,
     decide_claim,
     decide_claims,
-    detectable_difference,
-    replicate_t,
-    replicates_needed,
+    equivalence_runs_needed,
+    sign_runs_needed,
 )
 from uqdrive.uq.estimators import (
     Estimate,
@@ -36,7 +37,7 @@ from uqdrive.uq.estimators import (
     sprt_cap,
     wilson,
 )
-from uqdrive.uq.family import Comparison, Finding, decide_finding, decide_findings, share_interval
+from uqdrive.uq.family import Comparison, Finding, decide_finding, decide_findings
 from uqdrive.uq.measures import (
     FrameMeasures,
     check_samples,
@@ -53,7 +54,7 @@ from uqdrive.uq.measures import (
     steering_moments,
     within_ball,
 )
-from uqdrive.uq.multiplicity import holm, holm_levels, split_gamma
+from uqdrive.uq.multiplicity import split_gamma
 from uqdrive.uq.paired import (
     PairedTable,
     PairedTest,
@@ -61,7 +62,7 @@ from uqdrive.uq.paired import (
     mcnemar_p,
     paired_table,
     paired_test,
-    stratified_p,
+    share_interval,
 )
 from uqdrive.uq.replicates import ReplicateInterval, replicate_bounded_interval, replicate_t_interval
 from uqdrive.uq.sequential import SequentialScheme, sequential_scheme
@@ -112,11 +113,11 @@ __all__ = [
     "decide_claims",
     "decide_finding",
     "decide_findings",
-    "detectable_difference",
-    "holm",
-    "holm_levels",
-    "replicate_t",
-    "replicates_needed",
+    "equivalence_runs_needed",
+    "sign_runs_needed",
+    "mean_interval",
+    "MeanInterval",
+    "ScoreClaim",
     "share_interval",
     "split_gamma",
     "PairedTable",
@@ -125,7 +126,6 @@ __all__ = [
     "mcnemar_p",
     "paired_table",
     "paired_test",
-    "stratified_p",
     "ReplicateInterval",
     "replicate_bounded_interval",
     "replicate_t_interval",

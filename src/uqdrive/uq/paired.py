@@ -1,4 +1,4 @@
-"""Exact paired comparison of two cells run on the same rollout seeds (exact McNemar test and its stratified form).
+"""Exact paired comparison of two cells run on the same rollout seeds (exact McNemar test, the sign test's interval).
 
 Rollout i of every cell uses seed base_seed + i, so cells A and B pair their 0/1 outcomes by seed. Only the
 discordant pairs carry the difference: with ``a_only`` pairs where only A is safe and ``b_only`` where only B
@@ -60,20 +60,32 @@ def sign_test_p(k: int, m: int) -> float:
     return float(min(1.0, 2 * tail))
 
 
+ABOVE_HALF, BELOW_HALF = float(np.nextafter(0.5, 1.0)), float(np.nextafter(0.5, 0.0))
+
+
+def share_interval(a_only: int, discordant: int, level: float) -> tuple[float, float]:
+    """Interval for π, the share of discordant pairs in which A alone is safe: the inversion of the exact test.
+
+    The equal-tailed Clopper–Pearson interval at level 1 − ``level`` ([0, 1] without discordant pairs) holds
+    the π the equal-tailed exact binomial test at ``level`` does not reject; at π = ½ that test is the sign
+    test (`sign_test_p`). The end next to ½ is reconciled with the sign test's own p-value — the two agree but
+    for rounding, and where the exact tail equals the level (the test rejects) the end is put one
+    floating-point step past ½ — so the interval excludes ½ exactly when p ≤ ``level``.
+    """
+    if discordant == 0:
+        return 0.0, 1.0
+    low, high = (float(v) for v in clopper_pearson_interval(a_only, discordant, level))
+    rejects = sign_test_p(a_only, discordant) <= level
+    if 2 * a_only > discordant:
+        low = max(low, ABOVE_HALF) if rejects else min(low, 0.5)
+    elif 2 * a_only < discordant:
+        high = min(high, BELOW_HALF) if rejects else max(high, 0.5)
+    return low, high
+
+
 def mcnemar_p(table: PairedTable) -> float:
     """Exact two-sided McNemar p-value: the sign test on the discordant pairs."""
     return sign_test_p(table.a_only, table.discordant)
-
-
-def stratified_p(tables: Sequence[PairedTable]) -> float:
-    """Exact two-sided test of "no difference in any stratum" (e.g. any training replicate).
-
-    Under that null each stratum's a_only ~ Bin(m_r, ½) given its discordant count m_r, independently, so
-    Σ a_only ~ Bin(Σ m_r, ½) given the counts: the sign test on the pooled discordant pairs is exact.
-    """
-    if not tables:
-        raise ValueError("the stratified test needs at least one table")
-    return sign_test_p(sum(t.a_only for t in tables), sum(t.discordant for t in tables))
 
 
 def difference_interval(table: PairedTable, gamma: float) -> tuple[float, float]:

@@ -17,8 +17,6 @@ class Reason(StrEnum):
     """Why a comparison is undecided ("" where it is decided)."""
 
     DECIDED = ""
-    NOT_SIGNIFICANT = "not significant"
-    REPLICATES_DISAGREE = "replicates disagree"
-    NO_DIFFERENCE_IN_A_REPLICATE = "a replicate shows no difference"
+    NOT_SIGNIFICANT = "the interval holds 0 at this level"
     TOO_FEW_REPLICATES = "fewer than two replicates"
-    INTERVAL_TOO_WIDE = "the interval holds 0 and reaches past the margin"
+    NOT_DECIDED = "neither the sign test nor the mean's interval decides it at this level"
