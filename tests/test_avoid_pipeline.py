@@ -60,9 +60,9 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
         "runs": 4,
         "autonomous": autonomous,
         "target": 0.3,
-        "level": 0.05,
+        "level": 0.025,  # γ over the tiny profile's 2 controllers: 4 fresh runs give power 0.8 at autonomy 0.95
         "p_value": pytest.approx(p_value),
-        "target_met": p_value <= 0.05,
+        "target_met": p_value <= 0.025,
         "known_autonomy": calibrated["autonomy"],
         "known_eta1": calibrated["eta1"],
         "unknown_eta1": saved["unknown"]["calibrated"]["eta1"],

@@ -180,8 +180,10 @@ def test_the_paper_profile_keeps_the_papers_guarantee_in_fewer_rollouts(stage_co
     assert (safety.scheme, safety.theta, safety.gamma) == ("sequential", 0.05, 0.05)
     assert safety.fixed_rollouts() == 36 and safety.planned_rollouts() < 738
     model = f"avoid.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
-    avoid = build_settings(stage_config("avoid", "profile=paper", model, *ALL_TENTHS))
+    controllers = "avoid.calibration.fresh_check.controllers=3"  # the project's params.yaml: not in this tmp root
+    avoid = build_settings(stage_config("avoid", "profile=paper", model, controllers, *ALL_TENTHS))
     assert (avoid.estimator.scheme, avoid.estimator.theta, avoid.estimator.gamma) == ("sequential", 0.05, 0.05)
     assert [c.name for c in avoid.conditions] == [KNOWN, UNKNOWN] and len(avoid.unknown[0].variants) == 4
     calibration = avoid.calibration
     assert avoid.fixed_rollouts() == 100 >= min_calibration_runs(calibration.autonomy_target, calibration.gamma)
+    assert calibration.fresh_check.target == 0.8 and calibration.fresh_runs() == 44  # power 0.8 at 0.95, γ / 3

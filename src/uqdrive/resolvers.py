@@ -44,6 +44,11 @@ def posteriors(root: str) -> list:
     return ["mcd", *read_param("heads", root)]
 
 
+def controllers(root: str) -> int:
+    """The controllers the pipeline drives in closed loop: params.yaml's methods × replicates."""
+    return len(read_param("methods", root)) * len(read_param("replicates", root))  # type: ignore[arg-type]
+
+
 def noise_label(noise: object) -> str:
     """A noise sigma as DVC renders a float of params.yaml (0 and 0.0 → "0.0", 0.05 → "0.05"); a value that
     is not a number is left for the stage's check to reject."""
@@ -91,6 +96,7 @@ def register_resolvers() -> None:
     for name, resolver in (
         ("params", read_param),
         ("posteriors", posteriors),
+        ("controllers", controllers),
         ("noise_label", noise_label),
         ("world_locations", world_locations),
         ("world_unknown", world_unknown),

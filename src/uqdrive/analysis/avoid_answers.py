@@ -52,8 +52,9 @@ def avoid_result(
         for mode in Mode
     }
     known = table[names[0]][Mode.CALIBRATED]
-    handed = handed_over(cells[names[0], Mode.CALIBRATED])[:fixed]
-    test = fresh_seed_check(handed, calib.target, calib.gamma)
+    sizing = settings.calibration
+    handed = handed_over(cells[names[0], Mode.CALIBRATED])[: sizing.fresh_runs()]
+    test = fresh_seed_check(handed, sizing.fresh_check.target, sizing.fresh_level())
     fresh = FreshSeedRecord(
         test.runs,
         test.autonomous,
@@ -61,7 +62,7 @@ def avoid_result(
         test.level,
         test.p_value,
         test.met,
-        known.autonomy,
+        test.autonomous / test.runs,
         known.eta1,
         mixture[Mode.CALIBRATED].eta1,
         settings.validation_seed,

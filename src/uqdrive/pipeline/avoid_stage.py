@@ -58,11 +58,13 @@ def run_cell(
     mode: Mode,
     rule: WarningRule,
     off: Cell | None = None,
+    floor: int = 0,
 ) -> Cell:
     """η̂1 of one cell; the rollouts its log already holds (same identity) are replayed, not rerun, so a finished
     cell costs nothing on a rerun and an interrupted one resumes. Warnings-off modes drive without warnings, on
     the same draws (``rule``'s are only counted); fresh modes drive the validation seeds. ``off``: the warnings-off
-    cell on the same seeds, whose rollouts the rule never changes are reused."""
+    cell on the same seeds, whose rollouts the rule never changes are reused. ``floor``: runs the cell makes at
+    least, beside the stage's own floor (the fresh-seed check's)."""
     base_seed = settings.validation_seed if mode.fresh else settings.estimator.base_seed
     estimator = dataclasses.replace(settings.estimator, base_seed=base_seed)
     job = settings.job(where, None if mode.warnings_off else rule, base_seed)
@@ -74,7 +76,7 @@ def run_cell(
         estimate_key(job, estimator, __name__),
         Path(settings.stage.avoid.rollout_log) / f"{name}.jsonl",
         reuse=unchanged_by(rule, off) if off is not None else None,
-        floor=settings.min_rollouts,
+        floor=max(settings.min_rollouts, floor),
     )
     return Cell(name, where.name, mode, rule, run.outcome, run.results, run.seconds, run.reused, base_seed)
 
@@ -109,9 +111,14 @@ def drive(settings: AvoidSettings) -> tuple[Cells, Calibration, Traces]:
             cells[where.name, Mode.ON] = run_cell(runner, settings, where, Mode.ON, settings.rule, off)
         calib, traces = calibration_of(settings, cells)
         calibrated = calib.rule  # the rule certified is the rule deployed
-        for where in settings.conditions:
-            fresh = cells[where.name, Mode.FRESH_OFF] = run_cell(runner, settings, where, Mode.FRESH_OFF, calibrated)
-            cells[where.name, Mode.CALIBRATED] = run_cell(runner, settings, where, Mode.CALIBRATED, calibrated, fresh)
+        for where in settings.conditions:  # the known condition's fresh runs: as many as the fresh-seed check needs
+            floor = settings.calibration.fresh_runs() if where is settings.known else 0
+            fresh = cells[where.name, Mode.FRESH_OFF] = run_cell(
+                runner, settings, where, Mode.FRESH_OFF, calibrated, floor=floor
+            )
+            cells[where.name, Mode.CALIBRATED] = run_cell(
+                runner, settings, where, Mode.CALIBRATED, calibrated, fresh, floor
+            )
     return cells, calib, traces
 
 

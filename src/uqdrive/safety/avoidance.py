@@ -20,7 +20,7 @@ from pydantic import Field
 
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.resolvers import world_location
-from uqdrive.safety.calibration import min_calibration_runs
+from uqdrive.safety.calibration import fresh_check_runs, min_calibration_runs
 from uqdrive.safety.cell_records import Mode
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
 from uqdrive.safety.draws import DrawSettings
@@ -30,6 +30,7 @@ from uqdrive.safety.warnings import WarningConfig, WarningRule
 from uqdrive.schema import (
     Bool,
     ConfigError,
+    Count,
     NonNegative,
     OpenUnit,
     Positive,
@@ -68,6 +69,23 @@ class UnknownCondition:
 
 
 @schema(frozen=True)
+class FreshCheckSettings:
+    """The fresh-seed check of the deployed rule's known-condition autonomy (`calibration.fresh_seed_check`), sized
+    in advance: Bonferroni over the ``controllers`` checked (each at the calibration's γ / controllers), with
+    enough known-condition fresh runs to declare ``target`` met with probability ≥ ``power`` when the true
+    autonomy is ``autonomy``."""
+
+    target: OpenUnit
+    autonomy: OpenUnit
+    power: OpenUnit
+    controllers: Count  # controllers the pipeline checks (methods × replicates): the correction's size
+
+    def __post_init__(self) -> None:
+        if not self.target < self.autonomy:
+            raise invalid("avoid.calibration.fresh_check.autonomy", self.autonomy, f"must exceed target {self.target}")
+
+
+@schema(frozen=True)
 class CalibrationSettings:
     """Threshold calibration by Learn-then-Test (`uqdrive.safety.calibration`): with probability ≥ 1 − ``gamma``
     every certified candidate keeps the replayed known-condition autonomy ≥ ``autonomy_target`` (and, with
@@ -82,6 +100,16 @@ class CalibrationSettings:
     missed_limit: OpenUnit | None  # None: no constraint on the unknown conditions' missed collisions
     calibration_fraction: Annotated[float, Field(gt=0, le=1)]  # share of run indices the tests use
     order: Literal["firing", "learned"]  # the fixed sequence: a priori, or Pareto Testing on the other runs
+    fresh_check: FreshCheckSettings
+
+    def fresh_level(self) -> float:
+        """Each controller's fresh-seed check: γ split over the controllers checked."""
+        return split_gamma(self.gamma, self.fresh_check.controllers)
+
+    def fresh_runs(self) -> int:
+        """Known-condition fresh runs the check needs (`calibration.fresh_check_runs`)."""
+        check = self.fresh_check
+        return fresh_check_runs(check.target, check.autonomy, self.fresh_level(), check.power)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "deltas", tuple(sorted(set(self.deltas))))

@@ -31,6 +31,7 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
+from scipy import special
 
 from uqdrive.safety.replay import Replay, Traces, replay
 from uqdrive.safety.warnings import WarningConfig, WarningRule
@@ -142,6 +143,20 @@ def fresh_seed_check(handed_over: Sequence[bool] | np.ndarray, target: float, le
         raise ValueError(f"the fresh-seed check's level must be in (0, 1), got {level!r}")
     p = float(rate_above_p(int(handed.sum()), handed.size, 1 - target))
     return FreshSeedCheck(handed.size, int((~handed).sum()), float(target), float(level), p, p <= level)
+
+
+def fresh_check_runs(target: float, autonomy: float, level: float, power: float) -> int:
+    """Fewest fresh runs at which `fresh_seed_check` at ``level`` declares ``target`` met with probability ≥
+    ``power`` when the rule's true autonomy is ``autonomy`` (exact binomial sums: the smallest count of autonomous
+    runs the test accepts, then its probability at ``autonomy``)."""
+    if not target < autonomy:
+        raise ValueError(f"the fresh-seed check is sized at an autonomy above its target {target}, got {autonomy}")
+    for runs in range(1, 100_000):
+        autonomous = np.arange(runs + 1)
+        met = rate_above_p(runs - autonomous, runs, 1 - target) <= level
+        if met.any() and special.bdtrc(int(np.argmax(met)) - 1, runs, autonomy) >= power:
+            return runs
+    raise ValueError(f"no run count up to 100000 reaches power {power} at autonomy {autonomy} (level {level})")
 
 
 NEVER_FIRES = (0.0, 0.0, 10.0)  # η2 < 0 is impossible and MI ≤ ln C < 10 nats: no warning, full autonomy
