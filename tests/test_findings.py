@@ -69,3 +69,24 @@ def test_avoid_pairs_warnings_with_the_same_seeds_and_refuses_unpaired_cells():
     results[0] = dataclasses.replace(result, cells={**result.cells, "fog": {**result.cells["fog"], "on": cell}})
     with pytest.raises(ValueError, match="cells on other rollout seeds"):
         list(avoid_comparisons(results, list(METHODS)))
+
+
+def test_redecide_gives_the_stages_claims_exactly_and_its_findings_from_the_counts(tmp_path):
+    """`uqdrive redecide` on a findings file the stage wrote: every claim's numbers are the stage's (they read only
+    the per-replicate differences); every comparison keeps its counts and average gain, its interval read from the
+    runs laid out in a seeded order (valid, ends close to the stage's)."""
+    import json
+
+    from test_report import write_run
+
+    from uqdrive.analysis.redecide import main, redecide
+
+    findings = write_run(tmp_path)[3]
+    path = tmp_path / "metrics/findings.json"
+    again = redecide(json.loads(path.read_text()))
+    assert [dataclasses.asdict(c) for c in again.claims] == [dataclasses.asdict(c) for c in findings.claims]
+    assert again.comparisons == findings.comparisons and again.alpha == findings.alpha
+    for old, new in zip(findings.findings, again.findings):
+        assert (new.name, new.a_only, new.b_only, new.runs) == (old.name, old.a_only, old.b_only, old.runs)
+        assert new.effect == pytest.approx(old.effect) and abs(new.low - old.low) < 0.2
+    assert main([str(path), "--out", str(tmp_path / "again.json")]) == 0 and (tmp_path / "again.json").exists()
