@@ -9,7 +9,8 @@ Replicates drive disjoint seed blocks, so every pair is independent of every oth
 same number of runs (the first k of each, k fixed in advance). Its interval is the betting interval for the mean
 of the strata's means (`betting.mean_interval` with one block per rollout index: pair i of every controller),
 valid for any gains the controllers have, however unlike: each end misses with probability ≤ level/2 (Ville's
-inequality), which `tests/test_uq_family.py` measures by simulation for alike and unlike controllers. SUPPORTED
+inequality), which `tests/test_uq_family.py` measures by simulation for alike and unlike controllers, and exactly
+by enumerating every sequence of small designs. SUPPORTED
 "A is safer than B on average over these controllers" ⇔ the interval lies above 0 (B: below) ⇔ the betting test's
 p ≤ level, by construction. More replicates give more runs to one interval, so more power.
 
