@@ -19,7 +19,9 @@ def safety_seeds(stage_config, seed: int, *overrides: str) -> range:
 
 
 def avoid_seeds(stage_config, seed: int, profile: str) -> list[range]:
-    stage = validate(AvoidStage, stage_config("avoid", f"seed={seed}", f"profile={profile}"))
+    # the fresh-seed check's controller count is read from params.yaml, which tmp_path lacks
+    overrides = (f"seed={seed}", f"profile={profile}", "avoid.calibration.fresh_check.controllers=30")
+    stage = validate(AvoidStage, stage_config("avoid", *overrides))
     most = max(stage.avoid.estimator.planned_rollouts(), stage.avoid.min_rollouts)
     return [
         range(stage.rollout_seeds(base), stage.rollout_seeds(base) + most)
