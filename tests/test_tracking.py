@@ -177,6 +177,19 @@ def test_a_grid_stage_nests_its_cells_under_one_parent_run_per_invocation(tmp_pa
     assert "mlflow.parentRunId" not in client.get_run(run.info.run_id).data.tags
 
 
+def test_a_grid_stage_run_as_a_multiruns_job_nests_under_the_multirun_and_hands_its_parent_back(tmp_path, monkeypatch):
+    client = MlflowClient(store_uris(tmp_path)[0])
+    experiment_id = ensure_experiment(tmp_path, "uqdrive/safety")
+    sweep = client.create_run(experiment_id, run_name="sweep safety_sweep").info.run_id
+    monkeypatch.setenv(tracking.PARENT_RUN_ENV, f"{experiment_id}:{sweep}")
+    with tracking.stage_parent_run(tmp_path, "safety", {}, [], name="sweep of 1 cells"):
+        with stage_run(tmp_path, "safety", {}, run_name="cell") as cell:
+            pass
+    invocation = client.get_run(cell.info.run_id).data.tags["mlflow.parentRunId"]
+    assert client.get_run(invocation).data.tags["mlflow.parentRunId"] == sweep
+    assert os.environ[tracking.PARENT_RUN_ENV] == f"{experiment_id}:{sweep}"  # for the multirun's next job
+
+
 def test_one_experiment_per_stage_is_reused(tmp_path):
     first = ensure_experiment(tmp_path, "preprocess")
     assert ensure_experiment(tmp_path, "preprocess") == first

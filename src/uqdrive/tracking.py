@@ -245,9 +245,7 @@ def stage_run(
     created = None
     try:
         experiment_id = ensure_experiment(root, experiment_name(stage, config))
-        parent = os.environ.get(PARENT_RUN_ENV, "")
-        if parent.startswith(f"{experiment_id}:"):  # a job of a sweep of this stage: nest it under the sweep's run
-            tags.setdefault("mlflow.parentRunId", parent.split(":", 1)[1])
+        tags.update(_nested(experiment_id))
         created = MlflowClient(store_uris(root)[0]).create_run(
             experiment_id, start_time=started, tags=tags, run_name=run_name
         )
@@ -327,8 +325,10 @@ def stage_parent_run(
     FINISHED when the block ends, FAILED on an error, KILLED on an interrupt or an early stop. A tracking failure
     warns and the cells run on, unnested."""
     tags = {**provenance_tags(root, config), "uqdrive.overrides": " ".join(overrides)}
+    enclosing = os.environ.get(PARENT_RUN_ENV)  # a Hydra multirun's parent run, if this invocation is one of its jobs
     try:
         experiment_id = ensure_experiment(root, experiment_name(stage, config))
+        tags.update(_nested(experiment_id))
         parent = MlflowClient(store_uris(root)[0]).create_run(
             experiment_id, tags=tags, run_name=_origin_prefix(tags) + name
         )
@@ -345,8 +345,17 @@ def stage_parent_run(
         status = "FAILED"
         raise
     finally:
-        os.environ.pop(PARENT_RUN_ENV, None)
+        if enclosing is None:
+            os.environ.pop(PARENT_RUN_ENV, None)
+        else:  # the multirun's next job nests under its parent again
+            os.environ[PARENT_RUN_ENV] = enclosing
         _terminate(root, parent.info.run_id, status)
+
+
+def _nested(experiment_id: str) -> dict[str, str]:
+    """The parent-run tag of a run made inside a parent run of this experiment (`PARENT_RUN_ENV`), else none."""
+    enclosing = os.environ.get(PARENT_RUN_ENV, "")
+    return {"mlflow.parentRunId": enclosing.split(":", 1)[1]} if enclosing.startswith(f"{experiment_id}:") else {}
 
 
 def _terminate(root: str | Path, run_id: str, status: str) -> None:
