@@ -48,6 +48,7 @@ chromium:
 	command -v chromium >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium; }
 
 ui: $(STAMP)
+	$(BIN)/python -c 'from uqdrive.tracking import follow_project; follow_project(".")'
 	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
 	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port 5000
 

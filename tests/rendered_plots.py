@@ -17,6 +17,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+WINDOW = "1280,900"  # a laptop's browser window: the room a page's images have
 # Debian's Chromium on a machine whose only network is the package registries: no background connections, no sandbox
 # (tests run as root), a fresh profile per run (https://www.chromium.org/developers/how-tos/run-chromium-with-flags/)
 FLAGS = (
@@ -30,7 +31,9 @@ FLAGS = (
     "--disable-sync",
     "--disable-extensions",
     "--allow-file-access-from-files",
+    f"--window-size={WINDOW}",
 )
+AXIS_TITLE_CHARS = 80  # an axis title a person reads at a glance: one line, no longer than this
 INSTALL_HINT = "no Chromium: `make chromium` installs Debian's package (apt-get install chromium), as .ci/run does"
 
 READ_BACK = """
@@ -66,13 +69,18 @@ READ_BACK = """
   };
   window.addEventListener("load", () => {
     Promise.all(pending).then((views) => {
-      const images = Array.from(document.querySelectorAll("img")).map((img) => ({
-        plot: (img.closest("div[id]") || {id: img.getAttribute("src")}).id,
-        kind: "image",
-        items: 1,
-        marks: img.complete && img.naturalWidth > 0 ? 1 : 0,
-        axis_titles: [],
-      }));
+      const images = Array.from(document.querySelectorAll("img")).map((img) => {
+        const panel = img.closest("div[id]");
+        return {
+          plot: panel ? panel.id : img.getAttribute("src"),
+          kind: "image",
+          items: 1,
+          marks: img.complete && img.naturalWidth > 0 ? 1 : 0,
+          axis_titles: [],
+          width: Math.round(img.getBoundingClientRect().width),
+          room: panel ? panel.clientWidth : null,
+        };
+      });
       const out = document.createElement("pre");
       out.id = "uqdrive-drawn";
       out.textContent = JSON.stringify({drawn: views.concat(images), errors: errors});
@@ -88,7 +96,8 @@ DRAWN = re.compile(r'<pre id="uqdrive-drawn">(.*?)</pre>', re.S)
 @dataclass(frozen=True)
 class Drawn:
     """One plot of the page as rendered: ``marks``: data mark items that take up room (for an image: 1 if it
-    loaded); ``items``: all data mark items; ``axis_titles``: every axis title the view shows."""
+    loaded); ``items``: all data mark items; ``axis_titles``: every axis title the view shows; for an image, the
+    ``width`` it is drawn at and the ``room`` its plot's panel has (CSS pixels)."""
 
     plot: str
     kind: str
@@ -96,6 +105,8 @@ class Drawn:
     marks: int
     axis_titles: tuple[str, ...]
     error: str | None = None
+    width: int | None = None
+    room: int | None = None
 
 
 def chromium() -> str | None:
@@ -129,7 +140,16 @@ def render(page: Path, timeout_s: float = 240) -> list[Drawn]:
     if result["errors"]:
         raise RuntimeError(f"{page}: script errors: {result['errors']}")
     return [
-        Drawn(d["plot"], d["kind"], d["items"], d["marks"], tuple(d["axis_titles"]), d.get("error"))
+        Drawn(
+            d["plot"],
+            d["kind"],
+            d["items"],
+            d["marks"],
+            tuple(d["axis_titles"]),
+            d.get("error"),
+            d.get("width"),
+            d.get("room"),
+        )
         for d in result["drawn"]
     ]
 
@@ -139,16 +159,21 @@ def _unescape(text: str) -> str:
 
 
 def problems(drawn: list[Drawn]) -> list[str]:
-    """What a person could not read: a view that failed, drew no data or has an untitled axis; an image that did
-    not load."""
+    """What a person could not read: a view that failed, drew no data, has an untitled axis or an axis title that
+    is not one short line; an image that did not load or is wider than its panel (cut off or scrolled)."""
     found = []
     for d in drawn:
+        unreadable = [t for t in d.axis_titles if len(t) > AXIS_TITLE_CHARS or "\n" in t]
         if d.error:
             found.append(f"{d.plot}: {d.error}")
         elif d.kind == "image" and not d.marks:
             found.append(f"{d.plot}: image did not load")
+        elif d.kind == "image" and d.room is not None and d.width > d.room:
+            found.append(f"{d.plot}: image {d.width} px wide in a panel of {d.room} px")
         elif d.kind == "vega" and not d.marks:
             found.append(f"{d.plot}: no data marks ({d.items} drawn with no extent)")
         elif d.kind == "vega" and (len(set(d.axis_titles)) < 2 or any("DVC_METRIC" in t for t in d.axis_titles)):
             found.append(f"{d.plot}: axes without titles {list(d.axis_titles)}")
+        elif unreadable:
+            found.append(f"{d.plot}: axis titles longer than {AXIS_TITLE_CHARS} characters or a line {unreadable}")
     return found

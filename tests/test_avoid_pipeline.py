@@ -83,10 +83,11 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
         assert (tmp_path / f"plots/avoid/mcd-seed0/{name}.png").stat().st_size > 5000
 
     client = MlflowClient(store_uris(tmp_path)[0])
-    runs = client.search_runs([client.get_experiment_by_name("avoid").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("uqdrive/avoid").experiment_id])
     by_name = {r.info.run_name.split(" · η1=")[0]: r for r in runs}  # condition first, the η̂1 last
-    assert set(by_name) == {f"{c} {m} · mcd seed0" for c in (KNOWN, "fog") for m in Mode} | {"calibration · mcd seed0"}
-    run = by_name["fog on · mcd seed0"]
+    cells = {f"adhoc · {c} {m} · mcd seed0" for c in (KNOWN, "fog") for m in Mode}
+    assert set(by_name) == cells | {"adhoc · calibration · mcd seed0"}
+    run = by_name["adhoc · fog on · mcd seed0"]
     params = run.data.params
     assert {
         k: params[k] for k in ("method", "condition", "warnings", "delta1", "samples_per_frame", "n", "cell_theta")
@@ -101,10 +102,8 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     }
     assert "avoid.theta" not in params and run.data.tags["reused"] == "false"  # each key once
     assert run.data.metrics["eta1"] == pytest.approx(saved["cells"]["fog"]["on"]["eta1"])
-    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
-        "mcd-seed0-fog-on.csv",
-        "mcd-seed0-fog-on.png",
-    }
+    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"paths.png", "rollouts.csv"}  # every cell's
+    assert run.data.tags["cell"] == "mcd-seed0-fog-on"
 
     again = run_avoid(avoid_config("model=mcd"))  # every cell is reused, with the same numbers
     assert all(again.cells[c][m].reused for c in again.conditions for m in Mode)

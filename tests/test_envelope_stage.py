@@ -76,7 +76,7 @@ def test_the_stage_writes_its_map_logs_a_run_and_a_rerun_replays_every_rollout(e
     assert len((plots / "search.csv").read_text().splitlines()) == 9
 
     client = MlflowClient(store_uris(tmp_path)[0])
-    (run,) = client.search_runs([client.get_experiment_by_name("envelope").experiment_id])
+    (run,) = client.search_runs([client.get_experiment_by_name("uqdrive/envelope").experiment_id])
     assert run.data.params["method"] == "vi" and run.data.params["envelope.certify_budget"] == "16"
     assert run.data.metrics["total_rollouts"] == record["rollouts"]["total"]
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {

@@ -159,10 +159,10 @@ def test_outputs_json_plots_and_one_mlflow_run_per_method(stage_config, tmp_path
     ]
 
     client = MlflowClient(store_uris(store_root)[0])
-    experiment = client.get_experiment_by_name("evaluate")
+    experiment = client.get_experiment_by_name("uqdrive/evaluate")
     runs = {r.data.params["method"]: r for r in client.search_runs([experiment.experiment_id])}
-    assert {m: r.info.run_name for m, r in runs.items()} == {"mcd": "mcd-seed0", "hmc": "hmc-seed0"}
-    assert {client.get_experiment(r.info.experiment_id).name for r in runs.values()} == {"evaluate"}
+    assert {m: r.info.run_name for m, r in runs.items()} == {"mcd": "adhoc · mcd-seed0", "hmc": "adhoc · hmc-seed0"}
+    assert {client.get_experiment(r.info.experiment_id).name for r in runs.values()} == {"uqdrive/evaluate"}
     hmc = runs["hmc"]
     assert hmc.data.params["method"] == "hmc" and hmc.data.params["profile"] == "tiny"
     assert hmc.data.metrics["rain/noise0.05/accuracy"] == pytest.approx(cell["accuracy"])

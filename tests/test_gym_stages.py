@@ -175,7 +175,7 @@ def test_highway_roundabout_runs_a_tiny_safety_cell_end_to_end_through_the_stage
     saved = json.loads((tmp_path / "metrics/safety/mcd-seed0-highway_roundabout-env-noise0.05.json").read_text())
     assert saved["outcomes"] == cell.outcomes
     client = MlflowClient(store_uris(tmp_path)[0])
-    (run,) = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
+    (run,) = client.search_runs([client.get_experiment_by_name("uqdrive/safety").experiment_id])
     assert run.data.params["location"] == "highway_roundabout" and "weather" not in run.data.params
     again = run_safety(highway("gym_world=highway_roundabout", "gym_world.horizon_steps=15", "noise=0.05"))
     assert again.reused and again.cell.outcomes == cell.outcomes

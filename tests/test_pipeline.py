@@ -50,11 +50,11 @@ def test_collect_and_preprocess_log_config_and_metrics_to_mlflow(collected, stag
     run_preprocess(stage_config("preprocess", "experiment=joint", "experiment.scenarios=[straight,roundabout]"))
     client = MlflowClient(store_uris(collected)[0])
     for stage, runs_expected in (("collect", 2), ("preprocess", 1)):
-        experiment = client.get_experiment_by_name(stage)
+        experiment = client.get_experiment_by_name(f"uqdrive/{stage}")
         runs = client.search_runs([experiment.experiment_id])
         assert len(runs) == runs_expected
         assert runs[0].data.params["profile"] == "tiny"
-    collect_runs = client.search_runs([client.get_experiment_by_name("collect").experiment_id])
+    collect_runs = client.search_runs([client.get_experiment_by_name("uqdrive/collect").experiment_id])
     assert {r.data.params["location"] for r in collect_runs} == {"straight", "roundabout"}
     assert all(r.data.metrics["frames"] > 0 for r in collect_runs)
 

@@ -1,8 +1,20 @@
 """The figures a user reads first: every panel says what its axes and colours measure."""
 
+from types import SimpleNamespace
+
+import matplotlib.pyplot as plt
 import numpy as np
 
-from uqdrive.plots import safety_hexbin_grid, save_figure
+from uqdrive.plots import (
+    avoid_signals_figure,
+    avoid_tradeoff_figure,
+    avoid_trajectories_figure,
+    class_histogram_figure,
+    condition_lines_figure,
+    reliability_grid,
+    safety_hexbin_grid,
+    save_figure,
+)
 
 
 def ring_panel(rng: np.random.Generator, eta1: float) -> dict[str, np.ndarray]:
@@ -34,3 +46,62 @@ def test_hexbin_panels_have_axes_in_metres_and_one_log_colour_bar_of_visits(tmp_
     busiest = max(float(h.get_array().max()) for h in hexagons)
     assert bars[0].get_ylim()[0] == 1 and bars[0].get_ylim()[1] >= busiest
     assert save_figure(fig, tmp_path / "hexbin.png").stat().st_size > 5000
+
+
+LABEL_CHARS = 80  # an axis label a person reads at a glance: one line, no longer than this
+
+
+def unreadable_labels(fig) -> list[str]:
+    """Every axis label or panel title of ``fig`` that runs over `LABEL_CHARS` or over a line."""
+    texts = [
+        (ax, what, text)
+        for ax in fig.axes
+        for what, text in (("xlabel", ax.get_xlabel()), ("ylabel", ax.get_ylabel()), ("title", ax.get_title()))
+    ]
+    return [f"{what} {text[:120]!r}" for ax, what, text in texts if len(text) > LABEL_CHARS or "\n" in text]
+
+
+def avoid_panel(rng: np.random.Generator) -> dict:
+    paths = [
+        {"x": np.linspace(0, 30, 20), "y": rng.normal(0, 0.3, 20), "mi": rng.uniform(0, 0.5, 20), "termination": t}
+        for t in ("collision", "handover", "timeout")
+    ]
+    return {
+        "paths": paths,
+        "obstacle": np.array([25.0, 0.0, 4.0, 2.0]),
+        "road": np.array([0, 40, -3, 0, 3]),
+        "title": "η̂1 0.7",
+    }
+
+
+def every_figure(rng: np.random.Generator) -> dict[str, object]:
+    """Each figure-building function of `uqdrive.plots`, on small inputs shaped as the stages pass them."""
+    thresholds = SimpleNamespace(delta1=0.8, delta2=0.6, tau=0.3)
+    bins = np.linspace(0, 1, 6)
+    reliability = {
+        "low": bins[:-1], "high": bins[1:], "frames": np.array([0, 3, 5, 9, 20]),
+        "confidence": bins[:-1] + 0.1, "accuracy": bins[:-1] + 0.05, "ece": 0.04,
+    }  # fmt: skip
+    candidates = {
+        "autonomy": rng.uniform(0, 1, 8), "eta1_unknown": rng.uniform(0, 1, 8), "certified": np.arange(8) % 2,
+        "pareto": np.arange(8) < 3, "delta1": np.full(8, 0.8), "delta2": np.full(8, 0.6), "tau": np.full(8, 0.3),
+    }  # fmt: skip
+    signals = [(np.linspace(30, 0, 40), rng.uniform(0, 1, 40), rng.uniform(0, 0.4, 40), "collision") for _ in range(3)]
+    return {
+        "class_histogram": class_histogram_figure(np.linspace(-0.5, 0.5, 11), {"train": np.arange(1, 12)}, "classes"),
+        "safety_hexbin_grid": safety_hexbin_grid({("mcd", "rain"): ring_panel(rng, 0.9)}, ["mcd"], ["rain"], "paths"),
+        "reliability_grid": reliability_grid({("mcd", "rain"): reliability}, ["mcd"], ["rain"], "reliability"),
+        "condition_lines": condition_lines_figure(
+            {"mcd": {"accuracy": [0.9, None]}}, ["clear_noon", "rain"], [("accuracy", "accuracy")], "conditions"
+        ),
+        "avoid_trajectories": avoid_trajectories_figure({("known", "off"): avoid_panel(rng)}, ["known"], ["off"], "p"),
+        "avoid_signals": avoid_signals_figure({"known": signals, "fog": signals}, thresholds, thresholds, "warnings"),
+        "avoid_tradeoff": avoid_tradeoff_figure(candidates, 1, 0, 0.9, "trade-off"),
+    }
+
+
+def test_every_figure_labels_its_axes_in_one_short_line():
+    """An axis label is a phrase: the warnings figure once printed a rollout's distances (an array) as its x label."""
+    for name, fig in every_figure(np.random.default_rng(0)).items():
+        assert not unreadable_labels(fig), f"{name}: {unreadable_labels(fig)}"
+        plt.close(fig)

@@ -43,7 +43,9 @@ def plots_project(tmp_path: Path) -> Path:
     write_page(project / ".dvc/plots_page.html")
     dvc(project, "config", "plots.html_template", "plots_page.html")
     rng = np.random.default_rng(0)
-    figure = safety_hexbin_grid({("mcd", "rain"): ring_panel(rng, 0.9)}, ["mcd"], ["rain"], "paths")
+    methods, weathers = ["mcd", "vi", "hmc"], ["clear_noon", "afternoon", "rain", "fog"]  # wider than the window
+    panels = {(m, w): ring_panel(rng, 0.9) for m in methods for w in weathers}
+    figure = safety_hexbin_grid(panels, methods, weathers, "paths")
     for folder in IMAGE_PLOTS:
         (project / folder).mkdir(parents=True, exist_ok=True)
         figure.savefig(project / folder / "figure.png")
@@ -71,16 +73,26 @@ def test_every_plot_of_plots_show_draws_data_under_titled_axes(tmp_path):
 
 @pytest.mark.slow
 def test_the_check_fails_on_a_plot_with_no_data_marks_or_untitled_axes(tmp_path):
-    """Mutants of the templates: bars on a log scale from a zero baseline draw nothing; axes with no title."""
+    """Mutants of the templates: bars on a log scale from a zero baseline draw nothing; axes with no title; an axis
+    title that runs over a line; a page without our style, whose panels cut a wide figure off (as DVC's own)."""
     require_chromium()
     project = plots_project(tmp_path)
     histogram = project / ".dvc/plots/class_histogram.json"
     histogram.write_text(histogram.read_text().replace('"type": "sqrt"', '"type": "log"'))
     reliability = project / ".dvc/plots/reliability.json"
     reliability.write_text(reliability.read_text().replace('"<DVC_METRIC_X_LABEL>"', "null"))
+    conditions = project / "dvc.yaml"
+    long_title = "mean mutual information (nats) " * 3
+    conditions.write_text(
+        conditions.read_text().replace("x_label: mean mutual information (nats)", f"x_label: {long_title}")
+    )
+    page = project / ".dvc/plots_page.html"
+    page.write_text(page.read_text().replace("max-width: 100%", "max-width: none"))  # as DVC's own page
     targets = ["plots/offline/class_histogram.csv", "plots/evaluate/reliability.csv", "plots/evaluate/conditions.csv"]
-    dvc(project, "plots", "show", *targets)
+    dvc(project, "plots", "show", *targets, IMAGE_PLOTS[0])
     found = problems(render(project / "dvc_plots/index.html"))
-    assert len(found) == 2, found
+    assert len(found) == 4, found
     assert found[0].startswith("plots_offline_class_histogram_csv: no data marks")
     assert found[1].startswith("plots_evaluate_reliability_csv: axes without titles")
+    assert found[2].startswith("plots_evaluate_conditions_csv: axis titles longer than 80 characters")
+    assert found[3].startswith("plots_safety_summary_figure_png: image") and "px wide in a panel of" in found[3]

@@ -18,10 +18,12 @@ from conftest import ALL_TENTHS, CONF
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob, make_executor
+from uqdrive.safety.executors import RAY_MISSING, PolicySpec, RolloutJob, make_executor
 from uqdrive.safety.runner import CellRunner
+from uqdrive.schema import ConfigError
 from uqdrive.sim import ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
+from uqdrive.stage import stage_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -74,6 +76,25 @@ def test_unknown_backend_and_bad_worker_count_fail_before_any_rollout(random_mod
         make_executor("dask", job(random_models["vi"]), 2)
     with pytest.raises(ValueError, match="workers=0 must be >= 1"):
         make_executor("process", job(random_models["vi"]), 0)
+
+
+def test_executor_ray_without_ray_installed_is_one_line_naming_what_to_install(random_models, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError, as where it is not installed
+    with pytest.raises(SystemExit) as stopped:
+        stage_main(lambda: make_executor("ray", job(random_models["vi"]), 1))()
+    assert stopped.value.code == 2
+    assert capsys.readouterr().err == f"error: {RAY_MISSING}\n"  # no traceback
+    assert "pip install 'uqdrive[ray]'" in RAY_MISSING and "executor.name=ray" in RAY_MISSING
+
+
+def test_executor_ray_at_an_address_nobody_listens_at_is_one_line_naming_it(random_models):
+    pytest.importorskip("ray")
+    address = f"127.0.0.1:{_free_port()}"
+    with pytest.raises(ConfigError, match=rf"^executor.address='{address}': no Ray cluster answers there \(") as err:
+        make_executor("ray", job(random_models["vi"]), 1, address=address)
+    assert "\n" not in str(err.value) and "ray start --head" in str(err.value)
+    with pytest.raises(ConfigError, match=r"^executor.address='ray://nowhere': no Ray cluster answers there"):
+        make_executor("ray", job(random_models["vi"]), 1, address="ray://nowhere")
 
 
 def _free_port() -> int:

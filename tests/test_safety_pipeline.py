@@ -25,7 +25,7 @@ def safety_config(stage_config, random_models):
 
 def runs(root):
     client = MlflowClient(store_uris(root)[0])
-    experiment = client.get_experiment_by_name("safety")
+    experiment = client.get_experiment_by_name("uqdrive/safety")
     return client, (client.search_runs([experiment.experiment_id]) if experiment else [])
 
 
@@ -58,14 +58,14 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     }
     assert not {"safety.theta", "safety.gamma", "safety.scheme", "theta", "gamma"} & set(params)  # each key once
     assert params["frame_draws.scheme"] == "sequential" and not any(k.startswith("safety.draws") for k in params)
-    assert run.info.run_name == f"afternoon σ0.05 roundabout · hmc seed0 · η1={result.cell.eta1:.2f}"
+    c = result.cell
+    eta1 = f"η1={c.eta1:.2f} [{c.eta1_low:.2f}, {c.eta1_high:.2f}]"
+    assert run.info.run_name == f"adhoc · afternoon σ0.05 roundabout · hmc seed0 · {eta1}"
     assert params["safety.base_seed"] == "100000"
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
         assert run.data.metrics[key] == pytest.approx(getattr(result.cell, key))
-    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {
-        "hmc-seed0-roundabout-afternoon-noise0.05.png",
-        "hmc-seed0-roundabout-afternoon-noise0.05.csv",
-    }
+    assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"paths.png", "rollouts.csv"}  # every cell's
+    assert run.data.tags["cell"] == "hmc-seed0-roundabout-afternoon-noise0.05"
 
     # same config, other worker count: reused, nothing rerun; a run tagged reused lists the cell
     stamp = out.stat().st_mtime_ns

@@ -43,11 +43,13 @@ def test_joblib_multirun_of_4_cells_on_2_workers_logs_4_child_runs(random_models
     )
     assert result.returncode == 0, result.stderr[-3000:]
     assert "Callback" not in result.stderr, result.stderr[-3000:]  # the parent run was created (paths.root = cwd)
+    logs = list((tmp_path / "multirun").rglob("*.log"))
+    assert not [log for log in logs if log.stat().st_size == 0], logs  # Hydra's job log only where a job logged
     client = MlflowClient(store_uris(project)[0])
-    runs = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("uqdrive/safety").experiment_id])
     (parent,) = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
-    assert parent.info.run_name == "sweep safety" and parent.info.status == "FINISHED"
+    assert parent.info.run_name == "adhoc · sweep safety" and parent.info.status == "FINISHED"
     assert sorted((r.data.params["method"], r.data.params["weather"]) for r in children) == [
         ("mcd", "clear_noon"),
         ("mcd", "rain"),

@@ -98,8 +98,14 @@ def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, model
         {k: v for k, v in r.items() if k not in ("seconds", "reused")} for _, r in swept
     ]
     client = MlflowClient(store_uris(tmp_path)[0])
-    logged = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
-    assert sorted(r.data.tags["reused"] for r in logged) == ["false"] * 4 + ["true"] * 5  # and the single-cell reuse
+    logged = client.search_runs([client.get_experiment_by_name("uqdrive/safety").experiment_id])
+    cells = [r for r in logged if "reused" in r.data.tags]
+    assert sorted(r.data.tags["reused"] for r in cells) == ["false"] * 4 + ["true"] * 5  # and the single-cell reuse
+    parents = {r.info.run_id for r in logged} - {r.info.run_id for r in cells}  # one per sweep run
+    assert len(parents) == 2 and all(
+        r.info.run_name == "adhoc · sweep of 4 cells" for r in logged if r.info.run_id in parents
+    )
+    assert sorted(r.data.tags.get("mlflow.parentRunId") in parents for r in cells) == [False] + [True] * 8
 
 
 @pytest.mark.slow

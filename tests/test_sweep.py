@@ -60,7 +60,7 @@ def test_joblib_multirun_of_4_jobs_on_2_workers_logs_4_runs(stage_config, tmp_pa
     )
     assert result.returncode == 0, result.stderr[-3000:]
     client = MlflowClient(store_uris(project)[0])
-    runs = client.search_runs([client.get_experiment_by_name("preprocess").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("uqdrive/preprocess").experiment_id])
     assert sorted(r.data.params["preprocess.split_seed"] for r in runs) == ["0", "1", "2", "3"]
 
 
@@ -101,7 +101,7 @@ def _finish(sweep: subprocess.Popen, project: Path) -> str:
 def _runs(project: Path) -> list:
     with store_lock(project):  # the sweep may be creating the store right now
         client = MlflowClient(store_uris(project)[0])
-    experiment = client.get_experiment_by_name("collect")
+    experiment = client.get_experiment_by_name("uqdrive/collect")
     return client.search_runs([experiment.experiment_id]) if experiment else []
 
 

@@ -1,4 +1,5 @@
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -58,7 +59,8 @@ def test_stage_run_creates_store_at_root_and_starts_when_the_job_started(tmp_pat
     assert logged.data.params == {"collect.episodes": "3", "location": "obstacle"}
     assert logged.data.metrics == {"frames": 42.0, "route_complete_fraction": 0.5}
     assert logged.info.start_time == 1700000000000 and logged.info.status == "FINISHED"
-    assert logged.info.run_name == "obstacle · complete=0.50"  # the key metric, seen without set-up, at fixed precision
+    # the key metric, seen without set-up, at fixed precision; no outputs=pipeline: an ad-hoc run
+    assert logged.info.run_name == "adhoc · obstacle · complete=0.50"
     assert logged.info.artifact_uri.startswith(artifact_root)
     assert (tmp_path / "mlartifacts").is_dir()
 
@@ -68,7 +70,7 @@ def test_a_store_that_cannot_be_opened_warns_and_the_stage_goes_on(tmp_path, mon
     result = tmp_path / "result.json"
     result.write_text("{}")
     with tracking.store_lock(tmp_path):  # another process stuck while creating the store
-        with pytest.warns(UserWarning, match="MLflow: no run logged for safety cell"):
+        with pytest.warns(UserWarning, match="MLflow: no run logged for safety adhoc · cell"):
             with stage_run(tmp_path, "safety", OmegaConf.create({}), run_name="cell") as run:
                 mlflow.log_metric("eta1", 1.0)
     assert run.info.run_id is None and result.read_text() == "{}"
@@ -76,10 +78,116 @@ def test_a_store_that_cannot_be_opened_warns_and_the_stage_goes_on(tmp_path, mon
 
 
 def test_a_failure_while_logging_warns_and_ends_the_run_failed(tmp_path):
-    with pytest.warns(UserWarning, match="logging safety cell failed"):
+    with pytest.warns(UserWarning, match="logging safety adhoc · cell failed"):
         with stage_run(tmp_path, "safety", OmegaConf.create({}), run_name="cell") as run:
             mlflow.log_artifact(str(tmp_path / "no-such-file.png"))
     assert MlflowClient(store_uris(tmp_path)[0]).get_run(run.info.run_id).info.status == "FAILED"
+
+
+def git_project(root: Path) -> str:
+    """A git work tree at ``root`` with one commit; its hash."""
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(root), *args], check=True, capture_output=True, text=True).stdout
+
+    git("init", "-q")
+    (root / "params.yaml").write_text("profile: tiny\n")
+    git("add", "params.yaml")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "one")
+    return git("rev-parse", "HEAD").strip()
+
+
+def test_runs_say_their_commit_dvc_experiment_and_whether_the_pipeline_ran_them(tmp_path, monkeypatch):
+    commit = git_project(tmp_path)
+    monkeypatch.setenv("DVC_EXP_NAME", "rainy-days")
+    client = MlflowClient(store_uris(tmp_path)[0])
+    for outputs, name in (("pipeline", "rain σ0.1"), ("auto", "rain σ0.1")):
+        with stage_run(tmp_path, "safety", OmegaConf.create({"outputs": outputs}), run_name=name) as run:
+            mlflow.log_metrics({"eta1": 0.93, "eta1_low": 0.881, "eta1_high": 0.96, "n": 40})
+        logged = client.get_run(run.info.run_id)
+        assert logged.data.tags["mlflow.source.git.commit"] == commit
+        assert logged.data.tags["uqdrive.dvc_experiment"] == "rainy-days"
+        assert logged.data.tags["uqdrive.origin"] == {"pipeline": "pipeline", "auto": "adhoc"}[outputs]
+        assert logged.data.metrics["eta1_low"] == 0.881  # short names: the table's columns
+        shown = "rain σ0.1 · η1=0.93 [0.88, 0.96]"
+        assert logged.info.run_name == {"pipeline": shown, "auto": f"adhoc · {shown}"}[outputs]
+    assert [e.name for e in client.search_experiments() if e.name != "Default"] == ["uqdrive/safety"]
+
+
+def test_the_experiment_prefix_is_the_configs_else_the_environments(tmp_path, monkeypatch):
+    monkeypatch.setenv(tracking.PREFIX_ENV, "night-study")
+    no_prefix = OmegaConf.create({"tracking": {"experiment_prefix": None}})
+    assert tracking.experiment_name("safety", no_prefix) == "night-study/safety"
+    assert tracking.experiment_name("safety", {"tracking": {"experiment_prefix": "mine"}}) == "mine/safety"
+    monkeypatch.delenv(tracking.PREFIX_ENV)
+    assert tracking.experiment_name("avoid", no_prefix) == "uqdrive/avoid"
+    with stage_run(tmp_path, "avoid", {"tracking": {"experiment_prefix": "mine"}}) as run:
+        pass
+    client = MlflowClient(store_uris(tmp_path)[0])
+    assert client.get_experiment(client.get_run(run.info.run_id).info.experiment_id).name == "mine/avoid"
+
+
+def test_every_cell_logs_its_files_under_one_name_so_compare_lines_them_up(tmp_path):
+    client = MlflowClient(store_uris(tmp_path)[0])
+    for cell in ("mcd-seed0-roundabout-rain-0.1", "vi-seed0-roundabout-rain-0.1"):
+        (tmp_path / f"{cell}.png").write_bytes(b"png of " + cell.encode())
+        with stage_run(tmp_path, "safety", {}, run_name=cell, tags={"cell": cell}) as run:
+            tracking.log_artifact_as(tmp_path / f"{cell}.png", "paths.png")
+        assert [a.path for a in client.list_artifacts(run.info.run_id)] == ["paths.png"]
+        assert client.get_run(run.info.run_id).data.tags["cell"] == cell
+        saved = Path(client.download_artifacts(run.info.run_id, "paths.png", str(tmp_path / run.info.run_id)))
+        assert saved.read_bytes() == b"png of " + cell.encode()
+
+
+def test_artefacts_follow_a_copied_project_not_the_original_folder(tmp_path):
+    original, copy = tmp_path / "original", tmp_path / "copy"
+    original.mkdir()
+    (original / "figure.png").write_bytes(b"original")
+    with stage_run(original, "safety", {}, run_name="cell") as run:
+        mlflow.log_artifact(str(original / "figure.png"))
+    shutil.copytree(original, copy)
+    shutil.rmtree(original)
+    tracking.follow_project(copy)  # `make ui`, or any stage, opening the copied store
+    client = MlflowClient(store_uris(copy)[0])
+    logged = client.get_run(run.info.run_id)
+    assert logged.info.artifact_uri.startswith(store_uris(copy)[1] + "/")
+    assert client.get_experiment(logged.info.experiment_id).artifact_location.startswith(store_uris(copy)[1] + "/")
+    saved = client.download_artifacts(run.info.run_id, "figure.png", str(tmp_path))
+    assert Path(saved).read_bytes() == b"original"
+
+
+def test_a_grid_stage_nests_its_cells_under_one_parent_run_per_invocation(tmp_path):
+    client = MlflowClient(store_uris(tmp_path)[0])
+    with tracking.stage_parent_run(tmp_path, "safety", {}, ["profile=tiny"], name="sweep of 2 cells"):
+        children = []
+        for cell in ("a", "b"):
+            with stage_run(tmp_path, "safety", {}, run_name=cell) as run:
+                children.append(run.info.run_id)
+    parents = {client.get_run(c).data.tags["mlflow.parentRunId"] for c in children}
+    assert len(parents) == 1
+    parent = client.get_run(parents.pop())
+    assert parent.info.status == "FINISHED" and parent.info.run_name == "adhoc · sweep of 2 cells"
+    assert parent.data.tags["uqdrive.overrides"] == "profile=tiny"
+    with pytest.raises(RuntimeError), tracking.stage_parent_run(tmp_path, "safety", {}, [], name="failing"):
+        raise RuntimeError("a cell failed")
+    failed = client.search_runs([parent.info.experiment_id], "attributes.run_name = 'adhoc · failing'")
+    assert [r.info.status for r in failed] == ["FAILED"]
+    with stage_run(tmp_path, "safety", {}, run_name="alone") as run:
+        pass
+    assert "mlflow.parentRunId" not in client.get_run(run.info.run_id).data.tags
+
+
+def test_a_grid_stage_run_as_a_multiruns_job_nests_under_the_multirun_and_hands_its_parent_back(tmp_path, monkeypatch):
+    client = MlflowClient(store_uris(tmp_path)[0])
+    experiment_id = ensure_experiment(tmp_path, "uqdrive/safety")
+    sweep = client.create_run(experiment_id, run_name="sweep safety_sweep").info.run_id
+    monkeypatch.setenv(tracking.PARENT_RUN_ENV, f"{experiment_id}:{sweep}")
+    with tracking.stage_parent_run(tmp_path, "safety", {}, [], name="sweep of 1 cells"):
+        with stage_run(tmp_path, "safety", {}, run_name="cell") as cell:
+            pass
+    invocation = client.get_run(cell.info.run_id).data.tags["mlflow.parentRunId"]
+    assert client.get_run(invocation).data.tags["mlflow.parentRunId"] == sweep
+    assert os.environ[tracking.PARENT_RUN_ENV] == f"{experiment_id}:{sweep}"  # for the multirun's next job
 
 
 def test_one_experiment_per_stage_is_reused(tmp_path):
@@ -102,7 +210,7 @@ for root in roots:  # each attempt a new store: both processes create it at the 
         time.sleep(0.002)
     write_json(root / f"{name}.json", {"eta1": 1.0})
     with stage_run(root, "safety", OmegaConf.create({"safety": {"cell": name}}), run_name=name):
-        mlflow.log_metric("eta1", 1.0)
+        mlflow.log_metrics({"eta1": 1.0, "eta1_low": 0.9, "eta1_high": 1.0})
 """
 
 
@@ -130,8 +238,8 @@ def test_two_processes_creating_the_store_at_once_both_log(tmp_path):
         assert child.returncode == 0 and "MLflow:" not in err, err[-3000:]
     for root in roots:
         client = MlflowClient(store_uris(root)[0])
-        runs = client.search_runs([client.get_experiment_by_name("safety").experiment_id])
-        assert sorted(r.info.run_name for r in runs) == ["a · η1=1.00", "b · η1=1.00"]
+        runs = client.search_runs([client.get_experiment_by_name("uqdrive/safety").experiment_id])
+        assert sorted(r.info.run_name for r in runs) == [f"adhoc · {n} · η1=1.00 [0.90, 1.00]" for n in "ab"]
         assert all(r.info.status == "FINISHED" for r in runs)
         assert (root / "a.json").exists() and (root / "b.json").exists()
 

@@ -77,12 +77,12 @@ def test_outputs_metrics_curves_and_one_mlflow_run_per_method(trained):
         assert rows and {"step", "train_loss", "val_accuracy", "val_nll"} <= set(rows[0])
         assert (root / f"plots/joint/train/{method}/seed0_curve.png").stat().st_size > 1000
     client = MlflowClient(store_uris(root)[0])
-    runs = client.search_runs([client.get_experiment_by_name("train").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("uqdrive/train").experiment_id])
     assert sorted(r.data.params["method"] for r in runs) == sorted(METHODS)
     for run in runs:
         method = run.data.params["method"]
         assert "model.name" not in run.data.params  # logged once, as method (uqdrive.tracking.COMPARED_BY)
-        assert run.info.run_name == f"joint-{method}-seed0 · acc={metrics[method]['val_accuracy']:.3f}"
+        assert run.info.run_name == f"adhoc · joint-{method}-seed0 · acc={metrics[method]['val_accuracy']:.3f}"
         assert run.data.metrics["val_accuracy"] == metrics[method]["val_accuracy"]
         artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
         assert {"seed0_curve.csv", "seed0_curve.png", "seed0.pt", "seed0.json"} <= artefacts  # in the method's run
@@ -225,4 +225,4 @@ def test_the_replicates_stage_stacks_a_workers_seeds_and_writes_each_as_its_own_
         assert all(torch.equal(trunks["vi", seed][k], trunks["mcd", seed][k]) for k in trunks["mcd", seed])
     assert not torch.equal(trunks["mcd", 0]["fc.weight"], trunks["mcd", 1]["fc.weight"])
     client = MlflowClient(store_uris(tmp_path)[0])
-    assert len(client.search_runs([client.get_experiment_by_name("train").experiment_id])) == 6
+    assert len(client.search_runs([client.get_experiment_by_name("uqdrive/train").experiment_id])) == 6

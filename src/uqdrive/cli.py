@@ -20,8 +20,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def _usage() -> str:
+    width = max(map(len, COMMANDS))
     lines = ["usage: uqdrive [--version] COMMAND [ARGS...]", "", "commands:"]
-    lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
+    lines += [f"  {name:<{width}}  {help_}" for name, (_, help_) in COMMANDS.items()]
+    lines += ["", "`uqdrive COMMAND --help` says what a command takes."]
     return "\n".join(lines)
 
 

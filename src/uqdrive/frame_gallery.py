@@ -36,7 +36,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="uqdrive frames", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/frames", help="output folder (default: docs/frames)")
     parser.add_argument("--scenario", default="obstacle", help="scenario yaml name in conf/scenario/")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--seed", type=int, default=0, help="episode seed (the autopilot's, and the first of --episodes)"
+    )
     parser.add_argument("--time", type=float, default=2.0, help="seconds of autopilot driving before the snapshot")
     parser.add_argument("--noise", type=float, default=0.0, help="pixel noise sigma (fraction of full intensity)")
     parser.add_argument("--conf", type=Path, default=None, help="Hydra conf/ folder (default: found from the repo)")

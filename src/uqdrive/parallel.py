@@ -49,7 +49,7 @@ def _run_keyed(keyed: tuple[int, Job, Any]) -> Any:
 
 PRELOAD = [
     "torch",
-    "pybullet",
+    "uqdrive.sim.bullet",  # pybullet, imported without its build-time banner (which would land in a progress bar)
     "uqdrive.safety.executors",
     "uqdrive.pipeline.collect_stage",
     "uqdrive.pipeline.train_stage",

@@ -285,10 +285,10 @@ def avoid_signals_figure(
     fig, axes = plt.subplots(2, len(runs), figsize=(4.5 * len(runs), 5.5), squeeze=False, sharex=True)
     for j, (condition, rows) in enumerate(runs.items()):
         top, bottom = axes[0, j], axes[1, j]
-        for distance, eta2, mi, termination in rows:
+        for along, eta2, mi, termination in rows:
             color = "tab:red" if termination in ("collision", "off_road") else "tab:blue"
-            top.plot(distance, eta2, color=color, lw=0.7, alpha=0.5)
-            bottom.plot(distance, mi, color=color, lw=0.7, alpha=0.5)
+            top.plot(along, eta2, color=color, lw=0.7, alpha=0.5)
+            bottom.plot(along, mi, color=color, lw=0.7, alpha=0.5)
         for cfg, style, who in ((configured, "--", "configured"), (calibrated, ":", "calibrated")):
             top.axhline(cfg.delta1, color="k", ls=style, lw=1, label=f"δ1 = {cfg.delta1:g} ({who})")
             top.axhline(cfg.delta2, color="tab:purple", ls=style, lw=1, label=f"δ2 = {cfg.delta2:g} ({who})")

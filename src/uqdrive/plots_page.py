@@ -3,7 +3,7 @@
 DVC's own page loads those libraries from a CDN, so on a machine without internet access (ours reach only the
 package registries) every CSV plot stays blank. The page written here carries them (vl-convert's bundle, about
 0.9 MB), and `.dvc/config` names it (`plots.html_template`), so `dvc plots show` draws offline; `make install`
-writes it.
+writes it. A figure wider than the window is shrunk to its panel, not cut off (DVC's panels hide what overflows).
 """
 
 from __future__ import annotations
@@ -23,6 +23,10 @@ PAGE = """<!DOCTYPE html>
     <style>
         table {{
             border-spacing: 15px;
+        }}
+        img {{
+            max-width: 100%;
+            height: auto;
         }}
     </style>
 </head>

@@ -3,6 +3,12 @@
 What the records must get right:
 - the store is created (its schema migrated) under a file lock, by whichever process comes first;
   two processes migrating one new SQLite file at once corrupt it;
+- the artefacts follow the project: MLflow writes absolute artefact URIs into the store (it resolves a relative
+  one when it makes an experiment or run), so whoever opens the store of a copied, cloned or moved project folder
+  first rewrites the old folder's prefix to this one's (`open_store`), rather than reading the original's files;
+- experiments are named `<prefix>/<stage>` (`experiment_name`); every run says where it came from: the git
+  commit, the DVC experiment (`dvc exp run` sets DVC_EXP_NAME), pipeline or ad hoc (`provenance_tags`);
+- artefacts keep one file name across cells (`log_artifact_as`), so MLflow's Compare view lines them up;
 - a stage writes its outputs first and logs them after (`stage_run`): a logging failure warns and
   never loses a result;
 - a run's start time is its job's (Hydra's job start), so durations are true;
@@ -14,14 +20,19 @@ from __future__ import annotations
 
 import atexit
 import dataclasses
+import functools
 import math
 import os
+import shutil
 import signal
+import sqlite3
+import subprocess
+import tempfile
 import threading
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager, suppress
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import closing, contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +49,11 @@ from sqlalchemy.exc import SQLAlchemyError
 MAX_PARAM_CHARS = 6000  # MLflow's limit on one param value
 LOCK_TIMEOUT_S = 600.0  # a migration takes seconds; a lock held this long is a stuck process
 INTERRUPT_GRACE_S = 20.0  # after Ctrl-C or SIGTERM, clean-up time before the signal's default action ends a sweep
+PREFIX_ENV = "UQDRIVE_MLFLOW_PREFIX"  # experiments' prefix when the config's tracking.experiment_prefix is null
+DEFAULT_PREFIX = "uqdrive"
+DVC_EXPERIMENT_ENV = "DVC_EXP_NAME"  # set by `dvc exp run` (https://dvc.org/doc/user-guide/env)
+ORIGIN_TAG = "uqdrive.origin"  # pipeline: a `dvc repro`/`dvc exp run` stage (outputs=pipeline); adhoc: any other run
+ADHOC_NAME_PREFIX = "adhoc · "  # an ad-hoc run's name starts with it, so the runs table tells the two apart
 PARENT_RUN_ENV = "UQDRIVE_MLFLOW_PARENT_RUN"  # "<experiment id>:<run id>" of the sweep's parent run
 JOB_START_ENV = "UQDRIVE_JOB_START_MS"  # set at Hydra's job start: the run's start time
 # The keys runs are compared by, logged under these short names (config key, or the first present of several;
@@ -57,22 +73,24 @@ COMPARED_BY = {
 }
 RENAMED = {"{stage}.draws.": "frame_draws."}  # the posterior draws per frame: apart from the cell's θ and γ
 SECTIONS = {"train": ("train", "model", "arch")}  # a stage's own config sections, when not just its name
-# The number each experiment is judged by, at a fixed precision. MLflow 3.17's runs table shows no metric column
-# until a user picks one (its default columns are Created, Dataset, Duration, …), so the run's name carries it,
-# after what tells sibling runs apart (the Run Name column shows about 20 characters: the condition first).
+# The numbers each experiment is judged by (metrics of these short names), at a fixed precision. MLflow 3.17's runs
+# table shows no metric column until a user picks one (its default columns are Created, Dataset, Duration, …), so
+# the run's name carries them, after what tells sibling runs apart (the Run Name column shows about 20 characters:
+# the condition first). A run missing one of a form's metrics keeps its name.
 KEY_METRICS = {
-    "safety": ("eta1", "η1={:.2f}"),
-    "avoid": ("eta1", "η1={:.2f}"),
-    "train": ("val_accuracy", "acc={:.3f}"),
-    "collect": ("route_complete_fraction", "complete={:.2f}"),
-    "preprocess": ("train_frames", "frames={:.0f}"),
+    "safety": "η1={eta1:.2f} [{eta1_low:.2f}, {eta1_high:.2f}]",
+    "avoid": "η1={eta1:.2f} [{eta1_low:.2f}, {eta1_high:.2f}]",
+    "train": "acc={val_accuracy:.3f}",
+    "collect": "complete={route_complete_fraction:.2f}",
+    "preprocess": "frames={train_frames:.0f}",
 }
 # Where the block's logging calls go when the store could not be opened: nowhere (every call fails and is
 # skipped), rather than a fresh store made outside the lock.
 UNTRACKED_URI = "file:///dev/null/uqdrive-untracked"
 # MLflow 3's UI opens an experiment of no declared kind on its GenAI traces page (empty here): ours are model runs.
 EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
-LOGGING_ERRORS = (MlflowException, SQLAlchemyError, OSError, LockTimeout)
+LOGGING_ERRORS = (MlflowException, SQLAlchemyError, sqlite3.Error, OSError, LockTimeout)
+ARTEFACTS = "mlartifacts"  # the artefact folder, beside mlflow.db
 
 
 def numeric_metrics(values: Mapping[str, Any]) -> dict[str, float]:
@@ -87,7 +105,7 @@ def numeric_metrics(values: Mapping[str, Any]) -> dict[str, float]:
 def store_uris(root: str | Path) -> tuple[str, str]:
     """(tracking URI, artefact root URI) for a project root; absolute so every process agrees."""
     root = Path(root).resolve()
-    return f"sqlite:///{root / 'mlflow.db'}", (root / "mlartifacts").as_uri()
+    return f"sqlite:///{root / 'mlflow.db'}", (root / ARTEFACTS).as_uri()
 
 
 def store_lock(root: str | Path) -> FileLock:
@@ -97,12 +115,58 @@ def store_lock(root: str | Path) -> FileLock:
     return FileLock(str(root / "mlflow.db.lock"), timeout=LOCK_TIMEOUT_S)
 
 
+def experiment_name(stage: str, config: DictConfig | Mapping[str, Any] | None = None) -> str:
+    """`<prefix>/<stage>`: the prefix is the config's ``tracking.experiment_prefix``, else $UQDRIVE_MLFLOW_PREFIX,
+    else `uqdrive`, so two projects (or studies) sharing one MLflow server keep apart."""
+    configured = _select(config, "tracking.experiment_prefix")
+    return f"{configured or os.environ.get(PREFIX_ENV) or DEFAULT_PREFIX}/{stage}"
+
+
+def _select(config: DictConfig | Mapping[str, Any] | None, key: str) -> Any:
+    if config is None:
+        return None
+    config = config if isinstance(config, DictConfig) else OmegaConf.create(dict(config))
+    return OmegaConf.select(config, key, default=None)
+
+
+def open_store(root: str | Path) -> MlflowClient:
+    """The project's store, created (schema migrated) if new and its artefact URIs moved to this folder if the
+    project was copied, cloned or moved; call it holding `store_lock`."""
+    client = MlflowClient(store_uris(root)[0])  # opening a new store migrates its schema
+    client.search_experiments(max_results=1)
+    _follow_moved_project(root)
+    return client
+
+
+def _follow_moved_project(root: str | Path) -> None:
+    """Rewrite artefact URIs under another folder's ``mlartifacts`` (the one this store was made in) to this
+    project's: MLflow keeps them absolute in the experiments and runs tables, and has no call to change them."""
+    here = store_uris(root)[1]
+    with closing(sqlite3.connect(Path(root) / "mlflow.db")) as db, db:
+        locations = [row[0] for row in db.execute("SELECT artifact_location FROM experiments")]
+        folder = f"/{ARTEFACTS}/"
+        moved = {loc[: loc.rindex(folder) + len(folder) - 1] for loc in locations if folder in loc}
+        for old in moved - {here}:
+            for table, column in (("experiments", "artifact_location"), ("runs", "artifact_uri")):
+                db.execute(
+                    f"UPDATE {table} SET {column} = ? || substr({column}, ?) WHERE substr({column}, 1, ?) = ?",
+                    (here, len(old) + 1, len(old) + 1, f"{old}/"),
+                )
+
+
+def follow_project(root: str | Path) -> None:
+    """Open the project's store under its lock (`open_store`): what `make ui` does first, so the UI of a copied or
+    cloned project shows this folder's artefacts before any stage has run in it."""
+    with store_lock(root):
+        open_store(root)
+
+
 def ensure_experiment(root: str | Path, name: str) -> str:
     """Create the store and the experiment if needed, under the store's lock; returns the experiment id."""
     tracking_uri, artifact_root = store_uris(root)
     mlflow.set_tracking_uri(tracking_uri)
     with store_lock(root):
-        client = MlflowClient(tracking_uri)  # opening a new store migrates its schema
+        client = open_store(root)
         experiment = client.get_experiment_by_name(name)
         if experiment is None:
             return client.create_experiment(name, artifact_location=f"{artifact_root}/{name}", tags=EXPERIMENT_KIND)
@@ -169,25 +233,25 @@ def stage_run(
     run_name: str | None = None,
     tags: Mapping[str, str] | None = None,
 ) -> Iterator[mlflow.ActiveRun | UntrackedRun]:
-    """An MLflow run in experiment `stage`, started when the job started, with the stage's params.
+    """An MLflow run in experiment `<prefix>/<stage>`, started when the job started, with the stage's params and
+    where it came from (`provenance_tags`; an ad-hoc run's name starts with `ADHOC_NAME_PREFIX`).
 
     Enter it after the stage's outputs are on disk. A tracking failure (store, lock, artefact copy)
     inside it warns and ends the block; the outputs stay and the stage goes on.
     """
     started = int(os.environ.get(JOB_START_ENV) or time.time() * 1000)
-    tags = dict(tags or {})
+    tags = {**provenance_tags(root, config), **(tags or {})}
+    run_name = _origin_prefix(tags) + (run_name or stage)
     created = None
     try:
-        experiment_id = ensure_experiment(root, stage)
-        parent = os.environ.get(PARENT_RUN_ENV, "")
-        if parent.startswith(f"{experiment_id}:"):  # a job of a sweep of this stage: nest it under the sweep's run
-            tags.setdefault("mlflow.parentRunId", parent.split(":", 1)[1])
+        experiment_id = ensure_experiment(root, experiment_name(stage, config))
+        tags.update(_nested(experiment_id))
         created = MlflowClient(store_uris(root)[0]).create_run(
             experiment_id, start_time=started, tags=tags, run_name=run_name
         )
     except LOGGING_ERRORS as err:
         warnings.warn(
-            f"MLflow: no run logged for {stage} {run_name or ''} ({err}); the outputs on disk are complete",
+            f"MLflow: no run logged for {stage} {run_name} ({err}); the outputs on disk are complete",
             stacklevel=3,
         )
     if created is None:
@@ -206,17 +270,92 @@ def stage_run(
     except LOGGING_ERRORS as err:
         _terminate(root, created.info.run_id, "FAILED")
         warnings.warn(
-            f"MLflow: logging {stage} {run_name or ''} failed ({err}); the outputs on disk are complete", stacklevel=3
+            f"MLflow: logging {stage} {run_name} failed ({err}); the outputs on disk are complete", stacklevel=3
         )
 
 
-def _name_with_key_metric(run_id: str, stage: str, run_name: str | None) -> None:
-    """End the run's name with the experiment's key metric, so the runs table shows it without set-up."""
-    key, form = KEY_METRICS.get(stage, (None, ""))
+def _name_with_key_metric(run_id: str, stage: str, run_name: str) -> None:
+    """End the run's name with the experiment's key metrics, so the runs table shows them without set-up."""
     client = mlflow.MlflowClient()
-    value = client.get_run(run_id).data.metrics.get(key) if key else None
-    if value is not None:
-        client.update_run(run_id, name=f"{run_name or stage} · {form.format(value)}")
+    with suppress(KeyError):
+        shown = KEY_METRICS[stage].format(**client.get_run(run_id).data.metrics)
+        client.update_run(run_id, name=f"{run_name} · {shown}")
+
+
+def provenance_tags(root: str | Path, config: DictConfig | Mapping[str, Any]) -> dict[str, str]:
+    """Where a run came from: the git commit the project is at, the DVC experiment it runs in, and whether it is a
+    pipeline stage (dvc.yaml passes outputs=pipeline) or an ad-hoc run (`ORIGIN_TAG`)."""
+    tags = {ORIGIN_TAG: "pipeline" if _select(config, "outputs") == "pipeline" else "adhoc"}
+    commit = git_commit(str(Path(root).resolve()))
+    if commit:
+        tags["mlflow.source.git.commit"] = commit
+    if os.environ.get(DVC_EXPERIMENT_ENV):
+        tags["uqdrive.dvc_experiment"] = os.environ[DVC_EXPERIMENT_ENV]
+    return tags
+
+
+def _origin_prefix(tags: Mapping[str, str]) -> str:
+    return ADHOC_NAME_PREFIX if tags.get(ORIGIN_TAG) == "adhoc" else ""
+
+
+@functools.cache
+def git_commit(root: str) -> str | None:
+    """The commit checked out at ``root`` (None outside a git work tree, or without git)."""
+    try:
+        found = subprocess.run(["git", "-C", root, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return found.stdout.strip() if found.returncode == 0 else None
+
+
+def log_artifact_as(path: str | Path, name: str) -> None:
+    """Log ``path`` under the file ``name`` in the active run: a cell's files are named by the cell on disk, but
+    MLflow's Compare view lines runs' artefacts up by name, so every cell logs e.g. `paths.png` (its cell: a tag)."""
+    with tempfile.TemporaryDirectory() as folder:
+        stable = Path(folder) / name
+        shutil.copyfile(path, stable)
+        mlflow.log_artifact(str(stable))
+
+
+@contextmanager
+def stage_parent_run(
+    root: str | Path, stage: str, config: DictConfig | Mapping[str, Any], overrides: Sequence[str], name: str
+) -> Iterator[None]:
+    """A parent run over one invocation of a grid stage (every cell's run in `<prefix>/<stage>` nests under it):
+    FINISHED when the block ends, FAILED on an error, KILLED on an interrupt or an early stop. A tracking failure
+    warns and the cells run on, unnested."""
+    tags = {**provenance_tags(root, config), "uqdrive.overrides": " ".join(overrides)}
+    enclosing = os.environ.get(PARENT_RUN_ENV)  # a Hydra multirun's parent run, if this invocation is one of its jobs
+    try:
+        experiment_id = ensure_experiment(root, experiment_name(stage, config))
+        tags.update(_nested(experiment_id))
+        parent = MlflowClient(store_uris(root)[0]).create_run(
+            experiment_id, tags=tags, run_name=_origin_prefix(tags) + name
+        )
+    except LOGGING_ERRORS as err:
+        warnings.warn(f"MLflow: no parent run for {name} ({err}); each cell logs its own run", stacklevel=3)
+        yield
+        return
+    os.environ[PARENT_RUN_ENV] = f"{experiment_id}:{parent.info.run_id}"
+    status = "KILLED"
+    try:
+        yield
+        status = "FINISHED"
+    except Exception:
+        status = "FAILED"
+        raise
+    finally:
+        if enclosing is None:
+            os.environ.pop(PARENT_RUN_ENV, None)
+        else:  # the multirun's next job nests under its parent again
+            os.environ[PARENT_RUN_ENV] = enclosing
+        _terminate(root, parent.info.run_id, status)
+
+
+def _nested(experiment_id: str) -> dict[str, str]:
+    """The parent-run tag of a run made inside a parent run of this experiment (`PARENT_RUN_ENV`), else none."""
+    enclosing = os.environ.get(PARENT_RUN_ENV, "")
+    return {"mlflow.parentRunId": enclosing.split(":", 1)[1]} if enclosing.startswith(f"{experiment_id}:") else {}
 
 
 def _terminate(root: str | Path, run_id: str, status: str) -> None:
@@ -248,15 +387,16 @@ class CreateStoreCallback(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         root = _project_root(config)
-        experiment_id = ensure_experiment(root, config.hydra.job.name)
+        experiment_id = ensure_experiment(root, experiment_name(config.hydra.job.name, config))
         if not OmegaConf.select(config, "tracking.parent_run", default=False):
             return
         client = MlflowClient(store_uris(root)[0])
         overrides = " ".join(config.hydra.overrides.task)
+        tags = provenance_tags(root, config)
         run = client.create_run(
             experiment_id,
-            run_name=f"sweep {config.hydra.job.name}",
-            tags={"uqdrive.sweep_dir": str(config.hydra.sweep.dir), "uqdrive.overrides": overrides},
+            run_name=f"{_origin_prefix(tags)}sweep {config.hydra.job.name}",
+            tags={**tags, "uqdrive.sweep_dir": str(config.hydra.sweep.dir), "uqdrive.overrides": overrides},
         )
         self._parent = (root, run.info.run_id)
         os.environ[PARENT_RUN_ENV] = f"{experiment_id}:{run.info.run_id}"

@@ -66,7 +66,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="uqdrive bench controller", description=__doc__)
     ap.add_argument("--frames", type=int, default=25, help="recorded frames per weather x noise condition")
     ap.add_argument("--experiment", default="avoid", help="whose road (its first scenario) and render size")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the random weights (no trained model) and the draws")
     ap.add_argument(
         "--models",
         type=Path,
@@ -74,7 +74,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
         help="the pipeline's models folder: times <models>/<experiment>/<method>/seed0.pt where they all exist, "
         "else random weights (said so on the RESULT line)",
     )
-    ap.add_argument("--methods", nargs="+", default=["mcd", "vi", "hmc"])
+    ap.add_argument("--methods", nargs="+", default=["mcd", "vi", "hmc"], help="posteriors to time")
     ap.add_argument("--theta", type=float, default=0.05, help="the warning config's theta (0.1: the quick profile)")
     ap.add_argument("--lockstep", type=int, default=1, help="frames decided per call (8: a rollout worker's batch)")
     ap.add_argument("--repeats", type=int, default=3, help="alternating timings of every scheme; the fastest is kept")

@@ -63,11 +63,11 @@ def print_batching_cost(theta: float, gamma: float, look_size: int) -> None:
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench estimators", description=__doc__)
-    ap.add_argument("--theta", type=float, default=0.05)
-    ap.add_argument("--gamma", type=float, default=0.05)
+    ap.add_argument("--theta", type=float, default=0.05, help="absolute error bound, in (0, 1)")
+    ap.add_argument("--gamma", type=float, default=0.05, help="allowed failure probability, in (0, 1)")
     ap.add_argument("--look-size", type=int, default=4, help="samples between looks of the sequential scheme")
     ap.add_argument("--runs", type=int, default=2000, help="simulated SPRTs per rate")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the simulated outcomes")
     ap.add_argument("--delta", type=float, default=0.7, help="SPRT threshold for the decision eta >= delta")
     ap.add_argument("--split", type=int, default=36, help="calibrate once at the untabulated gamma / split")
     args = ap.parse_args(argv)

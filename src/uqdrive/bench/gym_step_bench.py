@@ -67,11 +67,11 @@ def time_adapter(world: GymWorld, episodes: Commands, noise: float) -> float:
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench gym_step", description=__doc__)
-    ap.add_argument("--world", choices=("highway", "uqdrive"), default="highway")
-    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--world", choices=("highway", "uqdrive"), default="highway", help="the env stepped")
+    ap.add_argument("--steps", type=int, default=300, help="steps per timing")
     ap.add_argument("--repeats", type=int, default=3, help="alternating timings; the median ratio is reported")
-    ap.add_argument("--noise", type=float, default=0.05)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--noise", type=float, default=0.05, help="sensor noise sigma on the network's frame")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the first recorded episode")
     args = ap.parse_args(argv)
     with GymWorld(world_config(args.world)) as world:
         episodes = record_commands(world, args.steps, args.seed, args.noise, expert=args.world == "highway")

@@ -181,7 +181,9 @@ def parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--draws", default="sequential", choices=["fixed", "sequential"], help="the controller's draws")
     ap.add_argument("--samples", type=int, default=738, help="fixed: draws per frame for each of π(o) and η2; cap")
     ap.add_argument("--lockstep", type=int, default=8, help="rollouts a worker steps at once")
-    ap.add_argument("--method", default="vi", choices=["mcd", "vi", "hmc", "ensemble", "laplace"])
+    ap.add_argument(
+        "--method", default="vi", choices=["mcd", "vi", "hmc", "ensemble", "laplace"], help="the posterior that steers"
+    )
     ap.add_argument(
         "--models",
         type=Path,
@@ -196,7 +198,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
         "--chunks", type=int, default=8, help="chunks per worker comparison (>= 4: each of 2 workers times one)"
     )
     ap.add_argument("--frames", type=int, default=40, help="recorded frames per weather x noise for the agreement")
-    ap.add_argument("--weather", default="clear_noon")
+    ap.add_argument("--weather", default="clear_noon", help="conf/weather/<name>.yaml")
     ap.add_argument(
         "--env",
         choices=("pybullet", "highway"),

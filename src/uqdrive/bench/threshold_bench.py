@@ -35,7 +35,7 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench threshold", description=__doc__)
     ap.add_argument("--deltas", type=float, nargs="+", default=[0.7, 0.6], help="thresholds (paper: delta1, delta2)")
     ap.add_argument("--theta", type=float, default=0.05, help="indifference half-width; the cap is Chernoff's n")
-    ap.add_argument("--gamma", type=float, default=0.05)
+    ap.add_argument("--gamma", type=float, default=0.05, help="allowed failure probability, in (0, 1)")
     ap.add_argument("--regions", type=int, default=20, help="certifier: gamma split over this many regions")
     ap.add_argument("--tau", type=float, default=0.9, help="certifier threshold on eta1")
     ap.add_argument("--budget", type=int, default=400, help="certifier: most rollouts per region (looks every 20)")

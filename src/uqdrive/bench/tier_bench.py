@@ -29,7 +29,7 @@ def timed(build):
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench tier", description=__doc__)
-    ap.add_argument("--gamma", type=float, default=0.05)
+    ap.add_argument("--gamma", type=float, default=0.05, help="allowed failure probability, in (0, 1)")
     args = ap.parse_args(argv)
     print(f"{'theta':>5} {'cap':>4} {'build_s':>8} {'error_s':>8} {'grid_rules':>10} {'grid_s':>7} {'worst_error':>11}")
     shares = []

@@ -39,7 +39,7 @@ from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
 from uqdrive.safety.warnings import WarningRule
 from uqdrive.sim.condition import Condition, Mixture
-from uqdrive.tracking import numeric_metrics, stage_run
+from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_run
 
 Cells = dict[tuple[str, Mode], Cell]
 
@@ -198,8 +198,8 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
         with stage_run(root, "avoid", cfg, run_name=name, tags=tags):
             mlflow.log_params(params)
             mlflow.log_metrics(numeric_metrics(as_dict(result.cell(condition, mode))))
-            for key in (f"cells/{cell.name}", f"cells/{cell.name}.csv"):
-                mlflow.log_artifact(str(paths[key]))
+            log_artifact_as(paths[f"cells/{cell.name}"], "paths.png")
+            log_artifact_as(paths[f"cells/{cell.name}.csv"], "rollouts.csv")
     k = result.calibration
     with stage_run(root, "avoid", cfg, run_name=f"calibration · {settings.method} seed{settings.seed}"):
         mlflow.log_params(

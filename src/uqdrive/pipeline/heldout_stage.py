@@ -5,6 +5,7 @@ composes it, all in one process on one pool of workers."""
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from functools import partial
 
 from omegaconf import DictConfig
 
@@ -13,6 +14,7 @@ from uqdrive.pipeline.collect_stage import Collection, CollectStage, run_collect
 from uqdrive.schema import schema, validate
 from uqdrive.stage import grid, run_cells
 from uqdrive.stage_schemas import Sweep
+from uqdrive.tracking import stage_parent_run
 
 
 @schema(root=True)
@@ -26,4 +28,5 @@ def run_heldout(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[Dic
     stage = validate(HeldoutStage, cfg)
     cells = grid(weather=stage.sweep.weathers, noise=stage.sweep.noises)
     pool = ProcessPool(stage.collect.workers)
-    yield from run_cells("heldout", overrides, cells, CollectStage, run_collect, pool, stage.progress)
+    parent = partial(stage_parent_run, stage.paths.root, "collect", cfg, overrides, name=f"heldout: {len(cells)} cells")
+    yield from run_cells("heldout", overrides, cells, CollectStage, run_collect, pool, stage.progress, parent)

@@ -16,6 +16,7 @@ import dataclasses
 import math
 from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
+from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -43,7 +44,7 @@ from uqdrive.sim.condition import Condition, WorldChoice
 from uqdrive.sim.config import SimConfig
 from uqdrive.stage import grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
-from uqdrive.tracking import numeric_metrics, stage_run
+from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
 from uqdrive.uq import Estimate
 from uqdrive.uq.multiplicity import split_gamma
 
@@ -300,7 +301,8 @@ def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tupl
     if stage.safety.family_wise:  # every cell at γ/m: the whole sweep within ±θ at once with probability ≥ 1 − γ
         cells = [{**cell, "safety.family_size": len(cells)} for cell in cells]
     runner = CellRunner.of(stage.executor, stage.progress)
-    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress)
+    parent = partial(stage_parent_run, stage.paths.root, "safety", cfg, overrides, name=f"sweep of {len(cells)} cells")
+    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress, parent)
 
 
 def describe(name: str, run: SafetyRun) -> str:
@@ -329,9 +331,12 @@ CELL_PARAMS = (
 )
 
 
+CELL_ARTEFACTS = {".png": "paths.png", ".csv": "rollouts.csv"}  # one name in every cell's run (Compare lines them up)
+
+
 def _cell_files(section: SafetySection) -> list[Path]:
     plots = Path(section.plots_dir)
-    return [plots / f"{section.cell}.png", plots / f"{section.cell}.csv"]
+    return [plots / f"{section.cell}{suffix}" for suffix in CELL_ARTEFACTS]
 
 
 def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: list[Path], reused: bool) -> None:
@@ -343,4 +348,4 @@ def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: l
         mlflow.log_params({"n": cell.n, "cell_gamma": cell.gamma})  # the rest: the cell's config (`stage_run`)
         mlflow.log_metrics(metrics)
         for path in artifacts:
-            mlflow.log_artifact(str(path))
+            log_artifact_as(path, CELL_ARTEFACTS[path.suffix])

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import socket
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -36,6 +37,8 @@ from uqdrive.sim.condition import Condition, ConditionSource
 from uqdrive.sim.gym_world import GymWorld, GymWorldConfig
 
 BACKENDS = ("process", "ray")
+RAY_CONNECT_TIMEOUT_S = 10.0  # a cluster's head answers a TCP connect at once; this long, and it is not there
+RAY_MISSING = "executor.name=ray needs Ray, which is not installed: pip install 'uqdrive[ray]' (Ray 2.60.0)"
 POLICIES = ("bnn", "autopilot", "constant")
 LOCKSTEP = 8
 """Rollouts a worker steps at once by default: the trunk's cost per frame at batch 8 is about half its cost
@@ -293,19 +296,24 @@ class RayRunner:
         try:
             import ray
             from ray.util import ActorPool
-        except ImportError as err:
-            raise ImportError("executor.name=ray needs Ray: pip install ray==2.60.0") from err
+        except ImportError:
+            raise ConfigError(RAY_MISSING) from None
 
         self._ray = ray
         self._started = not ray.is_initialized()
         if self._started:
-            ray.init(
-                address=address,
-                num_cpus=None if address else workers,
-                include_dashboard=False,
-                log_to_driver=False,
-                configure_logging=False,
-            )
+            _check_reachable(address)
+            try:
+                ray.init(
+                    address=address,
+                    num_cpus=None if address else workers,
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    configure_logging=False,
+                )
+            except ConnectionError as err:  # what Ray raises for an address with no cluster behind it
+                reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+                raise ConfigError(_unreachable(address, reason)) from None
         actor = ray.remote(num_cpus=1)(ChunkActor)
         self._actors = [actor.remote(LockstepJob(job, width)) for _ in range(workers)]
         self._pool = ActorPool(self._actors)
@@ -319,6 +327,24 @@ class RayRunner:
         self._actors = []
         if self._started and self._ray.is_initialized():
             self._ray.shutdown()
+
+
+def _check_reachable(address: str | None) -> None:
+    """Fail in one line on a cluster address nothing listens at: Ray itself retries such an address for minutes."""
+    if address in (None, "auto", "local"):  # a local Ray, or the one RAY_ADDRESS names (Ray fails fast if none)
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout=RAY_CONNECT_TIMEOUT_S).close()
+    except (OSError, ValueError) as err:
+        raise ConfigError(_unreachable(address, str(err) or type(err).__name__)) from None
+
+
+def _unreachable(address: str | None, reason: str) -> str:
+    return (
+        f"executor.address={address!r}: no Ray cluster answers there ({reason}); start one (`ray start --head`) "
+        "or set executor.address=null for a local Ray"
+    )
 
 
 def make_executor(
