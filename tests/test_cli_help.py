@@ -8,7 +8,13 @@ import pytest
 from uqdrive.bench import available
 from uqdrive.cli import COMMANDS, main
 
-ARGPARSE_COMMANDS = ("bound", "findings", "frames", "plots-page")  # `bench` routes to its benchmarks' own parsers
+ARGPARSE_COMMANDS = (
+    "bound",
+    "findings",
+    "frames",
+    "plots-page",
+    "redecide",
+)  # `bench` routes to its benchmarks' own parsers
 SECTION = re.compile(r"^(positional arguments|options):$")
 
 
@@ -45,20 +51,7 @@ def test_uqdrive_help_lists_every_command_with_what_it_does(capsys):
     assert len(columns) == 1  # the descriptions start in one column
 
 
-@pytest.mark.parametrize(
-    "command",
-    [
-        pytest.param(
-            name,
-            marks=pytest.mark.xfail(
-                strict=True, reason="its description is its docstring's first line, which stops mid-sentence"
-            ),
-        )
-        if name == "findings"
-        else name
-        for name in ARGPARSE_COMMANDS
-    ],
-)
+@pytest.mark.parametrize("command", ARGPARSE_COMMANDS)
 def test_every_commands_help_is_complete(capsys, command):
     assert not incomplete(help_text(capsys, command))
 

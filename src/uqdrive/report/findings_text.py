@@ -155,8 +155,14 @@ def findings_markdown(findings) -> str:
 def main(argv: list[str] | None = None) -> int:
     from uqdrive.analysis.comparisons import Findings
 
-    parser = argparse.ArgumentParser(prog="uqdrive findings", description=__doc__.splitlines()[0])
-    parser.add_argument("path", type=Path, nargs="?", default=Path("metrics/findings.json"))
+    parser = argparse.ArgumentParser(prog="uqdrive findings", description=" ".join(__doc__.split("\n\n")[0].split()))
+    parser.add_argument(
+        "path",
+        type=Path,
+        nargs="?",
+        default=Path("metrics/findings.json"),
+        help="the findings record (default: metrics/findings.json)",
+    )
     args = parser.parse_args(argv)
     print(findings_markdown(read_record(Findings, args.path, "findings")))
     return 0
