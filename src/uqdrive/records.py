@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -21,7 +22,7 @@ from uqdrive.files import write_json
 from uqdrive.schema import ConfigError, describe
 
 R = TypeVar("R")
-_RECORD = ConfigDict(extra="forbid")  # NaN is a value here (a mean over no frames), unlike in a config
+_RECORD = ConfigDict(extra="forbid")  # NaN is a value (a mean over no frames; null in a file)
 _OPEN_RECORD = ConfigDict(extra="allow")  # method-specific keys beside the declared ones
 
 
@@ -57,7 +58,26 @@ def read_record(cls: type[R], path: str | Path, stage: str) -> R:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path} is missing; run the stage that writes it first: dvc repro {stage}")
+    data, adapter = json.loads(path.read_text()), TypeAdapter(cls)
+    while True:
+        try:
+            return adapter.validate_python(data)
+        except ValidationError as err:
+            if not _nan_for_null(data, err.errors()):
+                raise ConfigError(f"{path}: {describe(err.errors()[0], cls)}; rerun dvc repro {stage}") from None
+
+
+def _nan_for_null(data: Any, errors: list[dict]) -> bool:
+    """Put NaN back where a float field holds null (`write_json` writes NaN so); False if any error is another."""
+    if not all(e["type"] == "float_type" and e["input"] is None for e in errors):
+        return False
     try:
-        return TypeAdapter(cls).validate_python(json.loads(path.read_text()))
-    except ValidationError as err:
-        raise ConfigError(f"{path}: {describe(err.errors()[0], cls)}; rerun dvc repro {stage}") from None
+        for e in errors:
+            *parents, key = e["loc"]
+            target = data
+            for part in parents:
+                target = target[part]
+            target[key] = math.nan
+    except (KeyError, IndexError, TypeError):
+        return False
+    return True
