@@ -11,6 +11,7 @@ from uqdrive.cli import COMMANDS, main
 ARGPARSE_COMMANDS = (
     "bound",
     "findings",
+    "headline",
     "frames",
     "plots-page",
     "redecide",

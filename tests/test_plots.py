@@ -11,6 +11,7 @@ from uqdrive.plots import (
     avoid_trajectories_figure,
     class_histogram_figure,
     condition_lines_figure,
+    eta1_intervals_figure,
     reliability_grid,
     safety_hexbin_grid,
     save_figure,
@@ -97,6 +98,10 @@ def every_figure(rng: np.random.Generator) -> dict[str, object]:
         "avoid_trajectories": avoid_trajectories_figure({("known", "off"): avoid_panel(rng)}, ["known"], ["off"], "p"),
         "avoid_signals": avoid_signals_figure({"known": signals, "fog": signals}, thresholds, thresholds, "warnings"),
         "avoid_tradeoff": avoid_tradeoff_figure(candidates, 1, 0, 0.9, "trade-off"),
+        "eta1_intervals": eta1_intervals_figure(
+            [{"method": m, "condition": c, "eta1": 0.5, "eta1_low": 0.1, "eta1_high": 0.9} for m in "ab" for c in "xy"],
+            ["a", "b"],
+        ),
     }
 
 

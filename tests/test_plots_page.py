@@ -2,6 +2,7 @@
 Chromium, draws data marks under titled axes, and every figure loads (tests/rendered_plots.py reads the page back)."""
 
 import csv
+import json
 import os
 import shutil
 import subprocess
@@ -18,7 +19,12 @@ from uqdrive.plots import safety_hexbin_grid
 from uqdrive.plots_page import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
-IMAGE_PLOTS = ("plots/safety/summary", "plots/evaluate/figures", "plots/avoid/summary")  # figures git does not keep
+IMAGE_PLOTS = (
+    "plots/safety/summary",
+    "plots/evaluate/figures",
+    "plots/avoid/summary",
+    "plots/report/envelope",
+)  # no PNG in git
 
 
 def require_chromium() -> None:
@@ -96,3 +102,26 @@ def test_the_check_fails_on_a_plot_with_no_data_marks_or_untitled_axes(tmp_path)
     assert found[1].startswith("plots_evaluate_reliability_csv: axes without titles")
     assert found[2].startswith("plots_evaluate_conditions_csv: axis titles longer than 80 characters")
     assert found[3].startswith("plots_safety_summary_figure_png: image") and "px wide in a panel of" in found[3]
+
+
+def test_plots_show_each_learning_curve_once_titled_the_eta1_chart_the_envelope_maps_and_padded_scatters(tmp_path):
+    """Learning curves: one plot, a panel titled by experiment · method and a line per replicate, not a plot per CSV
+    named by its path and its PNG again; η̂1 with its interval per condition; the envelope maps; the trade-off's and
+    the signals' rates of 0 and 1 drawn inside the frame (the scales padded), not on its edge."""
+    project = plots_project(tmp_path)
+    (project / "plots/offline/train/vi/seed0_curve.png").write_bytes(
+        (project / IMAGE_PLOTS[0] / "figure.png").read_bytes()
+    )
+    shown = json.loads(dvc(project, "plots", "show", "--json"))["data"]
+    assert not [plot for plot in shown if "/train/" in plot], [p for p in shown if "/train/" in p]
+    curves = shown["plots/report/learning_curves.csv"][0]["content"]
+    panels = {row["panel"] for row in curves["data"]["values"]}
+    assert "offline · vi" in panels and curves["facet"]["field"] == "panel"
+    assert {row["replicate"] for row in curves["data"]["values"]} == {"seed0", "seed1"}
+    assert curves["spec"]["encoding"]["y"]["scale"]["zero"] is False  # accuracies near 1, not squashed against 0
+    eta1 = shown["plots/report/eta1.csv"][0]["content"]
+    assert {"eta1_low", "eta1_high"} <= set(eta1["data"]["values"][0])
+    assert any(p.startswith("plots/report/envelope/") for p in shown)
+    for name in ("tradeoff.csv", "signals.csv"):
+        plot = next(v[0]["content"] for p, v in shown.items() if p.endswith(f"mcd-seed0/{name}"))
+        assert all(plot["encoding"][axis]["scale"]["padding"] > 0 for axis in ("x", "y")), name

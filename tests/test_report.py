@@ -219,7 +219,7 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     text = (tmp_path / "reports/report.md").read_text()
 
     assert findings_markdown(findings) in text  # the findings, generated from the file, come before the tables
-    assert text.index("## What the run found") < text.index("**The paper's claims, for the method**")
+    assert text.index("## The paper's claims and what the run found") < text.index(findings_markdown(findings))
     assert text.index("**The paper's claims, for the method**") < text.index("**For these trained controllers**")
     assert text.index("**For these trained controllers**") < text.index("## Controllers")
     claims = {r["claim (A safer than B)"]: r for r in markdown_rows(text, "claim (A safer than B)")}
@@ -289,21 +289,33 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert "Figure missing: `plots/envelope/mcd-seed0/map.png`" in text
 
     headline = json.loads((tmp_path / "metrics/summary.json").read_text())
-    assert list(headline)[:3] == ["theta", "gamma", "n_replicates"]  # `dvc exp show`'s first columns
+    first = ["eta1_training_condition", "eta1_training_location", "eta1_all_sweep_cells"]
+    assert list(headline)[:3] == first  # `dvc exp show`'s first columns
     assert (headline["theta"], headline["gamma"], headline["n_replicates"]) == (0.25, 0.05, len(SEEDS))
-    vi_answers = [a.value for a in safety.answers if a.method == "vi"]
-    assert headline["offline_safety"]["vi"] == pytest.approx(np.mean(vi_answers))
-    assert headline["avoid_unknown_on"]["mcd"] == avoid.answer("mcd", "unknown mixture", "on").value
-    assert headline["avoid_unknown_off"]["mcd"] == avoid.answer("mcd", "unknown mixture", "off").value
+    trained_here = safety.answer("vi", "roundabout", "clear_noon", 0.0)
+    assert headline["eta1_training_condition"]["vi"] == {
+        "value": trained_here.value,
+        "low": trained_here.low,
+        "high": trained_here.high,
+    }
+    every = [a for a in safety.answers if a.method == "vi"]
+    assert len(every) == len(LOCATIONS) * len(WEATHERS) * len(NOISES)  # the sweep's mean leaves no cell out
+    per_replicate = [np.mean([a.estimates[r] for a in every]) for r in range(len(SEEDS))]
+    assert headline["eta1_all_sweep_cells"]["vi"]["value"] == pytest.approx(np.mean(per_replicate))
+    at_roundabout = [a for a in every if a.condition.startswith("roundabout-")]
+    per_replicate = [np.mean([a.estimates[r] for a in at_roundabout]) for r in range(len(SEEDS))]
+    assert headline["eta1_training_location"]["vi"]["value"] == pytest.approx(np.mean(per_replicate))
+    assert headline["avoid_unknown_on"]["mcd"]["value"] == avoid.answer("mcd", "unknown mixture", "on").value
+    assert headline["avoid_unknown_off"]["mcd"]["low"] == avoid.answer("mcd", "unknown mixture", "off").low
     assert headline["val_accuracy"]["avoid"]["vi"] == pytest.approx(np.mean(accuracy))
     per_method = [k for k, v in headline.items() if isinstance(v, dict) and k != "val_accuracy"]
-    assert per_method == ["offline_safety", "avoid_unknown_on", "avoid_unknown_off", "avoid_unknown_calibrated"]
+    assert per_method == [*first, "avoid_unknown_off", "avoid_unknown_on", "avoid_unknown_calibrated"]
     assert all(list(headline[k]) == list(METHODS) for k in per_method)
     assert list(headline["val_accuracy"]) == list(EXPERIMENTS)
     assert headline["findings_supported"] == findings.supported
 
     html = (tmp_path / "reports/report.html").read_text()
-    figures = len(EXPERIMENTS) * len(METHODS) + 2  # learning curves, one hexbin, vi's map; the rest are missing
+    figures = len(EXPERIMENTS) * len(METHODS) + 3  # learning curves, η1 chart, one hexbin, vi's map; the rest missing
     assert result.figures == figures and html.count('src="data:image/png;base64,') == figures
     assert not re.search(r'src="(?!data:)', html)  # self-contained: no file links left
 
@@ -342,3 +354,37 @@ def test_an_undecided_claim_shows_both_estimands_and_the_runs_that_would_decide_
     assert (
         row["would decide it"] == "19 differing runs (sign test, A safer in 9 of 10); 3145 runs for ±0.1 (any spread)"
     )
+
+
+def test_the_report_opens_with_the_answer_then_its_contents_and_ends_with_the_learning_curves(stage_config, tmp_path):
+    """The first screen: the short answer (generated: its numbers are the records'), a contents list whose every
+    link is a heading's anchor in the HTML, then the paper's claims; the learning curves last."""
+    _, safety, _, findings, _, _ = write_run(tmp_path)
+    run_report(stage_config("report"))
+    text = (tmp_path / "reports/report.md").read_text()
+    headings = [line for line in text.splitlines() if line.startswith("## ")]
+    assert headings[0] == "## The answer" and headings[1] == "## The paper's claims and what the run found"
+    assert headings[-1] == "## Learning curves" and text.index("**Contents**") < text.index(headings[1])
+    assert text.index("learning curve (replicate seed0)") > text.index("## Learning curves")
+    opening = text[: text.index("**Contents**")]
+    trained_here = safety.answer("mcd", "roundabout", "clear_noon", 0.0)
+    assert f"mcd {fmt(trained_here.value, 2)} [{fmt(trained_here.low, 2)}, {fmt(trained_here.high, 2)}]" in opening
+    assert f"{findings.supported} of {findings.comparisons} comparisons supported" in opening
+    unsafe = [c for c in dict.fromkeys(a.condition for a in safety.answers) if "rain-noise0.05" in c]
+    assert all(c in opening.split("**Not safe**")[1].split("\n")[0] for c in unsafe)  # rain with noise breaks both
+    html = (tmp_path / "reports/report.html").read_text()
+    links = re.findall(r'<a href="#([^"]+)">', html)
+    assert len(links) == len(headings) - 1  # every section but the answer above the list
+    assert all(f'id="{anchor}"' in html for anchor in links), links
+    assert "nan" not in text.lower().replace("nanoseconds", "")
+
+
+def test_a_group_of_findings_names_each_method_once_and_a_range_with_equal_ends_prints_one_number():
+    """The old row said "(and 2 more alike; methods in all: hmc, mcd, vi)" of three findings; and "1.00–1.00"."""
+    from uqdrive.report.findings_text import _group_row, span
+
+    base = dict(low=0.2, high=1.0, p_value=1e-3, effect=0.8)
+    members = [SimpleNamespace(a=f"{m} known off", b=f"{m} fog off", **base) for m in ("mcd", "vi", "hmc")]
+    what, gain, _ = _group_row(members)
+    assert what == "**known off** safer than fog off, for mcd, vi, hmc (3 findings)" and "more" not in what
+    assert gain.startswith("+0.80 ") and span(0.999, 1.0) == "1.00" and span(0.5, 0.75) == "0.50–0.75"

@@ -13,6 +13,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("uqdrive.bench", "speed benchmarks; `uqdrive bench --help` lists them"),
     "bound": ("uqdrive.uq.bound_table", "sample counts of each estimation scheme for (theta, gamma)"),
     "findings": ("uqdrive.report.findings_text", "print metrics/findings.json as the report states it"),
+    "headline": ("uqdrive.report.headline", "print metrics/summary.json as the README's results table"),
     "frames": ("uqdrive.frame_gallery", "write one example camera frame per weather to docs/"),
     "redecide": ("uqdrive.analysis.redecide", "re-decide a findings file's recorded counts with the current tests"),
     "plots-page": ("uqdrive.plots_page", "write the page `dvc plots show` fills, its scripts inlined (no CDN)"),

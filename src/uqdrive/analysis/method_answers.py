@@ -86,6 +86,27 @@ def summarise_methods(cells: Iterable[SafetyCell], methods: Sequence[str]) -> Sa
     return SafetySummary(answers, max(c.family_size for c in cells), min(c.gamma for c in cells))
 
 
+def pooled_answer(method: str, condition: str, answers: Sequence[MethodAnswer]) -> MethodAnswer:
+    """The uniform mixture of ``answers``' conditions (one method's): each replicate's mean η̂1 over them, and the
+    bound over replicates, so an average over conditions carries an interval as a single condition does."""
+    first = answers[0]
+    per_replicate = [float(np.mean([a.estimates[i] for a in answers])) for i in range(len(first.estimates))]
+    bound = replicate_bounded_interval(per_replicate, first.gamma)
+    rollouts = sum(a.rollouts for a in answers)
+    return MethodAnswer(
+        method,
+        condition,
+        first.replicates,
+        rollouts,
+        per_replicate,
+        bound.value,
+        bound.low,
+        bound.high,
+        first.gamma,
+        first.interval,
+    )
+
+
 UNKNOWN = "unknown mixture"
 
 

@@ -7,18 +7,23 @@ self-contained `reports/report.html` (figures embedded) and metrics/summary.json
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import shutil
 from pathlib import Path
 
 import mlflow
 from omegaconf import DictConfig
 
-from uqdrive.files import atomic_path
+from uqdrive.analysis.method_answers import SafetySummary
+from uqdrive.files import atomic_path, write_csv
+from uqdrive.plots import eta1_intervals_figure, save_figure
 from uqdrive.records import write_record
 from uqdrive.report.assemble import build_report, read_records
-from uqdrive.report.overview import Headline, Scope, headline_metrics
+from uqdrive.report.headline import Headline, headline_metrics
+from uqdrive.report.overview import Scope
 from uqdrive.schema import Str, schema, validate
-from uqdrive.stage_schemas import NonEmptyNames, SafetyGrid
+from uqdrive.stage_schemas import NonEmptyNames, SafetyGrid, training_stage
 from uqdrive.tracking import stage_run
 
 
@@ -47,6 +52,55 @@ class ReportFiles:
     headline: Headline
 
 
+def write_eta1_chart(plots: Path, safety: SafetySummary, methods: list[str]) -> Path:
+    """plots/report/eta1.csv (`dvc plots`) and eta1.png (the report): each method's η̂1 per condition, with its
+    interval."""
+    rows = [
+        {"method": a.method, "condition": a.condition, "eta1": a.value, "eta1_low": a.low, "eta1_high": a.high}
+        for a in safety.answers
+        if a.method in methods
+    ]
+    write_csv(plots / "eta1.csv", rows)
+    return save_figure(eta1_intervals_figure(rows, methods), plots / "eta1.png")
+
+
+def write_learning_curves(root: Path, plots: Path, scope: Scope) -> Path:
+    """plots/report/learning_curves.csv: every trained controller's validation accuracy per step, a panel per
+    experiment · method and a line per replicate, so `dvc plots` shows each curve once, titled (not a plot per file
+    named by its path, and its PNG again)."""
+    rows = []
+    for experiment in scope.experiments:
+        for method in scope.posteriors:
+            for replicate in scope.replicates:
+                path = root / "plots" / experiment / "train" / method / f"seed{replicate}_curve.csv"
+                if not path.exists():
+                    stage = training_stage(experiment, method)
+                    raise FileNotFoundError(f"{path} is missing; run the stage that writes it first: dvc repro {stage}")
+                with path.open() as f:
+                    rows += [
+                        {
+                            "panel": f"{experiment} · {method}",
+                            "replicate": f"seed{replicate}",
+                            "step": int(float(row["step"])),
+                            "val_accuracy": float(row["val_accuracy"]),
+                        }
+                        for row in csv.DictReader(f)
+                    ]
+    return write_csv(plots / "learning_curves.csv", rows)
+
+
+def copy_envelope_maps(root: Path, plots: Path, methods: tuple[str, ...], seed: int) -> Path:
+    """plots/report/envelope/<method>-seed<r>.png: the envelope maps where `dvc plots` shows images (the envelope
+    stage's folder also holds its tables); a map the run lacks is named missing in the report."""
+    folder = plots / "envelope"
+    folder.mkdir(parents=True, exist_ok=True)
+    for method in methods:
+        found = root / "plots" / "envelope" / f"{method}-seed{seed}" / "map.png"
+        if found.exists():
+            shutil.copyfile(found, folder / f"{method}-seed{seed}.png")
+    return folder
+
+
 def run_report(cfg: DictConfig) -> ReportFiles:
     """Read the records, build the report and the headline numbers, write them, log the report."""
     stage = validate(ReportStage, cfg)
@@ -63,8 +117,12 @@ def run_report(cfg: DictConfig) -> ReportFiles:
     )
     records = read_records(Path(stage.paths.metrics), scope)
     out_dir = Path(stage.report.out_dir)
-    report = build_report(Path(stage.paths.root), out_dir, scope, records)
     headline = headline_metrics(scope, records.run, records.findings)
+    root, plots = Path(stage.paths.root), Path(stage.paths.plots) / "report"
+    chart = write_eta1_chart(plots, records.run.safety, list(scope.methods))
+    write_learning_curves(root, plots, scope)
+    copy_envelope_maps(root, plots, scope.methods, scope.replicates[0])
+    report = build_report(root, out_dir, scope, records, headline, chart)
     md_path, html_path = out_dir / "report.md", out_dir / "report.html"
     with atomic_path(md_path) as tmp:
         tmp.write_text(report.markdown)

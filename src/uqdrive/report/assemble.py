@@ -1,4 +1,4 @@
-"""The report from the run's records: read every stage's record, then the sections in order — findings first,
+"""The report from the run's records: read every stage's record, then the sections in order — the answer first,
 then every table and figure of the paper with ours beside it."""
 
 from __future__ import annotations
@@ -12,20 +12,24 @@ from uqdrive.data.preprocess import Preprocessed
 from uqdrive.envelope.map_records import EnvelopeResult
 from uqdrive.models.heldout_eval import HeldoutTable
 from uqdrive.records import read_record
+from uqdrive.report.answer import answer_markdown
 from uqdrive.report.document import Report
 from uqdrive.report.envelope_section import envelope_section, read_envelopes
 from uqdrive.report.findings_text import findings_markdown
+from uqdrive.report.headline import Headline, headline_table
 from uqdrive.report.heldout_section import heldout_section
-from uqdrive.report.overview import Scope, run_section, sample_counts_section
+from uqdrive.report.overview import Scope, run_section, sample_counts_section, title_section
 from uqdrive.report.sections import (
     Run,
     avoid_section,
     conditions_of,
     fidelity_section,
+    learning_curves_section,
     read_train_metrics,
     safety_section,
     training_section,
 )
+from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import read_avoid_results, read_safety_cells
 
 
@@ -62,16 +66,27 @@ def read_records(metrics_dir: Path, scope: Scope) -> Records:
     )
 
 
-def build_report(root: Path, out_dir: Path, scope: Scope, records: Records) -> Report:
-    run, methods = records.run, list(scope.methods)
+def build_report(root: Path, out_dir: Path, scope: Scope, records: Records, headline: Headline, chart: Path) -> Report:
+    """The answer first (generated), the contents, the paper's claims and the findings, the paper's numbers beside
+    ours, every experiment's tables and figures, what was run; learning curves last. ``chart``: η̂1 per condition."""
+    run, methods, training = records.run, list(scope.methods), (scope.locations[0], scope.train_weather, 0.0)
     report = Report(root, out_dir)
-    run_section(report, scope, run.cells)
-    report.add("## What the run found\n\n" + findings_markdown(records.findings))
+    title_section(report)
+    report.add(
+        "## The answer\n\n"
+        + answer_markdown(headline, run.safety, records.findings, methods, condition_label(*training))
+    )
+    report.add(headline_table(headline, dataclasses.asdict(scope)))
+    report.figure(chart, "η̂1 per condition, each method's mean over its replicates with the interval for the method")
+    report.add_contents()
+    report.add("## The paper's claims and what the run found\n\n" + findings_markdown(records.findings))
     fidelity_section(report, run, methods, list(scope.weathers), scope.locations[0])
-    training_section(report, run, list(scope.experiments), list(scope.posteriors), list(scope.replicates))
     safety_section(report, run, methods, conditions_of(scope.locations, scope.weathers, scope.noises))
     avoid_section(report, run, methods)
     envelope_section(report, records.envelopes)
     heldout_section(report, records.evaluated, scope.posteriors, scope.weathers, scope.noises, scope.replicates[0])
+    training_section(report, run, list(scope.experiments), list(scope.posteriors), list(scope.replicates))
+    run_section(report, scope, run.cells)
     sample_counts_section(report, run.cells)
+    learning_curves_section(report, list(scope.experiments), list(scope.posteriors), list(scope.replicates))
     return report

@@ -34,6 +34,18 @@ def read_json(path: Path) -> dict:
     return json.loads(path.read_text())
 
 
+def slug(title: str) -> str:
+    """A heading's anchor as GitHub makes it, and as the HTML makes it (it calls this): lower case, punctuation
+    dropped, spaces to hyphens."""
+    return re.sub(r"[^\w\- ]", "", title.strip().lower()).replace(" ", "-")
+
+
+def contents(markdown_text: str) -> str:
+    """Every second-level heading of ``markdown_text`` as a list of links to its anchor."""
+    titles = [line[3:].strip() for line in markdown_text.splitlines() if line.startswith("## ")]
+    return "**Contents**\n\n" + "\n".join(f"- [{t}](#{slug(t)})" for t in titles)
+
+
 class Report:
     """Markdown text plus the figures it links, built section by section."""
 
@@ -41,6 +53,11 @@ class Report:
         self.root, self.out_dir = root, out_dir
         self.parts: list[str] = []
         self.figures: list[Path] = []
+        self.contents_at: int | None = None
+
+    def add_contents(self) -> None:
+        """Here: the list of every section, linked (filled in when the report is read)."""
+        self.contents_at = len(self.parts)
 
     def add(self, text: str) -> None:
         self.parts.append(text.strip())
@@ -55,10 +72,17 @@ class Report:
 
     @property
     def markdown(self) -> str:
-        return "\n\n".join(self.parts) + "\n"
+        parts = list(self.parts)
+        if self.contents_at is not None:
+            parts.insert(self.contents_at, contents("\n\n".join(parts[self.contents_at :])))
+        return "\n\n".join(parts) + "\n"
 
     def html(self) -> str:
-        body = markdown.markdown(self.markdown, extensions=["tables"])
+        body = markdown.markdown(
+            self.markdown,
+            extensions=["tables", "toc"],
+            extension_configs={"toc": {"slugify": lambda value, _separator: slug(value)}},
+        )
 
         def embed(match: re.Match) -> str:
             path = (self.out_dir / match.group(1)).resolve()

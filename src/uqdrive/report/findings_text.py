@@ -104,15 +104,39 @@ def claims_markdown(findings) -> str:
     return "\n\n".join(text)
 
 
-def _safer(f) -> tuple[str, str]:
-    """The finding as "X safer than Y" and the average gain in η̂1 with its interval, read in that direction."""
+def span(low: float, high: float, digits: int = 2) -> str:
+    """A range of values as printed: one number where both ends print the same (never "1.00–1.00")."""
+    a, b = fmt(low, digits), fmt(high, digits)
+    return a if a == b else f"{a}–{b}"
+
+
+def _safer(f) -> tuple[str, str, str]:
+    """The finding read as "X safer than Y": the safer cell's label, the other's, and the average gain in η̂1 with
+    its interval in that direction."""
     if f.low > 0 or (f.high >= 0 and f.effect > 0):
-        return f"**{f.a}** safer than {f.b}", f"+{f.effect:.2f} {_interval(f.low, f.high)}"
-    return f"**{f.b}** safer than {f.a}", f"+{-f.effect:.2f} {_interval(-f.high, -f.low)}"
+        return f.a, f.b, f"+{f.effect:.2f} {_interval(f.low, f.high)}"
+    return f.b, f.a, f"+{-f.effect:.2f} {_interval(-f.high, -f.low)}"
 
 
-def _method(label: str) -> str:
-    return label.split()[0]
+def _without_method(label: str) -> str:
+    return label.split(" ", 1)[1] if " " in label else label
+
+
+def _group_row(members: list) -> list[str]:
+    """One row for findings that say one thing of many cells: the safer and the other conditions (without the
+    method), the methods it holds for, how many findings, the range of their gains and the largest p."""
+    largest = max(f.p_value for f in members)
+    p = fmt(largest, 4) if largest >= 1e-4 else f"{largest:.1e}"
+    if len(members) == 1:
+        safer, other, gain = _safer(members[0])
+        return [f"**{safer}** safer than {other}", gain, p]
+    read = [_safer(f) for f in members]
+    safer = ", ".join(dict.fromkeys(_without_method(s) for s, _, _ in read))
+    other = ", ".join(dict.fromkeys(_without_method(o) for _, o, _ in read))
+    methods = ", ".join(dict.fromkeys(f.a.split()[0] for f in members))
+    gains = [abs(f.effect) for f in members]
+    what = f"**{safer}** safer than {other}, for {methods} ({len(members)} findings)"
+    return [what, f"+{span(min(gains), max(gains))} (each excludes 0)", p]
 
 
 def controller_markdown(findings) -> str:
@@ -133,15 +157,7 @@ def controller_markdown(findings) -> str:
         rows = []
         key = lambda f: (f.topic, f.effect > 0)  # noqa: E731  (one fact of many cells: one row)
         for _, members in itertools.groupby(sorted(group, key=key), key=key):
-            members = sorted(members, key=lambda f: -abs(f.effect))
-            what, gain = _safer(members[0])
-            if len(members) > 1:
-                methods = ", ".join(sorted({_method(f.a) for f in members}))
-                what = f"{what} (and {len(members) - 1} more alike; methods in all: {methods})"
-                gains = sorted({round(abs(f.effect), 2) for f in members})
-                gain = f"{gains[0]:.2f}" if len(gains) == 1 else f"{gains[0]:.2f} to {gains[-1]:.2f}"
-            largest = max(f.p_value for f in members)
-            rows.append([what, gain, fmt(largest, 4) if largest >= 1e-4 else f"{largest:.1e}"])
+            rows.append(_group_row(sorted(members, key=lambda f: -abs(f.effect))))
         if rows:
             header = ["finding", "average η̂1 gained [interval]", "p (largest)"]
             lines.append(f"**{title}**\n\n" + table(header, rows))

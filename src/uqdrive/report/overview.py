@@ -1,5 +1,5 @@
 """The report's opening and closing facts: what was run (profile, versions, replicates, the sweep, how η1 was
-estimated), how many samples each estimation scheme needs, and the headline numbers `dvc exp show` compares."""
+estimated) and how many samples each estimation scheme needs."""
 
 from __future__ import annotations
 
@@ -10,12 +10,8 @@ from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
-from uqdrive.analysis.comparisons import Findings
-from uqdrive.analysis.method_answers import UNKNOWN
-from uqdrive.records import record
 from uqdrive.report.document import Report, fmt, table
-from uqdrive.report.sections import Run
-from uqdrive.safety.cell_records import Mode, SafetyCell
+from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_scheme
 
 PACKAGES = (
@@ -47,26 +43,6 @@ class Scope:
     locations: tuple[str, ...]
 
 
-@record
-class Headline:
-    """metrics/summary.json, the numbers an experiment is compared by (DVC's one metrics file: `dvc exp show` shows
-    its keys first, nested keys as dotted columns such as ``offline_safety.vi``), in this order, the run's
-    comparison keys first: the loosest (θ, γ) of every closed-loop cell (each η̂1 within θ of η1 with probability at
-    least 1 − γ) and how many training replicates each number averages; per driven method, η̂1 over the offline
-    sweep's cells and in collision avoidance's unknown conditions (warnings on, off, calibrated); each experiment's
-    validation accuracy; how many findings are supported."""
-
-    theta: float
-    gamma: float
-    n_replicates: int
-    offline_safety: dict[str, float]
-    avoid_unknown_on: dict[str, float]
-    avoid_unknown_off: dict[str, float]
-    avoid_unknown_calibrated: dict[str, float]
-    val_accuracy: dict[str, dict[str, float]]  # experiment → method
-    findings_supported: int
-
-
 def _git_commit(root: Path) -> str:
     try:
         out = subprocess.run(
@@ -87,6 +63,15 @@ def _versions() -> str:
     return ", ".join(found)
 
 
+def title_section(report: Report) -> None:
+    report.add("""
+# uqdrive report
+
+Bayesian end-to-end driving controllers in pybullet and how safe they are, beside *Uncertainty Quantification with
+Statistical Guarantees in End-to-End Autonomous Driving Control* (Michelmore et al., ICRA 2020; CARLA). Every
+number and sentence below is generated from this run's metrics files.""")
+
+
 def run_section(report: Report, scope: Scope, cells: list[SafetyCell]) -> None:
     schemes = sorted({(c.scheme, c.theta, c.gamma, c.n) for c in cells})
     estimation = "; ".join(f"{s} θ = {t:g}, γ = {g:g} → n = {n} rollouts per cell" for s, t, g, n in schemes)
@@ -95,11 +80,9 @@ def run_section(report: Report, scope: Scope, cells: list[SafetyCell]) -> None:
     sweep = f"methods {', '.join(scope.methods)} × weathers {', '.join(scope.weathers)} × noise {noises}"
     base_seeds = ", ".join(sorted({str(c.base_seed) for c in cells}))
     report.add(f"""
-# uqdrive report
+## What was run
 
-Bayesian end-to-end driving controllers in pybullet and how safe they are, beside *Uncertainty
-Quantification with Statistical Guarantees in End-to-End Autonomous Driving Control* (Michelmore et al., ICRA 2020;
-CARLA). Built by `dvc repro` from this run's metrics files; every number below is read from them.
+Built by `dvc repro` from this run's metrics files; every number in this report is read from them.
 
 | what was run | |
 |---|---|
@@ -144,34 +127,4 @@ def sample_counts_section(report: Report, cells: list[SafetyCell], look_size: in
             ["θ", "γ", "chernoff", "clopper_pearson", "sequential at most", "sequential E[n] at η=0.5", "at η=0.99"],
             rows,
         )
-    )
-
-
-def headline_metrics(scope: Scope, run: Run, findings: Findings) -> Headline:
-    """The headline numbers (`Headline`): means over the replicates, η̂1 of the unknown mixture per warnings mode."""
-    seeds, methods = scope.replicates, scope.methods
-    guarantees = [(c.theta, c.gamma) for c in run.cells] + [
-        (cell.theta, cell.gamma) for result in run.avoided for modes in result.cells.values() for cell in modes.values()
-    ]
-
-    def offline_safety(method: str) -> float:
-        answers = [a.value for a in run.safety.answers if a.method == method]
-        return sum(answers) / len(answers)
-
-    def avoid_unknown(mode: Mode) -> dict[str, float]:
-        return {m: run.avoid.answer(m, UNKNOWN, mode).value for m in methods}
-
-    return Headline(
-        theta=max(theta for theta, _ in guarantees),
-        gamma=max(gamma for _, gamma in guarantees),
-        n_replicates=len(seeds),
-        offline_safety={m: offline_safety(m) for m in methods},
-        avoid_unknown_on=avoid_unknown(Mode.ON),
-        avoid_unknown_off=avoid_unknown(Mode.OFF),
-        avoid_unknown_calibrated=avoid_unknown(Mode.CALIBRATED),
-        val_accuracy={
-            e: {m: sum(run.trained[e, m, r].val_accuracy for r in seeds) / len(seeds) for m in methods}
-            for e in scope.experiments
-        },
-        findings_supported=findings.supported,
     )

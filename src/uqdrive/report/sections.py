@@ -8,13 +8,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from uqdrive import paper
-from uqdrive.analysis.method_answers import UNKNOWN, AvoidSummary, MethodAnswer, SafetySummary
+from uqdrive.analysis.method_answers import UNKNOWN, AvoidSummary, MethodAnswer, SafetySummary, pooled_answer
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.records import read_record
 from uqdrive.report.document import Report, fmt, table
 from uqdrive.safety.cell_records import AvoidResult, Mode, SafetyCell
 from uqdrive.stage_schemas import training_stage
-from uqdrive.uq.replicates import replicate_bounded_interval
 
 STOPPING_NOTE = "a car at 8 m/s needs 5.3 m to stop at 6 m/s²"
 TRAINING_REFERENCE = {
@@ -107,6 +106,11 @@ def training_section(report: Report, run: Run, experiments: list[str], methods: 
         headers = ["experiment", "method", "replicate", "share R̂ ≤ 1.1", "target", "median R̂", "min bulk ESS"]
         headers += ["min tail ESS", "MI R̂ max", "MI min bulk ESS", "between-chain share of MI", "train seconds"]
         report.add(table(headers, sampled))
+
+
+def learning_curves_section(report: Report, experiments: list[str], methods: list[str], seeds: list[int]) -> None:
+    """Last in the report: how training went matters less than what the controllers did."""
+    report.add("## Learning curves\n\nValidation accuracy against the training step, the first replicate.")
     for experiment in experiments:
         for method in methods:
             report.figure(
@@ -273,21 +277,20 @@ def _overlap(low: float, high: float, reference: float) -> bool:
     return max(low, reference - paper.THETA) <= min(high, reference + paper.THETA)
 
 
-def _pooled(answers: list[MethodAnswer], gamma: float) -> tuple[float, float, float]:
-    """The uniform mixture of conditions (the paper's "across all weathers"), over the replicates: each replicate's
-    mean over the conditions, and the bound over replicates."""
-    per_replicate = [sum(a.estimates[i] for a in answers) / len(answers) for i in range(len(answers[0].estimates))]
-    bound = replicate_bounded_interval(per_replicate, gamma)
-    return bound.value, bound.low, bound.high
+def _pooled(answers: list[MethodAnswer]) -> tuple[float, float, float]:
+    """The uniform mixture of conditions (the paper's "across all weathers"), over the replicates."""
+    pooled = pooled_answer(answers[0].method, "pooled", answers)
+    return pooled.value, pooled.low, pooled.high
 
 
 def fidelity_section(report: Report, run: Run, methods: list[str], weathers: list[str], location: str) -> None:
     """Every number the paper reports beside the method-level answers, and whether the intervals overlap."""
     rows: list[list[str]] = []
-    gamma = run.safety.answers[0].gamma
+    widths: list[float] = []
 
     def add(claim: str, reference: float, value: float, low: float, high: float) -> None:
         same = _overlap(low, high, reference)
+        widths.append(high - low)
         ours = f"{fmt(value, 2)} [{fmt(low, 2)}, {fmt(high, 2)}]"
         rows.append([claim, f"{reference:.2f} ± {paper.THETA:g}", ours, "yes" if same else "**no**"])
 
@@ -296,13 +299,13 @@ def fidelity_section(report: Report, run: Run, methods: list[str], weathers: lis
 
     for method, reference in paper.OFFLINE_ALL_WEATHERS.items():
         if method in methods:
-            add(f"offline, {method}, all weathers", reference, *_pooled(offline(method, weathers), gamma))
+            add(f"offline, {method}, all weathers", reference, *_pooled(offline(method, weathers)))
     dry = [w for w in weathers if w != "rain"]
     if "mcd" in methods and dry:  # a sweep of rain alone has no claim to set beside the paper's
         add(
             "offline, mcd, all weathers but rain",
             paper.OFFLINE_WITHOUT_RAIN["mcd"],
-            *_pooled(offline("mcd", dry), gamma),
+            *_pooled(offline("mcd", dry)),
         )
         if "clear_noon" in weathers:
             answer = run.safety.answer("mcd", location, "clear_noon", 0.0)
@@ -335,6 +338,18 @@ def fidelity_section(report: Report, run: Run, methods: list[str], weathers: lis
         "± θ share a point (both could hold the same η1). The paper drove one network per method in CARLA."
     )
     report.add(table(["claim", "paper", "ours [interval]", "overlap"], rows))
+    report.add(overlap_note(rows, widths, len(run.safety.answers[0].estimates)))
+
+
+def overlap_note(rows: list[list[str]], widths: list[float], replicates: int) -> str:
+    """What a column of "yes" means: the intervals are wide, not the numbers alike."""
+    overlapping = sum(row[3] == "yes" for row in rows[: len(widths)])
+    return (
+        f"{overlapping} of the {len(widths)} η1 rows overlap. Overlap means only that this run cannot tell our method "
+        f"from the paper's number: with {replicates} training replicates the method intervals span "
+        f"{fmt(sum(widths) / len(widths), 2)} of [0, 1] on average (the spread between training runs is in them), so "
+        "a 'yes' is no agreement. What these trained controllers did is decided in the findings above."
+    )
 
 
 def read_train_metrics(metrics_dir: Path, experiments: list[str], methods: list[str], seeds: list[int]) -> dict:

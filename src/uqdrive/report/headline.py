@@ -1,0 +1,136 @@
+"""The headline numbers: metrics/summary.json (DVC's one metrics file, so `dvc exp show`'s first columns) and the
+table the report and the README print from it (`uqdrive headline`), so the README cannot drift from the run.
+
+Each η̂1 is named for what it averages — the training condition, the training location's weather × noise cells,
+every cell of the sweep — and carries its interval for the method: an average that silently took in the 20 m
+ring, where every controller fails, once read as the roundabout's safety.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import yaml
+
+from uqdrive.analysis.comparisons import Findings
+from uqdrive.analysis.method_answers import UNKNOWN, MethodAnswer, pooled_answer
+from uqdrive.records import read_record, record
+from uqdrive.report.document import fmt, table
+from uqdrive.resolvers import condition_label
+from uqdrive.safety.cell_records import Mode
+
+
+@record
+class Eta1:
+    """A method's η̂1 (the mean over its replicates) and the interval for its η1 (`method_answers`)."""
+
+    value: float
+    low: float
+    high: float
+
+
+@record
+class Headline:
+    """metrics/summary.json in `dvc exp show`'s order: per driven method, η̂1 at the training condition (training
+    location and weather, noise 0), over the training location's weather × noise cells, over every cell of the
+    offline sweep (every location), and in collision avoidance's unknown conditions (warnings off, on,
+    calibrated), each with its interval; then the loosest (θ, γ) of the closed-loop cells, how many training
+    replicates each number averages, each experiment's validation accuracy and how many findings hold."""
+
+    eta1_training_condition: dict[str, Eta1]
+    eta1_training_location: dict[str, Eta1]
+    eta1_all_sweep_cells: dict[str, Eta1]
+    avoid_unknown_off: dict[str, Eta1]
+    avoid_unknown_on: dict[str, Eta1]
+    avoid_unknown_calibrated: dict[str, Eta1]
+    theta: float
+    gamma: float
+    n_replicates: int
+    val_accuracy: dict[str, dict[str, float]]  # experiment → method
+    findings_supported: int
+
+
+def _eta1(answer: MethodAnswer) -> Eta1:
+    return Eta1(answer.value, answer.low, answer.high)
+
+
+def headline_metrics(scope, run, findings: Findings) -> Headline:
+    """``scope``, ``run``: the report's `Scope` and `Run`; the training condition is the findings' (the first
+    location, the training weather, noise 0)."""
+    seeds, methods, location = scope.replicates, scope.methods, scope.locations[0]
+    guarantees = [(c.theta, c.gamma) for c in run.cells] + [
+        (cell.theta, cell.gamma) for result in run.avoided for modes in result.cells.values() for cell in modes.values()
+    ]
+
+    def pooled(method: str, where: str, answers: list[MethodAnswer]) -> Eta1:
+        return _eta1(pooled_answer(method, where, answers))
+
+    at_location = {condition_label(location, w, x) for w in scope.weathers for x in scope.noises}
+
+    def mine(method: str, within: set[str] | None = None) -> list[MethodAnswer]:
+        return [a for a in run.safety.answers if a.method == method and (within is None or a.condition in within)]
+
+    def avoid_unknown(mode: Mode) -> dict[str, Eta1]:
+        return {m: _eta1(run.avoid.answer(m, UNKNOWN, mode)) for m in methods}
+
+    return Headline(
+        eta1_training_condition={m: _eta1(run.safety.answer(m, location, scope.train_weather, 0.0)) for m in methods},
+        eta1_training_location={m: pooled(m, location, mine(m, at_location)) for m in methods},
+        eta1_all_sweep_cells={m: pooled(m, "every cell", mine(m)) for m in methods},
+        avoid_unknown_off=avoid_unknown(Mode.OFF),
+        avoid_unknown_on=avoid_unknown(Mode.ON),
+        avoid_unknown_calibrated=avoid_unknown(Mode.CALIBRATED),
+        theta=max(theta for theta, _ in guarantees),
+        gamma=max(gamma for _, gamma in guarantees),
+        n_replicates=len(seeds),
+        val_accuracy={
+            e: {m: sum(run.trained[e, m, r].val_accuracy for r in seeds) / len(seeds) for m in methods}
+            for e in scope.experiments
+        },
+        findings_supported=findings.supported,
+    )
+
+
+def headline_table(headline: Headline, params: dict) -> str:
+    """The headline as a markdown table, methods as columns; ``params``: params.yaml's sweep (what each row
+    averages)."""
+    location, weather = params["locations"][0], params["train_weather"]
+    weathers, noises, locations = len(params["weathers"]), len(params["noises"]), len(params["locations"])
+    methods = list(headline.eta1_training_condition)
+    rows = [
+        (f"η̂1 at the training condition ({location}, {weather}, noise 0)", headline.eta1_training_condition),
+        (f"η̂1 over {location}'s {weathers * noises} weather × noise cells", headline.eta1_training_location),
+        (
+            f"η̂1 over all {locations * weathers * noises} sweep cells ({locations} locations × {weathers} "
+            f"weathers × {noises} noises)",
+            headline.eta1_all_sweep_cells,
+        ),
+        ("collision avoidance, unknown conditions, warnings off", headline.avoid_unknown_off),
+        ("… warnings on (the paper's thresholds)", headline.avoid_unknown_on),
+        ("… warnings calibrated (fresh seeds)", headline.avoid_unknown_calibrated),
+    ]
+    body = [
+        [name, *(f"{fmt(v[m].value, 2)} [{fmt(v[m].low, 2)}, {fmt(v[m].high, 2)}]" for m in methods)]
+        for name, v in rows
+    ]
+    body += [
+        [f"validation accuracy, `{e}`", *(fmt(v[m], 3) for m in methods)] for e, v in headline.val_accuracy.items()
+    ]
+    header = f"mean over {headline.n_replicates} training replicates [interval for the method]"
+    return table([header, *methods], body)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="uqdrive headline",
+        description="Print metrics/summary.json's headline numbers as the markdown table the README and report hold.",
+    )
+    parser.add_argument("summary", type=Path, nargs="?", default=Path("metrics/summary.json"), help="the summary file")
+    parser.add_argument(
+        "--params", type=Path, default=Path("params.yaml"), help="the run's params (what each row averages)"
+    )
+    args = parser.parse_args(argv)
+    headline = read_record(Headline, args.summary, "report")
+    print(headline_table(headline, yaml.safe_load(args.params.read_text())))
+    return 0
