@@ -1,8 +1,9 @@
-"""The `report` stage: the findings first, then every table and figure of this run beside the paper's numbers.
+"""The `report` stage: the answer first, then every table and figure of this run beside the paper's numbers.
 
 Reads only the stages' records and figures (the DVC outputs), so the report is a pure function of what this run
 produced and `dvc repro` rebuilds it whenever any of them changes. Writes `reports/report.md` (figures linked), a
-self-contained `reports/report.html` (figures embedded) and metrics/summary.json, and logs the report to MLflow.
+self-contained `reports/report.html` (figures embedded), metrics/summary.json and the plot data under
+plots/report/ (η̂1 per condition, learning curves, envelope maps), and logs the report to MLflow.
 """
 
 from __future__ import annotations

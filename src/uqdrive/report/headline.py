@@ -100,9 +100,9 @@ def headline_table(headline: Headline, params: dict) -> str:
     methods = list(headline.eta1_training_condition)
     rows = [
         (f"η̂1 at the training condition ({location}, {weather}, noise 0)", headline.eta1_training_condition),
-        (f"η̂1 over {location}'s {weathers * noises} weather × noise cells", headline.eta1_training_location),
+        (f"η̂1 over {location}'s {weathers * noises} weather × noise conditions", headline.eta1_training_location),
         (
-            f"η̂1 over all {locations * weathers * noises} sweep cells ({locations} locations × {weathers} "
+            f"η̂1 over all {locations * weathers * noises} sweep conditions ({locations} locations × {weathers} "
             f"weathers × {noises} noises)",
             headline.eta1_all_sweep_cells,
         ),
