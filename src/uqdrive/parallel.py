@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import itertools
 import multiprocessing
-from collections.abc import Iterator, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Protocol
 
@@ -32,6 +33,20 @@ class Job(Protocol):
 
 _keyed: dict[int, Worker] = {}  # this process's worker, by job key
 _job_keys = itertools.count()  # unique in the process, so two pools never share a key
+_channel: Any = None  # where this process reports finished parts of an item: a queue to the pool's owner
+_current: int | None = None  # the job key of the item this process runs
+
+
+def report(done: int = 1) -> None:
+    """``done`` more parts of the item this process runs have finished (a rollout of a chunk): the pool's owner
+    hears it now, not when the whole item returns, so a progress bar moves per rollout. Costs one small pipe write."""
+    if _channel is not None and _current is not None:
+        _channel.put((_current, done))
+
+
+def _set_channel(channel: Any) -> None:
+    global _channel
+    _channel = channel
 
 
 def _run_keyed(keyed: tuple[int, Job, Any]) -> Any:
@@ -39,12 +54,17 @@ def _run_keyed(keyed: tuple[int, Job, Any]) -> Any:
     last only: a pool's jobs come one after another (the cells of a sweep, the conditions of an avoid
     stage), so an earlier job's world is done with, and a stage of 36 cells does not hold 36 worlds per
     process. (A job met again is rebuilt; its items do not depend on the worker's history.)"""
+    global _current
     key, job, item = keyed
     if key not in _keyed:
         for stale in list(_keyed):
             _keyed.pop(stale).close()
         _keyed[key] = job.worker()
-    return _keyed[key].run(item)
+    _current = key
+    try:
+        return _keyed[key].run(item)
+    finally:
+        _current = None
 
 
 PRELOAD = [
@@ -75,8 +95,36 @@ class ProcessPool:
         if workers < 1:
             raise ValueError(f"workers={workers!r} must be >= 1")
         self.workers = workers
-        self._pool = None if workers == 1 else ProcessPoolExecutor(workers, mp_context=_forkserver())
         self._keys: list[int] = []
+        self._listeners: dict[int, Callable[[int], None]] = {}
+        self._pool, self._reports, self._listener = None, None, None
+        if workers > 1:
+            context = _forkserver()
+            self._reports = context.SimpleQueue()  # written by each worker's `report`, read by one thread here
+            self._pool = ProcessPoolExecutor(
+                workers, mp_context=context, initializer=_set_channel, initargs=(self._reports,)
+            )
+            self._listener = threading.Thread(target=self._listen, name="uqdrive-pool-reports", daemon=True)
+            self._listener.start()
+
+    def listen(self, key: int, callback: Callable[[int], None] | None) -> None:
+        """``callback(done)`` on every `report` from job ``key``'s items (None: stop)."""
+        if callback is None:
+            self._listeners.pop(key, None)
+        else:
+            self._listeners[key] = callback
+
+    def put(self, message: tuple[int, int] | None) -> None:
+        """A report of an item run in this process (one worker: no queue between)."""
+        self._dispatch(message)
+
+    def _dispatch(self, message: tuple[int, int] | None) -> None:
+        if message is not None and (callback := self._listeners.get(message[0])) is not None:
+            callback(message[1])
+
+    def _listen(self) -> None:
+        while (message := self._reports.get()) is not None:
+            self._dispatch(message)
 
     def executor(self, job: Job, owns_pool: bool = False) -> PooledExecutor:
         """The job's executor; with ``owns_pool`` closing it closes the pool too."""
@@ -86,7 +134,17 @@ class ProcessPool:
 
     def run(self, key: int, job: Job, items: Sequence[Any]) -> Iterator[Any]:
         keyed = [(key, job, item) for item in items]
-        yield from map(_run_keyed, keyed) if self._pool is None else self._pool.map(_run_keyed, keyed)
+        if self._pool is not None:
+            yield from self._pool.map(_run_keyed, keyed)
+            return
+        for one in keyed:  # in this process: its reports come straight here
+            previous = _channel
+            _set_channel(self)
+            try:
+                result = _run_keyed(one)
+            finally:
+                _set_channel(previous)
+            yield result
 
     def release(self, key: int) -> None:
         """Close an in-process job's worker (worker processes drop theirs at the next job, or at close)."""
@@ -97,6 +155,8 @@ class ProcessPool:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+            self._reports.put(None)  # ends the listener after every report before it
+            self._listener.join(timeout=10)
         for key in self._keys:
             self.release(key)
 
@@ -116,5 +176,11 @@ class PooledExecutor:
     def run(self, items: Sequence[Any]) -> Iterator[Any]:
         yield from self.pool.run(self.key, self.job, items)
 
+    def on_report(self, callback: Callable[[int], None]) -> bool:
+        """``callback(done)`` as the job's items report finished parts (`report`); True: reports will come."""
+        self.pool.listen(self.key, callback)
+        return True
+
     def close(self) -> None:
+        self.pool.listen(self.key, None)
         self.pool.close() if self.owns_pool else self.pool.release(self.key)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import socket
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -24,7 +24,7 @@ import torch
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
-from uqdrive.parallel import ProcessPool
+from uqdrive.parallel import ProcessPool, report
 from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.info_safe_set import InfoSafeSet
@@ -242,6 +242,7 @@ class RolloutWorker:
             conditions,
             job.half_width,
             self.safe_set(first) if one_location else None,  # else judged on each rollout's own
+            report,  # the bar moves per rollout, not per chunk
         )
 
     def close(self) -> None:
@@ -273,6 +274,11 @@ class LockstepExecutor:
         for results in self.runner.run(lockstep_chunks(list(indices), self.workers, self.width)):
             yield from results
 
+    def on_report(self, callback: Callable[[int], None]) -> bool:
+        """``callback(done)`` as rollouts end in the workers; False where the runner cannot say (Ray: per chunk)."""
+        listen = getattr(self.runner, "on_report", None)
+        return bool(listen and listen(callback))
+
     def close(self) -> None:
         self.runner.close()
 
@@ -280,6 +286,9 @@ class LockstepExecutor:
 class Executor(Protocol):
     def run(self, indices: Sequence[int]) -> Iterator[RolloutResult]:
         """Results of rollouts ``indices``, in that order."""
+
+    def on_report(self, callback: Callable[[int], None]) -> bool:
+        """Call ``callback(done)`` as rollouts end; True if it will be called."""
 
     def close(self) -> None:
         """Release workers."""

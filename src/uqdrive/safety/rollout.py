@@ -8,7 +8,7 @@ to the operator (``Command.handover``) brakes to a stop; the rollout then ends w
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -110,11 +110,12 @@ def run_rollouts(
     conditions: Sequence[Condition],
     half_width: float | None = None,
     safe_set: SafeSet | InfoSafeSet | None = None,
+    on_done: Callable[[], None] | None = None,
 ) -> list[RolloutResult]:
     """The rollouts of ``seeds`` (in that order), each at its own of ``conditions``, ``len(envs)`` at a time in
     lockstep: each control step asks the policy for the commands of every running slot at once, and a slot whose
     rollout ends starts the next seed. A ``safe_set`` given must hold for every condition's location (else each
-    rollout is judged on its own).
+    rollout is judged on its own). ``on_done()`` as each rollout ends (a progress bar's tick).
 
     Each rollout is what `run_rollout` gives it alone: its env is reset with its own seed and the policy's slot
     draws from it only (`Controller`: the frames' features and draws do not depend on the other slots).
@@ -122,6 +123,7 @@ def run_rollouts(
     results: list[RolloutResult | None] = [None] * len(seeds)
     queue = iter(enumerate(seeds))
     running: dict[int, _Episode] = {}
+    done = on_done or (lambda: None)
 
     def start(slot: int) -> None:
         env = envs[slot]
@@ -134,6 +136,7 @@ def run_rollouts(
                 running[slot] = episode
                 return
             results[index] = _result(episode, safe_set, half_width)
+            done()
 
     for slot in range(len(envs)):
         start(slot)
@@ -152,6 +155,7 @@ def run_rollouts(
                 episode.termination = HANDOVER
             if stopped or episode.env.done:
                 results[episode.index] = _result(episode, safe_set, half_width)
+                done()
                 del running[slot]
                 start(slot)
     return results

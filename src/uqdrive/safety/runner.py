@@ -160,10 +160,12 @@ class CellRunner:
         replays): its results are the first max(read, floor), the consumer's conclusion only what it read."""
         executor = make_executor(self.backend, job, self.workers, self.pool, **self.options)
         bar = tqdm(total=total, desc=name, unit="rollout", disable=not self.progress, leave=False)
+        live = self.progress and executor.on_report(bar.update)  # ticks per rollout as workers finish them
 
         def progress(fresh: Iterator[RolloutResult]) -> Iterator[RolloutResult]:
             for result in fresh:  # one bar over the cell, however many looks a sequential consumer takes
-                bar.update()
+                if not live:
+                    bar.update()
                 yield result
 
         start = time.perf_counter()
