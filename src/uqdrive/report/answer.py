@@ -68,8 +68,8 @@ def _held(findings: Findings) -> list[str]:
     listed = "; ".join(f"{KINDS.get(k, ' '.join(k)).lower()}: {n}" for k, n in kinds.items())
     lines = (
         [
-            f"- **The paper's claims, for the method** (over training runs): {len(decided)} of {len(paper)} decided, "
-            f"each at family-wise error ≤ {findings.alpha:g}"
+            f"- **The paper's claims, for the method** (over {len(paper[0].replicates)} training runs each): "
+            f"{len(decided)} of {len(paper)} decided, family-wise error ≤ {findings.alpha:g}"
             + (": " + "; ".join(f"{c.name} {c.verdict}" for c in decided) if decided else "")
             + "."
         ]
