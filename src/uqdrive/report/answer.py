@@ -42,11 +42,11 @@ def _conditions(safety: SafetySummary, methods: list[str], keep) -> tuple[list[s
 def _where(safety: SafetySummary, methods: list[str]) -> list[str]:
     (safe, n_safe), (unsafe, n_unsafe) = (_conditions(safety, methods, keep) for keep in (_safe, _unsafe))
     total = len({a.condition for a in safety.answers})
+    safe_text, unsafe_text = "; ".join(safe) or "none", "; ".join(unsafe) or "none"
     return [
-        f"- **Safe** (every method's η̂1 ≥ {SAFE:g}) in {n_safe} of the sweep's {total} conditions: "
-        + ("; ".join(safe) or "none")
-        + ".",
-        f"- **Not safe** (every method's η̂1 < {UNSAFE:g}) in {n_unsafe}: " + ("; ".join(unsafe) or "none") + ".",
+        f"- **Safe by the point estimates** (every method's η̂1 ≥ {SAFE:g}; the intervals are in the chart) in "
+        f"{n_safe} of the sweep's {total} conditions: {safe_text}.",
+        f"- **Not safe by the point estimates** (every method's η̂1 < {UNSAFE:g}) in {n_unsafe}: {unsafe_text}.",
     ]
 
 
