@@ -395,3 +395,14 @@ def test_a_group_of_findings_names_each_method_once_and_a_range_with_equal_ends_
     what, gain, _ = _group_row(members)
     assert what == "**known off** safer than fog off, for mcd, vi, hmc (3 findings)" and "more" not in what
     assert gain.startswith("+0.80 ") and span(0.999, 1.0) == "1.00" and span(0.5, 0.75) == "0.50–0.75"
+
+
+def test_a_sweep_without_the_training_condition_says_so_in_the_headline(stage_config, tmp_path):
+    """`dvc exp run -S weathers=[rain]` sweeps no training weather: its headline is null there, printed '–'."""
+    write_run(tmp_path)
+    run_report(stage_config("report", "weathers=[rain]"))
+    headline = json.loads((tmp_path / "metrics/summary.json").read_text())
+    assert headline["eta1_training_condition"] == {m: None for m in METHODS}
+    assert headline["eta1_training_location"]["vi"]["value"] is not None
+    text = (tmp_path / "reports/report.md").read_text()
+    assert "**At the training condition** (roundabout-clear_noon-noise0.0): mcd – (not swept)" in text

@@ -5,16 +5,15 @@ from __future__ import annotations
 
 from uqdrive.analysis.comparisons import Findings
 from uqdrive.analysis.method_answers import SafetySummary
-from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import KINDS, span
-from uqdrive.report.headline import Headline
+from uqdrive.report.headline import Headline, eta1_text
 from uqdrive.uq.verdict import Verdict
 
 SAFE, UNSAFE = 0.9, 0.5  # the short answer's words: η̂1 ≥ SAFE for every method is "safe", < UNSAFE "unsafe"
 
 
 def _by_method(values: dict) -> str:
-    return ", ".join(f"{m} {fmt(v.value, 2)} [{fmt(v.low, 2)}, {fmt(v.high, 2)}]" for m, v in values.items())
+    return ", ".join(f"{m} {eta1_text(v)}" for m, v in values.items())
 
 
 def _conditions(safety: SafetySummary, methods: list[str], keep) -> tuple[list[str], int]:

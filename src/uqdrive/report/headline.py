@@ -38,7 +38,7 @@ class Headline:
     calibrated), each with its interval; then the loosest (θ, γ) of the closed-loop cells, how many training
     replicates each number averages, each experiment's validation accuracy and how many findings hold."""
 
-    eta1_training_condition: dict[str, Eta1]
+    eta1_training_condition: dict[str, Eta1 | None]  # None: the sweep does not hold the training condition
     eta1_training_location: dict[str, Eta1]
     eta1_all_sweep_cells: dict[str, Eta1]
     avoid_unknown_off: dict[str, Eta1]
@@ -55,6 +55,11 @@ def _eta1(answer: MethodAnswer) -> Eta1:
     return Eta1(answer.value, answer.low, answer.high)
 
 
+def eta1_text(value: Eta1 | None) -> str:
+    """η̂1 [low, high] as the report and the README print it; '–' where the sweep has no such condition."""
+    return "– (not swept)" if value is None else f"{fmt(value.value, 2)} [{fmt(value.low, 2)}, {fmt(value.high, 2)}]"
+
+
 def headline_metrics(scope, run, findings: Findings) -> Headline:
     """``scope``, ``run``: the report's `Scope` and `Run`; the training condition is the findings' (the first
     location, the training weather, noise 0)."""
@@ -66,18 +71,30 @@ def headline_metrics(scope, run, findings: Findings) -> Headline:
     def pooled(method: str, where: str, answers: list[MethodAnswer]) -> Eta1:
         return _eta1(pooled_answer(method, where, answers))
 
-    at_location = {condition_label(location, w, x) for w in scope.weathers for x in scope.noises}
+    swept = {
+        (loc, w, x): condition_label(loc, w, x) for loc in scope.locations for w in scope.weathers for x in scope.noises
+    }
+    training = swept.get((location, scope.train_weather, 0.0))  # None: not in this sweep
 
-    def mine(method: str, within: set[str] | None = None) -> list[MethodAnswer]:
-        return [a for a in run.safety.answers if a.method == method and (within is None or a.condition in within)]
+    def mine(method: str, where: set[str]) -> list[MethodAnswer]:
+        """The method's answers at ``where``, all of them: the sweep's conditions, as the report's tables."""
+        found = [a for a in run.safety.answers if a.method == method and a.condition in where]
+        if len(found) != len(where):  # a condition left out would change what the number averages
+            raise ValueError(f"metrics/safety.json: {method} has {len(found)} answers for {len(where)} conditions")
+        return found
+
+    def at_training(method: str) -> Eta1 | None:
+        return None if training is None else _eta1(mine(method, {training})[0])
 
     def avoid_unknown(mode: Mode) -> dict[str, Eta1]:
         return {m: _eta1(run.avoid.answer(m, UNKNOWN, mode)) for m in methods}
 
     return Headline(
-        eta1_training_condition={m: _eta1(run.safety.answer(m, location, scope.train_weather, 0.0)) for m in methods},
-        eta1_training_location={m: pooled(m, location, mine(m, at_location)) for m in methods},
-        eta1_all_sweep_cells={m: pooled(m, "every cell", mine(m)) for m in methods},
+        eta1_training_condition={m: at_training(m) for m in methods},
+        eta1_training_location={
+            m: pooled(m, location, mine(m, {v for k, v in swept.items() if k[0] == location})) for m in methods
+        },
+        eta1_all_sweep_cells={m: pooled(m, "every cell", mine(m, set(swept.values()))) for m in methods},
         avoid_unknown_off=avoid_unknown(Mode.OFF),
         avoid_unknown_on=avoid_unknown(Mode.ON),
         avoid_unknown_calibrated=avoid_unknown(Mode.CALIBRATED),
@@ -110,10 +127,7 @@ def headline_table(headline: Headline, params: dict) -> str:
         ("… warnings on (the paper's thresholds)", headline.avoid_unknown_on),
         ("… warnings calibrated (fresh seeds)", headline.avoid_unknown_calibrated),
     ]
-    body = [
-        [name, *(f"{fmt(v[m].value, 2)} [{fmt(v[m].low, 2)}, {fmt(v[m].high, 2)}]" for m in methods)]
-        for name, v in rows
-    ]
+    body = [[name, *(eta1_text(v[m]) for m in methods)] for name, v in rows]
     body += [
         [f"validation accuracy, `{e}`", *(fmt(v[m], 3) for m in methods)] for e, v in headline.val_accuracy.items()
     ]
