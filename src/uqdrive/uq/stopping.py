@@ -84,7 +84,8 @@ def _log_choose(n: np.ndarray | int, k: np.ndarray) -> np.ndarray:
     return special.gammaln(n + 1) - special.gammaln(k + 1) - special.gammaln(n - k + 1)
 
 
-_CACHED_MOVES = 100_000  # entries of a move table kept in the cache; larger ones (rare-event caps) are rebuilt
+_CACHED_MOVES = 100_000  # entries of a move table kept in the many-table cache
+_LARGE_MOVES = 4_000_000  # … and in the eight-table cache (≤ 256 MB); larger ones are rebuilt each time
 
 
 def _moves(n: int, m: int, low: int, size: int) -> np.ndarray:
@@ -94,11 +95,18 @@ def _moves(n: int, m: int, low: int, size: int) -> np.ndarray:
     and on would hold 10⁹ entries. Read-only (cached where small)."""
     if (m + 1) * size <= _CACHED_MOVES:
         return _cached_moves(n, m, low, size)
+    if (m + 1) * size <= _LARGE_MOVES:  # a calibration meets the same large tables at each of its ~30 passes
+        return _large_moves(n, m, low, size)
     return _move_table(n, m, low, size)
 
 
 @lru_cache(maxsize=4096)
 def _cached_moves(n: int, m: int, low: int, size: int) -> np.ndarray:
+    return _move_table(n, m, low, size)
+
+
+@lru_cache(maxsize=8)
+def _large_moves(n: int, m: int, low: int, size: int) -> np.ndarray:
     return _move_table(n, m, low, size)
 
 
