@@ -9,7 +9,9 @@ a cross-entropy proposal and the betting bound (`uqdrive.uq.rare`). Monte Carlo:
 (E[n] exact) and the same betting bound on nominal draws (simulated); the saving is against the better of the two
 and for the default settings (a second importance-sampling row, rounds of 10, shows one knob's effect).
 Each design's error at the null boundary (true failure probability = 1 − target) is printed beside it: exact for
-the exact test, simulated for the others. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures.
+the exact test, simulated for the others. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures. Last
+line: RESULT rare refute_saving_1e3=… refute_saving_1e4=… (Monte Carlo rollouts / importance sampling's)
+certify_rollouts_at_0=….
 """
 
 from __future__ import annotations
