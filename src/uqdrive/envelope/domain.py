@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from uqdrive.envelope.space import AxisSettings, ConditionSpace
-from uqdrive.schema import ConfigError, Positive, schema
+from uqdrive.schema import Bool, ConfigError, Positive, Seed, Str, schema
 from uqdrive.sim.condition import Condition
-from uqdrive.uq.rare import FailureRecord
+from uqdrive.uq.rare import FailureRecord, RareSettings
 from uqdrive.uq.rare_proposal import ProductBeta
 
 
@@ -32,6 +32,20 @@ class DomainSettings:
     """The domain: one law per axis of the condition space, in any order, each axis of the space named once."""
 
     axes: tuple[DomainAxisSettings, ...]
+
+
+@schema(frozen=True, kw_only=True)
+class RareSection(RareSettings):
+    """conf/rare.yaml's `rare`: the domain's Beta law per envelope axis (``shapes``: key → (a, b); uniform where
+    not named), the claim and its settings (`RareSettings`), whether to ``certify`` too, the conditions' random
+    stream (``seed``), the first rollout seed and the outputs."""
+
+    shapes: dict[Str, tuple[Positive, Positive]] | None = None
+    certify: Bool = False
+    seed: Seed = 0
+    base_seed: Seed
+    out: Str
+    rollout_log: Str
 
 
 @dataclass(frozen=True)
@@ -71,6 +85,17 @@ class Domain:
             low.append(0.0)
             high.append(1.0)
         return cls(space, ProductBeta.of(a, b, low, high))
+
+    @classmethod
+    def over(cls, space: ConditionSpace, shapes: dict[str, tuple[float, float]]) -> Domain:
+        """The domain over all of ``space``'s box with these Beta shapes (key → (a, b); uniform where unnamed)."""
+        for key in shapes:
+            if key not in space.names:
+                raise ConfigError(f"rare.shapes.{key}: not an axis of envelope.axes {list(space.names)}")
+        axes = [
+            {"key": a.key, "range": [a.low, a.high], "shape": list(shapes.get(a.key, (1.0, 1.0)))} for a in space.axes
+        ]
+        return cls.of(DomainSettings(axes=tuple(DomainAxisSettings(**a) for a in axes)), space)
 
     def condition(self, point) -> Condition:
         """The world at a point of the unit cube (checked by the schemas)."""
