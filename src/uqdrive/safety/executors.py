@@ -93,13 +93,21 @@ class PolicySpec:
         return ConstantPolicy(self.steer, self.speed)
 
 
+class PolicyRecipe(Protocol):
+    """What a job drives with: a picklable recipe each worker builds its `Policy` from, once (`PolicySpec`: uqdrive's
+    controllers; `uqdrive.safety.policy_files.UserPolicySpec`: a user's). The engine asks nothing else of it."""
+
+    def build(self, control_hz: float) -> Policy:
+        """The policy, with a slot per lockstep world."""
+
+
 @dataclasses.dataclass(frozen=True)
 class RolloutJob:
-    """Everything a worker needs to run rollout i of a cell: the policy, where rollout i drives (``where``: a
-    `Condition`, a `Mixture` or an envelope's condition source, asked for rollout i's condition by its seed),
-    its seed ``base_seed + i``, the car, camera and horizon."""
+    """Everything a worker needs to run rollout i of a cell: the policy (any `PolicyRecipe`), where rollout i
+    drives (``where``: a `Condition`, a `Mixture` or an envelope's condition source, asked for rollout i's condition
+    by its seed), its seed ``base_seed + i``, the car, camera and horizon."""
 
-    policy: PolicySpec
+    policy: PolicyRecipe
     where: ConditionSource
     base_seed: int
     camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)

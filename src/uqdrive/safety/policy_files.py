@@ -1,0 +1,183 @@
+"""A user's policy by config: a policy YAML (a class of the user's package by ``_target_``, or a network file) or a
+network file itself (``.pt``/``.ts``: TorchScript, ``.onnx``: ONNX), as a picklable `UserPolicySpec` that every
+worker builds its policy from.
+
+The policy YAML::
+
+    policy:                     # a class implementing uqdrive.safety.user_policy.DrivingPolicy, by Hydra's
+      _target_: mypkg.LaneKeeper  # instantiate, with its settings as keyword arguments
+      gain: 3.0
+    # or, in place of `policy`, a network file (relative to this YAML):
+    file: steer.pt              # TorchScript (.pt, .ts) or ONNX (.onnx)
+    output: auto                # logits | steering | auto (by the output's width)
+    input: gray                 # gray: [B, 1, 48, 64] as uqdrive's networks see it; rgb: [B, 3, H, W] as rendered
+    mc_draws: 0                 # > 0: dropout on, 2·n passes per frame (TorchScript)
+    speed: 6.0                  # m/s of an action that gives none
+    eps: 0.1                    # η2's ball (steering units)
+    bins: {low: -1.0, high: 1.0}  # the steering classes of logits and probability draws
+
+A policy's identity (in a cell's key) is its file's bytes, or the source file of its class, with its settings;
+not where the file lies. Editing either makes a new cell.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import inspect
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import Field
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.safety.cells import file_digest
+from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy
+from uqdrive.safety.user_policy import PolicyFailure, UserPolicies
+from uqdrive.schema import ConfigError, Positive, Str, schema, validate
+
+TORCHSCRIPT = (".pt", ".ts", ".pth", ".jit")
+ONNX = (".onnx",)
+YAML = (".yaml", ".yml")
+KINDS = "a TorchScript (.pt, .ts), ONNX (.onnx) or policy YAML (.yaml) file"
+
+
+@schema(frozen=True)
+class PolicyConfig:
+    """A policy YAML's keys (see the module); exactly one of ``policy`` and ``file``."""
+
+    policy: dict[str, Any] | None = None
+    file: Str | None = None
+    output: Output = "auto"
+    input: FrameInput = "gray"
+    mc_draws: Annotated[int, Field(ge=0, strict=True)] = 0
+    speed: Positive = 6.0
+    eps: Positive = 0.1
+    bins: SteeringBins = dataclasses.field(default_factory=SteeringBins)
+
+    def __post_init__(self) -> None:
+        if (self.policy is None) == (self.file is None):
+            raise ValueError("policy: give exactly one of `policy` (a class by _target_) and `file` (a network)")
+        if self.policy is not None and not isinstance(self.policy.get("_target_"), str):
+            raise ValueError(f"policy={self.policy!r} needs `_target_: package.module.Class`")
+
+
+@dataclasses.dataclass(frozen=True)
+class UserPolicySpec:
+    """A picklable recipe of a user's policy (`build` in each worker). ``kind``: class, torchscript or onnx;
+    ``target``: the class's ``_target_`` mapping as JSON (a class); ``path``: the network file (not identity: its
+    bytes are, as ``digest``); ``name``: what its errors call it."""
+
+    NOT_IDENTITY = ("path", "name")
+
+    kind: Literal["class", "torchscript", "onnx"]
+    digest: str
+    name: str
+    path: str = ""
+    target: str = ""
+    speed: float = 6.0
+    eps: float = 0.1
+    bins: SteeringBins = dataclasses.field(default_factory=SteeringBins)
+    output: str = "auto"
+    frame_input: str = "gray"
+    mc_draws: int = 0
+
+    def build(self, control_hz: float) -> UserPolicies:
+        """The rollout engine's policy: one instance per slot."""
+        centres = np.asarray(self.bins.centres)
+        if self.kind == "class":
+            make = _class_factory(self.name, json.loads(self.target))
+        else:
+            network = TorchScriptPolicy if self.kind == "torchscript" else OnnxPolicy
+            args = (self.path, centres, self.output, self.frame_input, self.mc_draws)
+            make = lambda: network(*args)  # noqa: E731
+        return UserPolicies(self.name, make, centres, self.eps, self.speed)
+
+
+def _class_factory(name: str, target: dict[str, Any]):
+    from hydra.utils import instantiate
+
+    def make() -> Any:
+        try:
+            return instantiate(target)
+        except Exception as err:  # Hydra wraps the class's own exception: its first line says which
+            raise PolicyFailure(f"{name}: could not be made: {str(err).strip().splitlines()[0]}") from None
+
+    return make
+
+
+def load_policy(source: str | Path, **settings: Any) -> UserPolicySpec:
+    """``source`` (a network file or a policy YAML) as a spec; ``settings``: keys a YAML would set (speed, eps, bins,
+    …), under the YAML's own. Fails in one line naming the file: missing, of another kind, not a valid YAML."""
+    path = Path(source)
+    if not path.is_file():
+        raise PolicyFailure(f"{path}: no such file; expected {KINDS}")
+    suffix = path.suffix.lower()
+    if suffix in YAML:
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (yaml.YAMLError, UnicodeDecodeError) as err:
+            raise PolicyFailure(f"{path}: expected a policy YAML, got {type(err).__name__}") from None
+        if not isinstance(data, dict):
+            raise PolicyFailure(f"{path}: expected a mapping of policy settings, got {type(data).__name__}")
+        config = _validated(path, {**settings, **data})
+        if config.file is not None:
+            return _network_spec(path.parent / config.file, config)
+        return _class_spec(config)
+    if suffix in TORCHSCRIPT + ONNX:
+        return _network_spec(path, _validated(path, {**settings, "file": str(path)}))
+    raise PolicyFailure(f"{path}: expected {KINDS}, got a {suffix or 'suffix-less'} file")
+
+
+def _validated(path: Path, data: dict[str, Any]) -> PolicyConfig:
+    try:
+        return validate(PolicyConfig, data)
+    except ConfigError as err:
+        raise PolicyFailure(f"{path}: {err}") from None
+
+
+def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
+    if not path.is_file():
+        raise PolicyFailure(f"{path}: no such file; expected {KINDS}")
+    suffix = path.suffix.lower()
+    if suffix not in TORCHSCRIPT + ONNX:
+        raise PolicyFailure(f"{path}: expected a TorchScript (.pt, .ts) or ONNX (.onnx) file, got {suffix}")
+    kind = "onnx" if suffix in ONNX else "torchscript"
+    settings = {"output": config.output, "frame_input": config.input, "mc_draws": config.mc_draws}
+    return UserPolicySpec(kind, file_digest(path), str(path), path=str(path), **_common(config), **settings)
+
+
+def _class_spec(config: PolicyConfig) -> UserPolicySpec:
+    """A class's spec; its identity the bytes of the file its class is defined in (imported here, so a typo in
+    ``_target_`` fails before any rollout)."""
+    from hydra.utils import get_class
+
+    name = config.policy["_target_"]
+    try:
+        cls = get_class(name)
+        source = Path(inspect.getsourcefile(cls) or "")
+        digest = hashlib.sha256(source.read_bytes()).hexdigest()
+    except Exception as err:  # ImportError, AttributeError, a class without a source file
+        raise PolicyFailure(f"policy._target_={name}: expected an importable class, got {err}") from None
+    target = json.dumps(config.policy, sort_keys=True)
+    return UserPolicySpec("class", digest, name, target=target, **_common(config))
+
+
+def _common(config: PolicyConfig) -> dict[str, Any]:
+    return {"speed": float(config.speed), "eps": float(config.eps), "bins": config.bins}
+
+
+def probe_policy(job: Any) -> None:
+    """Build the job's policy here and decide rollout 0's first frame, so that a policy that cannot be made or
+    answers in the wrong shape or range fails in one line before any rollout (pybullet worlds)."""
+    from uqdrive.sim import DrivingEnv
+
+    policy = job.policy.build(job.control_hz)
+    where = job.condition(0)
+    with DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s) as env:
+        frame = env.reset(job.base_seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
+        policy.reset(env, job.base_seed, 0)
+        policy.act_batch([0], [frame], [env.last_info])
