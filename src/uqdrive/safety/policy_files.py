@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib
 import inspect
 import json
 from pathlib import Path
@@ -35,7 +36,7 @@ from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.safety.cells import file_digest
-from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy
+from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
 from uqdrive.safety.user_policy import PolicyFailure, UserPolicies
 from uqdrive.schema import ConfigError, Positive, Str, schema, validate
 
@@ -104,7 +105,7 @@ def _class_factory(name: str, target: dict[str, Any]):
         try:
             return instantiate(target)
         except Exception as err:  # Hydra wraps the class's own exception: its first line says which
-            raise PolicyFailure(f"{name}: could not be made: {str(err).strip().splitlines()[0]}") from None
+            raise PolicyFailure(f"{name}: could not be made: {first_line(err)}") from None
 
     return make
 
@@ -153,15 +154,15 @@ def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
 def _class_spec(config: PolicyConfig) -> UserPolicySpec:
     """A class's spec; its identity the bytes of the file its class is defined in (imported here, so a typo in
     ``_target_`` fails before any rollout)."""
-    from hydra.utils import get_class
-
     name = config.policy["_target_"]
+    module, _, attribute = name.rpartition(".")
     try:
-        cls = get_class(name)
-        source = Path(inspect.getsourcefile(cls) or "")
-        digest = hashlib.sha256(source.read_bytes()).hexdigest()
+        cls = getattr(importlib.import_module(module), attribute)
+        if not inspect.isclass(cls):
+            raise TypeError(f"{name} is a {type(cls).__name__}")
+        digest = hashlib.sha256(Path(inspect.getsourcefile(cls) or "").read_bytes()).hexdigest()
     except Exception as err:  # ImportError, AttributeError, a class without a source file
-        raise PolicyFailure(f"policy._target_={name}: expected an importable class, got {err}") from None
+        raise PolicyFailure(f"policy._target_={name}: expected an importable class, got {first_line(err)}") from None
     target = json.dumps(config.policy, sort_keys=True)
     return UserPolicySpec("class", digest, name, target=target, **_common(config))
 

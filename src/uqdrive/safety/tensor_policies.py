@@ -131,7 +131,7 @@ def load_torchscript(path: str | Path) -> torch.jit.ScriptModule:
     try:
         return torch.jit.load(str(path), map_location="cpu")
     except Exception as err:  # torch raises RuntimeError, ValueError or pickle errors for a file of another kind
-        raise PolicyFailure(f"{path}: expected a TorchScript module (torch.jit.save), got {_first_line(err)}") from None
+        raise PolicyFailure(f"{path}: expected a TorchScript module (torch.jit.save), got {first_line(err)}") from None
 
 
 def load_onnx(path: str | Path):
@@ -145,9 +145,9 @@ def load_onnx(path: str | Path):
     try:
         return onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     except Exception as err:  # onnxruntime's own exception types
-        raise PolicyFailure(f"{path}: expected an ONNX model, got {_first_line(err)}") from None
+        raise PolicyFailure(f"{path}: expected an ONNX model, got {first_line(err)}") from None
 
 
-def _first_line(err: BaseException) -> str:
+def first_line(err: BaseException) -> str:
     text = str(err).strip().splitlines()
     return f"{type(err).__name__}: {text[0][:200]}" if text else type(err).__name__
