@@ -203,3 +203,34 @@ def test_a_policy_that_raises_mid_rollout_says_the_seed_and_step(tmp_path, monke
     assert str(raised.value) == (
         "h50_user_policies.policies.FailsAtStep raised ZeroDivisionError in act() at seed 70, step 5: the user's bug"
     )
+
+
+@pytest.mark.parametrize(
+    ("what", "message"),
+    [
+        ("steer", "expected steer in [-1, 1], got 2.0"),
+        ("draws", "expected draws of [n] steering in [-1, 1] or [n, 21] class probabilities, got shape (4, 7), "
+                  "range [0.143, 0.143]"),
+        ("type", "act() must return uqdrive.safety.user_policy.Action, got float"),
+    ],
+)  # fmt: skip
+def test_a_class_that_answers_out_of_shape_or_range_fails_before_any_rollout(tmp_path, monkeypatch, what, message):
+    write_package(tmp_path / "site", monkeypatch)
+    path = write_yaml(
+        tmp_path / "bad.yaml", f"policy:\n  _target_: h50_user_policies.policies.BadAction\n  what: {what}\n"
+    )
+    with pytest.raises(PolicyFailure) as raised:
+        plan(request(tmp_path, path))
+    assert str(raised.value) == f"h50_user_policies.policies.BadAction at seed 0, step 0: {message}"
+    assert not (tmp_path / "cache").exists()
+
+
+def test_a_package_beside_its_yaml_drives_in_worker_processes_and_their_failure_comes_back_whole(tmp_path, monkeypatch):
+    """Not installed, not on the path: found beside the YAML, in this process and in each worker's."""
+    write_package(tmp_path, monkeypatch, package="h50_beside", on_path=False)
+    path = write_yaml(tmp_path / "fails.yaml", "policy:\n  _target_: h50_beside.policies.FailsAtStep\n  step: 7\n")
+    with pytest.raises(PolicyFailure) as raised:
+        run_certify(dataclasses.replace(request(tmp_path, path), workers=2))
+    assert str(raised.value) == (
+        "h50_beside.policies.FailsAtStep raised ZeroDivisionError in act() at seed 0, step 7: the user's bug"
+    )

@@ -77,6 +77,25 @@ SOURCE = textwrap.dedent(
             return Action(float(CENTRES[int(np.argmax(self.w @ x + self.b))]))
 
 
+    class BadAction:
+        """Answers wrongly: ``what`` is steer (out of range), draws (of the wrong width) or type (not an Action)."""
+
+        needs_camera = False
+
+        def __init__(self, what: str):
+            self.what = what
+
+        def reset(self, seed):
+            pass
+
+        def act(self, frame, info):
+            if self.what == "steer":
+                return Action(2.0)
+            if self.what == "draws":
+                return Action(0.0, draws=np.full((4, 7), 1 / 7))
+            return 0.0
+
+
     class FailsAtStep:
         """Raises at step ``step`` of every episode."""
 
@@ -97,14 +116,17 @@ SOURCE = textwrap.dedent(
 )
 
 
-def write_package(root: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """The package under ``root``, importable for this test only; returns its policies module's file."""
-    folder = root / PACKAGE
+def write_package(root: Path, monkeypatch: pytest.MonkeyPatch, package: str = PACKAGE, on_path: bool = True) -> Path:
+    """The package under ``root``, importable for this test only (``on_path``; else from where a YAML lies beside
+    it); returns its policies module's file."""
+    folder = root / package
     folder.mkdir(parents=True)
     (folder / "__init__.py").write_text("")
     (folder / "policies.py").write_text(SOURCE)
-    monkeypatch.syspath_prepend(str(root))
-    for name in [n for n in sys.modules if n.startswith(PACKAGE)]:
+    if on_path:
+        monkeypatch.syspath_prepend(str(root))
+    monkeypatch.setattr(sys, "path", list(sys.path))  # a folder the loader appends is dropped after the test
+    for name in [n for n in sys.modules if n.startswith(package)]:
         monkeypatch.delitem(sys.modules, name)
     return folder / "policies.py"
 

@@ -27,6 +27,7 @@ import hashlib
 import importlib
 import inspect
 import json
+import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -72,7 +73,7 @@ class UserPolicySpec:
     ``target``: the class's ``_target_`` mapping as JSON (a class); ``path``: the network file (not identity: its
     bytes are, as ``digest``); ``name``: what its errors call it."""
 
-    NOT_IDENTITY = ("path", "name")
+    NOT_IDENTITY = ("path", "name", "search_path")
 
     kind: Literal["class", "torchscript", "onnx"]
     digest: str
@@ -85,17 +86,25 @@ class UserPolicySpec:
     output: str = "auto"
     frame_input: str = "gray"
     mc_draws: int = 0
+    search_path: str = ""  # a class's YAML's folder: its package may lie beside it, uninstalled
 
     def build(self, control_hz: float) -> UserPolicies:
         """The rollout engine's policy: one instance per slot."""
         centres = np.asarray(self.bins.centres)
         if self.kind == "class":
+            _search(self.search_path)
             make = _class_factory(self.name, json.loads(self.target))
         else:
             network = TorchScriptPolicy if self.kind == "torchscript" else OnnxPolicy
             args = (self.path, centres, self.output, self.frame_input, self.mc_draws)
             make = lambda: network(*args)  # noqa: E731
         return UserPolicies(self.name, make, centres, self.eps, self.speed)
+
+
+def _search(folder: str) -> None:
+    """Let ``folder`` be searched for the class's package, after the installed ones (a worker process too)."""
+    if folder and folder not in sys.path:
+        sys.path.append(folder)
 
 
 def _class_factory(name: str, target: dict[str, Any]):
@@ -127,7 +136,7 @@ def load_policy(source: str | Path, **settings: Any) -> UserPolicySpec:
         config = _validated(path, {**settings, **data})
         if config.file is not None:
             return _network_spec(path.parent / config.file, config)
-        return _class_spec(config)
+        return _class_spec(config, path.parent.resolve())
     if suffix in TORCHSCRIPT + ONNX:
         return _network_spec(path, _validated(path, {**settings, "file": str(path)}))
     raise PolicyFailure(f"{path}: expected {KINDS}, got a {suffix or 'suffix-less'} file")
@@ -151,9 +160,10 @@ def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
     return UserPolicySpec(kind, file_digest(path), str(path), path=str(path), **_common(config), **settings)
 
 
-def _class_spec(config: PolicyConfig) -> UserPolicySpec:
+def _class_spec(config: PolicyConfig, folder: Path) -> UserPolicySpec:
     """A class's spec; its identity the bytes of the file its class is defined in (imported here, so a typo in
-    ``_target_`` fails before any rollout)."""
+    ``_target_`` fails before any rollout); its package is looked for beside its YAML (``folder``) too."""
+    _search(str(folder))
     name = config.policy["_target_"]
     module, _, attribute = name.rpartition(".")
     try:
@@ -164,7 +174,7 @@ def _class_spec(config: PolicyConfig) -> UserPolicySpec:
     except Exception as err:  # ImportError, AttributeError, a class without a source file
         raise PolicyFailure(f"policy._target_={name}: expected an importable class, got {first_line(err)}") from None
     target = json.dumps(config.policy, sort_keys=True)
-    return UserPolicySpec("class", digest, name, target=target, **_common(config))
+    return UserPolicySpec("class", digest, name, target=target, search_path=str(folder), **_common(config))
 
 
 def _common(config: PolicyConfig) -> dict[str, Any]:
