@@ -15,7 +15,7 @@ from test_uq_threshold import assert_guarantee, decisions, forward
 from user_policy_kit import Constant, save_torchscript, write_package, write_yaml
 
 from uqdrive.cli import main
-from uqdrive.pipeline.certify_stage import CertifyRequest
+from uqdrive.pipeline.certify_stage import CertifySection
 from uqdrive.tracking import store_uris
 
 KEEPER = "policy:\n  _target_: h50_user_policies.policies.LaneKeeper\n"
@@ -85,7 +85,7 @@ def test_a_bad_policy_file_exits_2_with_one_line(tmp_path, capsys):
 def test_the_certify_test_errs_at_most_gamma_at_every_true_eta1(changes):
     """Unforced: P(certified | η1 ≤ η − θ) ≤ γ and P(refuted | η1 ≥ η + θ) ≤ γ, exactly, on a grid of 1001 rates and
     at the edges; undecided is allowed (and happens at η1 = η)."""
-    test = CertifyRequest("policy.pt", **changes).test()
+    test = CertifySection("policy.pt", **changes).test()
     assert test.looks[-1] == test.looks[0] * len(test.looks) and not test.forced
     rule = decisions(test)
     worst = assert_guarantee(test, rule)
@@ -93,3 +93,20 @@ def test_the_certify_test_errs_at_most_gamma_at_every_true_eta1(changes):
     if test.theta == 0:
         above, below, _ = forward(rule, np.array([test.threshold]))
         assert above[0] + below[0] <= 2 * test.gamma
+
+
+@pytest.mark.slow
+def test_the_hydra_stage_gives_the_same_gate(tmp_path):
+    """`python stages/certify.py certify.policy=…`: the verdict's exit status, the record where the config says."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    hard = save_torchscript(Constant(-1.0), tmp_path / "hard_right.pt")
+    out = tmp_path / "gate.json"
+    script = Path(__file__).resolve().parents[1] / "stages" / "certify.py"
+    overrides = [f"certify.policy={hard}", f"certify.out={out}", f"paths.root={tmp_path}", "progress=false"]
+    done = subprocess.run([sys.executable, str(script), *overrides], capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 1, done.stderr
+    assert done.stdout.startswith(f"REFUTED: eta1 < 0.9 (refuted) (gamma=0.05) for {hard} in roundabout")
+    assert json.loads(out.read_text())["verdict"] == "refuted"

@@ -5,11 +5,10 @@ back, and a policy that raises mid-rollout names the seed and step."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 import torch
+from omegaconf import DictConfig
 from user_policy_kit import (
     Constant,
     linear_module,
@@ -20,19 +19,26 @@ from user_policy_kit import (
     write_yaml,
 )
 
-from uqdrive.pipeline.certify_stage import CertifyRequest, plan, run_certify
+from uqdrive.pipeline.certify_stage import CertifyStage, compose_certify, parse, plan, run_certify
 from uqdrive.safety.policy_files import load_policy
 from uqdrive.safety.rollout import run_rollouts
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.runner import cell_key
 from uqdrive.safety.user_policy import PolicyFailure
+from uqdrive.schema import validate
 from uqdrive.sim import DrivingEnv
 
-SHORT = {"horizon_s": 3.0, "eta": 0.5, "look_size": 4, "budget": 8, "progress": False}
+SHORT = {"horizon": 3.0, "eta": 0.5, "look_size": 4, "budget": 8}
 
 
-def request(tmp_path, policy, **changes) -> CertifyRequest:
-    return CertifyRequest(str(policy), out=str(tmp_path / "certify.json"), root=str(tmp_path), **{**SHORT, **changes})
+def request(tmp_path, policy, **changes) -> DictConfig:
+    """conf/certify.yaml as `uqdrive certify` composes it: a short horizon, a low target, a small budget."""
+    argv = ["--policy", str(policy), "--out", str(tmp_path / "certify.json"), "--root", str(tmp_path), "--no-progress"]
+    return compose_certify(parse(argv + [f"--{k.replace('_', '-')}={v}" for k, v in {**SHORT, **changes}.items()]))
+
+
+def planned(cfg: DictConfig):
+    return plan(validate(CertifyStage, cfg))
 
 
 def rollouts(tmp_path, record) -> list:
@@ -155,7 +161,7 @@ def test_a_network_of_the_wrong_shape_or_range_fails_before_any_rollout(tmp_path
     module, message = BAD_MODULES[name]
     path = save_torchscript(module, tmp_path / name)
     with pytest.raises(PolicyFailure, match=rf"^{tmp_path / name}: {message}$"):
-        plan(request(tmp_path, path))
+        planned(request(tmp_path, path))
 
 
 def bad_files(tmp_path) -> dict[str, tuple[object, str]]:
@@ -188,7 +194,7 @@ def test_a_missing_corrupt_or_wrong_kind_of_file_fails_in_one_line_naming_it(tmp
     if content is not None:
         path.write_bytes(content)
     with pytest.raises((PolicyFailure,)) as raised:
-        plan(request(tmp_path, path))
+        planned(request(tmp_path, path))
     line = str(raised.value)
     assert "\n" not in line and line.startswith(str(path) if "_target_" not in message else "policy._target_")
     assert raised.match(message)
@@ -199,7 +205,7 @@ def test_a_policy_that_raises_mid_rollout_says_the_seed_and_step(tmp_path, monke
     write_package(tmp_path / "site", monkeypatch)
     path = write_yaml(tmp_path / "fails.yaml", "policy:\n  _target_: h50_user_policies.policies.FailsAtStep\n")
     with pytest.raises(PolicyFailure) as raised:
-        run_certify(dataclasses.replace(request(tmp_path, path), base_seed=70))
+        run_certify(request(tmp_path, path, seed=70))
     assert str(raised.value) == (
         "h50_user_policies.policies.FailsAtStep raised ZeroDivisionError in act() at seed 70, step 5: the user's bug"
     )
@@ -220,7 +226,7 @@ def test_a_class_that_answers_out_of_shape_or_range_fails_before_any_rollout(tmp
         tmp_path / "bad.yaml", f"policy:\n  _target_: h50_user_policies.policies.BadAction\n  what: {what}\n"
     )
     with pytest.raises(PolicyFailure) as raised:
-        plan(request(tmp_path, path))
+        planned(request(tmp_path, path))
     assert str(raised.value) == f"h50_user_policies.policies.BadAction at seed 0, step 0: {message}"
     assert not (tmp_path / "cache").exists()
 
@@ -230,7 +236,7 @@ def test_a_package_beside_its_yaml_drives_in_worker_processes_and_their_failure_
     write_package(tmp_path, monkeypatch, package="h50_beside", on_path=False)
     path = write_yaml(tmp_path / "fails.yaml", "policy:\n  _target_: h50_beside.policies.FailsAtStep\n  step: 7\n")
     with pytest.raises(PolicyFailure) as raised:
-        run_certify(dataclasses.replace(request(tmp_path, path), workers=2))
+        run_certify(request(tmp_path, path, workers=2))
     assert str(raised.value) == (
         "h50_beside.policies.FailsAtStep raised ZeroDivisionError in act() at seed 0, step 7: the user's bug"
     )

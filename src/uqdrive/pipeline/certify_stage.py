@@ -15,21 +15,22 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 from pathlib import Path
 from typing import Literal
 
 import mlflow
+from omegaconf import DictConfig
 
 from uqdrive.records import write_record
 from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.policy_files import UserPolicySpec, load_policy, probe_policy
 from uqdrive.safety.runner import CellRunner, cell_key
-from uqdrive.safety.user_policy import PolicyFailure
-from uqdrive.schema import ConfigError
-from uqdrive.sim import CameraConfig, VehicleConfig
-from uqdrive.sim.condition import Condition
-from uqdrive.sim.config import ScenarioConfig, WeatherConfig, find_conf
+from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, Str, Unit, invalid, schema, validate
+from uqdrive.sim.condition import WorldChoice
+from uqdrive.sim.config import SimConfig, find_conf
+from uqdrive.stage_schemas import ExecutorSettings, Stage
 from uqdrive.tracking import stage_run
 from uqdrive.uq import ThresholdTest, clopper_pearson_interval
 
@@ -39,32 +40,44 @@ BAD_INPUT = 2
 VERDICTS: dict[str | None, Verdict] = {"above": "certified", "below": "refuted", None: "undecided"}
 
 
-@dataclasses.dataclass(frozen=True)
-class CertifyRequest:
-    """What to certify: the policy file, where (a conf/scenario location, weather, sensor noise), the target η and
-    the test's (θ, γ), looks and budget; the car's horizon and control rate; where records go."""
+@schema(frozen=True)
+class CertifySection:
+    """conf/certify.yaml's `certify`: the policy file, the target η and the test's (θ, γ), looks and budget, the
+    first rollout seed and the record's path."""
 
-    policy: str
-    world: str = "roundabout"
-    weather: str = "clear_noon"
-    noise: float = 0.0
-    eta: float = 0.9
-    theta: float = 0.0
-    gamma: float = 0.05
-    look_size: int = 4
-    budget: int = 400
-    base_seed: int = 0
-    horizon_s: float = 20.0
-    control_hz: float = 15.0
-    workers: int = 1
-    out: str = "certify.json"
-    root: str = "."
-    progress: bool = True
+    policy: Str
+    eta: OpenUnit = 0.9
+    theta: Unit = 0.0
+    gamma: OpenUnit = 0.05
+    look_size: Count = 4
+    budget: Count = 400
+    base_seed: Seed = 0
+    out: Str = "certify.json"
+
+    def __post_init__(self) -> None:
+        if self.budget < self.look_size:
+            raise invalid("budget", self.budget, f"must be >= look_size ({self.look_size})")
+        if not self.theta < min(self.eta, 1 - self.eta):
+            raise invalid("theta", self.theta, f"must be < min(eta, 1 - eta) = {min(self.eta, 1 - self.eta):g}")
 
     def test(self) -> ThresholdTest:
         """The sequential test (unforced: undecided at the budget rather than a guess)."""
         looks = tuple(sorted({*range(self.look_size, self.budget + 1, self.look_size), self.budget}))
         return ThresholdTest(self.eta, self.gamma, looks, theta=self.theta, forced=False)
+
+
+@schema(root=True)
+class CertifyStage(WorldChoice, SimConfig, Stage):
+    """`stages/certify.py` and `uqdrive certify`: a policy in a pybullet location and weather (`WorldChoice`), the
+    car, camera and horizon (`SimConfig`), the workers, the test."""
+
+    executor: ExecutorSettings
+    certify: CertifySection
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.gym_world is not None:
+            raise invalid("gym_world", self.gym_world.name, "is not certified here yet: certify drives pybullet worlds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,68 +108,51 @@ class CertifyRecord:
     outcomes: str
 
 
-def plan(request: CertifyRequest) -> tuple[UserPolicySpec, RolloutJob]:
+def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
     """The policy's spec and the rollout job, checked: the policy built and run on rollout 0's first frame."""
-    conf = find_conf()
-    scenario_file, weather_file = (
-        conf / "scenario" / f"{request.world}.yaml",
-        conf / "weather" / f"{request.weather}.yaml",
-    )
-    for key, path in (("--world", scenario_file), ("--weather", weather_file)):
-        if not path.is_file():
-            names = sorted(p.stem for p in path.parent.glob("*.yaml"))
-            raise ConfigError(f"{key}={path.stem!r} is not known; choose one of {names}")
-    where = Condition(ScenarioConfig.from_yaml(scenario_file), WeatherConfig.from_yaml(weather_file), request.noise)
-    spec = load_policy(request.policy)
-    job = RolloutJob(
-        spec, where, request.base_seed, CameraConfig(), VehicleConfig(), request.control_hz, request.horizon_s
-    )
+    spec = load_policy(stage.certify.policy)
+    world = (stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
+    job = RolloutJob(spec, stage.condition(), stage.certify.base_seed, *world)
     probe_policy(job)
     return spec, job
 
 
-def run_certify(request: CertifyRequest) -> CertifyRecord:
-    """Plan, test (rollouts until decided), write the record, log it."""
-    test = request.test()
-    spec, job = plan(request)
-    consumer = {
-        "test": "threshold",
-        "eta": request.eta,
-        "theta": request.theta,
-        "gamma": request.gamma,
-        "looks": test.looks,
-    }
-    key = cell_key(job, consumer, None, __name__)
-    log = Path(request.root) / "cache" / "rollouts" / "certify" / f"{key}.jsonl"
+def run_certify(cfg: DictConfig) -> CertifyRecord:
+    """Validate, plan, test (rollouts until decided), write the record, log it."""
+    stage = validate(CertifyStage, cfg)
+    section, test = stage.certify, stage.certify.test()
+    spec, job = plan(stage)
+    consumer = {"test": "threshold", "eta": section.eta, "theta": section.theta, "gamma": section.gamma}
+    key = cell_key(job, {**consumer, "looks": test.looks}, None, __name__)
+    log = Path(stage.paths.root) / "cache" / "rollouts" / "certify" / f"{key}.jsonl"
     log.parent.mkdir(parents=True, exist_ok=True)
-    with CellRunner("process", request.workers, progress=request.progress) as runner:
-        run = runner.run("certify", job, key, log, request.base_seed, test.run, request.budget, ahead=runner.batch)
-    decision = run.outcome
-    interval_gamma = request.gamma / len(test.looks)
+    with CellRunner.of(stage.executor, stage.progress) as runner:
+        run = runner.run("certify", job, key, log, section.base_seed, test.run, section.budget, ahead=runner.batch)
+    decision, where = run.outcome, job.where
+    interval_gamma = section.gamma / len(test.looks)
     low, high = clopper_pearson_interval(decision.k, decision.n, interval_gamma)
     record = CertifyRecord(
-        VERDICTS[decision.decision], spec.name, spec.kind, spec.digest, request.world, request.weather,
-        request.noise, request.eta, request.theta, request.gamma, decision.n, decision.k,
-        decision.k / decision.n, float(low), float(high), interval_gamma, request.budget, request.base_seed,
+        VERDICTS[decision.decision], spec.name, spec.kind, spec.digest, where.location, where.weather_name,
+        where.noise, section.eta, section.theta, section.gamma, decision.n, decision.k,
+        decision.k / decision.n, float(low), float(high), interval_gamma, section.budget, section.base_seed,
         key, run.reused, run.seconds, "".join("1" if r.safe else "0" for r in run.results[: decision.n]),
     )  # fmt: skip
-    write_record(request.out, record)
-    log_certify(request, record)
+    write_record(section.out, record)  # before logging: a tracking failure never loses the verdict
+    log_certify(cfg, stage, record)
     return record
 
 
-def log_certify(request: CertifyRequest, record: CertifyRecord) -> None:
-    """One MLflow run in `<prefix>/certify`: the request as params, the verdict as a tag and metrics."""
-    config = {"certify": {k: v for k, v in dataclasses.asdict(request).items() if k not in ("root", "progress")}}
+def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> None:
+    """One MLflow run in `<prefix>/certify`: the `certify` section as params, the verdict as a tag and metrics."""
     tags = {"verdict": record.verdict, "policy_digest": record.policy_digest, "cell_key": record.cell_key}
-    with stage_run(
-        request.root, "certify", config, run_name=f"{Path(record.policy).name} · {record.verdict}", tags=tags
-    ):
+    name = f"{Path(record.policy).name} · {record.world} · {record.verdict}"
+    with stage_run(stage.paths.root, "certify", cfg, run_name=name, tags=tags):
+        mlflow.log_params({"world": record.world, "weather": record.weather, "noise": record.noise})
         mlflow.log_metrics({
             "certified": float(record.verdict == "certified"), "rollouts": record.rollouts,
             "eta1_hat": record.eta1_hat, "eta1_low": record.eta1_low, "eta1_high": record.eta1_high,
         })  # fmt: skip
-        mlflow.log_artifact(request.out)
+        mlflow.log_artifact(stage.certify.out)
 
 
 def describe(record: CertifyRecord) -> str:
@@ -177,36 +173,68 @@ def describe(record: CertifyRecord) -> str:
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
-    defaults = CertifyRequest("")
     p = argparse.ArgumentParser(prog="uqdrive certify", description=__doc__.splitlines()[0].split(": ", 1)[1])
     p.add_argument("--policy", required=True, help="a TorchScript (.pt), ONNX (.onnx) or policy YAML file")
-    p.add_argument("--world", default=defaults.world, help="location in conf/scenario/ (default: the roundabout)")
-    p.add_argument("--weather", default=defaults.weather, help="weather in conf/weather/ (default: clear_noon)")
-    p.add_argument("--noise", type=float, default=defaults.noise, help="sensor noise sigma (default: 0)")
-    p.add_argument("--eta", type=float, default=defaults.eta, help="target: certify eta1 >= this (default: 0.9)")
-    p.add_argument("--theta", type=float, default=defaults.theta, help="indifference half-width (default: 0)")
-    p.add_argument("--gamma", type=float, default=defaults.gamma, help="error probability (default: 0.05)")
-    p.add_argument("--look-size", type=int, default=defaults.look_size, help="rollouts between looks (default: 4)")
-    p.add_argument("--budget", type=int, default=defaults.budget, help="most rollouts run (default: 400)")
-    p.add_argument("--seed", type=int, default=defaults.base_seed, help="rollout i uses seed SEED + i (default: 0)")
-    p.add_argument("--horizon", type=float, default=defaults.horizon_s, help="episode length T in s (default: 20)")
-    p.add_argument("--workers", type=int, default=defaults.workers, help="worker processes (default: 1)")
-    p.add_argument("--out", default=defaults.out, help="the JSON record written (default: certify.json)")
-    p.add_argument("--root", default=defaults.root, help="project folder: rollout cache, MLflow store (default: .)")
+    p.add_argument("--world", default="roundabout", help="location in conf/scenario/ (default: the roundabout)")
+    p.add_argument("--weather", default="clear_noon", help="weather in conf/weather/ (default: clear_noon)")
+    p.add_argument("--noise", type=float, default=0.0, help="sensor noise sigma (default: 0)")
+    p.add_argument("--eta", type=float, default=0.9, help="target: certify eta1 >= this (default: 0.9)")
+    p.add_argument("--theta", type=float, default=0.0, help="indifference half-width (default: 0)")
+    p.add_argument("--gamma", type=float, default=0.05, help="error probability of a verdict (default: 0.05)")
+    p.add_argument("--look-size", type=int, default=4, help="rollouts between the test's looks (default: 4)")
+    p.add_argument("--budget", type=int, default=400, help="most rollouts run; undecided after (default: 400)")
+    p.add_argument("--seed", type=int, default=0, help="rollout i uses seed SEED + i (default: 0)")
+    p.add_argument("--horizon", type=float, default=20.0, help="episode length T in seconds (default: 20)")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (default: 1)")
+    p.add_argument("--out", default="certify.json", help="the JSON record written (default: certify.json)")
+    p.add_argument("--root", default=".", help="project folder: rollout cache, MLflow store (default: .)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("overrides", nargs="*", help="more Hydra overrides of conf/certify.yaml, e.g. vehicle.max_speed=9")
     return p.parse_args(argv)
+
+
+def _quoted(value: object) -> str:
+    return json.dumps(str(value))  # a Hydra quoted string: paths with '=', ',' or spaces stay one value
+
+
+def compose_certify(a: argparse.Namespace) -> DictConfig:
+    """conf/certify.yaml with the flags as overrides (a world or weather that is not there: one line)."""
+    from hydra import compose, initialize_config_dir
+
+    from uqdrive.resolvers import register_resolvers
+    from uqdrive.sim.config import register_schemas
+
+    conf = find_conf()
+    for flag, group, name in (("--world", "scenario", a.world), ("--weather", "weather", a.weather)):
+        if not (conf / group / f"{name}.yaml").is_file():
+            names = sorted(p.stem for p in (conf / group).glob("*.yaml"))
+            raise ConfigError(f"{flag}={name!r} is not known; choose one of {names}")
+    register_schemas()
+    register_resolvers()
+    root = Path(a.root).resolve()
+    overrides = [
+        f"certify.policy={_quoted(Path(a.policy).resolve())}", f"certify.out={_quoted(Path(a.out).resolve())}",
+        f"certify.eta={a.eta}", f"certify.theta={a.theta}", f"certify.gamma={a.gamma}",
+        f"certify.look_size={a.look_size}", f"certify.budget={a.budget}", f"certify.base_seed={a.seed}",
+        f"scenario={a.world}", f"weather={a.weather}", f"noise={a.noise}", f"horizon_s={a.horizon}",
+        f"executor.workers={a.workers}", f"paths.root={_quoted(root)}", f"progress={str(not a.no_progress).lower()}",
+        *a.overrides,
+    ]  # fmt: skip
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+        return compose("certify", overrides=overrides)
 
 
 def main(argv: list[str] | None = None) -> int:
     a = parse(argv)
-    request = CertifyRequest(
-        a.policy, a.world, a.weather, a.noise, a.eta, a.theta, a.gamma, a.look_size, a.budget, a.seed, a.horizon,
-        workers=a.workers, out=a.out, root=a.root, progress=not a.no_progress,
-    )  # fmt: skip
     try:
-        record = run_certify(request)
-    except (PolicyFailure, ConfigError, ValueError) as err:
-        print(f"uqdrive certify: {err}", file=sys.stderr)
+        cfg = compose_certify(a)
+        record = run_certify(cfg)
+    except Exception as err:  # a bad flag, config value or policy: one line, exit 2
+        from uqdrive.stage import one_line
+
+        if not isinstance(err, ConfigError) and type(err).__module__.split(".")[0] not in ("hydra", "omegaconf"):
+            raise
+        print(f"uqdrive certify: {one_line(err) if not isinstance(err, ConfigError) else err}", file=sys.stderr)
         return BAD_INPUT
-    print(f"{describe(record)} -> {request.out}")
+    print(f"{describe(record)} -> {cfg.certify.out}")
     return EXIT[record.verdict]

@@ -23,6 +23,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from uqdrive.safety.controller import Command
+from uqdrive.schema import ConfigError
 from uqdrive.uq import draw_measures
 
 PROB_TOL = 1e-4  # rows of class-probability draws must sum to 1 within this (float32 softmax)
@@ -51,8 +52,9 @@ class DrivingPolicy(Protocol):
         """The decision for this step's ``frame`` (RGB uint8 [H, W, 3]; None without a camera) and ``info``."""
 
 
-class PolicyFailure(RuntimeError):
-    """A user policy's bad output or exception, in one line naming the policy (and seed and step mid-rollout)."""
+class PolicyFailure(ConfigError):
+    """A user policy's bad file, output or exception, in one line naming the policy (and seed and step mid-rollout):
+    bad input, reported as a bad config value is (one line, exit status 2)."""
 
 
 def check_action(name: str, action: Any, classes: int) -> Action:
