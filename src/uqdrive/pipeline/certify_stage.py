@@ -143,11 +143,11 @@ def run_certify(cfg: DictConfig) -> CertifyRecord:
 
 
 def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> None:
-    """One MLflow run in `<prefix>/certify`: the `certify` section as params, the verdict as a tag and metrics."""
+    """One MLflow run in `<prefix>/certify`: the `certify` section and the world (location, weather, noise) as params,
+    the verdict as a tag and metrics."""
     tags = {"verdict": record.verdict, "policy_digest": record.policy_digest, "cell_key": record.cell_key}
     name = f"{Path(record.policy).name} · {record.world} · {record.verdict}"
     with stage_run(stage.paths.root, "certify", cfg, run_name=name, tags=tags):
-        mlflow.log_params({"world": record.world, "weather": record.weather, "noise": record.noise})
         mlflow.log_metrics({
             "certified": float(record.verdict == "certified"), "rollouts": record.rollouts,
             "eta1_hat": record.eta1_hat, "eta1_low": record.eta1_low, "eta1_high": record.eta1_high,

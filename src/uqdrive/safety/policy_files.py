@@ -96,8 +96,7 @@ class UserPolicySpec:
             make = _class_factory(self.name, json.loads(self.target))
         else:
             network = TorchScriptPolicy if self.kind == "torchscript" else OnnxPolicy
-            args = (self.path, centres, self.output, self.frame_input, self.mc_draws)
-            make = lambda: network(*args)  # noqa: E731
+            make = network.loader(self.path, centres, self.output, self.frame_input, self.mc_draws)
         return UserPolicies(self.name, make, centres, self.eps, self.speed)
 
 

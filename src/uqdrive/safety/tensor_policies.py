@@ -12,6 +12,7 @@ same rollout draws the same masks in any process. ONNX runs in inference mode (n
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Literal
 
@@ -94,14 +95,29 @@ class TensorPolicy:
 
 
 class TorchScriptPolicy(TensorPolicy):
-    """A ``torch.jit.save``d module; with ``mc_draws`` its dropout is on (it must have dropout)."""
+    """A ``torch.jit.save``d module; with ``mc_draws`` its dropout is on (it must have dropout). ``module``: the
+    file already loaded (the slots of a worker share one copy: a slot's state is its seed and frame alone)."""
 
-    def __init__(self, path: str, centres: np.ndarray, output: Output, frame_input: FrameInput, mc_draws: int = 0):
+    def __init__(
+        self,
+        path: str,
+        centres: np.ndarray,
+        output: Output,
+        frame_input: FrameInput,
+        mc_draws: int = 0,
+        module: torch.jit.ScriptModule | None = None,
+    ):
         super().__init__(path, centres, output, frame_input, mc_draws)
-        self.module = load_torchscript(path)
+        self.module = module if module is not None else load_torchscript(path)
         if mc_draws and not any("Dropout" in getattr(m, "original_name", "") for m in self.module.modules()):
             raise PolicyFailure(f"{path}: mc_draws={mc_draws} needs dropout in the module, and it has none")
         self.module.train(bool(mc_draws))
+
+    @classmethod
+    def loader(cls, path: str, *settings) -> Callable[[], TorchScriptPolicy]:
+        """Slot instances sharing one load of ``path``."""
+        module = load_torchscript(path)
+        return lambda: cls(path, *settings, module=module)
 
     @torch.inference_mode()
     def run(self, x: np.ndarray, draws: int) -> np.ndarray:
@@ -113,14 +129,23 @@ class TorchScriptPolicy(TensorPolicy):
 
 
 class OnnxPolicy(TensorPolicy):
-    """An ONNX model through onnxruntime (one CPU thread: parallelism is across workers)."""
+    """An ONNX model through onnxruntime (one CPU thread: parallelism is across workers); ``session``: shared."""
 
-    def __init__(self, path: str, centres: np.ndarray, output: Output, frame_input: FrameInput, mc_draws: int = 0):
+    def __init__(
+        self, path: str, centres: np.ndarray, output: Output, frame_input: FrameInput, mc_draws: int = 0, session=None
+    ):
         if mc_draws:
             raise PolicyFailure(f"{path}: mc_draws={mc_draws}: ONNX runs without dropout; save it as TorchScript")
         super().__init__(path, centres, output, frame_input, 0)
-        self.session = load_onnx(path)
+        self.session = session if session is not None else load_onnx(path)
         self.input_name = self.session.get_inputs()[0].name
+
+    @classmethod
+    def loader(cls, path: str, *settings) -> Callable[[], OnnxPolicy]:
+        """Slot instances sharing one session of ``path``."""
+        centres, output, frame_input, mc_draws = settings
+        session = None if mc_draws else load_onnx(path)  # mc_draws: refused by the first instance, before loading
+        return lambda: cls(path, centres, output, frame_input, mc_draws, session=session)
 
     def run(self, x: np.ndarray, draws: int) -> np.ndarray:
         return self.session.run(None, {self.input_name: x})[0]
