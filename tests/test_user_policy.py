@@ -240,3 +240,39 @@ def test_a_package_beside_its_yaml_drives_in_worker_processes_and_their_failure_
     assert str(raised.value) == (
         "h50_beside.policies.FailsAtStep raised ZeroDivisionError in act() at seed 0, step 7: the user's bug"
     )
+
+
+WARN = "  delta1: 1.0\n  delta2: {delta2}\n  tau: 100.0\n  hold_s: 0.0\n"
+
+
+def test_warnings_act_on_a_bayesian_policys_own_draws(tmp_path, monkeypatch):
+    """Warning 1 wherever η̂2 < δ1 (= 1: a draw disagreed): that frame at half speed; with δ2 = 1 it is warning 2,
+    and the car brakes to a stop and hands over."""
+    write_package(tmp_path / "site", monkeypatch)
+    target = "policy:\n  _target_: h50_user_policies.policies.BayesianKeeper\n  spread: 0.005\nwarnings:\n"
+    slow = target + WARN.format(delta2=0.0) + "  actions: {warning1: {speed: 0.5, alert: true}}\n"
+    (result,) = drive(load_policy(write_yaml(tmp_path / "slow.yaml", slow)), [3])
+    doubtful = result.eta2 < 1
+    assert doubtful.any() and not doubtful.all()
+    np.testing.assert_array_equal(result.warning, np.where(doubtful, 1, -1))
+    np.testing.assert_array_equal(result.command_speed, np.where(doubtful, 3.0, 6.0))
+
+    stop = target + WARN.format(delta2=1.0)
+    (result,) = drive(load_policy(write_yaml(tmp_path / "stop.yaml", stop)), [3])
+    first = int(np.argmax(result.warning == 2))
+    assert result.termination == "handover" and (result.command_speed[first:] == 0).all()
+    assert first == int(np.argmax(doubtful))  # the same draws: the first doubtful frame hands over
+
+
+def test_warnings_need_draws(tmp_path, monkeypatch):
+    write_package(tmp_path / "site", monkeypatch)
+    path = write_yaml(
+        tmp_path / "keeper.yaml",
+        "policy:\n  _target_: h50_user_policies.policies.LaneKeeper\nwarnings:\n" + WARN.format(delta2=0.0),
+    )
+    with pytest.raises(PolicyFailure) as raised:
+        planned(request(tmp_path, path))
+    assert str(raised.value) == (
+        "h50_user_policies.policies.LaneKeeper at seed 0, step 0: expected draws (warnings are on), got an action "
+        "without"
+    )

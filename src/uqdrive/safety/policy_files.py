@@ -15,6 +15,11 @@ The policy YAML::
     speed: 6.0                  # m/s of an action that gives none
     eps: 0.1                    # η2's ball (steering units)
     bins: {low: -1.0, high: 1.0}  # the steering classes of logits and probability draws
+    warnings:                   # optional: the paper's warning system on the policy's draws (uqdrive.safety.warnings)
+      delta1: 0.7               #   η̂2 < δ1: warning 1; η̂2 < δ2: warning 2; MI > τ: warning 0
+      delta2: 0.6
+      tau: 0.45
+      actions: {warning2: {speed: 0.0, alert: true, handover: true}}
 
 A policy's identity (in a cell's key) is its file's bytes, or the source file of its class, with its settings;
 not where the file lies. Editing either makes a new cell.
@@ -38,7 +43,8 @@ from pydantic import Field
 from uqdrive.data.binning import SteeringBins
 from uqdrive.safety.cells import file_digest
 from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
-from uqdrive.safety.user_policy import PolicyFailure, UserPolicies
+from uqdrive.safety.user_policy import PolicyFailure, UserPolicies, UserWarnings
+from uqdrive.safety.warnings import WarningConfig
 from uqdrive.schema import ConfigError, Positive, Str, schema, validate
 
 TORCHSCRIPT = (".pt", ".ts", ".pth", ".jit")
@@ -59,6 +65,7 @@ class PolicyConfig:
     speed: Positive = 6.0
     eps: Positive = 0.1
     bins: SteeringBins = dataclasses.field(default_factory=SteeringBins)
+    warnings: WarningConfig | None = None
 
     def __post_init__(self) -> None:
         if (self.policy is None) == (self.file is None):
@@ -87,6 +94,7 @@ class UserPolicySpec:
     frame_input: str = "gray"
     mc_draws: int = 0
     search_path: str = ""  # a class's YAML's folder: its package may lie beside it, uninstalled
+    warnings: WarningConfig | None = None
 
     def build(self, control_hz: float) -> UserPolicies:
         """The rollout engine's policy: one instance per slot."""
@@ -97,7 +105,8 @@ class UserPolicySpec:
         else:
             network = TorchScriptPolicy if self.kind == "torchscript" else OnnxPolicy
             make = network.loader(self.path, centres, self.output, self.frame_input, self.mc_draws)
-        return UserPolicies(self.name, make, centres, self.eps, self.speed)
+        warnings = UserWarnings(self.warnings, control_hz) if self.warnings is not None else None
+        return UserPolicies(self.name, make, centres, self.eps, self.speed, warnings)
 
 
 def _search(folder: str) -> None:
@@ -177,7 +186,7 @@ def _class_spec(config: PolicyConfig, folder: Path) -> UserPolicySpec:
 
 
 def _common(config: PolicyConfig) -> dict[str, Any]:
-    return {"speed": float(config.speed), "eps": float(config.eps), "bins": config.bins}
+    return {"speed": float(config.speed), "eps": float(config.eps), "bins": config.bins, "warnings": config.warnings}
 
 
 def probe_policy(job: Any) -> None:

@@ -15,6 +15,7 @@ range, finiteness) and turns an exception into a `PolicyFailure` naming the poli
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -23,6 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from uqdrive.safety.controller import Command
+from uqdrive.safety.warnings import WarningActions, WarningConfig, classify
 from uqdrive.schema import ConfigError
 from uqdrive.uq import draw_measures
 
@@ -107,14 +109,51 @@ def command_of(action: Action, centres: np.ndarray, eps: float, cruise: float) -
     )
 
 
+class UserWarnings:
+    """The paper's warning system on a user policy's own draws: each step's level from its η̂2 and MI (`classify`:
+    the fixed-n controller's rule; MI 0 for steering draws), acted on as uqdrive's warning controller acts (slow
+    down, alert, hand over: brake to a stop with the wheel held). No tier guarantee is claimed: the draws are the
+    policy's. One state per slot."""
+
+    def __init__(self, config: WarningConfig, control_hz: float):
+        self.config, self.hold_frames = config, round(config.hold_s * control_hz)
+        self.actions: dict[int, WarningActions] = {}
+        self.held: dict[int, float | None] = {}
+
+    def reset(self, slot: int) -> None:
+        self.actions[slot], self.held[slot] = WarningActions(self.config.actions, self.hold_frames), None
+
+    def apply(self, slot: int, command: Command, info: dict) -> Command:
+        c = self.config
+        mi = 0.0 if math.isnan(command.mutual_information) else command.mutual_information
+        level = int(classify(command.eta2, mi, c.delta1, c.delta2, c.tau))
+        factor, alert, handover = self.actions[slot].step(level)
+        if handover and self.held[slot] is None:
+            self.held[slot] = float(info.get("steering", 0.0))
+        steer = command.steer if self.held[slot] is None else self.held[slot]
+        speed, handover = command.speed * float(factor), bool(handover)
+        return dataclasses.replace(
+            command, steer=steer, speed=speed, warning=level, alert=bool(alert), handover=handover
+        )
+
+
 class UserPolicies:
     """The rollout engine's `Policy` over a user's `DrivingPolicy`: one instance per slot (made by ``make``), each
     reset with its rollout's seed, stepped one frame at a time; ``centres``: the steering classes its probability
-    draws are over; ``eps``: η2's ball; ``speed``: the cruise speed of an action without one."""
+    draws are over; ``eps``: η2's ball; ``speed``: the cruise speed of an action without one; ``warnings``: acted
+    on where given (every action must then carry draws)."""
 
-    def __init__(self, name: str, make: Callable[[], DrivingPolicy], centres: np.ndarray, eps: float, speed: float):
+    def __init__(
+        self,
+        name: str,
+        make: Callable[[], DrivingPolicy],
+        centres: np.ndarray,
+        eps: float,
+        speed: float,
+        warnings: UserWarnings | None = None,
+    ):
         self.name, self.make, self.centres = name, make, np.asarray(centres, dtype=np.float64)
-        self.eps, self.speed = float(eps), float(speed)
+        self.eps, self.speed, self.warnings = float(eps), float(speed), warnings
         self.instances: dict[int, DrivingPolicy] = {}
         self.episodes: dict[int, list[int]] = {}  # slot → [seed, step]
         self.needs_camera = True
@@ -133,6 +172,8 @@ class UserPolicies:
 
     def reset(self, env: Any, seed: int, slot: int = 0) -> None:
         self.episodes[slot] = [int(seed), 0]
+        if self.warnings is not None:
+            self.warnings.reset(slot)
         self._call(slot, "reset", lambda: self.instance(slot).reset(int(seed)))
 
     def act_batch(self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]) -> list:
@@ -140,9 +181,12 @@ class UserPolicies:
         for slot, frame, info in zip(slots, frames, infos):
             action = self._call(slot, "act", lambda: self.instance(slot).act(frame, dict(info)))  # noqa: B023
             where = f"{self.name} at seed {self.episodes[slot][0]}, step {self.episodes[slot][1]}"
-            commands.append(
-                command_of(check_action(where, action, len(self.centres)), self.centres, self.eps, self.speed)
-            )
+            command = command_of(check_action(where, action, len(self.centres)), self.centres, self.eps, self.speed)
+            if self.warnings is not None:
+                if action.draws is None:
+                    raise PolicyFailure(f"{where}: expected draws (warnings are on), got an action without")
+                command = self.warnings.apply(slot, command, info)
+            commands.append(command)
             self.episodes[slot][1] += 1
         return commands
 
