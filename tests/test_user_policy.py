@@ -141,7 +141,16 @@ def test_editing_a_policy_changes_its_cell_key_and_moving_it_does_not(tmp_path, 
     assert key(moved) == before["file"]  # the same bytes elsewhere: the same cell
     source.write_text(source.read_text() + "\n# a comment: still an edit of the policy's source\n")
     save_torchscript(Constant(0.3), module)
-    assert key(keeper) != before["class"] and key(module) != before["file"]
+    edited = key(keeper)
+    assert edited != before["class"] and key(module) != before["file"]
+    (source.parent / "helpers.py").write_text("GAIN = 1.0\n")  # a module of its package, which it might import
+    assert key(keeper) != edited
+    weights = save_weights(linear_module(), tmp_path / "weights.npz")
+    target = "policy:\n  _target_: h50_user_policies.policies.LinearLogits\n"
+    linear = write_yaml(tmp_path / "w.yaml", f"{target}  weights: {weights}\n")
+    trained = key(linear)
+    save_weights(linear_module(seed=1), weights)  # retrained at the same path: a file its settings name
+    assert key(linear) != trained
     settings = write_yaml(tmp_path / "keeper2.yaml", "policy:\n  _target_: h50_user_policies.policies.LaneKeeper\n")
     assert key(settings) == key(keeper)
     settings.write_text(settings.read_text() + "  kp: 2.0\n")

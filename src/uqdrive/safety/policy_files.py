@@ -21,8 +21,8 @@ The policy YAML::
       tau: 0.45
       actions: {warning2: {speed: 0.0, alert: true, handover: true}}
 
-A policy's identity (in a cell's key) is its file's bytes, or the source file of its class, with its settings;
-not where the file lies. Editing either makes a new cell.
+A policy's identity (in a cell's key) is its file's bytes, or its class's package source and the bytes of the files
+its settings name, with its settings; not where the file lies. Editing any of them makes a new cell.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import yaml
 from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
+from uqdrive.deps import files_digest
 from uqdrive.safety.cells import file_digest
 from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
 from uqdrive.safety.user_policy import PolicyFailure, UserPolicies, UserWarnings
@@ -169,8 +170,9 @@ def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
 
 
 def _class_spec(config: PolicyConfig, folder: Path) -> UserPolicySpec:
-    """A class's spec; its identity the bytes of the file its class is defined in (imported here, so a typo in
-    ``_target_`` fails before any rollout); its package is looked for beside its YAML (``folder``) too."""
+    """A class's spec (imported here, so a typo in ``_target_`` fails before any rollout; its package is looked for
+    beside its YAML, ``folder``, too). Its identity: the source of the package its class is in, and the bytes of
+    every file its settings name (weights it loads), so that editing either makes a new cell."""
     _search(str(folder))
     name = config.policy["_target_"]
     module, _, attribute = name.rpartition(".")
@@ -178,11 +180,32 @@ def _class_spec(config: PolicyConfig, folder: Path) -> UserPolicySpec:
         cls = getattr(importlib.import_module(module), attribute)
         if not inspect.isclass(cls):
             raise TypeError(f"{name} is a {type(cls).__name__}")
-        digest = hashlib.sha256(Path(inspect.getsourcefile(cls) or "").read_bytes()).hexdigest()
+        digest = hashlib.sha256(_source_digest(cls).encode())
     except Exception as err:  # ImportError, AttributeError, a class without a source file
         raise PolicyFailure(f"policy._target_={name}: expected an importable class, got {first_line(err)}") from None
+    for path in sorted(_named_files(config.policy)):
+        digest.update(f"{path}:{file_digest(path)}".encode())
     target = json.dumps(config.policy, sort_keys=True)
-    return UserPolicySpec("class", digest, name, target=target, search_path=str(folder), **_common(config))
+    return UserPolicySpec("class", digest.hexdigest(), name, target=target, search_path=str(folder), **_common(config))
+
+
+def _source_digest(cls: type) -> str:
+    """sha256 of the Python files of the top-level package ``cls`` is in (its module alone if it is no package)."""
+    top = sys.modules[cls.__module__.partition(".")[0]]
+    source = Path(inspect.getsourcefile(cls) or "")
+    if not getattr(top, "__path__", None):
+        return files_digest([source.resolve()], source.resolve().parent)
+    base = Path(list(top.__path__)[0]).resolve()
+    return files_digest([p.resolve() for p in base.rglob("*.py")], base.parent)
+
+
+def _named_files(value: Any) -> set[str]:
+    """The existing files a class's settings name, anywhere in them."""
+    if isinstance(value, dict):
+        return {f for v in value.values() for f in _named_files(v)}
+    if isinstance(value, list):
+        return {f for v in value for f in _named_files(v)}
+    return {value} if isinstance(value, str) and Path(value).is_file() else set()
 
 
 def _common(config: PolicyConfig) -> dict[str, Any]:
