@@ -11,6 +11,9 @@ every random number the policy draws in it must come from a generator seeded by 
 `UserPolicies` runs one instance per lockstep slot behind the rollout engine's `Policy` (slots, batched steps), so a
 user's policy plugs into every executor and cell runner with no branch of its own. It checks every action (shape,
 range, finiteness) and turns an exception into a `PolicyFailure` naming the policy, the seed and the step.
+uqdrive's own controllers (`Controller`, `WarningController`, `AutopilotPolicy`, `ConstantPolicy`) implement that
+engine `Policy` directly — batched over the slots (one trunk pass per step), and the autopilot reads the route —
+and a `RolloutJob` takes either kind through its recipe (`PolicyRecipe.build`): the engine asks no policy its kind.
 """
 
 from __future__ import annotations
