@@ -29,6 +29,7 @@ def certify(tmp_path, policy, *args: str) -> tuple[int, dict]:
     return code, json.loads(out.read_text()) if out.exists() else {}
 
 
+@pytest.mark.slow  # whole certify runs, MLflow included
 def test_certify_exits_0_for_a_safe_policy_and_1_for_one_that_steers_off_the_road(tmp_path, monkeypatch, capsys):
     write_package(tmp_path / "site", monkeypatch)
     keeper = write_yaml(tmp_path / "keeper.yaml", KEEPER)
@@ -51,12 +52,14 @@ def test_certify_exits_0_for_a_safe_policy_and_1_for_one_that_steers_off_the_roa
     assert sorted(r.data.metrics["certified"] for r in runs) == [0.0, 1.0]
 
 
+@pytest.mark.slow  # whole certify runs, MLflow included
 def test_certify_exits_3_when_its_budget_does_not_decide(tmp_path, monkeypatch):
     write_package(tmp_path / "site", monkeypatch)
     code, record = certify(tmp_path, write_yaml(tmp_path / "keeper.yaml", KEEPER), "--eta", "0.9", "--budget", "8")
     assert code == 3 and record["verdict"] == "undecided" and record["rollouts"] == 8 == record["safe"]
 
 
+@pytest.mark.slow  # whole certify runs, MLflow included
 def test_a_rerun_replays_its_rollouts_and_an_edited_policy_runs_afresh(tmp_path, monkeypatch):
     source = write_package(tmp_path / "site", monkeypatch)
     keeper = write_yaml(tmp_path / "keeper.yaml", KEEPER)

@@ -46,6 +46,7 @@ def rollouts(tmp_path, record) -> list:
     return RolloutLog(log, record.cell_key, record.base_seed).load()
 
 
+@pytest.mark.slow  # whole certify runs, MLflow included
 def test_a_class_a_torchscript_file_and_an_onnx_export_of_one_function_drive_the_same_rollouts(tmp_path, monkeypatch):
     pytest.importorskip("onnxruntime")
     write_package(tmp_path / "site", monkeypatch)
@@ -240,6 +241,7 @@ def test_a_class_that_answers_out_of_shape_or_range_fails_before_any_rollout(tmp
     assert not (tmp_path / "cache").exists()
 
 
+@pytest.mark.slow  # whole certify runs, MLflow included
 def test_a_package_beside_its_yaml_drives_in_worker_processes_and_their_failure_comes_back_whole(tmp_path, monkeypatch):
     """Not installed, not on the path: found beside the YAML, in this process and in each worker's."""
     write_package(tmp_path, monkeypatch, package="h50_beside", on_path=False)
