@@ -37,6 +37,11 @@ from uqdrive.uq import ThresholdTest, clopper_pearson_interval
 Verdict = Literal["certified", "refuted", "undecided"]
 EXIT = {"certified": 0, "refuted": 1, "undecided": 3}
 BAD_INPUT = 2
+DESCRIPTION = (
+    'Tests "eta1 >= ETA" for a policy file in a world by the sequential threshold test, stopping once decided; prints '
+    "the verdict, an interval and the rollouts used, writes a JSON record and an MLflow run, and exits 0 certified, "
+    "1 refuted, 3 undecided within the budget, 2 for a bad policy file or flag (one line)."
+)
 VERDICTS: dict[str | None, Verdict] = {"above": "certified", "below": "refuted", None: "undecided"}
 
 
@@ -173,7 +178,7 @@ def describe(record: CertifyRecord) -> str:
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="uqdrive certify", description=__doc__.splitlines()[0].split(": ", 1)[1])
+    p = argparse.ArgumentParser(prog="uqdrive certify", description=DESCRIPTION)
     p.add_argument("--policy", required=True, help="a TorchScript (.pt), ONNX (.onnx) or policy YAML file")
     p.add_argument("--world", default="roundabout", help="location in conf/scenario/ (default: the roundabout)")
     p.add_argument("--weather", default="clear_noon", help="weather in conf/weather/ (default: clear_noon)")
