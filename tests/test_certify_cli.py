@@ -36,6 +36,7 @@ def test_certify_exits_0_for_a_safe_policy_and_1_for_one_that_steers_off_the_roa
     code, record = certify(tmp_path, keeper, "--eta", "0.9")
     assert code == 0 and record["verdict"] == "certified" and record["safe"] == record["rollouts"] <= 64
     assert record["eta1_low"] < 0.9 <= record["eta1_high"] == 1.0 and record["policy_kind"] == "class"
+    assert record["off_road_rate"] == 0 and record["mean_eta2"] is None and record["warning_share"] is None
     line = capsys.readouterr().out.strip()
     assert line.startswith("CERTIFIED: eta1 >= 0.9 certified (gamma=0.05) for h50_user_policies.policies.LaneKeeper")
     assert f"{record['rollouts']}/{record['rollouts']} rollouts safe" in line
@@ -43,6 +44,7 @@ def test_certify_exits_0_for_a_safe_policy_and_1_for_one_that_steers_off_the_roa
     hard = save_torchscript(Constant(1.0), tmp_path / "hard_left.pt")
     code, record = certify(tmp_path, hard, "--eta", "0.9")
     assert code == 1 and record["verdict"] == "refuted" and record["safe"] == 0 and record["rollouts"] <= 8
+    assert record["off_road_rate"] + record["collision_rate"] == 1  # each run read left the road or hit something
     assert capsys.readouterr().out.startswith(f"REFUTED: eta1 < 0.9 (refuted) (gamma=0.05) for {hard}")
 
     client = mlflow.MlflowClient(store_uris(tmp_path)[0])

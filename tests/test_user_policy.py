@@ -287,3 +287,15 @@ def test_warnings_need_draws(tmp_path, monkeypatch):
         "h50_user_policies.policies.LaneKeeper at seed 0, step 0: expected draws (warnings are on), got an action "
         "without"
     )
+
+
+def test_the_certify_record_carries_a_bayesian_policys_eta2_mi_and_warnings(tmp_path, monkeypatch):
+    write_package(tmp_path / "site", monkeypatch)
+    text = "policy:\n  _target_: h50_user_policies.policies.BayesianKeeper\n  spread: 0.005\nwarnings:\n"
+    path = write_yaml(tmp_path / "bayes.yaml", text + WARN.format(delta2=0.0))
+    record = run_certify(request(tmp_path, path))
+    runs = rollouts(tmp_path, record)
+    assert 0 < record.mean_eta2 < 1 and record.mean_mutual_information > 0
+    assert record.mean_eta2 == pytest.approx(np.mean([r.mean_eta2 for r in runs]))
+    steps = np.concatenate([r.warning for r in runs])
+    assert record.warning_share == pytest.approx((steps >= 0).mean()) and 0 < record.warning_share < 1

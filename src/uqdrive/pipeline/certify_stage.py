@@ -24,6 +24,7 @@ import mlflow
 from omegaconf import DictConfig
 
 from uqdrive.records import write_record
+from uqdrive.safety.cells import rates
 from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.policy_files import UserPolicySpec, load_policy, probe_policy
 from uqdrive.safety.runner import CellRunner, cell_key
@@ -31,7 +32,7 @@ from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, Str, Unit, invali
 from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig, find_conf
 from uqdrive.stage_schemas import ExecutorSettings, Stage
-from uqdrive.tracking import stage_run
+from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq import ThresholdTest, clopper_pearson_interval
 
 Verdict = Literal["certified", "refuted", "undecided"]
@@ -42,6 +43,7 @@ DESCRIPTION = (
     "the verdict, an interval and the rollouts used, writes a JSON record and an MLflow run, and exits 0 certified, "
     "1 refuted, 3 undecided within the budget, 2 for a bad policy file or flag (one line)."
 )
+SUMMARIES = ("collision_rate", "off_road_rate", "left_corridor_rate", "mean_eta2", "mean_mutual_information")
 VERDICTS: dict[str | None, Verdict] = {"above": "certified", "below": "refuted", None: "undecided"}
 
 
@@ -111,6 +113,12 @@ class CertifyRecord:
     reused: bool
     seconds: float
     outcomes: str
+    collision_rate: float | None = None  # how the rollouts read failed, and (with draws) the policy's confidence
+    off_road_rate: float | None = None
+    left_corridor_rate: float | None = None
+    mean_eta2: float | None = None
+    mean_mutual_information: float | None = None
+    warning_share: float | None = None  # of the steps, those that raised a warning (a policy YAML's `warnings`)
 
 
 def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
@@ -134,17 +142,27 @@ def run_certify(cfg: DictConfig) -> CertifyRecord:
     with CellRunner.of(stage.executor, stage.progress) as runner:
         run = runner.run("certify", job, key, log, section.base_seed, test.run, section.budget, ahead=runner.batch)
     decision, where = run.outcome, job.where
+    read = run.results[: decision.n]
     interval_gamma = section.gamma / len(test.looks)
     low, high = clopper_pearson_interval(decision.k, decision.n, interval_gamma)
     record = CertifyRecord(
         VERDICTS[decision.decision], spec.name, spec.kind, spec.digest, where.location, where.weather_name,
         where.noise, section.eta, section.theta, section.gamma, decision.n, decision.k,
         decision.k / decision.n, float(low), float(high), interval_gamma, section.budget, section.base_seed,
-        key, run.reused, run.seconds, "".join("1" if r.safe else "0" for r in run.results[: decision.n]),
+        key, run.reused, run.seconds, "".join("1" if r.safe else "0" for r in read),
+        **{k: v for k, v in rates(read).items() if k in SUMMARIES}, warning_share=_warning_share(spec, read),
     )  # fmt: skip
     write_record(section.out, record)  # before logging: a tracking failure never loses the verdict
     log_certify(cfg, stage, record)
     return record
+
+
+def _warning_share(spec: UserPolicySpec, results: list) -> float | None:
+    """The share of steps that raised a warning; None without warnings configured."""
+    steps = sum(r.steps for r in results)
+    if spec.warnings is None or not steps:
+        return None
+    return float(sum(int((r.warning >= 0).sum()) for r in results) / steps)
 
 
 def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> None:
@@ -153,9 +171,11 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
     tags = {"verdict": record.verdict, "policy_digest": record.policy_digest, "cell_key": record.cell_key}
     name = f"{Path(record.policy).name} · {record.world} · {record.verdict}"
     with stage_run(stage.paths.root, "certify", cfg, run_name=name, tags=tags):
+        summaries = {k: getattr(record, k) for k in (*SUMMARIES, "warning_share")}
         mlflow.log_metrics({
             "certified": float(record.verdict == "certified"), "rollouts": record.rollouts,
             "eta1_hat": record.eta1_hat, "eta1_low": record.eta1_low, "eta1_high": record.eta1_high,
+            **numeric_metrics(summaries),
         })  # fmt: skip
         mlflow.log_artifact(stage.certify.out)
 
