@@ -115,3 +115,17 @@ def test_the_hydra_stage_gives_the_same_gate(tmp_path):
     assert done.returncode == 1, done.stderr
     assert done.stdout.startswith(f"REFUTED: eta1 < 0.9 (refuted) (gamma=0.05) for {hard} in roundabout")
     assert json.loads(out.read_text())["verdict"] == "refuted"
+
+
+@pytest.mark.slow
+def test_a_gymnasium_world_is_a_world_to_certify_in(tmp_path, monkeypatch):
+    """`--world` naming conf/gym_world/uqdrive_roundabout: uqdrive's roundabout as a Gymnasium env, judged by its
+    info's safe set, at its own horizon."""
+    write_package(tmp_path / "site", monkeypatch)
+    keeper = write_yaml(tmp_path / "keeper.yaml", KEEPER)
+    code, record = certify(tmp_path, keeper, "--eta", "0.5", "--world", "uqdrive_roundabout")
+    assert code == 0 and (record["world"], record["weather"]) == ("uqdrive_roundabout", "env")
+    hard = save_torchscript(Constant(1.0), tmp_path / "hard_left.pt")  # frames: the env renders them
+    code, record = certify(tmp_path, hard, "--eta", "0.5", "--world", "uqdrive_roundabout")
+    assert code == 1 and record["safe"] == 0
+    assert certify(tmp_path, hard, "--world", "nowhere")[0] == 2

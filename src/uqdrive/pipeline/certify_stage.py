@@ -25,7 +25,7 @@ from omegaconf import DictConfig
 
 from uqdrive.records import write_record
 from uqdrive.safety.cells import rates
-from uqdrive.safety.executors import RolloutJob
+from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.safety.policy_files import UserPolicySpec, load_policy, probe_policy
 from uqdrive.safety.runner import CellRunner, cell_key
 from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, Str, Unit, invalid, schema, validate
@@ -75,16 +75,12 @@ class CertifySection:
 
 @schema(root=True)
 class CertifyStage(WorldChoice, SimConfig, Stage):
-    """`stages/certify.py` and `uqdrive certify`: a policy in a pybullet location and weather (`WorldChoice`), the
-    car, camera and horizon (`SimConfig`), the workers, the test."""
+    """`stages/certify.py` and `uqdrive certify`: a policy in a pybullet location and weather, or in a Gymnasium
+    world (`WorldChoice`: then its own horizon and control rate), the car, camera and horizon (`SimConfig`), the
+    workers, the test."""
 
     executor: ExecutorSettings
     certify: CertifySection
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.gym_world is not None:
-            raise invalid("gym_world", self.gym_world.name, "is not certified here yet: certify drives pybullet worlds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,8 +120,8 @@ class CertifyRecord:
 def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
     """The policy's spec and the rollout job, checked: the policy built and run on rollout 0's first frame."""
     spec = load_policy(stage.certify.policy)
-    world = (stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
-    job = RolloutJob(spec, stage.condition(), stage.certify.base_seed, *world)
+    world = job_world(stage.gym_world, stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
+    job = RolloutJob(spec, stage.condition(), stage.certify.base_seed, **world)
     probe_policy(job)
     return spec, job
 
@@ -200,8 +196,12 @@ def describe(record: CertifyRecord) -> str:
 def parse(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="uqdrive certify", description=DESCRIPTION)
     p.add_argument("--policy", required=True, help="a TorchScript (.pt), ONNX (.onnx) or policy YAML file")
-    p.add_argument("--world", default="roundabout", help="location in conf/scenario/ (default: the roundabout)")
-    p.add_argument("--weather", default="clear_noon", help="weather in conf/weather/ (default: clear_noon)")
+    p.add_argument(
+        "--world", default="roundabout", help="a location in conf/scenario/ or a Gymnasium world in conf/gym_world/"
+    )
+    p.add_argument(
+        "--weather", default="clear_noon", help="weather in conf/weather/, pybullet only (default: clear_noon)"
+    )
     p.add_argument("--noise", type=float, default=0.0, help="sensor noise sigma (default: 0)")
     p.add_argument("--eta", type=float, default=0.9, help="target: certify eta1 >= this (default: 0.9)")
     p.add_argument("--theta", type=float, default=0.0, help="indifference half-width (default: 0)")
@@ -230,10 +230,18 @@ def compose_certify(a: argparse.Namespace) -> DictConfig:
     from uqdrive.sim.config import register_schemas
 
     conf = find_conf()
-    for flag, group, name in (("--world", "scenario", a.world), ("--weather", "weather", a.weather)):
-        if not (conf / group / f"{name}.yaml").is_file():
-            names = sorted(p.stem for p in (conf / group).glob("*.yaml"))
-            raise ConfigError(f"{flag}={name!r} is not known; choose one of {names}")
+    worlds = {p.stem: "scenario" for p in (conf / "scenario").glob("*.yaml")}
+    worlds |= {p.stem: "gym_world" for p in (conf / "gym_world").glob("*.yaml")}  # the env is the world: no weather
+    if a.world not in worlds:
+        raise ConfigError(
+            f"--world={a.world!r} is not known; choose one of {sorted(worlds)} (conf/scenario/, conf/gym_world/)"
+        )
+    if not (conf / "weather" / f"{a.weather}.yaml").is_file():
+        names = sorted(p.stem for p in (conf / "weather").glob("*.yaml"))
+        raise ConfigError(f"--weather={a.weather!r} is not known; choose one of {names}")
+    place = (
+        [f"gym_world={a.world}"] if worlds[a.world] == "gym_world" else [f"scenario={a.world}", f"weather={a.weather}"]
+    )
     register_schemas()
     register_resolvers()
     root = Path(a.root).resolve()
@@ -241,7 +249,7 @@ def compose_certify(a: argparse.Namespace) -> DictConfig:
         f"certify.policy={_quoted(Path(a.policy).resolve())}", f"certify.out={_quoted(Path(a.out).resolve())}",
         f"certify.eta={a.eta}", f"certify.theta={a.theta}", f"certify.gamma={a.gamma}",
         f"certify.look_size={a.look_size}", f"certify.budget={a.budget}", f"certify.base_seed={a.seed}",
-        f"scenario={a.world}", f"weather={a.weather}", f"noise={a.noise}", f"horizon_s={a.horizon}",
+        *place, f"noise={a.noise}", f"horizon_s={a.horizon}",
         f"executor.workers={a.workers}", f"paths.root={_quoted(root)}", f"progress={str(not a.no_progress).lower()}",
         *a.overrides,
     ]  # fmt: skip

@@ -213,13 +213,16 @@ def _common(config: PolicyConfig) -> dict[str, Any]:
 
 
 def probe_policy(job: Any) -> None:
-    """Build the job's policy here and decide rollout 0's first frame, so that a policy that cannot be made or
-    answers in the wrong shape or range fails in one line before any rollout (pybullet worlds)."""
-    from uqdrive.sim import DrivingEnv
+    """Build the job's policy here and decide rollout 0's first frame in the job's own kind of world, so that a
+    policy that cannot be made or answers in the wrong shape or range fails in one line before any rollout."""
+    from uqdrive.safety.executors import WorkerEnvs
 
     policy = job.policy.build(job.control_hz)
-    where = job.condition(0)
-    with DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s) as env:
+    where, envs = job.condition(0), WorkerEnvs(job, 1)
+    try:
+        (env,) = envs.first(1)
         frame = env.reset(job.base_seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
         policy.reset(env, job.base_seed, 0)
         policy.act_batch([0], [frame], [env.last_info])
+    finally:
+        envs.close()  # the env is left to the next job of this process (an in-process worker's)
