@@ -299,3 +299,18 @@ def test_the_certify_record_carries_a_bayesian_policys_eta2_mi_and_warnings(tmp_
     assert record.mean_eta2 == pytest.approx(np.mean([r.mean_eta2 for r in runs]))
     steps = np.concatenate([r.warning for r in runs])
     assert record.warning_share == pytest.approx((steps >= 0).mean()) and 0 < record.warning_share < 1
+
+
+@pytest.mark.slow
+def test_a_seeded_bayesian_policy_gives_the_same_rollouts_on_one_worker_or_two(tmp_path, monkeypatch):
+    """Rollout i's draws come from seed base + i alone: the lockstep slot, worker and order it ran in change nothing."""
+    write_package(tmp_path / "site", monkeypatch)
+    path = write_yaml(tmp_path / "bayes.yaml", "policy:\n  _target_: h50_user_policies.policies.BayesianKeeper\n")
+    records = [run_certify(request(tmp_path / name, path, workers=workers)) for name, workers in (("a", 1), ("b", 2))]
+    assert records[0].cell_key == records[1].cell_key and not records[1].reused
+    one, two = (rollouts(tmp_path / name, r) for name, r in zip("ab", records))
+    assert len(one) == len(two) == records[0].rollouts
+    for mine, theirs in zip(one, two, strict=True):
+        np.testing.assert_array_equal(mine.eta2, theirs.eta2)
+        np.testing.assert_array_equal(mine.mutual_information, theirs.mutual_information)
+        np.testing.assert_array_equal(mine.x, theirs.x)
