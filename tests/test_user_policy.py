@@ -49,6 +49,7 @@ def rollouts(tmp_path, record) -> list:
 @pytest.mark.slow  # whole certify runs, MLflow included
 def test_a_class_a_torchscript_file_and_an_onnx_export_of_one_function_drive_the_same_rollouts(tmp_path, monkeypatch):
     pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")  # torch's exporter
     write_package(tmp_path / "site", monkeypatch)
     module = linear_module()
     weights = save_weights(module, tmp_path / "linear.npz")
