@@ -9,6 +9,7 @@ from conftest import ALL_TENTHS
 
 from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
+from uqdrive.pipeline.certify_stage import run_certify
 from uqdrive.pipeline.collect_stage import run_collect
 from uqdrive.pipeline.envelope_stage import run_envelope
 from uqdrive.pipeline.evaluate_stage import run_evaluate
@@ -50,6 +51,7 @@ STAGES = {
     "report": run_report,
     "envelope": run_envelope,
     "rare": run_rare,
+    "certify": run_certify,
 }
 
 # stage: (a typo'd key, a wrong type, a value out of range), each an override and the start of its one line
