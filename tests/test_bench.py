@@ -99,3 +99,13 @@ def test_benchmarks_drive_trained_models_of_an_experiments_class_set(
     out = capsys.readouterr().out
     assert re.search(r"^RESULT controller controller=trained ", out, re.M), out[-2000:]
     assert re.search(r"^RESULT rollout controller=trained ", out, re.M), out[-2000:]
+
+
+def test_rare_benchmark_prints_its_result_line_with_each_designs_coverage(capsys: pytest.CaptureFixture[str]) -> None:
+    """Tiny: 20 importance-sampling runs and 2 Monte Carlo runs per case; the exact test (computed, not run) looks
+    ×1.5 apart instead of ×1.05 (its calibration over 110 looks up to 200,000 rollouts takes seconds)."""
+    assert main(["bench", "rare", "--runs", "20", "--mc-runs", "2", "--look-ratio", "1.5"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert sum(" coverage " in line for line in out) == 2 and sum("IS cross-entropy" in line for line in out) == 2
+    pattern = r"RESULT rare refute_saving_1e3=[\d.]+ refute_saving_1e4=[\d.]+ certify_rollouts_at_0=\d+"
+    assert re.fullmatch(pattern, out[-1]), out[-1]

@@ -25,7 +25,7 @@ from uqdrive.safety.calibration import (
     min_calibration_runs,
 )
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec
+from uqdrive.safety.executors import ControllerSpec
 from uqdrive.safety.replay import Replay, Traces, replay
 from uqdrive.safety.warnings import WarningConfig, WarningRule
 
@@ -278,7 +278,7 @@ def test_the_calibrated_cell_deploys_the_very_rule_it_certified(random_models):
     rule = WarningRule(WarningConfig(theta=0.1), DrawSettings("sequential", theta=0.1))
     t = sequential_traces(np.random.default_rng(4), rule.looks)
     calib = calibrate(t, ["known", "unknown"], rule, DELTAS, TAUS, target=0.6, gamma=0.05, **ARGS)
-    spec = PolicySpec("bnn", 8.0, str(random_models["vi"]), "vi", SteeringBins(), calib.rule.cap, 0.1, draws=rule.draws)
+    spec = ControllerSpec(8.0, str(random_models["vi"]), "vi", SteeringBins(), calib.rule.cap, 0.1, draws=rule.draws)
     deployed = dataclasses.replace(spec, warnings=calib.rule).build(15.0)
     assert deployed.rule is calib.rule and deployed.tier is calib.rule.tier
     assert (calib.delta1, calib.delta2, calib.tau) == (

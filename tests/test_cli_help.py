@@ -10,6 +10,7 @@ from uqdrive.cli import COMMANDS, main
 
 ARGPARSE_COMMANDS = (
     "bound",
+    "certify",
     "findings",
     "headline",
     "frames",

@@ -19,7 +19,7 @@ from uqdrive.models import load_posterior
 from uqdrive.models.posterior import Posterior
 from uqdrive.safety.controller import NO_WARNING, Controller
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec
+from uqdrive.safety.executors import ControllerSpec
 from uqdrive.safety.rollout import run_rollout
 from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule, levels_of
 from uqdrive.schema import ConfigError, validate
@@ -204,10 +204,10 @@ def test_a_policy_s_warning_rule_draws_as_the_policy_does_and_its_tier_rule_is_w
     Thresholds of 0 and 1 have sequential rules (the calibration may choose them); a rule whose exact tier error
     exceeds γ is refused before any rollout, naming its settings."""
     path = str(random_models["vi"])
-    with pytest.raises(ValueError, match=r"a policy with warnings must be kind 'bnn' with samples=738 .* the rule's"):
-        PolicySpec("bnn", 8.0, path, "vi", BINS, 738, 0.1, warnings=RULE)  # the policy's draws: fixed
+    with pytest.raises(ValueError, match=r"a controller with warnings must have samples=738 .* the rule's"):
+        ControllerSpec(8.0, path, "vi", BINS, 738, 0.1, warnings=RULE)  # the policy's draws: fixed
     edge = WarningRule(WarningConfig(delta1=1.0, delta2=0.0), SEQUENTIAL)
-    assert PolicySpec("bnn", 8.0, path, "vi", BINS, 738, 0.1, warnings=edge, draws=SEQUENTIAL).warnings is edge
+    assert ControllerSpec(8.0, path, "vi", BINS, 738, 0.1, warnings=edge, draws=SEQUENTIAL).warnings is edge
     loose = DrawSettings("sequential", theta=0.1, gamma=0.3, look=1)  # looks 3, 6, …, 48, 67
     with pytest.raises(ConfigError) as err:
         WarningRule(WarningConfig(delta1=0.6, delta2=0.4, theta=0.2, gamma=0.01), loose)

@@ -18,7 +18,7 @@ from conftest import ALL_TENTHS, CONF
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import RAY_MISSING, PolicySpec, RolloutJob, make_executor
+from uqdrive.safety.executors import RAY_MISSING, ControllerSpec, RolloutJob, make_executor
 from uqdrive.safety.runner import CellRunner
 from uqdrive.schema import ConfigError
 from uqdrive.sim import ScenarioConfig, WeatherConfig
@@ -32,7 +32,7 @@ SETTINGS = EstimatorSettings("chernoff", 0.6, 0.05, 500)  # 6 rollouts, seeds 50
 
 def job(model_path) -> RolloutJob:
     """The BNN controller in rain with sensor noise: every seeded source of randomness is in play."""
-    spec = PolicySpec("bnn", 6.0, str(model_path), "vi", SteeringBins(), samples=20, eps=0.1)
+    spec = ControllerSpec(6.0, str(model_path), "vi", SteeringBins(), samples=20, eps=0.1)
     roundabout = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml")
     rain = WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml")
     return RolloutJob(spec, Condition(roundabout, rain, 0.05), base_seed=SETTINGS.base_seed)

@@ -16,7 +16,7 @@ from uqdrive.models import load_posterior
 from uqdrive.safety import executors
 from uqdrive.safety.controller import Controller
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob, RolloutWorker, lockstep_chunks, make_executor
+from uqdrive.safety.executors import ControllerSpec, RolloutJob, RolloutWorker, lockstep_chunks, make_executor
 from uqdrive.safety.rollout import run_rollout, run_rollouts
 from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.schema import ConfigError, validate
@@ -130,7 +130,7 @@ def test_rollouts_in_lockstep_are_the_rollouts_alone(random_models, rain, kind):
 
 
 def test_executors_give_the_same_rollouts_at_any_lockstep_width(random_models, rain):
-    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    spec = ControllerSpec(6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
     job = RolloutJob(spec, Condition(*rain, 0.05), base_seed=700, horizon_s=1.0)
     runs = []
     for lockstep in (1, 4):
@@ -153,7 +153,7 @@ def test_chunks_keep_the_order_and_feed_every_worker():
 
 @pytest.mark.parametrize("width", [0, 2.5, True])
 def test_lockstep_width_must_be_a_positive_integer(random_models, rain, width):
-    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    spec = ControllerSpec(6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
     with pytest.raises(ConfigError, match=rf"executor.lockstep={width!r}: must be an integer >= 1"):
         make_executor("process", RolloutJob(spec, Condition(*rain, 0.0), base_seed=0), 1, lockstep=width)
 
@@ -161,7 +161,7 @@ def test_lockstep_width_must_be_a_positive_integer(random_models, rain, width):
 def test_a_worker_builds_only_the_envs_its_chunk_needs_and_leaves_them_to_the_next_job(random_models, rain):
     """A sweep's next cell (here another location and weather) takes the envs the last one left; its rollouts are
     those of fresh envs."""
-    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    spec = ControllerSpec(6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
     first = RolloutJob(spec, Condition(*rain, 0.05), base_seed=0, horizon_s=0.5)
     scenario = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout_large.yaml")
     fog = WeatherConfig.from_yaml(CONF / "weather" / "fog.yaml")
@@ -194,7 +194,7 @@ def test_envelope_conditions_in_lockstep_are_the_rollouts_alone(random_models, r
         Condition(rain[0], WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"), 0.0),
         (WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"), rain[1]) if "weather.blend" in axes else None,
     )
-    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    spec = ControllerSpec(6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
     job = RolloutJob(spec, UniformIn(space, (0.0, 0.0), (1.0, 1.0)), base_seed=900, horizon_s=1.0)
     worlds = [job.condition(i) for i in range(5)]
     assert len({repr(w) for w in worlds}) == 5

@@ -8,7 +8,7 @@ import pytest
 from conftest import CONF
 
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.executors import AutopilotSpec, ConstantSpec, PolicyRecipe, RolloutJob
 from uqdrive.safety.runner import CellRunner
 from uqdrive.safety.safe_sets import obstacle_pass_progress, safe_set_for
 from uqdrive.sim import ScenarioConfig, WeatherConfig, build_geometry
@@ -19,7 +19,7 @@ def scenario(name: str) -> ScenarioConfig:
     return ScenarioConfig.from_yaml(CONF / "scenario" / f"{name}.yaml")
 
 
-def eta1(spec: PolicySpec, name: str, theta: float = 0.3, **job) -> tuple[float, list]:
+def eta1(spec: PolicyRecipe, name: str, theta: float = 0.3, **job) -> tuple[float, list]:
     """η̂1 over chernoff_n(θ, 0.05) rollouts (21 at θ = 0.3), in this process."""
     weather = WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml")
     cell = RolloutJob(spec, Condition(scenario(name), weather, 0.0), base_seed=10, **job)
@@ -30,8 +30,8 @@ def eta1(spec: PolicySpec, name: str, theta: float = 0.3, **job) -> tuple[float,
     return estimate.value, results
 
 
-AUTOPILOT = PolicySpec("autopilot", 6.0)  # unperturbed pure pursuit (AutopilotConfig defaults, as in conf/sim.yaml)
-FULL_LEFT = PolicySpec("constant", 6.0, steer=1.0)
+AUTOPILOT = AutopilotSpec(6.0)  # unperturbed pure pursuit (AutopilotConfig defaults, as in conf/sim.yaml)
+FULL_LEFT = ConstantSpec(1.0, 6.0)
 
 
 LOCATIONS = ["roundabout", "roundabout_large", "roundabout_town"]  # the offline-safety sweep's locations
@@ -56,7 +56,7 @@ def test_full_left_is_unsafe_at_the_roundabout():
 
 def test_a_lane_kept_but_an_exit_not_reached_has_the_exit_as_its_margin():
     """Slow enough to time out on the ring, in lane: unsafe, and the margin is the (negative) way left to the exit."""
-    value, results = eta1(PolicySpec("autopilot", 6.0), "roundabout", horizon_s=4.0)
+    value, results = eta1(AutopilotSpec(6.0), "roundabout", horizon_s=4.0)
     assert value == 0.0
     assert all(not r.reached_goal and not r.left_corridor and r.margin < 0 for r in results)
 
@@ -70,7 +70,7 @@ def test_road_safe_sets_need_no_collision_and_no_off_road(name):
 
 def test_a_timeout_before_the_obstacle_is_not_safe():
     """A car too slow to reach the obstacle within the horizon has answered nothing: unsafe, goal not reached."""
-    value, results = eta1(PolicySpec("constant", 1.0), "obstacle", theta=0.5, horizon_s=5.0)
+    value, results = eta1(ConstantSpec(0.0, 1.0), "obstacle", theta=0.5, horizon_s=5.0)
     assert value == 0.0
     assert all(r.termination == "timeout" and not r.reached_goal and not r.collision for r in results)
 

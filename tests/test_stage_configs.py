@@ -9,12 +9,14 @@ from conftest import ALL_TENTHS
 
 from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
+from uqdrive.pipeline.certify_stage import run_certify
 from uqdrive.pipeline.collect_stage import run_collect
 from uqdrive.pipeline.envelope_stage import run_envelope
 from uqdrive.pipeline.evaluate_stage import run_evaluate
 from uqdrive.pipeline.findings_stage import run_findings
 from uqdrive.pipeline.heldout_stage import run_heldout
 from uqdrive.pipeline.preprocess_stage import run_preprocess
+from uqdrive.pipeline.rare_stage import run_rare
 from uqdrive.pipeline.report_stage import run_report
 from uqdrive.pipeline.safety_stage import run_safety, run_safety_sweep
 from uqdrive.pipeline.safety_summary_stage import run_safety_summary
@@ -48,6 +50,8 @@ STAGES = {
     "gym_findings": run_findings,
     "report": run_report,
     "envelope": run_envelope,
+    "rare": run_rare,
+    "certify": run_certify,
 }
 
 # stage: (a typo'd key, a wrong type, a value out of range), each an override and the start of its one line
@@ -144,6 +148,11 @@ BAD = {
         ("+envelope.thresold=0.8", "envelope.thresold: unknown key; did you mean 'threshold'?"),
         ("envelope.region_budget=many", "envelope.region_budget='many': input should be a valid integer"),
         ("envelope.gamma=1.5", "envelope.gamma=1.5: input should be less than 1"),
+    ],
+    "rare": [
+        ("+rare.targte=0.9", "rare.targte: unknown key; did you mean 'target'?"),
+        ("rare.refute_budget=many", "rare.refute_budget='many': input should be a valid integer"),
+        ("rare.defensive=1.5", "rare.defensive=1.5: input should be less than or equal to 1"),
     ],
 }
 

@@ -12,6 +12,10 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("uqdrive.bench", "speed benchmarks; `uqdrive bench --help` lists them"),
     "bound": ("uqdrive.uq.bound_table", "sample counts of each estimation scheme for (theta, gamma)"),
+    "certify": (
+        "uqdrive.pipeline.certify_stage",
+        "certify a policy file's eta1 >= target in a world, or refuse (exit 0 only if certified)",
+    ),
     "findings": ("uqdrive.report.findings_text", "print metrics/findings.json as the report states it"),
     "headline": ("uqdrive.report.headline", "print metrics/summary.json as the README's results table"),
     "frames": ("uqdrive.frame_gallery", "write one example camera frame per weather to docs/"),

@@ -83,6 +83,7 @@ KEY_METRICS = {
     "train": "acc={val_accuracy:.3f}",
     "collect": "complete={route_complete_fraction:.2f}",
     "preprocess": "frames={train_frames:.0f}",
+    "certify": "η1 in [{eta1_low:.2f}, {eta1_high:.2f}] n={rollouts:.0f}",
 }
 # Where the block's logging calls go when the store could not be opened: nowhere (every call fails and is
 # skipped), rather than a fresh store made outside the lock.

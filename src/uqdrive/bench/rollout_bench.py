@@ -38,7 +38,7 @@ from uqdrive.models.checkpoint import load_posterior, save_posterior
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.controller import AutopilotPolicy, Policy
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.executors import ControllerSpec, RolloutJob
 from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
@@ -222,7 +222,7 @@ def controller_file(args: argparse.Namespace, tmp: Path) -> tuple[Path, str]:
     return save_posterior(posterior, tmp / f"{args.method}.pt"), "random"
 
 
-def time_cameras(args: argparse.Namespace, spec: PolicySpec, job: RolloutJob, cameras: dict) -> tuple[dict, float]:
+def time_cameras(args: argparse.Namespace, spec: ControllerSpec, job: RolloutJob, cameras: dict) -> tuple[dict, float]:
     """Env-only and closed-loop CPU seconds per repeat for each camera, alternating; and the closed loop's draws
     per frame at the chosen camera."""
     timings = {size: {"env": [], "loop": []} for size in cameras}
@@ -275,7 +275,7 @@ def main(argv: list[str]) -> int:
         model, source = controller_file(args, Path(tmp))
         posterior = load_posterior(model, expected_method=args.method)
         bins = posterior.bins  # a trained model's own class set
-        spec = PolicySpec("bnn", 6.0, str(model), args.method, bins, samples=args.samples, eps=0.1, draws=draws)
+        spec = ControllerSpec(6.0, str(model), args.method, bins, samples=args.samples, eps=0.1, draws=draws)
         job = RolloutJob(spec, Condition(scenario, weather, 0.0), base_seed=0, camera=camera)
         timings, per_frame_loop = time_cameras(args, spec, job, cameras)
         header = (

@@ -19,7 +19,7 @@ from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, Con
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.safety.cells import cell_posterior
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob, job_world
+from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
 from uqdrive.schema import ConfigError, Count, Positive, Seed, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig, WeatherConfig
@@ -84,7 +84,7 @@ class Envelope:
     stage: EnvelopeStage
     method: str
     space: ConditionSpace
-    policy: PolicySpec
+    policy: ControllerSpec
 
     @property
     def settings(self) -> EnvelopeSection:
@@ -127,7 +127,7 @@ def build_envelope(cfg: DictConfig) -> Envelope:
         raise ConfigError(str(err)) from None
     space.check()
     _check_budget(env, space.dim)
-    policy = PolicySpec("bnn", env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
+    policy = ControllerSpec(env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
     return Envelope(stage, method, space, policy)
 
 

@@ -33,7 +33,7 @@ from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob, job_world
+from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
 from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
@@ -184,9 +184,7 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
         bins,
         training_stage(stage.experiment.name, method, stage.gym_world is not None),
     )
-    spec = PolicySpec(
-        "bnn", safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws
-    )
+    spec = ControllerSpec(safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws)
     s = stage.safety
     world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
     job = RolloutJob(spec, stage.condition(), stage.estimator.base_seed, **world)

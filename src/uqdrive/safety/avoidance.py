@@ -24,7 +24,7 @@ from uqdrive.safety.calibration import fresh_check_runs, min_calibration_runs
 from uqdrive.safety.cell_records import Mode
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob, job_world
+from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.safety.warnings import WarningConfig, WarningRule
 from uqdrive.schema import (
@@ -202,7 +202,7 @@ class AvoidSettings:
     method: str
     seed: int  # the replicate's training seed
     name: str  # <method>-<replicate>
-    spec: PolicySpec
+    spec: ControllerSpec
     rule: WarningRule  # the configured warnings, as the controller deploys them and the calibration replays them
     estimator: EstimatorSettings
     validation_seed: int
@@ -341,7 +341,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     trained_by = training_stage(stage.experiment.name, method, world is not None)
     cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
     rule = WarningRule(warning, avoid.draws)  # refused here, before any rollout, if its tier rule errs above γ
-    spec = PolicySpec("bnn", avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)
+    spec = ControllerSpec(avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)
     return AvoidSettings(
         stage,
         method,

@@ -39,7 +39,6 @@ from uqdrive.sim.gym_world import GymWorld, GymWorldConfig
 BACKENDS = ("process", "ray")
 RAY_CONNECT_TIMEOUT_S = 10.0  # a cluster's head answers a TCP connect at once; this long, and it is not there
 RAY_MISSING = "executor.name=ray needs Ray, which is not installed: pip install 'uqdrive[ray]' (Ray 2.60.0)"
-POLICIES = ("bnn", "autopilot", "constant")
 LOCKSTEP = 8
 """Rollouts a worker steps at once by default: the trunk's cost per frame at batch 8 is about half its cost
 alone (`uqdrive bench rollout --lockstep`), and 8 envs per worker stay small (pybullet clients of one world)."""
@@ -49,57 +48,75 @@ rollouts refill, few enough that results come back (and are logged) every few se
 
 
 @dataclasses.dataclass(frozen=True)
-class PolicySpec:
-    """A picklable recipe for a policy, built once in each worker.
+class ControllerSpec:
+    """A picklable recipe for uqdrive's Bayesian controller (`Controller`), built once in each worker: the posterior
+    from ``model_path``; ``warnings``: with the warning system (`WarningController`), deployed by this `WarningRule`
+    (its cap must be ``samples`` and its draw settings ``draws``: warnings on and off differ only by the warnings).
+    ``draws``: how many posterior draws a frame takes (`DrawSettings`: the paper's fixed ``samples`` + ``samples``,
+    or sequential with ``samples`` as the cap)."""
 
-    kind: ``bnn`` (posterior from ``model_path``), ``autopilot`` or ``constant`` (``steer``).
-    ``warnings``: a ``bnn`` policy with the warning system, deployed by this `WarningRule` (its cap must be
-    ``samples`` and its draw settings ``draws``: warnings on and off differ only by the warnings). ``draws``: how
-    many posterior draws a ``bnn`` frame takes (`DrawSettings`: the paper's fixed ``samples`` + ``samples``, or
-    sequential with ``samples`` as the cap).
-    """
-
-    kind: str
     speed: float
-    model_path: str = ""
-    method: str = ""
+    model_path: str
+    method: str
     bins: SteeringBins = dataclasses.field(default_factory=SteeringBins)
     samples: int = 1
     eps: float = 0.1
-    steer: float = 0.0
-    autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
     warnings: WarningRule | None = None
     draws: DrawSettings = dataclasses.field(default_factory=DrawSettings)
 
     def __post_init__(self) -> None:
-        if self.kind not in POLICIES:
-            raise ValueError(f"policy kind {self.kind!r} is not known; choose one of {list(POLICIES)}")
         w = self.warnings
-        if w is not None and (self.kind != "bnn" or self.samples != w.cap or w.draws != self.draws):
+        if w is not None and (self.samples != w.cap or w.draws != self.draws):
             raise ValueError(
-                f"a policy with warnings must be kind 'bnn' with samples={w.cap} (chernoff_n of warning.theta, "
-                f"warning.gamma) and the rule's draws {w.draws}, got kind={self.kind!r}, samples={self.samples}, "
-                f"draws {self.draws}"
+                f"a controller with warnings must have samples={w.cap} (chernoff_n of warning.theta, warning.gamma) "
+                f"and the rule's draws {w.draws}, got samples={self.samples}, draws {self.draws}"
             )
 
     def build(self, control_hz: float) -> Policy:
-        if self.kind == "bnn":
-            posterior = load_posterior(Path(self.model_path), expected_method=self.method, expected_classes=self.bins)
-            if self.warnings is not None:
-                return WarningController(posterior, self.bins, self.warnings, self.eps, self.speed, control_hz)
-            return Controller(posterior, self.bins, self.samples, self.eps, self.speed, self.draws)
-        if self.kind == "autopilot":
-            return AutopilotPolicy(self.autopilot)
+        posterior = load_posterior(Path(self.model_path), expected_method=self.method, expected_classes=self.bins)
+        if self.warnings is not None:
+            return WarningController(posterior, self.bins, self.warnings, self.eps, self.speed, control_hz)
+        return Controller(posterior, self.bins, self.samples, self.eps, self.speed, self.draws)
+
+
+@dataclasses.dataclass(frozen=True)
+class AutopilotSpec:
+    """The pure-pursuit autopilot that produced the training data (a reference of η1 ≈ 1)."""
+
+    speed: float
+    autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
+
+    def build(self, control_hz: float) -> Policy:
+        return AutopilotPolicy(self.autopilot)
+
+
+@dataclasses.dataclass(frozen=True)
+class ConstantSpec:
+    """Fixed steering and speed (full left, steer = +1: a reference of η1 ≈ 0)."""
+
+    steer: float
+    speed: float
+
+    def build(self, control_hz: float) -> Policy:
         return ConstantPolicy(self.steer, self.speed)
+
+
+class PolicyRecipe(Protocol):
+    """What a job drives with: a picklable recipe each worker builds its `Policy` from, once (`ControllerSpec`,
+    `AutopilotSpec`, `ConstantSpec`: uqdrive's; `uqdrive.safety.policy_files.UserPolicySpec`: a user's). The engine
+    asks nothing else of it: no policy's kind."""
+
+    def build(self, control_hz: float) -> Policy:
+        """The policy, with a slot per lockstep world."""
 
 
 @dataclasses.dataclass(frozen=True)
 class RolloutJob:
-    """Everything a worker needs to run rollout i of a cell: the policy, where rollout i drives (``where``: a
-    `Condition`, a `Mixture` or an envelope's condition source, asked for rollout i's condition by its seed),
-    its seed ``base_seed + i``, the car, camera and horizon."""
+    """Everything a worker needs to run rollout i of a cell: the policy (any `PolicyRecipe`), where rollout i
+    drives (``where``: a `Condition`, a `Mixture` or an envelope's condition source, asked for rollout i's condition
+    by its seed), its seed ``base_seed + i``, the car, camera and horizon."""
 
-    policy: PolicySpec
+    policy: PolicyRecipe
     where: ConditionSource
     base_seed: int
     camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)

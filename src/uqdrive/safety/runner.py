@@ -77,12 +77,14 @@ def where_identity(where: Any) -> Any:
 
 def job_identity(job: Any) -> dict:
     """The job as plain data, less the model file's path (its bytes are hashed instead: a retrained model at the
-    same path is a new cell, the same model elsewhere is not); where it drives a Gymnasium world, that world's
-    identity (`where_identity`)."""
+        same path is a new cell, the same model elsewhere is not; a user's policy likewise: its ``NOT_IDENTITY`` fields
+    are left out, its ``digest`` of bytes or source is in); where it drives a Gymnasium world, that world's
+        identity (`where_identity`)."""
     fields = dict(job.__dict__)
     policy = getattr(job, "policy", None)
     if policy is not None and dataclasses.is_dataclass(policy):
-        fields["policy"] = {k: v for k, v in policy.__dict__.items() if k != "model_path"}
+        skip = {"model_path", *getattr(policy, "NOT_IDENTITY", ())}  # files by their bytes, not where they lie
+        fields["policy"] = {k: v for k, v in policy.__dict__.items() if k not in skip}
     if gym_worlds(fields.get("where")):
         fields["where"] = where_identity(fields["where"])
     return fields
@@ -104,7 +106,7 @@ def cell_key(job: Any, consumer: Mapping[str, Any], model_path: str | Path | Non
 
 def estimate_key(job: RolloutJob, settings: EstimatorSettings, stage_module: str) -> str:
     """The identity hash of a cell that estimates η1 of a `RolloutJob` by ``settings``."""
-    return cell_key(job, settings.__dict__, job.policy.model_path or None, stage_module)
+    return cell_key(job, settings.__dict__, getattr(job.policy, "model_path", "") or None, stage_module)
 
 
 @dataclasses.dataclass(frozen=True)

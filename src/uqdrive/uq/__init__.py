@@ -6,7 +6,8 @@ Knows nothing of the simulator, data or models: it takes posterior class probabi
 Comparisons of cells on the same seeds: exact paired tests (`paired`), Bonferroni (`multiplicity`),
 intervals over training replicates (`replicates`, `betting`); the two levels of answer: a family of findings for
 these trained controllers (`family`) and method claims over training runs (`claims`), with their `verdict`;
-Learn-then-Test (`ltt`).
+Learn-then-Test (`ltt`); rare events over an operating domain — refutation by importance sampling with a bound valid
+at any stopping time, certification at the zero-failure floor (`rare`, `rare_proposal`).
 """
 
 from uqdrive.uq.betting import MeanInterval, mean_interval

@@ -84,16 +84,36 @@ def _log_choose(n: np.ndarray | int, k: np.ndarray) -> np.ndarray:
     return special.gammaln(n + 1) - special.gammaln(k + 1) - special.gammaln(n - k + 1)
 
 
+_CACHED_MOVES = 100_000  # entries of a move table kept in the many-table cache
+_LARGE_MOVES = 4_000_000  # … and in the eight-table cache (≤ 256 MB); larger ones are rebuilt each time
+
+
+def _moves(n: int, m: int, low: int, size: int) -> np.ndarray:
+    """[j, i]: of the orderings of K = low + i + j successes in n + m draws, the fraction whose last m draws
+    hold j successes — the hypergeometric C(m, j) C(n, low + i) / C(n + m, K). Only the band a run can be in
+    (i < size) is built: [m + 1, size], not [m + 1, n + m + 1], which at a cap of 10⁵ draws looked at 3·10⁴
+    and on would hold 10⁹ entries. Read-only (cached where small)."""
+    if (m + 1) * size <= _CACHED_MOVES:
+        return _cached_moves(n, m, low, size)
+    if (m + 1) * size <= _LARGE_MOVES:  # a calibration meets the same large tables at each of its ~30 passes
+        return _large_moves(n, m, low, size)
+    return _move_table(n, m, low, size)
+
+
 @lru_cache(maxsize=4096)
-def _moves(n: int, m: int) -> np.ndarray:
-    """[j, K]: of the orderings of K successes in n + m draws, the fraction whose last m draws hold j
-    successes — the hypergeometric C(m, j) C(n, K − j) / C(n + m, K) (0 where K − j is not in 0 … n).
-    Read-only (cached)."""
+def _cached_moves(n: int, m: int, low: int, size: int) -> np.ndarray:
+    return _move_table(n, m, low, size)
+
+
+@lru_cache(maxsize=8)
+def _large_moves(n: int, m: int, low: int, size: int) -> np.ndarray:
+    return _move_table(n, m, low, size)
+
+
+def _move_table(n: int, m: int, low: int, size: int) -> np.ndarray:
     j = np.arange(m + 1)[:, None]
-    total = np.arange(n + m + 1)[None, :]
-    ok = (total - j >= 0) & (total - j <= n)
-    log_h = _log_choose(m, j) + _log_choose(n, np.clip(total - j, 0, n)) - _log_choose(n + m, total)
-    moves = np.where(ok, np.exp(np.where(ok, log_h, 0.0)), 0.0)
+    before = low + np.arange(size)[None, :]  # counts in 0 … n: the band lies inside
+    moves = np.exp(_log_choose(m, j) + _log_choose(n, before) - _log_choose(n + m, before + j))
     moves.setflags(write=False)
     return moves
 
@@ -101,10 +121,14 @@ def _moves(n: int, m: int) -> np.ndarray:
 def _advance(alive: np.ndarray, low: int, n: int, m: int) -> np.ndarray:
     """Fractions still running at counts low … low + size − 1 + m after m more draws (n → n + m):
     a run at count K after them came from count K − j, j the successes among the m new draws."""
-    moves = _moves(n, m)[:, low : low + alive.size + m]
+    moves = _moves(n, m, low, alive.size)
     out = np.zeros(alive.size + m)
-    for j in range(m + 1):
-        out[j : j + alive.size] += alive * moves[j, j : j + alive.size]
+    if alive.size <= m:  # loop over the shorter side: the band (rare events, long looks) or the draws
+        for i in range(alive.size):
+            out[i : i + m + 1] += alive[i] * moves[:, i]
+    else:
+        for j in range(m + 1):
+            out[j : j + alive.size] += alive * moves[j]
     return out
 
 

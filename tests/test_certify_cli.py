@@ -1,0 +1,131 @@
+"""`uqdrive certify` as a CI gate: exit 0 only when "η1 ≥ target" is certified (a lane keeper), 1 when refuted (a
+constant hard steer), 3 when undecided within the budget; the record and the MLflow run say the same; a rerun
+replays its rollouts, an edited policy does not. The sequential test it runs errs at most γ at every true η1: its
+rule read through `decide` and the error computed exactly by the independent dynamic program of
+tests/test_uq_threshold.py, over a fine grid."""
+
+from __future__ import annotations
+
+import json
+
+import mlflow
+import numpy as np
+import pytest
+from test_uq_threshold import assert_guarantee, decisions, forward
+from user_policy_kit import Constant, save_torchscript, write_package, write_yaml
+
+from uqdrive.cli import main
+from uqdrive.pipeline.certify_stage import CertifySection
+from uqdrive.tracking import store_uris
+
+KEEPER = "policy:\n  _target_: h50_user_policies.policies.LaneKeeper\n"
+
+
+def certify(tmp_path, policy, *args: str) -> tuple[int, dict]:
+    out = tmp_path / "record.json"
+    code = main(
+        ["certify", "--policy", str(policy), "--out", str(out), "--root", str(tmp_path), "--no-progress", *args]
+    )
+    return code, json.loads(out.read_text()) if out.exists() else {}
+
+
+@pytest.mark.slow  # whole certify runs, MLflow included
+def test_certify_exits_0_for_a_safe_policy_and_1_for_one_that_steers_off_the_road(tmp_path, monkeypatch, capsys):
+    write_package(tmp_path / "site", monkeypatch)
+    keeper = write_yaml(tmp_path / "keeper.yaml", KEEPER)
+    code, record = certify(tmp_path, keeper, "--eta", "0.9")
+    assert code == 0 and record["verdict"] == "certified" and record["safe"] == record["rollouts"] <= 64
+    assert record["eta1_low"] < 0.9 <= record["eta1_high"] == 1.0 and record["policy_kind"] == "class"
+    assert record["off_road_rate"] == 0 and record["mean_eta2"] is None and record["warning_share"] is None
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("CERTIFIED: eta1 >= 0.9 certified (gamma=0.05) for h50_user_policies.policies.LaneKeeper")
+    assert f"{record['rollouts']}/{record['rollouts']} rollouts safe" in line
+
+    hard = save_torchscript(Constant(1.0), tmp_path / "hard_left.pt")
+    code, record = certify(tmp_path, hard, "--eta", "0.9")
+    assert code == 1 and record["verdict"] == "refuted" and record["safe"] == 0 and record["rollouts"] <= 8
+    assert record["off_road_rate"] + record["collision_rate"] == 1  # each run read left the road or hit something
+    assert capsys.readouterr().out.startswith(f"REFUTED: eta1 < 0.9 (refuted) (gamma=0.05) for {hard}")
+
+    client = mlflow.MlflowClient(store_uris(tmp_path)[0])
+    (experiment,) = [e for e in client.search_experiments() if e.name.endswith("/certify")]
+    runs = client.search_runs([experiment.experiment_id])
+    assert sorted(r.data.tags["verdict"] for r in runs) == ["certified", "refuted"]
+    assert sorted(r.data.metrics["certified"] for r in runs) == [0.0, 1.0]
+
+
+@pytest.mark.slow  # whole certify runs, MLflow included
+def test_certify_exits_3_when_its_budget_does_not_decide(tmp_path, monkeypatch):
+    write_package(tmp_path / "site", monkeypatch)
+    code, record = certify(tmp_path, write_yaml(tmp_path / "keeper.yaml", KEEPER), "--eta", "0.9", "--budget", "8")
+    assert code == 3 and record["verdict"] == "undecided" and record["rollouts"] == 8 == record["safe"]
+
+
+@pytest.mark.slow  # whole certify runs, MLflow included
+def test_a_rerun_replays_its_rollouts_and_an_edited_policy_runs_afresh(tmp_path, monkeypatch):
+    source = write_package(tmp_path / "site", monkeypatch)
+    keeper = write_yaml(tmp_path / "keeper.yaml", KEEPER)
+    args = ("--eta", "0.5", "--horizon", "20")
+    first = certify(tmp_path, keeper, *args)[1]
+    again = certify(tmp_path, keeper, *args)[1]
+    assert not first["reused"] and again["reused"] and again["cell_key"] == first["cell_key"]
+    source.write_text(source.read_text().replace("kp: float = 3.0", "kp: float = 3.5"))
+    edited = certify(tmp_path, keeper, *args)[1]
+    assert not edited["reused"] and edited["cell_key"] != first["cell_key"]
+    assert edited["policy_digest"] != first["policy_digest"]
+
+
+def test_a_bad_policy_file_exits_2_with_one_line(tmp_path, capsys):
+    assert certify(tmp_path, tmp_path / "nope.onnx")[0] == 2
+    err = capsys.readouterr().err
+    assert err == f"uqdrive certify: {tmp_path / 'nope.onnx'}: no such file; expected a TorchScript (.pt, .ts), " \
+        "ONNX (.onnx) or policy YAML (.yaml) file\n"  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [{}, {"theta": 0.05}, {"eta": 0.5, "gamma": 0.01, "look_size": 10, "budget": 200}],
+    ids=["default", "theta", "small"],
+)
+def test_the_certify_test_errs_at_most_gamma_at_every_true_eta1(changes):
+    """Unforced: P(certified | η1 ≤ η − θ) ≤ γ and P(refuted | η1 ≥ η + θ) ≤ γ, exactly, on a grid of 1001 rates and
+    at the edges; undecided is allowed (and happens at η1 = η)."""
+    test = CertifySection("policy.pt", **changes).test()
+    assert test.looks[-1] == test.looks[0] * len(test.looks) and not test.forced
+    rule = decisions(test)
+    worst = assert_guarantee(test, rule)
+    assert max(worst) >= 0.5 * test.gamma  # the calibration spends γ, not a sliver of it
+    if test.theta == 0:
+        above, below, _ = forward(rule, np.array([test.threshold]))
+        assert above[0] + below[0] <= 2 * test.gamma
+
+
+@pytest.mark.slow
+def test_the_hydra_stage_gives_the_same_gate(tmp_path):
+    """`python stages/certify.py certify.policy=…`: the verdict's exit status, the record where the config says."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    hard = save_torchscript(Constant(-1.0), tmp_path / "hard_right.pt")
+    out = tmp_path / "gate.json"
+    script = Path(__file__).resolve().parents[1] / "stages" / "certify.py"
+    overrides = [f"certify.policy={hard}", f"certify.out={out}", f"paths.root={tmp_path}", "progress=false"]
+    done = subprocess.run([sys.executable, str(script), *overrides], capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 1, done.stderr
+    assert done.stdout.startswith(f"REFUTED: eta1 < 0.9 (refuted) (gamma=0.05) for {hard} in roundabout")
+    assert json.loads(out.read_text())["verdict"] == "refuted"
+
+
+@pytest.mark.slow
+def test_a_gymnasium_world_is_a_world_to_certify_in(tmp_path, monkeypatch):
+    """`--world` naming conf/gym_world/uqdrive_roundabout: uqdrive's roundabout as a Gymnasium env, judged by its
+    info's safe set, at its own horizon."""
+    write_package(tmp_path / "site", monkeypatch)
+    keeper = write_yaml(tmp_path / "keeper.yaml", KEEPER)
+    code, record = certify(tmp_path, keeper, "--eta", "0.5", "--world", "uqdrive_roundabout")
+    assert code == 0 and (record["world"], record["weather"]) == ("uqdrive_roundabout", "env")
+    hard = save_torchscript(Constant(1.0), tmp_path / "hard_left.pt")  # frames: the env renders them
+    code, record = certify(tmp_path, hard, "--eta", "0.5", "--world", "uqdrive_roundabout")
+    assert code == 1 and record["safe"] == 0
+    assert certify(tmp_path, hard, "--world", "nowhere")[0] == 2

@@ -1,0 +1,141 @@
+"""Rare events over a domain: the certification path's exact error (computed here by a dynamic program over
+failure counts, independent of `uqdrive.uq.stopping`), bad input refused in one line before any rollout, the
+domain over the envelope's condition space, failure records that re-drive, and the lower confidence bound."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from uqdrive.bench.rare_world import DOMAIN, CornerWorld
+from uqdrive.envelope.domain import Domain, DomainSettings
+from uqdrive.envelope.space import Axis, ConditionSpace
+from uqdrive.schema import ConfigError, validate
+from uqdrive.sim.condition import Condition
+from uqdrive.sim.config import ScenarioConfig, WeatherConfig
+from uqdrive.uq.rare import (
+    RareSettings,
+    certification_test,
+    failure_lower_bound,
+    floor_rollouts,
+    refute,
+    zero_failure_rollouts,
+)
+from uqdrive.uq.rare_proposal import ProductBeta
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+
+
+def certify_errors(test, failure_rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P(certified above), P(refuted below)) at each failure probability, by a forward pass over the failure
+    count of the runs still going: between looks the new failures are Binomial(Δn, p), convolved in."""
+    above, below = np.zeros(failure_rates.size), np.zeros(failure_rates.size)
+    for r, p in enumerate(failure_rates):
+        alive, drawn = np.ones(1), 0  # alive[f]: P(still going with f failures)
+        for n in test.looks:
+            step = stats.binom.pmf(np.arange(n - drawn + 1), n - drawn, p)
+            alive, drawn = np.convolve(alive, step), n
+            codes = np.array([{"above": 1, "below": -1, None: 0}[test.decide(n - f, n)] for f in range(alive.size)])
+            above[r] += alive[codes == 1].sum()
+            below[r] += alive[codes == -1].sum()
+            alive = np.where(codes == 0, alive, 0.0)
+            alive = alive[: np.flatnonzero(alive)[-1] + 1] if alive.any() else alive[:1] * 0
+    return above, below
+
+
+@pytest.mark.parametrize(("target", "budget"), [(1 - 1e-3, 12_000), (1 - 1e-4, 100_000)])
+def test_certification_errs_at_most_gamma_and_needs_the_zero_failure_floor(target: float, budget: int) -> None:
+    settings = RareSettings(target=target, gamma=0.05, certify_budget=budget)
+    test = certification_test(settings)
+    eps = 1 - target
+    rates = eps * np.array([1.0, 1.0 + 1e-9, 1.5, 3.0])  # at and above m: "above" is the error
+    above, _ = certify_errors(test, rates)
+    assert above.max() <= 0.05 + 1e-12 and above[0] >= 0.7 * 0.05  # γ is spent (as far as the counts allow)
+    np.testing.assert_allclose(above, test.operating_characteristics(1 - rates)[0], atol=1e-9)
+    _, below = certify_errors(test, eps * np.array([1.0, 0.5, 0.1]))  # at and below m: "below" is the error
+    assert below.max() <= 0.05 + 1e-12
+    zero = zero_failure_rollouts(test)
+    floor = floor_rollouts(target, 0.05)
+    assert target**floor <= 0.05 < target ** (floor - 1)
+    assert abs(floor - math.log(1 / 0.05) / eps) / floor < 1e-3  # the floor ≈ ln(1/γ)/ε
+    assert zero == test.looks[0] == math.ceil(1.2 * floor)  # the later looks' share of γ costs 20 %
+
+
+@pytest.mark.parametrize(
+    ("section", "message"),
+    [
+        ({"defensive": 0.0}, "rare.defensive=0.0"),
+        ({"defensive": 1.5}, "rare.defensive=1.5"),
+        (
+            {"certify_budget": 1_000},
+            "rare.certify_budget=1000 cannot certify eta1 >= 0.9999 at gamma=0.05 even "
+            "with zero failures: that needs 29956 rollouts",
+        ),
+    ],
+)
+def test_bad_settings_are_one_line_naming_the_key_and_value(section: dict, message: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        validate(RareSettings, section, "rare")
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+def space() -> ConditionSpace:
+    base = Condition(
+        ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
+        WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml"),
+        0.0,
+    )
+    return ConditionSpace((Axis("noise", 0.0, 0.2), Axis("scenario.ring_radius", 18.0, 26.0)), base)
+
+
+def domain_settings(noise_range: list[float]) -> DomainSettings:
+    axes = [
+        {"key": "scenario.ring_radius", "range": [18.0, 26.0]},
+        {"key": "noise", "range": noise_range, "shape": [2.0, 5.0]},
+    ]
+    return validate(DomainSettings, {"axes": axes}, "domain")
+
+
+def test_the_domain_is_a_density_over_the_envelopes_condition_space() -> None:
+    domain = Domain.of(domain_settings([0.0, 0.2]), space())
+    np.testing.assert_array_equal(domain.nominal.a, [2.0, 1.0])  # in the space's axis order
+    point = domain.sample(np.random.default_rng(0), 3)[0]
+    world = domain.condition(point)
+    assert world.noise == pytest.approx(0.2 * point[0]) and world.scenario.ring_radius == pytest.approx(
+        18 + 8 * point[1]
+    )
+    with pytest.raises(
+        ConfigError, match=r"^domain.axes\[1\].range=\[0.0, 0.1\]: the density is zero on part of noise"
+    ):
+        Domain.of(domain_settings([0.0, 0.1]), space())
+    with pytest.raises(ValueError, match=r"^domain.noise: density zero on part of \[0, 1\]"):
+        nominal, everywhere = ProductBeta.of([2.0], [5.0], 0.0, 0.5), ProductBeta.of([1.0], [1.0])
+        refute(_no_world, nominal, RareSettings(), np.random.default_rng(0), proposal=everywhere, names=("noise",))
+
+
+def _no_world(points: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    raise AssertionError("a rollout ran before the input was checked")
+
+
+def test_failures_come_back_as_records_that_re_drive_them_and_the_bound_is_below_p() -> None:
+    world = CornerWorld.at(1e-3, DOMAIN)
+    run = refute(world, DOMAIN, RareSettings(target=1 - 1e-4), np.random.default_rng(5))
+    assert run.refuted[0] and run.failures[0] == len(run.records) > 0
+    points = np.array([[r.point for r in run.records]])
+    failed, margins = world(points, np.array([[r.seed for r in run.records]]))
+    assert failed.all() and (margins <= 0).all()
+    assert [r.seed for r in run.records] == sorted(r.seed for r in run.records)
+    stopped = run.observations[0, : run.rollouts[0]]
+    assert 1e-4 < failure_lower_bound(stopped, 0.05) <= 1e-3  # refuted at m = 1e-4, and still below p
+    bounds = [failure_lower_bound(o[:n], 0.05) for o, n in zip(*_runs(world, 300))]
+    assert np.mean(np.array(bounds) > 1e-3) <= 0.05
+
+
+def _runs(world: CornerWorld, runs: int) -> tuple[np.ndarray, np.ndarray]:
+    settings = RareSettings(target=1 - 1e-3, refute_budget=200)  # at the boundary: the bound is tested hardest
+    run = refute(world, DOMAIN, settings, np.random.default_rng(9), runs=runs, record_runs=0)
+    return run.observations, run.rollouts
