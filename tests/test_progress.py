@@ -11,7 +11,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.parallel import ProcessPool, report
 from uqdrive.safety import executors, runner
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import PolicySpec, RolloutJob
+from uqdrive.safety.executors import ControllerSpec, RolloutJob
 from uqdrive.safety.runner import CellRunner
 from uqdrive.sim import ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
@@ -74,7 +74,7 @@ def test_a_cells_bar_ticks_once_per_rollout_from_inside_the_workers_chunk(random
 
     monkeypatch.setattr(executors, "run_rollouts", watched)
     monkeypatch.setattr(runner, "tqdm", Bar)
-    spec = PolicySpec("bnn", 6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
+    spec = ControllerSpec(6.0, str(random_models["vi"]), "vi", SteeringBins(), samples=10, eps=0.1)
     roundabout = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml")
     clear = WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml")
     settings = EstimatorSettings("chernoff", 0.6, 0.05, 500)  # 6 rollouts
