@@ -76,3 +76,22 @@ def test_bad_input_is_one_line_before_any_rollout(rare_config, monkeypatch, over
     with pytest.raises(ConfigError) as err:
         run_rare(rare_config("model=vi", override))
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+@pytest.mark.slow
+def test_in_a_gym_world_the_domain_over_its_crash_rate_is_refuted_and_certified_as_its_known_mean(
+    stage_config, random_models
+):
+    """The coin env fails each run with its crash rate, whatever drives: with the rate ~ Beta(1, 9) on [0, 1] the
+    failure probability over the domain is exactly 0.1, so η1 ≥ 0.99 is false (refuted, the bound below 0.1) and
+    η1 ≥ 0.5 true (certified)."""
+    from test_gym_stages import COIN, COIN_RATE, RATE_AXES
+
+    model = f"envelope.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    domain = (*COIN, COIN_RATE, RATE_AXES, "rare.shapes={gym_world.env_kwargs.rate:[1.0,9.0]}", "executor.workers=1")
+    budgets = ("rare.refute_budget=200", "rare.round_size=20")
+    false_claim = flat(run_rare(stage_config("rare", model, *ALL_TENTHS, *domain, *budgets, "rare.target=0.99")))
+    assert false_claim["refuted"] and 0 < false_claim["lower_bound"] <= 0.1
+    certify = ("rare.target=0.5", "rare.certify=true", "rare.certify_budget=100")
+    true_claim = flat(run_rare(stage_config("rare", model, *ALL_TENTHS, *domain, *budgets, *certify)))
+    assert not true_claim["refuted"] and true_claim["certified"] == "above"
