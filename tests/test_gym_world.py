@@ -148,7 +148,10 @@ def test_a_condition_the_env_lacks_is_refused_naming_the_key(key: str) -> None:
     [
         ({"env_id": "nowhere/Nothing-v0"}, "gym_world.env_id='nowhere/Nothing-v0': "),
         ({"safe_if": {"crashed": False}}, "gym_world.safe_if: 'crashed' is not in the info of"),
-        ({"hooks_options": {"destination": "nxs"}}, "gym_world.hooks_options={'destination': 'nxs'}: hooks 'info'"),
+        (
+            {"hooks_options": {"destination": "nxs"}},
+            "gym_world.hooks_options.destination='nxs': not an option of InfoHooks (known: none)",
+        ),
         ({"horizon": 3}, "gym_world.horizon: unknown key; did you mean 'horizon_steps'?"),
     ],
 )
@@ -163,7 +166,8 @@ def test_identity_records_the_config_and_the_package_versions_and_the_modules_to
     identity = world_identity(config)
     assert identity["config"]["env_kwargs"] == {"weather": "rain"}
     assert identity["packages"]["gymnasium"] == "1.4.0" and "uqdrive" in identity["packages"]
-    assert world_modules(config) == ["uqdrive.sim.gym_world", "uqdrive.sim.gym_env"]
+    assert world_modules(config) == ["uqdrive.sim.gym_world", "uqdrive.sim.gym_hooks", "uqdrive.sim.gym_env"]
+    assert identity["code"] == {}  # all uqdrive's: in the code digest
     json.dumps(identity)  # hashable as the cell identity hashes its job
 
 

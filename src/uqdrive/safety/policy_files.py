@@ -41,7 +41,7 @@ import yaml
 from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.deps import files_digest
+from uqdrive.deps import source_digest
 from uqdrive.safety.cells import file_digest
 from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
 from uqdrive.safety.user_policy import PolicyFailure, UserPolicies, UserWarnings
@@ -180,23 +180,13 @@ def _class_spec(config: PolicyConfig, folder: Path) -> UserPolicySpec:
         cls = getattr(importlib.import_module(module), attribute)
         if not inspect.isclass(cls):
             raise TypeError(f"{name} is a {type(cls).__name__}")
-        digest = hashlib.sha256(_source_digest(cls).encode())
+        digest = hashlib.sha256(source_digest(cls.__module__).encode())
     except Exception as err:  # ImportError, AttributeError, a class without a source file
         raise PolicyFailure(f"policy._target_={name}: expected an importable class, got {first_line(err)}") from None
     for path in sorted(_named_files(config.policy)):
         digest.update(f"{path}:{file_digest(path)}".encode())
     target = json.dumps(config.policy, sort_keys=True)
     return UserPolicySpec("class", digest.hexdigest(), name, target=target, search_path=str(folder), **_common(config))
-
-
-def _source_digest(cls: type) -> str:
-    """sha256 of the Python files of the top-level package ``cls`` is in (its module alone if it is no package)."""
-    top = sys.modules[cls.__module__.partition(".")[0]]
-    source = Path(inspect.getsourcefile(cls) or "")
-    if not getattr(top, "__path__", None):
-        return files_digest([source.resolve()], source.resolve().parent)
-    base = Path(list(top.__path__)[0]).resolve()
-    return files_digest([p.resolve() for p in base.rglob("*.py")], base.parent)
 
 
 def _named_files(value: Any) -> set[str]:
