@@ -165,15 +165,16 @@ def test_a_new_family_is_collected_trained_and_certified_by_config_and_an_edited
 def test_a_hooks_option_it_does_not_know_is_refused_before_any_work(drift, stage_config, tmp_path):
     with pytest.raises(ConfigError) as err:
         certify(stage_config, tmp_path, "++gym_world.hooks_options.destination=nxs")
-    assert str(err.value) == "gym_world.hooks_options.destination='nxs': not an option of DriftHooks (known: half_width)"
+    known = "not an option of DriftHooks (known: half_width)"
+    assert str(err.value) == f"gym_world.hooks_options.destination='nxs': {known}"
     assert not (tmp_path / "cache").exists()
 
 
 @pytest.mark.parametrize(
     ("hooks", "message"),
     [
-        (f"{PACKAGE}.nowhere:DriftHooks", f"gym_world.hooks='{PACKAGE}.nowhere:DriftHooks' needs '{PACKAGE}.nowhere'"),
-        (f"{PACKAGE}.hooks:Missing", f"gym_world.hooks='{PACKAGE}.hooks:Missing': module {PACKAGE}.hooks has no Missing"),
+        (f"{PACKAGE}.nowhere:Hooks", f"gym_world.hooks='{PACKAGE}.nowhere:Hooks' needs '{PACKAGE}.nowhere'"),
+        (f"{PACKAGE}.hooks:Nope", f"gym_world.hooks='{PACKAGE}.hooks:Nope': module {PACKAGE}.hooks has no Nope"),
         (
             f"{PACKAGE}.policies:Straight",
             f"gym_world.hooks='{PACKAGE}.policies:Straight': expected info or highway, or module:Class (a subclass of "
@@ -198,7 +199,8 @@ def test_a_world_without_an_expert_is_certified_but_not_collected_in(drift, stag
 
 
 def test_a_bug_in_the_users_hooks_is_one_line_with_the_seed_and_step(drift, stage_config, tmp_path):
-    edit(drift / "hooks.py", "        car = self.env.unwrapped\n", "        car = self.env.unwrapped\n        1 / (car.x < 2)\n")
+    line = "        car = self.env.unwrapped\n"
+    edit(drift / "hooks.py", line, f"{line}        1 / (car.x < 2)\n")  # raises from step 5 (x = 0.4 a step)
     with pytest.raises(WorldFailure) as err:
         certify(stage_config, tmp_path, "certify.base_seed=40")
     assert str(err.value) == (
