@@ -1,7 +1,8 @@
-"""A simulator of the user's own, as the README's "Your own simulator" wires it: a Gymnasium env of a new family, its
-hooks class named ``module:Class``, both in a package written into the test's temporary folder (never installed),
-collected with its expert, trained on and certified by config alone; an edit of its safe-set rule (or of the env,
-or of a policy's class) is a new cell, never a replay; a bug in its code is one line with the seed and step."""
+"""A simulator of the user's own, as the README's "Your own simulator" wires it: a Gymnasium env of a new family
+and its hooks class (the README's example, verbatim) named ``module:Class``, in a package written into the test's
+temporary folder (never installed), collected with its expert, trained on and certified by config alone; an edit of
+its safe-set rule (or of the env, or of a policy's class) is a new cell, never a replay; a bug in its code is one
+line with the seed and step."""
 
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ class Drift(gymnasium.Env):
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
-        self.x, self.y = 0.0, float(self.np_random.uniform(-0.3, 0.3))
+        self.x, self.y, self.v = 0.0, float(self.np_random.uniform(-0.3, 0.3)), 6.0
         return self._obs(), {}
 
     def step(self, action):
@@ -52,31 +53,15 @@ class Drift(gymnasium.Env):
 
 gymnasium.register("h50_drift/Drift-v0", entry_point="h50_drift.envs:Drift")
 '''
-HOOKS = '''
-"""The Drift env's hooks: what uqdrive reads of it."""
-
-import numpy as np
-
-from uqdrive.sim.gym_hooks import WorldHooks
+README = Path(__file__).resolve().parents[1] / "README.md"
 
 
-class DriftHooks(WorldHooks):
-    OPTIONS = {"half_width": 1.0}  # m: off the road beyond it
+def readme_hooks() -> str:
+    """The hooks class of the README's "Your own simulator", verbatim: the example is the tested code."""
+    section = README.read_text().split("## Your own simulator", 1)[1]
+    return section.split("```python\n", 1)[1].split("```", 1)[0]
 
-    def frame(self, obs):
-        return obs[..., 0]
 
-    def state(self, info):
-        car = self.env.unwrapped
-        off_road = abs(car.y) > self.options["half_width"]  # the safe-set rule
-        return dict(x=car.x, y=car.y, yaw=0.0, speed=6.0, collision=False, off_road=off_road, lateral_deviation=car.y)
-
-    def action(self, steer, speed):
-        return np.array([steer], np.float32)
-
-    def expert(self):
-        return float(np.clip(-2.0 * self.env.unwrapped.y - 0.3, -1.0, 1.0)), 6.0
-'''
 POLICIES = '''
 from uqdrive.safety.user_policy import Action
 
@@ -92,7 +77,7 @@ class Straight:
     def act(self, frame, info):
         return Action(0.0)
 '''
-RULE = 'off_road = abs(car.y) > self.options["half_width"]'
+RULE = 'off_road=abs(car.y) > self.options["half_width"]'
 WORLD = (
     "gym_world=uqdrive_roundabout",
     f"gym_world.env_id={PACKAGE}.envs:{PACKAGE}/Drift-v0",
@@ -108,7 +93,7 @@ def drift(tmp_path, monkeypatch) -> Path:
     """The user's package, importable for this test only; returns its folder."""
     folder = tmp_path / "site" / PACKAGE
     folder.mkdir(parents=True)
-    for name, text in {"__init__": "", "envs": ENVS, "hooks": HOOKS, "policies": POLICIES}.items():
+    for name, text in {"__init__": "", "envs": ENVS, "hooks": readme_hooks(), "policies": POLICIES}.items():
         (folder / f"{name}.py").write_text(textwrap.dedent(text))
     monkeypatch.syspath_prepend(str(folder.parent))
     monkeypatch.setattr(sys, "dont_write_bytecode", True)
@@ -123,7 +108,9 @@ def forget() -> None:
 
 
 def edit(path: Path, old: str, new: str) -> None:
-    path.write_text(path.read_text().replace(old, new))
+    text = path.read_text()
+    assert old in text, (path.name, old)
+    path.write_text(text.replace(old, new))
     forget()
 
 
@@ -149,7 +136,7 @@ def test_a_new_family_is_collected_trained_and_certified_by_config_and_an_edited
     refuted = certify(stage_config, tmp_path)
     assert (refuted.verdict, refuted.outcomes) == ("refuted", "0" * 8)  # the wind takes a straight car off the road
     assert certify(stage_config, tmp_path).reused
-    edit(drift / "hooks.py", RULE, "off_road = False")  # the user's safe-set rule edited: never off the road
+    edit(drift / "hooks.py", RULE, "off_road=False")  # the user's safe-set rule edited: never off the road
     never_off = certify(stage_config, tmp_path)
     assert not never_off.reused and never_off.cell_key != refuted.cell_key
     assert (never_off.verdict, never_off.outcomes) == ("certified", "1" * 8)  # the edited rule's true answer
