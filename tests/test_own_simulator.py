@@ -6,6 +6,7 @@ line with the seed and step."""
 
 from __future__ import annotations
 
+import json
 import sys
 import textwrap
 from pathlib import Path
@@ -114,6 +115,10 @@ def edit(path: Path, old: str, new: str) -> None:
     forget()
 
 
+def refuse(token: str):
+    raise AssertionError(f"{token} in a metrics file: JSON has none")
+
+
 def certify(stage_config, tmp_path, *overrides: str):
     policy = tmp_path / "straight.yaml"
     policy.write_text(f"policy:\n  _target_: {PACKAGE}.policies.Straight\n")
@@ -132,6 +137,8 @@ def test_a_new_family_is_collected_trained_and_certified_by_config_and_an_edited
     cell = run_safety(stage_config("safety", *WORLD, *EXPERIMENT, "model=mcd", "executor.workers=1"))
     assert not cell.reused and cell.cell.location == "drift" and len(cell.cell.outcomes) == 4
     assert run_safety(stage_config("safety", *WORLD, *EXPERIMENT, "model=mcd", "executor.workers=1")).reused
+    (saved,) = (tmp_path / "metrics/safety").glob("*drift*.json")
+    assert json.loads(saved.read_text(), parse_constant=refuse)["max_corridor_use"] is None  # no corridor: null
 
     refuted = certify(stage_config, tmp_path)
     assert (refuted.verdict, refuted.outcomes) == ("refuted", "0" * 8)  # the wind takes a straight car off the road
