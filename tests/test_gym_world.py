@@ -249,3 +249,11 @@ def test_a_highway_car_braking_for_a_hand_over_stops_well_within_the_worlds_hori
             steps += 1
     assert world.last_info["speed"] <= config.stopped_speed and steps <= config.horizon_steps / 2, steps
     assert stopped_speed(world) == config.stopped_speed == 0.1
+
+
+def test_highway_refuses_a_destination_its_road_lacks_and_a_bad_option_value_before_any_run(highway_config) -> None:
+    racetrack = GymWorldConfig.from_config({**highway_config.to_dict(), "env_id": "racetrack-v0"})
+    with pytest.raises(ConfigError, match=r"^gym_world.hooks_options.destination='nxs': not a node of racetrack-v0's"):
+        GymWorld(racetrack)
+    with pytest.raises(ConfigError, match=r"^gym_world.hooks_options.expert_speed=-1.0 must be a speed > 0 \(m/s\)$"):
+        GymWorldConfig.from_config({**highway_config.to_dict(), "hooks_options": {"expert_speed": -1.0}})

@@ -54,12 +54,18 @@ class HighwayHooks(WorldHooks):
             raise ConfigError(
                 f"gym_world.control_hz={config.control_hz}: {config.env_id}'s policy_frequency is {policy_hz}"
             )
+        nodes = self.env.road.network.graph  # made with the env (its constructor resets it): checked before any run
+        if self.options["destination"] not in nodes:
+            raise ConfigError(
+                f"gym_world.hooks_options.destination={self.options['destination']!r}: not a node of {config.env_id}'s "
+                f"road network ({sorted(nodes)})"
+            )
         self._shadow: IDMVehicle | None = None
         self._timer0 = 0.0
 
     @classmethod
     def check_options(cls, options: Mapping[str, Any]) -> None:
-        """The keys, and their values' types (a destination's node is checked against the road at a reset)."""
+        """The keys, and their values' types (a destination's node is checked against the road when the env is made)."""
         super().check_options(options)
         speed, destination = options.get("expert_speed", 8.0), options.get("destination", "nxs")
         if isinstance(speed, bool) or not isinstance(speed, int | float) or speed <= 0:
@@ -92,13 +98,7 @@ class HighwayHooks(WorldHooks):
         return {**kwargs, "config": {**config, "observation": observation}}
 
     def begin(self) -> None:
-        ego, road = self.env.vehicle, self.env.road
-        destination = self.options["destination"]
-        if destination not in road.network.graph:
-            raise ConfigError(
-                f"gym_world.hooks_options.destination={destination!r}: not a node of {self.env_id}'s road network "
-                f"({sorted(road.network.graph)})"
-            )
+        ego, road, destination = self.env.vehicle, self.env.road, self.options["destination"]
         self._shadow = IDMVehicle(
             road, ego.position.copy(), ego.heading, ego.speed, ego.lane_index, float(self.options["expert_speed"])
         )
