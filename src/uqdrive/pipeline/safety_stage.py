@@ -41,7 +41,7 @@ from uqdrive.safety.safe_sets import safe_set_for
 from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
 from uqdrive.sim import build_geometry
 from uqdrive.sim.condition import Condition, WorldChoice
-from uqdrive.sim.config import SimConfig
+from uqdrive.sim.config import SimConfig, names_gym_world
 from uqdrive.stage import grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
@@ -182,7 +182,7 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
         model_path,
         method,
         bins,
-        training_stage(stage.experiment.name, method, stage.gym_world is not None),
+        training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name)),
     )
     spec = ControllerSpec(safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws)
     s = stage.safety
