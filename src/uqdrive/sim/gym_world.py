@@ -140,7 +140,6 @@ class GymWorld:
         self.noise = 0.0
         self.render_enabled = True
         self._noise_rng = np.random.default_rng(0)
-        self._seed: int | None = None
         self._steps = 0
         self._applied = 0.0
         self._done = True
@@ -152,7 +151,7 @@ class GymWorld:
         """The env of ``config`` and its hooks (the config's control rate and horizon with them)."""
         gymnasium = _gymnasium()
         hooks_cls = hooks_class(config.hooks)
-        self.config = config
+        self.config, self._seed = config, None  # no episode of this env yet (a failure here says so)
         kwargs = self._user("hooks", "env_kwargs", hooks_cls.env_kwargs, config.env_kwargs)
         try:
             env = gymnasium.make(config.env_id, **kwargs)
