@@ -53,6 +53,20 @@ def test_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str], ar
 
 
 @pytest.mark.slow
+def test_the_peer_benchmark_answers_with_both_tools_and_counts_their_episodes(capsys: pytest.CaptureFixture) -> None:
+    """A question both must certify (every 10-step episode of a gentle steer is safe): PyDSMC's sound method runs its
+    worst-case count for half-width 0.3 (12 episodes), uqdrive's test stops at its first look."""
+    pytest.importorskip("pydsmc", reason="PyDSMC is not installed (pip install 'uqdrive[peer]')")
+    argv = ["--horizon", "10", "--eta", "0.5", "--theta", "0.3", "--look-size", "4"]
+    assert main(["bench", "peer", *argv]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    pattern = r"RESULT peer episodes_ratio=([\d.]+) pydsmc_episodes=(\d+) uqdrive_episodes=(\d+) (.*)"
+    ratio, theirs, ours, verdicts = re.fullmatch(pattern, last).groups()
+    assert verdicts == "pydsmc_verdict=certified uqdrive_verdict=certified same_verdict=true"
+    assert int(ours) == 4 and int(theirs) >= 8 and float(ratio) == pytest.approx(int(theirs) / int(ours), abs=0.01)
+
+
+@pytest.mark.slow
 def test_rollout_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str]) -> None:
     """Spawns two worker processes (torch and pybullet start-up in each): tens of seconds."""
     argv = ["--samples", "20", "--steps", "15", "--repeats", "1", "--chunks", "4", "--lockstep", "2", "--frames", "1"]

@@ -79,7 +79,7 @@ def test_a_bad_policy_file_exits_2_with_one_line(tmp_path, capsys):
     assert certify(tmp_path, tmp_path / "nope.onnx")[0] == 2
     err = capsys.readouterr().err
     assert err == f"uqdrive certify: {tmp_path / 'nope.onnx'}: no such file; expected a TorchScript (.pt, .ts), " \
-        "ONNX (.onnx) or policy YAML (.yaml) file\n"  # fmt: skip
+        "ONNX (.onnx), stable-baselines3 (.zip) or policy YAML (.yaml) file\n"  # fmt: skip
 
 
 @pytest.mark.parametrize(

@@ -70,7 +70,7 @@ def test_a_gym_cell_through_the_stage_is_each_seeds_coin_and_its_exact_interval_
         ("gym_world.env_id=nowhere.envs:No-v0", "gym_world.env_id='nowhere.envs:No-v0': No module named 'nowhere'"),
         (
             "safety.model_path=/nonexistent/mcd.pt",
-            "safety.model_path=/nonexistent/mcd.pt does not exist; train it first: dvc repro gym_train_mcd@offline",
+            "safety.model_path=/nonexistent/mcd.pt does not exist; train it first: dvc repro train_mcd@offline",
         ),
     ],
 )
@@ -345,3 +345,13 @@ def test_a_gym_worlds_unknown_condition_of_ours_or_a_bad_change_is_refused_in_on
 def test_a_world_change_without_a_gym_world_is_refused_in_one_line(avoid_config, tmp_path):
     with pytest.raises(ConfigError, match=r"^avoid.unknown\[0\].world=\{'horizon_steps': 3\} changes a gym_world"):
         run_avoid(avoid_config("avoid.unknown=[{name:x,world:{horizon_steps:3}}]"))
+
+
+def test_a_missing_model_names_the_stage_that_trains_its_experiment_whatever_world_drives_it():
+    from uqdrive.sim.config import names_gym_world
+    from uqdrive.stage_schemas import training_stage
+
+    assert not names_gym_world("offline") and training_stage("offline", "vi") == "train@offline-vi"  # pybullet's
+    world = "highway_roundabout"  # an experiment named after a Gymnasium world trains in the gym_ stages
+    assert names_gym_world(world)
+    assert training_stage(world, "mcd", True) == f"gym_train_mcd@{world} (with {world} in params.yaml's gym_worlds)"

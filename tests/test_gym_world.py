@@ -148,7 +148,10 @@ def test_a_condition_the_env_lacks_is_refused_naming_the_key(key: str) -> None:
     [
         ({"env_id": "nowhere/Nothing-v0"}, "gym_world.env_id='nowhere/Nothing-v0': "),
         ({"safe_if": {"crashed": False}}, "gym_world.safe_if: 'crashed' is not in the info of"),
-        ({"hooks_options": {"destination": "nxs"}}, "gym_world.hooks_options={'destination': 'nxs'}: hooks 'info'"),
+        (
+            {"hooks_options": {"destination": "nxs"}},
+            "gym_world.hooks_options.destination='nxs': not an option of InfoHooks (known: none)",
+        ),
         ({"horizon": 3}, "gym_world.horizon: unknown key; did you mean 'horizon_steps'?"),
     ],
 )
@@ -163,7 +166,8 @@ def test_identity_records_the_config_and_the_package_versions_and_the_modules_to
     identity = world_identity(config)
     assert identity["config"]["env_kwargs"] == {"weather": "rain"}
     assert identity["packages"]["gymnasium"] == "1.4.0" and "uqdrive" in identity["packages"]
-    assert world_modules(config) == ["uqdrive.sim.gym_world", "uqdrive.sim.gym_env"]
+    assert world_modules(config) == ["uqdrive.sim.gym_world", "uqdrive.sim.gym_hooks", "uqdrive.sim.gym_env"]
+    assert identity["code"] == {}  # all uqdrive's: in the code digest
     json.dumps(identity)  # hashable as the cell identity hashes its job
 
 
@@ -245,3 +249,11 @@ def test_a_highway_car_braking_for_a_hand_over_stops_well_within_the_worlds_hori
             steps += 1
     assert world.last_info["speed"] <= config.stopped_speed and steps <= config.horizon_steps / 2, steps
     assert stopped_speed(world) == config.stopped_speed == 0.1
+
+
+def test_highway_refuses_a_destination_its_road_lacks_and_a_bad_option_value_before_any_run(highway_config) -> None:
+    racetrack = GymWorldConfig.from_config({**highway_config.to_dict(), "env_id": "racetrack-v0"})
+    with pytest.raises(ConfigError, match=r"^gym_world.hooks_options.destination='nxs': not a node of racetrack-v0's"):
+        GymWorld(racetrack)
+    with pytest.raises(ConfigError, match=r"^gym_world.hooks_options.expert_speed=-1.0 must be a speed > 0 \(m/s\)$"):
+        GymWorldConfig.from_config({**highway_config.to_dict(), "hooks_options": {"expert_speed": -1.0}})

@@ -68,6 +68,16 @@ def test_grid_varies_the_last_axis_fastest_and_a_cell_overrides_the_sweep():
     ]
 
 
+def test_a_sweep_with_a_missing_model_stops_before_its_first_cell(tmp_path, random_models):
+    only_mcd = tmp_path / "models"
+    only_mcd.mkdir()
+    shutil.copy(random_models["mcd"], only_mcd / "mcd.pt")  # vi, swept after mcd, was never trained
+    grid = (f"safety.model_path={only_mcd}/${{model.name}}.pt", *ALL_TENTHS, *SWEEP[1:], "sweep.methods=[mcd,vi]")
+    with pytest.raises(ConfigError, match=rf"^safety.model_path={only_mcd}/vi.pt does not exist; train it first"):
+        sweep(run_safety_sweep, "safety_sweep", tmp_path, *grid)
+    assert not (tmp_path / "metrics").exists() and not (tmp_path / "cache").exists()  # no cell ran
+
+
 @pytest.mark.slow
 def test_safety_sweep_runs_every_cell_as_the_single_cell_command(tmp_path, models, stage_config):
     swept = sweep(run_safety_sweep, "safety_sweep", tmp_path, *models, "executor.workers=2", *SWEEP)

@@ -180,12 +180,13 @@ def bad_files(tmp_path) -> dict[str, tuple[object, str]]:
     state = tmp_path / "state.pt"
     torch.save(linear_module().state_dict(), state)
     return {
-        "missing.pt": (None, r"no such file; expected a TorchScript \(\.pt, \.ts\), ONNX \(\.onnx\) or policy YAML"),
+        "missing.pt": (None, r"no such file; expected a TorchScript \(\.pt, \.ts\), ONNX \(\.onnx\), stable-baselines3 "
+                       r"\(\.zip\) or policy YAML"),
         "corrupt.pt": (b"\x00not a zip", r"expected a TorchScript module \(torch\.jit\.save\), got RuntimeError: "),
         "state.pt": (state.read_bytes(), r"expected a TorchScript module \(torch\.jit\.save\), got "),
         "corrupt.onnx": (b"\x08\x01garbage", r"expected an ONNX model, got "),
-        "policy.txt": (b"steer: 0", r"expected a TorchScript \(\.pt, \.ts\), ONNX \(\.onnx\) or policy YAML \(\.yaml\) "
-                       r"file, got a \.txt file"),
+        "policy.txt": (b"steer: 0", r"expected a TorchScript \(\.pt, \.ts\), ONNX \(\.onnx\), stable-baselines3 "
+                       r"\(\.zip\) or policy YAML \(\.yaml\) file, got a \.txt file"),
         "typo.yaml": (b"file: x.pt\nmc_draw: 2\n", r"mc_draw: unknown key; did you mean 'mc_draws'\?"),
         "both.yaml": (b"file: x.pt\npolicy: {_target_: a.B}\n", r"give exactly one of `policy` .* and `file`"),
         "import.yaml": (b"policy: {_target_: no_such_package.Policy}\n", r"policy\._target_=no_such_package\.Policy: "

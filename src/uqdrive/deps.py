@@ -12,6 +12,9 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+import importlib
+import site
+import sysconfig
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -121,3 +124,35 @@ def files_digest(paths: Iterable[Path], base: Path) -> str:
         digest.update(path.relative_to(base).as_posix().encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
+
+
+def source_digest(module: str) -> str:
+    """sha256 of the Python files of the top-level package ``module`` is in (that module alone if it is none):
+    the code of a user's policy, hooks or env, for a cell's identity (editing any file of it makes a new cell)."""
+    top = importlib.import_module(module.partition(".")[0])
+    if not getattr(top, "__path__", None):
+        if not getattr(top, "__file__", None):
+            raise ValueError(f"module {top.__name__} has no source file")
+        path = Path(top.__file__).resolve()
+        return files_digest([path], path.parent)
+    roots = [Path(p).resolve() for p in top.__path__]
+    return files_digest([p.resolve() for root in roots for p in root.rglob("*.py")], roots[0].parent)
+
+
+def user_sources(modules: Iterable[str]) -> dict[str, str]:
+    """`source_digest` of each top-level package among ``modules`` that is the user's: neither uqdrive's (its
+    files are in a cell's code digest) nor installed (site-packages, the standard library: a cell records an
+    installed distribution's version instead)."""
+    tops = sorted({m.partition(".")[0] for m in modules if m} - {PACKAGE})
+    return {top: source_digest(top) for top in tops if not _installed(top)}
+
+
+def _installed(top: str) -> bool:
+    """Whether package (or module) ``top`` lies where installed code does (or has no file: built in)."""
+    module = importlib.import_module(top)
+    files = [module.__file__] if getattr(module, "__file__", None) else list(getattr(module, "__path__", []))
+    paths = sysconfig.get_paths()
+    roots = {paths[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
+    roots |= {*site.getsitepackages(), site.getusersitepackages()}
+    resolved = [Path(root).resolve() for root in roots]
+    return all(any(Path(f).resolve().is_relative_to(root) for root in resolved) for f in files)

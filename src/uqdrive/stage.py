@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from hydra import compose
 from hydra.errors import HydraException
@@ -171,11 +171,13 @@ def run_cells(
     shared: S,
     progress: bool,
     around: Callable[[], AbstractContextManager[object]] = nullcontext,
+    check: Callable[[Any], object] | None = None,
 ) -> Iterator[tuple[DictConfig, R]]:
     """``run(config, shared)`` for each cell's config of ``config_name``; yields each config and result as the cell
     finishes. ``overrides``: the stage's command-line overrides, passed on to every cell. Every config is
-    composed and checked against ``schema`` before the first cell runs, and only then is ``around`` entered (the
-    cells' parent run: a rejected sweep opens nothing). ``shared`` is closed at the end (also on an error, or when
+    composed and checked against ``schema`` (and, as validated, by ``check``: e.g. that its model file loads)
+    before the first cell runs, and only then is ``around`` entered (the cells' parent run: a rejected sweep opens
+    nothing). ``shared`` is closed at the end (also on an error, or when
     the caller stops early).
     Needs an initialised Hydra (a `@hydra.main` job, or `initialize_config_dir`)."""
     from uqdrive.tracking import JOB_START_ENV  # here: a script's spawned workers import this module, not MLflow
@@ -183,7 +185,9 @@ def run_cells(
     try:
         configs = [compose_cell(config_name, overrides, cell) for cell in cells]
         for config in configs:
-            validate(schema, config)
+            validated = validate(schema, config)
+            if check is not None:
+                check(validated)
         with around():
             for config in tqdm(configs, desc=f"{config_name} cells", unit="cell", disable=not progress):
                 os.environ[JOB_START_ENV] = str(int(time.time() * 1000))  # the cell's MLflow run starts with it

@@ -36,10 +36,12 @@ class Experiment:
 
 
 def training_stage(experiment: str, method: str, gym: bool = False) -> str:
-    """The DVC stage that trains ``experiment``'s ``method``, every replicate (MCD: the trunk the heads sit on); a
-    Gymnasium world's experiment trains in dvc.yaml's gym_ stages."""
+    """The DVC stage that trains ``experiment``'s ``method``, every replicate (MCD: the trunk the heads sit on).
+    ``gym``: the experiment is a Gymnasium world's (named after it, `uqdrive.sim.config.names_gym_world`), trained in
+    dvc.yaml's gym_ stages, which exist for the worlds params.yaml's gym_worlds lists; any other experiment trains in
+    the pybullet stages, whatever world drives it."""
     stage = f"train_mcd@{experiment}" if method == "mcd" else f"train@{experiment}-{method}"
-    return f"gym_{stage}" if gym else stage
+    return f"gym_{stage} (with {experiment} in params.yaml's gym_worlds)" if gym else stage
 
 
 @schema

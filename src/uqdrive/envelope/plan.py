@@ -22,7 +22,7 @@ from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
 from uqdrive.schema import ConfigError, Count, Positive, Seed, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import SimConfig, WeatherConfig
+from uqdrive.sim.config import SimConfig, WeatherConfig, names_gym_world
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
 from uqdrive.uq.multiplicity import split_gamma
 
@@ -115,7 +115,7 @@ def build_envelope(cfg: DictConfig) -> Envelope:
     env = stage.envelope
     method = posterior_from_config(stage.model).method
     bins = stage.experiment.bins
-    trained_by = training_stage(stage.experiment.name, method, stage.gym_world is not None)
+    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
     cell_posterior("envelope.model_path", Path(env.model_path), method, bins, trained_by)
     base = stage.condition()
     blend = None

@@ -195,7 +195,8 @@ def describe(record: CertifyRecord) -> str:
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="uqdrive certify", description=DESCRIPTION)
-    p.add_argument("--policy", required=True, help="a TorchScript (.pt), ONNX (.onnx) or policy YAML file")
+    kinds = "a TorchScript (.pt), ONNX (.onnx), stable-baselines3 (.zip) or policy YAML file"
+    p.add_argument("--policy", required=True, help=kinds)
     p.add_argument(
         "--world", default="roundabout", help="a location in conf/scenario/ or a Gymnasium world in conf/gym_world/"
     )

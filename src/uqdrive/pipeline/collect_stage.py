@@ -26,7 +26,7 @@ from uqdrive.schema import Count, Seed, Str, schema, validate
 from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig
 from uqdrive.sim.episodes import EpisodeJob
-from uqdrive.sim.gym_world import require_expert
+from uqdrive.sim.gym_hooks import require_expert
 from uqdrive.stage_schemas import Stage
 from uqdrive.tracking import stage_run
 
@@ -56,7 +56,7 @@ class CollectStage(WorldChoice, SimConfig, Stage):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.gym_world is not None:
-            require_expert(self.gym_world)
+            require_expert(self.gym_world.hooks, self.gym_world.env_id)
 
 
 @record

@@ -41,7 +41,7 @@ from uqdrive.safety.safe_sets import safe_set_for
 from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
 from uqdrive.sim import build_geometry
 from uqdrive.sim.condition import Condition, WorldChoice
-from uqdrive.sim.config import SimConfig
+from uqdrive.sim.config import SimConfig, names_gym_world
 from uqdrive.stage import grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
@@ -169,21 +169,21 @@ class CellPlan:
     key: str
 
 
+def check_model(stage: SafetyStage) -> str:
+    """The cell's method, its model file loaded as that method's with the experiment's classes; a missing or
+    mismatched file is one line naming the key and the stage that trains it."""
+    method = posterior_from_config(stage.model).method
+    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
+    cell_posterior("safety.model_path", Path(stage.safety.model_path), method, stage.experiment.bins, trained_by)
+    return method
+
+
 def plan_cell(cfg: DictConfig) -> CellPlan:
     """Validate the cell's config and load its model once, before any rollout: a bad config value is one line
     naming the key, the value and what is allowed; a missing or mismatched model file names the stage to run."""
     stage = validate(SafetyStage, cfg)
     safety = stage.safety
-    method = posterior_from_config(stage.model).method
-    bins = stage.experiment.bins
-    model_path = Path(safety.model_path)
-    cell_posterior(
-        "safety.model_path",
-        model_path,
-        method,
-        bins,
-        training_stage(stage.experiment.name, method, stage.gym_world is not None),
-    )
+    method, bins, model_path = check_model(stage), stage.experiment.bins, Path(safety.model_path)
     spec = ControllerSpec(safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws)
     s = stage.safety
     world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
@@ -300,7 +300,8 @@ def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tupl
         cells = [{**cell, "safety.family_size": len(cells)} for cell in cells]
     runner = CellRunner.of(stage.executor, stage.progress)
     parent = partial(stage_parent_run, stage.paths.root, "safety", cfg, overrides, name=f"sweep of {len(cells)} cells")
-    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress, parent)
+    run = partial(run_cells, "safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress, parent)
+    yield from run(check_model)  # every cell's model first: a missing one stops the sweep before any cell runs
 
 
 def describe(name: str, run: SafetyRun) -> str:

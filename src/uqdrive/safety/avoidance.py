@@ -43,7 +43,7 @@ from uqdrive.schema import (
 )
 from uqdrive.sim import CameraConfig, ScenarioGeometry, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, Mixture, WorldChoice
-from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig, names_gym_world
 from uqdrive.sim.gym_world import GymWorldConfig
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
 from uqdrive.uq.multiplicity import split_gamma
@@ -338,7 +338,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
     bins = stage.experiment.bins
     model_path = Path(avoid.model_path)
-    trained_by = training_stage(stage.experiment.name, method, world is not None)
+    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
     cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
     rule = WarningRule(warning, avoid.draws)  # refused here, before any rollout, if its tier rule errs above γ
     spec = ControllerSpec(avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)

@@ -1,5 +1,6 @@
 """A user's policy by config: a policy YAML (a class of the user's package by ``_target_``, or a network file) or a
-network file itself (``.pt``/``.ts``: TorchScript, ``.onnx``: ONNX), as a picklable `UserPolicySpec` that every
+network file itself (``.pt``/``.ts``: TorchScript, ``.onnx``: ONNX, ``.zip``: a stable-baselines3 agent,
+`uqdrive.safety.sb3_policy`), as a picklable `UserPolicySpec` that every
 worker builds its policy from.
 
 The policy YAML::
@@ -8,7 +9,7 @@ The policy YAML::
       _target_: mypkg.LaneKeeper  # instantiate, with its settings as keyword arguments
       gain: 3.0
     # or, in place of `policy`, a network file (relative to this YAML):
-    file: steer.pt              # TorchScript (.pt, .ts) or ONNX (.onnx)
+    file: steer.pt              # TorchScript (.pt, .ts), ONNX (.onnx) or a stable-baselines3 agent (.zip)
     output: auto                # logits | steering | auto (by the output's width)
     input: gray                 # gray: [B, 1, 48, 64] as uqdrive's networks see it; rgb: [B, 3, H, W] as rendered
     mc_draws: 0                 # > 0: dropout on, 2·n passes per frame (TorchScript)
@@ -41,8 +42,9 @@ import yaml
 from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.deps import files_digest
+from uqdrive.deps import source_digest
 from uqdrive.safety.cells import file_digest
+from uqdrive.safety.sb3_policy import SB3Policy
 from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
 from uqdrive.safety.user_policy import PolicyFailure, UserPolicies, UserWarnings
 from uqdrive.safety.warnings import WarningConfig
@@ -50,8 +52,10 @@ from uqdrive.schema import ConfigError, Positive, Str, schema, validate
 
 TORCHSCRIPT = (".pt", ".ts", ".pth", ".jit")
 ONNX = (".onnx",)
+SB3 = (".zip",)
+NETWORKS = TORCHSCRIPT + ONNX + SB3
 YAML = (".yaml", ".yml")
-KINDS = "a TorchScript (.pt, .ts), ONNX (.onnx) or policy YAML (.yaml) file"
+KINDS = "a TorchScript (.pt, .ts), ONNX (.onnx), stable-baselines3 (.zip) or policy YAML (.yaml) file"
 
 
 @schema(frozen=True)
@@ -83,7 +87,7 @@ class UserPolicySpec:
 
     NOT_IDENTITY = ("path", "name", "search_path")
 
-    kind: Literal["class", "torchscript", "onnx"]
+    kind: Literal["class", "torchscript", "onnx", "sb3"]
     digest: str
     name: str
     path: str = ""
@@ -103,6 +107,8 @@ class UserPolicySpec:
         if self.kind == "class":
             _search(self.search_path)
             make = _class_factory(self.name, json.loads(self.target))
+        elif self.kind == "sb3":
+            make = SB3Policy.loader(self.path, centres)
         else:
             network = TorchScriptPolicy if self.kind == "torchscript" else OnnxPolicy
             make = network.loader(self.path, centres, self.output, self.frame_input, self.mc_draws)
@@ -146,7 +152,7 @@ def load_policy(source: str | Path, **settings: Any) -> UserPolicySpec:
         if config.file is not None:
             return _network_spec(path.parent / config.file, config)
         return _class_spec(config, path.parent.resolve())
-    if suffix in TORCHSCRIPT + ONNX:
+    if suffix in NETWORKS:
         return _network_spec(path, _validated(path, {**settings, "file": str(path)}))
     raise PolicyFailure(f"{path}: expected {KINDS}, got a {suffix or 'suffix-less'} file")
 
@@ -162,9 +168,11 @@ def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
     if not path.is_file():
         raise PolicyFailure(f"{path}: no such file; expected {KINDS}")
     suffix = path.suffix.lower()
-    if suffix not in TORCHSCRIPT + ONNX:
-        raise PolicyFailure(f"{path}: expected a TorchScript (.pt, .ts) or ONNX (.onnx) file, got {suffix}")
-    kind = "onnx" if suffix in ONNX else "torchscript"
+    if suffix not in NETWORKS:
+        raise PolicyFailure(f"{path}: expected a TorchScript (.pt, .ts), ONNX (.onnx) or SB3 (.zip) file, got {suffix}")
+    kind = "onnx" if suffix in ONNX else "sb3" if suffix in SB3 else "torchscript"
+    if kind == "sb3" and config.mc_draws:
+        raise PolicyFailure(f"{path}: mc_draws={config.mc_draws}: a stable-baselines3 agent acts deterministically")
     settings = {"output": config.output, "frame_input": config.input, "mc_draws": config.mc_draws}
     return UserPolicySpec(kind, file_digest(path), str(path), path=str(path), **_common(config), **settings)
 
@@ -180,23 +188,13 @@ def _class_spec(config: PolicyConfig, folder: Path) -> UserPolicySpec:
         cls = getattr(importlib.import_module(module), attribute)
         if not inspect.isclass(cls):
             raise TypeError(f"{name} is a {type(cls).__name__}")
-        digest = hashlib.sha256(_source_digest(cls).encode())
+        digest = hashlib.sha256(source_digest(cls.__module__).encode())
     except Exception as err:  # ImportError, AttributeError, a class without a source file
         raise PolicyFailure(f"policy._target_={name}: expected an importable class, got {first_line(err)}") from None
     for path in sorted(_named_files(config.policy)):
         digest.update(f"{path}:{file_digest(path)}".encode())
     target = json.dumps(config.policy, sort_keys=True)
     return UserPolicySpec("class", digest.hexdigest(), name, target=target, search_path=str(folder), **_common(config))
-
-
-def _source_digest(cls: type) -> str:
-    """sha256 of the Python files of the top-level package ``cls`` is in (its module alone if it is no package)."""
-    top = sys.modules[cls.__module__.partition(".")[0]]
-    source = Path(inspect.getsourcefile(cls) or "")
-    if not getattr(top, "__path__", None):
-        return files_digest([source.resolve()], source.resolve().parent)
-    base = Path(list(top.__path__)[0]).resolve()
-    return files_digest([p.resolve() for p in base.rglob("*.py")], base.parent)
 
 
 def _named_files(value: Any) -> set[str]:

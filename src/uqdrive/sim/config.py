@@ -287,6 +287,11 @@ def find_conf(start: Path | None = None) -> Path:
     raise FileNotFoundError("no conf/weather directory above the working directory or this package")
 
 
+def names_gym_world(name: str) -> bool:
+    """Whether ``name`` is a Gymnasium world's (conf/gym_world/<name>.yaml): its experiment trains on its frames."""
+    return (find_conf() / "gym_world" / f"{name}.yaml").is_file()
+
+
 def _load_group_file(path: Path) -> Any:
     from omegaconf import OmegaConf
 

@@ -30,26 +30,23 @@ import numpy as np
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.vehicle.behavior import IDMVehicle
 
-from uqdrive.schema import ConfigError
+from uqdrive.schema import ConfigError, invalid
 
+from .gym_hooks import WorldHooks
 from .gym_world import GymWorldConfig
 
 SPEED_TIME_CONSTANT_S = 1.0  # of the speed_range tracker: acceleration = (command − v) / this
-_OPTIONS = {"destination": "nxs", "expert_speed": 8.0}
 
 
-class HighwayHooks:
+class HighwayHooks(WorldHooks):
     """A HighwayEnv env's ego vehicle behind `GymWorld` (module docstring)."""
 
+    OPTIONS: ClassVar[Mapping[str, Any]] = {"destination": "nxs", "expert_speed": 8.0}
     packages: ClassVar[tuple[str, ...]] = ("highway-env", "pygame-ce")  # the sim, and what draws its observation
 
     def __init__(self, env: Any, config: GymWorldConfig):
-        unknown = sorted(set(config.hooks_options) - set(_OPTIONS))
-        if unknown:
-            raise ConfigError(f"gym_world.hooks_options.{unknown[0]}: unknown key; known keys: {', '.join(_OPTIONS)}")
-        self.options = {**_OPTIONS, **config.hooks_options}
+        super().__init__(env, config)
         self.env = env.unwrapped
-        self.env_id = config.env_id
         if not isinstance(self.env, AbstractEnv):
             raise ConfigError(f"gym_world.env_id={config.env_id!r} is not a HighwayEnv env (hooks: highway)")
         policy_hz = self.env.config["policy_frequency"]
@@ -57,8 +54,24 @@ class HighwayHooks:
             raise ConfigError(
                 f"gym_world.control_hz={config.control_hz}: {config.env_id}'s policy_frequency is {policy_hz}"
             )
+        nodes = self.env.road.network.graph  # made with the env (its constructor resets it): checked before any run
+        if self.options["destination"] not in nodes:
+            raise ConfigError(
+                f"gym_world.hooks_options.destination={self.options['destination']!r}: not a node of {config.env_id}'s "
+                f"road network ({sorted(nodes)})"
+            )
         self._shadow: IDMVehicle | None = None
         self._timer0 = 0.0
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """The keys, and their values' types (a destination's node is checked against the road when the env is made)."""
+        super().check_options(options)
+        speed, destination = options.get("expert_speed", 8.0), options.get("destination", "nxs")
+        if isinstance(speed, bool) or not isinstance(speed, int | float) or speed <= 0:
+            raise invalid("hooks_options.expert_speed", speed, "must be a speed > 0 (m/s)")
+        if not isinstance(destination, str):
+            raise invalid("hooks_options.destination", destination, "must be a node of the road network (a string)")
 
     @classmethod
     def env_kwargs(cls, kwargs: Mapping[str, Any]) -> dict[str, Any]:
@@ -85,13 +98,7 @@ class HighwayHooks:
         return {**kwargs, "config": {**config, "observation": observation}}
 
     def begin(self) -> None:
-        ego, road = self.env.vehicle, self.env.road
-        destination = self.options["destination"]
-        if destination not in road.network.graph:
-            raise ConfigError(
-                f"gym_world.hooks_options.destination={destination!r}: not a node of {self.env_id}'s road network "
-                f"({sorted(road.network.graph)})"
-            )
+        ego, road, destination = self.env.vehicle, self.env.road, self.options["destination"]
         self._shadow = IDMVehicle(
             road, ego.position.copy(), ego.heading, ego.speed, ego.lane_index, float(self.options["expert_speed"])
         )

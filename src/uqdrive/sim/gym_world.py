@@ -4,11 +4,12 @@
 ``step(steer, speed)`` → frame, info; ``last_info``, ``done``, ``trajectory``), so `run_rollouts` drives it as it
 drives the pybullet world, judged by `uqdrive.safety.info_safe_set.InfoSafeSet` (a predicate over every step's info).
 
-What differs between envs sits behind the world's hooks (``GymWorldConfig.hooks``): how the env's observation
-becomes the network's grey frame, where pose, speed, collision and off-road come from, how a (steer, speed) command
-becomes the env's action, and what the env's own expert would do. ``info`` reads them from the env's info dict
-(an env written for uqdrive, e.g. `uqdrive.sim.gym_env`); ``highway`` reads HighwayEnv's ego vehicle
-(`uqdrive.sim.gym_highway`, the one module that names that package).
+What differs between envs sits behind the world's hooks (``GymWorldConfig.hooks``, `uqdrive.sim.gym_hooks`): how
+the env's observation becomes the network's grey frame, where pose, speed, collision and off-road come from, how a
+(steer, speed) command becomes the env's action, and what the env's own expert would do. ``info`` reads them from
+the env's info dict (an env written for uqdrive, e.g. `uqdrive.sim.gym_env`); ``highway`` reads HighwayEnv's ego
+vehicle (`uqdrive.sim.gym_highway`, the one module that names that package); ``module:Class`` is anyone's. An
+exception from the env's or the hooks' code is one line with the seed and step (`WorldFailure`).
 
 Frames are delivered as uqdrive's camera delivers them: RGB uint8 [48, 64, 3], here with three equal channels (the
 grey frame), so `preprocess_frame` gives the grey frame back exactly; sensor noise (σ in units of full intensity)
@@ -23,24 +24,26 @@ when the config differs (as `DrivingEnv` rebuilds its world for another scenario
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Annotated, Any, ClassVar, Literal, Protocol
+from typing import Annotated, Any, ClassVar, TypeVar
 
 import cv2
 import numpy as np
 from pydantic import Field, Strict
 
+from uqdrive.deps import user_sources
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.schema import Bool, ConfigError, Count, NonNegative, Positive, Str, schema, validate
 
 from .camera import add_noise
 from .config import STOPPED_SPEED, Section, check_noise
+from .gym_hooks import HOOKS, WorldFailure, WorldHooks, hooks_class
 
-STATE_KEYS = ("x", "y", "yaw", "speed", "collision", "off_road", "lateral_deviation")
+T = TypeVar("T")
+
 _TRAJECTORY_KEYS = ("t", "x", "y", "yaw", "speed", "steering")
-_HOOKS = {"info": "uqdrive.sim.gym_world:InfoHooks", "highway": "uqdrive.sim.gym_highway:HighwayHooks"}
 
 
 @schema
@@ -62,12 +65,15 @@ class GymWorldConfig(Section):
     name: Annotated[str, Strict(), Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")] = "gym_world"  # a file name
     env_id: Str = "uqdrive/Roundabout-v0"
     env_kwargs: dict[str, Any] = Field(default_factory=dict)
-    hooks: Literal["info", "highway"] = "info"
+    hooks: Str = "info"  # info, highway or module:Class (`uqdrive.sim.gym_hooks`)
     hooks_options: dict[str, Any] = Field(default_factory=dict)
     safe_if: dict[str, Bool] = Field(default_factory=lambda: {"collision": False, "off_road": False})
     horizon_steps: Count = 600
     control_hz: Positive = 15.0
     stopped_speed: NonNegative = STOPPED_SPEED
+
+    def __post_init__(self) -> None:
+        hooks_class(self.hooks, "hooks").check_options(self.hooks_options)  # before any work: the class and options
 
     def changed(self, changes: Mapping[str, Any], name: str, key: str) -> GymWorldConfig:
         """This world with each key of ``changes`` set (dotted, e.g. ``env_kwargs.config.other_vehicles_type``, or
@@ -109,79 +115,6 @@ def _leaves(changes: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any
     return out
 
 
-class WorldHooks(Protocol):
-    """What one family of Gymnasium envs needs to be a uqdrive world (``hooks_cls(env, config)`` checks the env).
-
-    Poses are in uqdrive's frame: x, y in metres with y to the left of x, yaw counter-clockwise, lateral deviation
-    + = left; steer + = left, in [-1, 1]."""
-
-    packages: ClassVar[tuple[str, ...]]  # distributions beyond the env's own whose versions the identity records
-
-    @classmethod
-    def env_kwargs(cls, kwargs: Mapping[str, Any]) -> dict[str, Any]:
-        """``gymnasium.make``'s kwargs from the config's (e.g. yaml lists to the tuples an env expects)."""
-
-    def begin(self) -> None:
-        """A new episode has started (the env is reset)."""
-
-    def frame(self, obs: Any) -> np.ndarray:
-        """The env's observation as a grey uint8 image [H, W]."""
-
-    def state(self, info: Mapping[str, Any]) -> dict[str, Any]:
-        """`STATE_KEYS` (and any other keys the safe set may read) after a reset or step."""
-
-    def action(self, steer: float, speed: float) -> Any:
-        """The env's action for a steering command and a commanded speed (m/s)."""
-
-    def expert(self) -> tuple[float, float]:
-        """(steer, speed) the env's own expert would command now."""
-
-
-class InfoHooks:
-    """An env whose info carries `STATE_KEYS` in uqdrive's frame and whose observation is a grey [H, W] or RGB
-    [H, W, 3] uint8 image; its action is [steer] (speed: the env's own) or [steer, speed]."""
-
-    packages: ClassVar[tuple[str, ...]] = ()
-
-    def __init__(self, env: Any, config: GymWorldConfig):
-        if config.hooks_options:
-            raise ConfigError(f"gym_world.hooks_options={config.hooks_options!r}: hooks 'info' take no options")
-        shape = getattr(env.action_space, "shape", None)
-        if shape not in ((1,), (2,)):
-            raise ConfigError(
-                f"gym_world.env_id={config.env_id!r}: action space {env.action_space} is not [steer] or [steer, speed]"
-            )
-        self.env, self.env_id, self.action_size = env, config.env_id, shape[0]
-        self.dtype = env.action_space.dtype
-
-    @classmethod
-    def env_kwargs(cls, kwargs: Mapping[str, Any]) -> dict[str, Any]:
-        return dict(kwargs)
-
-    def begin(self) -> None:
-        pass
-
-    def frame(self, obs: Any) -> np.ndarray:
-        image = np.asarray(obs)
-        if image.dtype != np.uint8 or not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
-            raise ValueError(f"{self.env_id}: observation {image.dtype} {image.shape} is not a uint8 grey or RGB image")
-        return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-
-    def state(self, info: Mapping[str, Any]) -> dict[str, Any]:
-        missing = [key for key in STATE_KEYS if key not in info]
-        if missing:
-            raise ConfigError(
-                f"gym_world.hooks='info': the info of {self.env_id!r} has no {missing[0]!r} (it has {sorted(info)})"
-            )
-        return {key: info[key] for key in STATE_KEYS}
-
-    def action(self, steer: float, speed: float) -> np.ndarray:
-        return np.array([steer, speed][: self.action_size], dtype=self.dtype)
-
-    def expert(self) -> tuple[float, float]:
-        raise ConfigError(f"gym_world.hooks='info': {self.env_id!r} has no expert these hooks know of")
-
-
 @dataclass
 class GymEpisode:
     """The record of one episode: every step's info, the reset's first. `run_rollouts` hands a world's
@@ -217,13 +150,15 @@ class GymWorld:
     def _make(self, config: GymWorldConfig) -> None:
         """The env of ``config`` and its hooks (the config's control rate and horizon with them)."""
         gymnasium = _gymnasium()
-        hooks_cls = _hooks_class(config.hooks)
+        hooks_cls = hooks_class(config.hooks)
+        self.config, self._seed = config, None  # no episode of this env yet (a failure here says so)
+        kwargs = self._user("hooks", "env_kwargs", hooks_cls.env_kwargs, config.env_kwargs)
         try:
-            env = gymnasium.make(config.env_id, **hooks_cls.env_kwargs(config.env_kwargs))
+            env = gymnasium.make(config.env_id, **kwargs)
         except gymnasium.error.Error as err:
             raise ConfigError(f"gym_world.env_id={config.env_id!r}: {err}") from None
-        self.config, self.env = config, env
-        self.hooks: WorldHooks = hooks_cls(env, config)
+        self.env = env
+        self.hooks: WorldHooks = self._user("hooks", "__init__", hooks_cls, env, config)
         self.control_hz = float(config.control_hz)
         self.dt = 1.0 / self.control_hz
 
@@ -241,15 +176,15 @@ class GymWorld:
         other scenario, and any ``weather``, is refused: the env is its own world, and has no weather."""
         world = scenario if isinstance(scenario, GymWorldConfig) else self.config
         refuse_conditions(world, None if scenario is world else scenario, weather)
-        if world != self.config:
+        if world != self.config or type(self.hooks) is not hooks_class(world.hooks):  # or its code was reloaded
             self.env.close()
             self._make(world)
         self.noise = check_noise(noise)
         self.render_enabled = bool(render)
-        obs, env_info = self.env.reset(seed=int(seed))
+        self._seed, self._steps, self._applied, self._done = int(seed), 0, 0.0, False
+        obs, env_info = self._user("env_id", "reset", self.env.reset, seed=int(seed))
         self._noise_rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
-        self.hooks.begin()
-        self._steps, self._applied, self._done = 0, 0.0, False
+        self._user("hooks", "begin", self.hooks.begin)
         self._episode = GymEpisode()
         self._log = {k: [] for k in _TRAJECTORY_KEYS}
         self._record(env_info, terminated=False, truncated=False)
@@ -260,17 +195,33 @@ class GymWorld:
         if self._done:
             raise RuntimeError("episode is over (or was never started); call reset() first")
         self._applied = min(max(float(steer), -1.0), 1.0)
-        obs, _, terminated, truncated, env_info = self.env.step(self.hooks.action(self._applied, float(speed)))
+        action = self._user("hooks", "action", self.hooks.action, self._applied, float(speed))
+        obs, _, terminated, truncated, env_info = self._user("env_id", "step", self.env.step, action)
         self._steps += 1
         info = self._record(env_info, bool(terminated), bool(truncated))
         return self._frame(obs), info
 
     def expert_command(self) -> tuple[float, float]:
         """(steer, speed) the env's own expert would command in the current state (a collect stage's label)."""
-        return self.hooks.expert()
+        return self._user("hooks", "expert", self.hooks.expert)
+
+    def _user(self, key: str, what: str, call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        """``call(*args, **kwargs)`` of the env's or the hooks' code (``key``: which config key names it); any
+        exception but a config error as one `WorldFailure` line with the seed and step it was raised at."""
+        try:
+            return call(*args, **kwargs)
+        except ConfigError:
+            raise
+        except Exception as err:  # the user's code: any exception is its failure
+            where = f"at seed {self._seed}, step {self._steps}" if self._seed is not None else "before any episode"
+            text = str(err).strip().splitlines()
+            raise WorldFailure(
+                f"gym_world.{key}={getattr(self.config, key)!r} raised {type(err).__name__} in {what}() {where}"
+                + (f": {text[0][:200]}" if text else "")
+            ) from None
 
     def _record(self, env_info: Mapping[str, Any], terminated: bool, truncated: bool) -> dict[str, Any]:
-        state = self.hooks.state(env_info)
+        state = self._user("hooks", "state", self.hooks.state, env_info)
         if state["collision"]:
             termination = "collision"
         elif state["off_road"]:
@@ -299,7 +250,7 @@ class GymWorld:
     def _frame(self, obs: Any) -> np.ndarray | None:
         if not self.render_enabled:
             return None
-        grey = self.hooks.frame(obs)
+        grey = self._user("hooks", "frame", self.hooks.frame, obs)
         if grey.shape != (INPUT_HEIGHT, INPUT_WIDTH):
             grey = cv2.resize(grey, (INPUT_WIDTH, INPUT_HEIGHT), interpolation=cv2.INTER_AREA)
         if self.noise == 0:
@@ -341,36 +292,37 @@ def refuse_conditions(config: GymWorldConfig, scenario: Any, weather: Any) -> No
             raise ConfigError(f"{key}={name!r}: {config.env_id} has no {key} condition (the world is the env)")
 
 
-def require_expert(config: GymWorldConfig) -> None:
-    """Refuse, in one line, a world whose hooks know no expert (what labels a collection's frames)."""
-    if _hooks_class(config.hooks).expert is InfoHooks.expert:
-        raise ConfigError(
-            f"gym_world.hooks={config.hooks!r}: {config.env_id} has no expert these hooks know of, so no frames to "
-            "label; collect in a world whose hooks have one (hooks: highway)"
-        )
-
-
 def world_identity(config: GymWorldConfig) -> dict[str, Any]:
-    """Everything a Gymnasium world's rollouts depend on beyond project code, for a cell's identity hash: the
-    config (env id, kwargs, hooks, safe set, horizon) and the versions of Gymnasium, the env's own distribution
-    and the hooks' (e.g. the renderer that draws HighwayEnv's observation)."""
-    owners = metadata.packages_distributions().get(_entry_module(config).split(".")[0], [])
-    names = sorted({"gymnasium", *owners, *_hooks_class(config.hooks).packages})
-    return {"config": config.to_dict(), "packages": {name: metadata.version(name) for name in names}}
+    """Everything a Gymnasium world's rollouts depend on beyond uqdrive's code, for a cell's identity hash: the
+    config (env id, kwargs, hooks, safe set, horizon), the versions of Gymnasium, of the env's and the hooks'
+    distributions and of what they name (e.g. the renderer that draws HighwayEnv's observation), and the source of
+    every package of the user's among them (not installed: an edit of the user's hooks or env is a new cell)."""
+    modules = _world_modules(config)
+    found = metadata.packages_distributions()
+    owners = {name for module in modules for name in found.get(module.partition(".")[0], [])}
+    names = sorted({"gymnasium", *owners, *hooks_class(config.hooks).packages})
+    packages = {name: metadata.version(name) for name in names}
+    return {"config": config.to_dict(), "packages": packages, "code": user_sources(modules)}
 
 
 def world_modules(config: GymWorldConfig) -> list[str]:
-    """The project modules a Gymnasium world's rollouts run that no static import reaches (the hooks and the env
-    are loaded by name), for a cell's code digest."""
-    env_module = _entry_module(config)
-    own = [env_module] if env_module.startswith("uqdrive.") else []
-    return list(dict.fromkeys(["uqdrive.sim.gym_world", _HOOKS[config.hooks].split(":")[0], *own]))
+    """uqdrive's modules a Gymnasium world's rollouts run that no static import reaches (its hooks and env are
+    loaded by name), for a cell's code digest (a user's are in `world_identity`)."""
+    own = [m for m in _world_modules(config) if m.startswith("uqdrive.")]
+    return list(dict.fromkeys(["uqdrive.sim.gym_world", *own]))
+
+
+def _world_modules(config: GymWorldConfig) -> list[str]:
+    """The modules a world loads by name: its hooks', the one its env id names (``module:Id``) and its env's."""
+    named = config.env_id.rpartition(":")[0]
+    hooks = HOOKS.get(config.hooks, config.hooks).partition(":")[0]
+    return [m for m in dict.fromkeys([hooks, named, _entry_module(config)]) if m]
 
 
 def _entry_module(config: GymWorldConfig) -> str:
     """The module that defines the env ``config.env_id`` names (``module:Id-v0``, as `gymnasium.make` takes it: the
     module registers the id when imported, in a worker process too)."""
-    _hooks_class(config.hooks)  # first: importing the hooks registers their package's env ids
+    hooks_class(config.hooks)  # first: importing the hooks registers their package's env ids
     gymnasium = _gymnasium()
     module, _, env_id = config.env_id.rpartition(":")
     try:
@@ -389,14 +341,6 @@ def _gymnasium() -> Any:
     from . import gym_env  # noqa: F401
 
     return gymnasium
-
-
-def _hooks_class(name: str) -> Any:
-    module, _, attr = _HOOKS[name].partition(":")
-    try:
-        return getattr(importlib.import_module(module), attr)
-    except ImportError as err:
-        raise ConfigError(f"gym_world.hooks={name!r} needs {err.name!r}: pip install 'uqdrive[{name}]'") from None
 
 
 def _scalars(info: Mapping[str, Any]) -> dict[str, Any]:
