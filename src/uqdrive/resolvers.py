@@ -10,6 +10,7 @@
   value of its condition axis (``sweep.world_axis``), or the world alone (AXIS null).
 - `${world_unknown:AXIS,NOISES}` is a Gymnasium world's unknown conditions for the avoid stage: the axis' other
   values and the noisier frames (conf/gym_avoid.yaml).
+- `${driver:POLICY,MODEL}` names what drives a cell: a user's policy file's stem (`safety.policy`), else the model.
 - `${output_root:ROOT,OUTPUTS}` is where a run writes: the project's pipeline folders when asked
   (`outputs=pipeline`, what `dvc.yaml`'s commands pass), else the run's own Hydra folder (`outputs/<date>/<time>`,
   or the sweep's folder for a multirun), so an ad-hoc run or sweep never overwrites a tracked pipeline output.
@@ -81,6 +82,11 @@ def world_unknown(axis: object, noises: object) -> list[dict]:
     return changed + noisier
 
 
+def driver(policy: object, model: str) -> str:
+    """A cell's driver in its name: ``steer`` for ``policy=path/steer.onnx``, else the trained model's name."""
+    return model if policy in (None, "") else Path(str(policy)).stem
+
+
 def output_root(root: str, outputs: str) -> str:
     """``root`` with ``outputs=pipeline`` or outside a Hydra job (a config composed in code); else the job's own
     folder: hydra.run.dir for a single run, hydra.sweep.dir for a multirun."""
@@ -100,6 +106,7 @@ def register_resolvers() -> None:
         ("noise_label", noise_label),
         ("world_locations", world_locations),
         ("world_unknown", world_unknown),
+        ("driver", driver),
         ("output_root", output_root),
     ):
         if not OmegaConf.has_resolver(name):

@@ -17,9 +17,11 @@ from uqdrive.envelope.search import SearchSettings
 from uqdrive.envelope.sources import Listed, UniformIn
 from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, ConditionSpace
 from uqdrive.models.posterior import posterior_from_config
+from uqdrive.resolvers import driver
 from uqdrive.safety.cells import cell_posterior
 from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.executors import ControllerSpec, PolicyRecipe, RolloutJob, job_world
+from uqdrive.safety.policy_files import load_policy, probe_policy
 from uqdrive.schema import ConfigError, Count, Positive, Seed, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig, WeatherConfig, names_gym_world
@@ -40,6 +42,7 @@ class EnvelopeSection(CertifySettings):
     search: SearchSettings
     partition: PartitionSettings
     model_path: Str
+    policy: Str | None = None  # a user's policy file or YAML (`load_policy`), driving in place of model_path
     horizon_s: Positive
     speed: Positive
     samples: Count
@@ -84,7 +87,7 @@ class Envelope:
     stage: EnvelopeStage
     method: str
     space: ConditionSpace
-    policy: ControllerSpec
+    policy: PolicyRecipe
 
     @property
     def settings(self) -> EnvelopeSection:
@@ -113,10 +116,6 @@ def build_envelope(cfg: DictConfig) -> Envelope:
     rollout (a bad value is one line naming its key)."""
     stage = validate(EnvelopeStage, cfg)
     env = stage.envelope
-    method = posterior_from_config(stage.model).method
-    bins = stage.experiment.bins
-    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
-    cell_posterior("envelope.model_path", Path(env.model_path), method, bins, trained_by)
     base = stage.condition()
     blend = None
     if any(a.key == BLEND for a in env.axes) and stage.gym_world is None:
@@ -127,8 +126,23 @@ def build_envelope(cfg: DictConfig) -> Envelope:
         raise ConfigError(str(err)) from None
     space.check()
     _check_budget(env, space.dim)
-    policy = ControllerSpec(env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
+    method, policy = _driver(stage)
     return Envelope(stage, method, space, policy)
+
+
+def _driver(stage: EnvelopeStage) -> tuple[str, PolicyRecipe]:
+    """What drives the map's rollouts and its name: a user's policy (``envelope.policy``, run on a first frame
+    here) or the trained model (loaded here: a missing or mismatched file names the stage that trains it)."""
+    env = stage.envelope
+    if env.policy is not None:
+        spec = load_policy(env.policy, speed=env.speed, eps=env.eps)
+        world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, env.horizon_s, env.half_width)
+        probe_policy(RolloutJob(spec, stage.condition(), env.base_seed, **world))
+        return driver(env.policy, ""), spec
+    method, bins = posterior_from_config(stage.model).method, stage.experiment.bins
+    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
+    cell_posterior("envelope.model_path", Path(env.model_path), method, bins, trained_by)
+    return method, ControllerSpec(env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
 
 
 def _check_budget(env: EnvelopeSection, dim: int) -> None:

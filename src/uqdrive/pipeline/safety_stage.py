@@ -29,11 +29,12 @@ from uqdrive.files import write_csv
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.plots import safety_hexbin, save_figure, visits_colour_bar
 from uqdrive.records import as_dict, read_record, write_record
-from uqdrive.resolvers import world_location
+from uqdrive.resolvers import driver, world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.policy_files import load_policy, probe_policy
 from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
@@ -55,6 +56,7 @@ class SafetySection(EstimatorSettings):
     and outputs."""
 
     model_path: Str
+    policy: Str | None = None  # a user's policy file or YAML (`load_policy`), driving in place of model_path
     horizon_s: Positive  # T
     speed: Positive  # m/s, at most vehicle.max_speed
     samples: Count  # posterior draws per frame (the cap, with sequential draws)
@@ -171,7 +173,10 @@ class CellPlan:
 
 def check_model(stage: SafetyStage) -> str:
     """The cell's method, its model file loaded as that method's with the experiment's classes; a missing or
-    mismatched file is one line naming the key and the stage that trains it."""
+    mismatched file is one line naming the key and the stage that trains it. A user's policy (``safety.policy``)
+    is its own method, named by its file."""
+    if stage.safety.policy is not None:
+        return driver(stage.safety.policy, "")
     method = posterior_from_config(stage.model).method
     trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
     cell_posterior("safety.model_path", Path(stage.safety.model_path), method, stage.experiment.bins, trained_by)
@@ -182,12 +187,16 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
     """Validate the cell's config and load its model once, before any rollout: a bad config value is one line
     naming the key, the value and what is allowed; a missing or mismatched model file names the stage to run."""
     stage = validate(SafetyStage, cfg)
-    safety = stage.safety
-    method, bins, model_path = check_model(stage), stage.experiment.bins, Path(safety.model_path)
-    spec = ControllerSpec(safety.speed, str(model_path), method, bins, safety.samples, safety.eps, draws=safety.draws)
     s = stage.safety
+    method = check_model(stage)
+    if s.policy is not None:  # a user's: its file's bytes or its class's source in the cell's key
+        spec = load_policy(s.policy, speed=s.speed, eps=s.eps)
+    else:
+        spec = ControllerSpec(s.speed, s.model_path, method, stage.experiment.bins, s.samples, s.eps, draws=s.draws)
     world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
     job = RolloutJob(spec, stage.condition(), stage.estimator.base_seed, **world)
+    if s.policy is not None:
+        probe_policy(job)
     return CellPlan(stage, method, job, estimate_key(job, stage.estimator, __name__))
 
 
