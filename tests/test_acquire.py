@@ -17,9 +17,9 @@ from uqdrive.data.synthetic import synthetic_road_frames
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, write_table_batches
 from uqdrive.models.checkpoint import read_checkpoint
 from uqdrive.pipeline.acquire_stage import Where, aggregate, retrain, run_acquire, targeted_conditions
-from uqdrive.pipeline.safety_stage import SafetyStage
+from uqdrive.pipeline.safety_stage import SafetyStage, run_safety
 from uqdrive.pipeline.train_stage import run_train
-from uqdrive.records import write_record
+from uqdrive.records import read_record, write_record
 from uqdrive.safety.acquisition import flagged_cells
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.schema import ConfigError, validate
@@ -79,8 +79,9 @@ def project(tmp_path_factory):
     write_processed(root / "data/processed/offline/train.parquet", 160, seed=1)
     write_processed(root / "data/processed/offline/val.parquet", 64, seed=2)
     run_train(compose_in(root, "train", "experiment=offline", "outputs=pipeline", *ALL_TENTHS, "train.mcd.epochs=1"))
+    swept = [o for o in TINY if not o.startswith("acquire.")]
+    run_safety(compose_in(root, "safety", *swept))  # the sweep's cell at the training condition, really driven
     for cell in (
-        sweep_cell("roundabout", "clear_noon", 0.0, 1.0),
         sweep_cell("roundabout", "rain", 0.1, 0.95),  # above the target: not flagged
         sweep_cell("roundabout_large", "rain", 0.1, 0.23),  # flagged
         sweep_cell("roundabout_large", "rain", 0.1, 0.1, method="vi"),  # another controller's
@@ -118,6 +119,16 @@ def test_the_stage_acquires_where_the_sweep_flagged_this_controller(one_round):
     assert rows == {(r, a.condition) for r in (0, 1) for a in acquired}
     for c in one_round.checks:
         assert c.low <= c.eta1 <= c.high and c.expert_low <= c.expert <= c.expert_high and c.n == 4
+
+
+def test_round_zero_reads_the_sweeps_own_cell_where_it_is_the_same_cell(project, one_round):
+    """The behaviour-cloned controller at the training condition is the sweep's cell (same model, world, estimator,
+    seeds): read back, not driven again; the flagged cell's record here is another's (a different identity)."""
+    swept = read_record(SafetyCell, project / "metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json", "safety")
+    row = next(c for c in one_round.checks if (c.round, c.cell) == (0, TRAINING.label))
+    assert (row.eta1, row.low, row.high, row.n) == (swept.eta1, swept.eta1_low, swept.eta1_high, swept.n)
+    checks = project / "data/acquire/offline/mcd-seed0/round0/check"
+    assert sorted(p.name for p in checks.glob("*.json")) == ["roundabout_large-rain-noise0.1.json"]
 
 
 def test_every_acquired_label_is_the_experts_command_in_that_state(project, one_round):

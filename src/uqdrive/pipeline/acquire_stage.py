@@ -76,6 +76,7 @@ class AcquireSection:
     training: Where  # the condition the training data was collected at: acquired at and checked every round
     checks: tuple[Where, ...]  # further check cells, never acquired at (e.g. an untouched location)
     world_axis: WorldAxis | None  # a Gymnasium world's swept condition, to place its flagged cells (params gym_axis)
+    expert_logs: Str  # the expert's check rollouts, by condition
     out_dir: Str
     out: Str
 
@@ -279,12 +280,14 @@ def retrain(train_overrides: Sequence[str], method: str, processed: Path, models
 
 def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
     """η̂1 of ``model`` at every check cell, by the safety cell's estimator and seeds (paired with the sweep and
-    every round), beside the expert's; a cell whose record holds its key is read back."""
+    every round), beside the expert's. A cell is read back where a record with its identity exists: its own, or
+    (round 0, the behaviour-cloned controller) the sweep's cell at that condition."""
     rows, stage = [], ctx.stage
     for where in ctx.checks:
         out = ctx.folder(k) / "check" / where.label
         plan = plan_cell(ctx.safety_config(where, model, **{"safety.rollout_log": f"{out}.jsonl"}))
-        cell = reusable_result(f"{out}.json", plan.key)
+        swept = Path(stage.acquire.cells_dir) / f"{stage.model['name']}-{stage.replicate}-{where.label}.json"
+        cell = reusable_result(f"{out}.json", plan.key) or (reusable_result(swept, plan.key) if k == 0 else None)
         if cell is None:
             name = f"acquire round {k} {where.label}"
             run = ctx.runner.estimate(name, plan.job, plan.stage.estimator, plan.key, f"{out}.jsonl")
@@ -294,27 +297,19 @@ def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
         ctx.expert[where.label] = expert
         rows.append(
             AcquisitionCheck(
-                stage.model["name"],
-                stage.seed,
-                k,
-                where.label,
-                cell.eta1,
-                cell.eta1_low,
-                cell.eta1_high,
-                cell.n,
-                expert.value,
-                expert.low,
-                expert.high,
+                stage.model["name"], stage.seed, k, where.label, cell.eta1, cell.eta1_low, cell.eta1_high, cell.n,
+                expert.value, expert.low, expert.high,
             )
-        )
+        )  # fmt: skip
     return rows
 
 
 def expert_estimate(ctx: Rounds, plan: Any, where: Where) -> Estimate:
-    """The expert's η̂1 at a check cell: the cell's job and estimator, the expert driving (its log replays a rerun)."""
+    """The expert's η̂1 at a check cell: the cell's job and estimator, the expert driving (its log, shared by the
+    replicate's methods, replays a rerun and the other methods' identical cells)."""
     job = expert_job(plan.job, plan.stage.autopilot)
     key = estimate_key(job, plan.stage.estimator, __name__)
-    log = Path(ctx.stage.acquire.out_dir) / "expert" / f"{where.label}.jsonl"
+    log = Path(ctx.stage.acquire.expert_logs) / f"{where.label}.jsonl"
     return ctx.runner.estimate(f"expert {where.label}", job, plan.stage.estimator, key, log).outcome
 
 
