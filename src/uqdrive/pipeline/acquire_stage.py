@@ -342,13 +342,15 @@ def run_round(ctx: Rounds, k: int, model: Path) -> RoundRecord:
 
 
 def round_zero(ctx: Rounds, model: Path) -> RoundRecord:
-    """The behaviour-cloned controller, checked as every round is."""
+    """The behaviour-cloned controller, checked as every round is (its record: round0/round.json)."""
     metrics = read_checkpoint(model)["metadata"].get("metrics", {})
     frames = read_table(
         Path(ctx.stage.paths.processed) / ctx.stage.experiment.name / "train.parquet", PROCESSED_SCHEMA, ["label"]
     )
     summary = RoundSummary(0, 1.0, 0, frames.num_rows, float(metrics.get("val_accuracy", float("nan"))), [])
-    return RoundRecord(summary, check(ctx, 0, model), str(model), ctx.key)
+    done = RoundRecord(summary, check(ctx, 0, model), str(model), ctx.key)
+    write_record(ctx.folder(0) / "round.json", done)
+    return done
 
 
 def log_round(ctx: Rounds, done: RoundRecord) -> None:
