@@ -189,3 +189,22 @@ def test_a_condition_outside_the_world_is_one_line_naming_the_key(tmp_path):
     cfg = compose_in(tmp_path, "acquire", training)
     with pytest.raises(ConfigError, match=r"^acquire.training.weather='env' must name a weather"):
         run_acquire(cfg, [])
+
+
+def test_each_round_is_an_mlflow_run_with_its_sizes_and_check_cells(project, one_round):
+    from mlflow.tracking import MlflowClient
+
+    from uqdrive.tracking import store_uris
+
+    client = MlflowClient(store_uris(project)[0])
+    experiment = client.get_experiment_by_name("uqdrive/acquire")
+    runs = {r.info.run_name.split(" · ")[-1]: r.data.metrics for r in client.search_runs([experiment.experiment_id])}
+    last = runs["offline-mcd-seed0 round 1"]
+    assert last["frames_added"] == one_round.rounds[1].frames_added
+    assert last["val_accuracy"] == one_round.rounds[1].val_accuracy
+    flagged = next(c for c in one_round.checks if (c.round, c.cell) == (1, "roundabout_large-rain-noise0.1"))
+    assert (last["eta1/roundabout_large-rain-noise0.1"], last["eta1_high/roundabout_large-rain-noise0.1"]) == (
+        flagged.eta1,
+        flagged.high,
+    )
+    assert "offline-mcd-seed0 round 0" in runs
