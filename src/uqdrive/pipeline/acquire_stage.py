@@ -31,13 +31,23 @@ from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, read_table, write_
 from uqdrive.models.checkpoint import read_checkpoint, save_posterior
 from uqdrive.pipeline.safety_stage import SafetyStage, WorldAxis, plan_cell, reusable_result, safety_cell
 from uqdrive.pipeline.train_stage import TrainStage, fit
-from uqdrive.records import read_record, record, write_record
+from uqdrive.records import read_record, write_record
 from uqdrive.resolvers import condition_label, world_location
-from uqdrive.safety.acquisition import ExpertPolicy, acquire_episodes, expert_job, flagged_cells
+from uqdrive.safety.acquisition import (
+    AcquiredAt,
+    Acquisition,
+    AcquisitionCheck,
+    ExpertPolicy,
+    RoundRecord,
+    RoundSummary,
+    acquire_episodes,
+    expert_job,
+    flagged_cells,
+)
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import file_digest
 from uqdrive.safety.executors import WorkerEnvs
-from uqdrive.safety.runner import CellRunner, estimate_key
+from uqdrive.safety.runner import CellRunner, code_digest, estimate_key
 from uqdrive.schema import ConfigError, Count, NonNegative, Seed, Str, Unit, invalid, schema, validate
 from uqdrive.sim.condition import NO_WEATHER
 from uqdrive.stage import compose_cell
@@ -134,69 +144,6 @@ def sweep_cells(stage: AcquireStage) -> list[SafetyCell]:
     return cells
 
 
-@record
-class AcquiredAt:
-    """Frames one round acquired at one condition."""
-
-    round: int
-    condition: str
-    episodes: int
-    frames: int
-
-
-@record
-class AcquisitionCheck:
-    """η̂1 of round ``round``'s controller at check cell ``cell``, and the expert's on the same seeds."""
-
-    method: str
-    replicate: int
-    round: int
-    cell: str
-    eta1: float
-    low: float
-    high: float
-    n: int
-    expert: float
-    expert_low: float
-    expert_high: float
-
-
-@record
-class RoundSummary:
-    """One round: its β, the frames it added (per condition in ``acquired``), the training set it retrained on and
-    the retrained controller's validation accuracy (round 0: the behaviour-cloned controller's)."""
-
-    round: int
-    beta: float
-    frames_added: int
-    train_frames: int
-    val_accuracy: float
-    acquired: list[AcquiredAt]
-
-
-@record
-class RoundRecord:
-    """<out_dir>/round<k>/round.json: a finished round, reused by a rerun with the same ``config_hash``."""
-
-    summary: RoundSummary
-    checks: list[AcquisitionCheck]
-    model: str
-    config_hash: str
-
-
-@record
-class Acquisition:
-    """metrics/acquire/<experiment>/<method>-<replicate>.json: every round's summary and check rows."""
-
-    method: str
-    replicate: int
-    experiment: str
-    target: float
-    flagged: list[str]
-    rounds: list[RoundSummary]
-    checks: list[AcquisitionCheck]
-
-
 @dataclasses.dataclass
 class Rounds:
     """What every round of one stage run shares."""
@@ -220,12 +167,15 @@ class Rounds:
 
 
 def rounds_key(cfg: DictConfig, model: Path) -> str:
-    """What every round depends on: the stage's settings (less the round count and the progress bars) and the
-    behaviour-cloned model's bytes."""
+    """What every round depends on: the stage's settings (less the round count and the progress bars), the
+    behaviour-cloned model's bytes and the code a round runs."""
     settings = OmegaConf.to_container(cfg, resolve=True)
     settings["acquire"].pop("rounds")
     settings.pop("progress", None)
-    identity = json.dumps({"settings": settings, "model": file_digest(model)}, sort_keys=True, default=str)
+    code = code_digest([__name__])
+    identity = json.dumps(
+        {"settings": settings, "model": file_digest(model), "code": code}, sort_keys=True, default=str
+    )
     return hashlib.sha256(identity.encode()).hexdigest()[:16]
 
 

@@ -4,7 +4,8 @@ command the expert gives in that state, so the data shows how to come back from 
 
 The expert is the one that produced the training data: uqdrive's autopilot (unperturbed) in the pybullet world, a
 Gymnasium world's own (`GymWorld.expert_command`). Who drives a step is drawn from the episode's seed on a stream of
-its own, so an acquisition episode is a function of its seed, as every rollout is.
+its own, so an acquisition episode is a function of its seed, as every rollout is. Below: the records the `acquire`
+stage writes (per round, and per controller).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from uqdrive.records import record
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.controller import Command, Policy
 from uqdrive.safety.executors import PolicyRecipe, RolloutJob
@@ -130,3 +132,66 @@ def expert_job(job: RolloutJob, autopilot: AutopilotConfig) -> RolloutJob:
     """``job`` driven by the world's expert instead of its policy: the same seeds and conditions, paired."""
     recipe: PolicyRecipe = ExpertSpec(autopilot)
     return dataclasses.replace(job, policy=recipe)
+
+
+@record
+class AcquiredAt:
+    """Frames one round acquired at one condition."""
+
+    round: int
+    condition: str
+    episodes: int
+    frames: int
+
+
+@record
+class AcquisitionCheck:
+    """η̂1 of round ``round``'s controller at check cell ``cell``, and the expert's on the same seeds."""
+
+    method: str
+    replicate: int
+    round: int
+    cell: str
+    eta1: float
+    low: float
+    high: float
+    n: int
+    expert: float
+    expert_low: float
+    expert_high: float
+
+
+@record
+class RoundSummary:
+    """One round: its β, the frames it added (per condition in ``acquired``), the training set it retrained on and
+    the retrained controller's validation accuracy (round 0: the behaviour-cloned controller's)."""
+
+    round: int
+    beta: float
+    frames_added: int
+    train_frames: int
+    val_accuracy: float
+    acquired: list[AcquiredAt]
+
+
+@record
+class RoundRecord:
+    """<out_dir>/round<k>/round.json: a finished round, reused by a rerun with the same ``config_hash``."""
+
+    summary: RoundSummary
+    checks: list[AcquisitionCheck]
+    model: str
+    config_hash: str
+
+
+@record
+class Acquisition:
+    """metrics/acquire/<experiment>/<method>-<replicate>.json: every round's summary and check rows."""
+
+    method: str
+    replicate: int
+    experiment: str
+    target: float
+    flagged: list[str]
+    rounds: list[RoundSummary]
+    checks: list[AcquisitionCheck]
