@@ -16,7 +16,15 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.synthetic import synthetic_road_frames
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, write_table_batches
 from uqdrive.models.checkpoint import read_checkpoint
-from uqdrive.pipeline.acquire_stage import Where, aggregate, retrain, run_acquire, targeted_conditions
+from uqdrive.pipeline.acquire_stage import (
+    AcquireStage,
+    Where,
+    aggregate,
+    placed,
+    retrain,
+    run_acquire,
+    targeted_conditions,
+)
 from uqdrive.pipeline.safety_stage import SafetyStage, run_safety
 from uqdrive.pipeline.train_stage import run_train
 from uqdrive.records import read_record, write_record
@@ -208,3 +216,25 @@ def test_each_round_is_an_mlflow_run_with_its_sizes_and_check_cells(project, one
         flagged.high,
     )
     assert "offline-mcd-seed0 round 0" in runs
+
+
+AXIS = (
+    "acquire.world_axis={key: env_kwargs.config.other_vehicles_type, values: "
+    "{idm: highway_env.vehicle.behavior.IDMVehicle, aggressive: highway_env.vehicle.behavior.AggressiveVehicle}}"
+)
+
+
+def test_a_gymnasium_worlds_flagged_location_is_placed_by_its_axis(tmp_path):
+    """A sweep's Gymnasium cell is named <world>-<label>: the acquisition drives the world at that label's value, as
+    the sweep's cell did; a location the axis does not name is one line naming the key."""
+    gym = ("gym_world=highway_roundabout", "experiment=highway_roundabout", "safety.speed=8.0", AXIS)
+    training = "acquire.training={location: highway_roundabout-idm, weather: env, noise: 0.0}"
+    stage = validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, training))
+    assert placed(stage, Where("highway_roundabout-aggressive", "env", 0.1)) == {
+        "++gym_world.env_kwargs.config.other_vehicles_type": "highway_env.vehicle.behavior.AggressiveVehicle",
+        "gym_world.name": "highway_roundabout-aggressive",
+        "noise": 0.1,
+    }
+    wrong = "acquire.training={location: highway_roundabout-defensive, weather: env, noise: 0.0}"
+    with pytest.raises(ConfigError, match=r"^acquire.training.location='highway_roundabout-defensive' must be"):
+        validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, wrong))
