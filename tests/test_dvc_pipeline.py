@@ -155,6 +155,8 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         if line.startswith("Running stage")
     )
     assert ran == [
+        "acquire@mcd-0",  # the controllers' flagged cells are the sweep's: read again
+        "acquire@mcd-1",
         "evaluate",
         "findings",
         "heldout",  # one stage each, over every condition (safety replays the cells it has seen from its rollout log)

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from conftest import ALL_TENTHS
 
+from uqdrive.pipeline.acquire_stage import run_acquire
 from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
 from uqdrive.pipeline.certify_stage import run_certify
@@ -52,6 +53,7 @@ STAGES = {
     "envelope": run_envelope,
     "rare": run_rare,
     "certify": run_certify,
+    "acquire": lambda cfg: run_acquire(cfg, []),
 }
 
 # stage: (a typo'd key, a wrong type, a value out of range), each an override and the start of its one line
@@ -153,6 +155,11 @@ BAD = {
         ("+rare.targte=0.9", "rare.targte: unknown key; did you mean 'target'?"),
         ("rare.refute_budget=many", "rare.refute_budget='many': input should be a valid integer"),
         ("rare.defensive=1.5", "rare.defensive=1.5: input should be less than or equal to 1"),
+    ],
+    "acquire": [
+        ("+acquire.round=1", "acquire.round: unknown key; did you mean 'rounds'?"),
+        ("acquire.beta=often", "acquire.beta='often': input should be a valid number"),
+        ("acquire.rounds=-1", "acquire.rounds=-1: input should be greater than or equal to 0"),
     ],
 }
 

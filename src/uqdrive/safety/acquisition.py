@@ -1,0 +1,197 @@
+"""Data acquisition in the learner's own states (DAgger, Ross, Gordon & Bagnell 2011): a controller drives — at each
+step the world's expert takes over with probability β instead — and every visited frame is labelled with the
+command the expert gives in that state, so the data shows how to come back from where the learner goes.
+
+The expert is the one that produced the training data: uqdrive's autopilot (unperturbed) in the pybullet world, a
+Gymnasium world's own (`GymWorld.expert_command`). Who drives a step is drawn from the episode's seed on a stream of
+its own, so an acquisition episode is a function of its seed, as every rollout is. Below: the records the `acquire`
+stage writes (per round, and per controller).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from uqdrive.records import record
+from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.safety.controller import Command, Policy
+from uqdrive.safety.executors import PolicyRecipe, RolloutJob
+from uqdrive.safety.rollout import World, run_rollouts
+from uqdrive.sim import Autopilot, AutopilotConfig
+from uqdrive.sim.condition import Condition
+from uqdrive.sim.gym_world import GymWorld
+
+MIX_STREAM = 0xDA66E  # who drives each step: a stream of the episode's seed apart from the episode's own draws
+RECORDED = ("t", "x", "y", "yaw", "speed", "lateral_deviation")  # info keys kept with each frame (as a collection)
+
+
+class ExpertPolicy:
+    """The world's expert as a `Policy`: the autopilot with ``config`` (its perturbations off) in the pybullet world,
+    the env's own expert in a Gymnasium world. Its η̂1 is the reference line of an acquisition's check cells."""
+
+    needs_camera = False
+
+    def __init__(self, config: AutopilotConfig | None = None):
+        self.config = dataclasses.replace(config or AutopilotConfig(), perturb_prob=0.0)
+        self._experts: dict[int, Callable[[dict], tuple[float, float]]] = {}
+
+    def reset(self, env: World, seed: int, slot: int = 0) -> None:
+        if isinstance(env, GymWorld):
+            self._experts[slot] = lambda info: env.expert_command()
+            return
+        autopilot = Autopilot(env.route, env.vehicle_config, self.config, env.control_hz, seed=seed)
+        self._experts[slot] = lambda info: _label_and_speed(autopilot, info)
+
+    def command(self, slot: int, info: dict) -> tuple[float, float]:
+        """(steering label, speed) the expert commands in the state of ``info``."""
+        return self._experts[slot](info)
+
+    def act_batch(self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]) -> list:
+        return [Command(*self.command(slot, info)) for slot, info in zip(slots, infos)]
+
+
+def _label_and_speed(autopilot: Autopilot, info: dict) -> tuple[float, float]:
+    action = autopilot.act(info)
+    return action.label, action.speed
+
+
+@dataclasses.dataclass(frozen=True)
+class ExpertSpec:
+    """A picklable recipe of `ExpertPolicy` for a `RolloutJob` (the expert's own η̂1 in a cell)."""
+
+    autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
+
+    def build(self, control_hz: float) -> Policy:
+        return ExpertPolicy(self.autopilot)
+
+
+class LabellingPolicy:
+    """The learner, or with probability ``beta`` per step the expert, drives; each step's frame, state and the
+    expert's label are kept in ``rows`` (one column dict per rollout seed), encoded by ``encode``."""
+
+    def __init__(self, learner: Policy, expert: ExpertPolicy, beta: float, encode: Callable[[np.ndarray], object]):
+        self.learner, self.expert, self.beta, self.encode = learner, expert, float(beta), encode
+        self.needs_camera = True
+        self.rows: dict[int, dict[str, list]] = {}
+        self._seeds: dict[int, int] = {}
+        self._coins: dict[int, np.random.Generator] = {}
+
+    def reset(self, env: World, seed: int, slot: int = 0) -> None:
+        self.learner.reset(env, seed, slot)
+        self.expert.reset(env, seed, slot)
+        self._seeds[slot] = seed
+        self._coins[slot] = np.random.default_rng([MIX_STREAM, seed])
+        self.rows[seed] = {key: [] for key in (*RECORDED, "step", "steering", "applied_steering", "image")}
+
+    def act_batch(
+        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
+    ) -> list[Command]:
+        learned = self.learner.act_batch(slots, frames, infos)  # every step: the learner's draws never depend on β
+        commands = []
+        for slot, frame, info, own in zip(slots, frames, infos, learned):
+            label, speed = self.expert.command(slot, info)
+            expert_drives = self._coins[slot].random() < self.beta  # one draw a step, whoever drives
+            command = dataclasses.replace(own, steer=label, speed=speed) if expert_drives else own  # η2 etc. kept
+            rows = self.rows[self._seeds[slot]]
+            for key in RECORDED:
+                rows[key].append(info[key])
+            rows["step"].append(len(rows["steering"]))
+            rows["steering"].append(label)
+            rows["applied_steering"].append(command.steer)
+            rows["image"].append(self.encode(frame))
+            commands.append(command)
+        return commands
+
+
+def acquire_episodes(
+    envs: Sequence[World],
+    learner: Policy,
+    expert: ExpertPolicy,
+    beta: float,
+    seeds: Sequence[int],
+    where: Condition,
+    encode: Callable[[np.ndarray], object],
+) -> list[dict[str, list]]:
+    """The labelled frames of one rollout per seed at ``where`` (`LabellingPolicy`), in seed order: each a column
+    dict as a collection's (`uqdrive.sim.episodes`), less the condition's columns."""
+    policy = LabellingPolicy(learner, expert, beta, encode)
+    run_rollouts(envs, policy, seeds, [where] * len(seeds))
+    return [policy.rows[seed] for seed in seeds]
+
+
+def flagged_cells(cells: Sequence[SafetyCell], target: float) -> list[SafetyCell]:
+    """The cells a sweep found unsafe: the upper end of η1's interval below ``target`` (the paper's "problematic
+    scenarios in which further data acquisition should occur"), in the order given."""
+    return [cell for cell in cells if cell.eta1_high < target]
+
+
+def expert_job(job: RolloutJob, autopilot: AutopilotConfig) -> RolloutJob:
+    """``job`` driven by the world's expert instead of its policy: the same seeds and conditions, paired."""
+    recipe: PolicyRecipe = ExpertSpec(autopilot)
+    return dataclasses.replace(job, policy=recipe)
+
+
+@record
+class AcquiredAt:
+    """Frames one round acquired at one condition."""
+
+    round: int
+    condition: str
+    episodes: int
+    frames: int
+
+
+@record
+class AcquisitionCheck:
+    """η̂1 of round ``round``'s controller at check cell ``cell``, and the expert's on the same seeds."""
+
+    method: str
+    replicate: int
+    round: int
+    cell: str
+    eta1: float
+    low: float
+    high: float
+    n: int
+    expert: float
+    expert_low: float
+    expert_high: float
+
+
+@record
+class RoundSummary:
+    """One round: its β, the frames it added (per condition in ``acquired``), the training set it retrained on and
+    the retrained controller's validation accuracy (round 0: the behaviour-cloned controller's)."""
+
+    round: int
+    beta: float
+    frames_added: int
+    train_frames: int
+    val_accuracy: float
+    acquired: list[AcquiredAt]
+
+
+@record
+class RoundRecord:
+    """<out_dir>/round<k>/round.json: a finished round, reused by a rerun with the same ``config_hash``."""
+
+    summary: RoundSummary
+    checks: list[AcquisitionCheck]
+    model: str
+    config_hash: str
+
+
+@record
+class Acquisition:
+    """metrics/acquire/<experiment>/<method>-<replicate>.json: every round's summary and check rows."""
+
+    method: str
+    replicate: int
+    experiment: str
+    target: float
+    flagged: list[str]
+    rounds: list[RoundSummary]
+    checks: list[AcquisitionCheck]

@@ -1,0 +1,240 @@
+"""The acquire stage (DAgger aimed by the safety sweep): acquired labels are the expert's command in the visited
+state, a round is a function of its settings, round 0's retraining is behaviour cloning bit for bit, and the
+targeted sampler acquires only where the sweep flagged the controller plus the training condition."""
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from uqdrive.data.binning import SteeringBins
+from uqdrive.data.synthetic import synthetic_road_frames
+from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, write_table_batches
+from uqdrive.models.checkpoint import read_checkpoint
+from uqdrive.pipeline.acquire_stage import (
+    AcquireStage,
+    Where,
+    aggregate,
+    placed,
+    retrain,
+    run_acquire,
+    targeted_conditions,
+)
+from uqdrive.pipeline.safety_stage import SafetyStage, run_safety
+from uqdrive.pipeline.train_stage import run_train
+from uqdrive.records import read_record, write_record
+from uqdrive.safety.acquisition import flagged_cells
+from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.schema import ConfigError, validate
+from uqdrive.sim import Autopilot, AutopilotConfig, build_geometry
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+ALL_TENTHS = ("experiment.bins.low=-1.0", "experiment.bins.high=1.0")  # the synthetic frames' labels span ±0.6
+TRAINING = Where("roundabout", "clear_noon", 0.0)
+# one round, one short episode per condition: the tiny safety cells (4 rollouts of at most 12 s) check it
+TINY = (
+    "experiment=offline",
+    "outputs=pipeline",
+    *ALL_TENTHS,
+    "acquire.episodes=1",
+    "safety.horizon_s=6",
+    "train.mcd.epochs=1",
+)
+
+
+def compose_in(root: Path, stage: str, *overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(stage, overrides=[f"paths.root={root}", "profile=tiny", "progress=false", *overrides])
+
+
+def sweep_cell(location: str, weather: str, noise: float, high: float, method: str = "mcd") -> SafetyCell:
+    """A swept cell whose interval ends at ``high`` (the rest: what the sampler never reads)."""
+    return SafetyCell(
+        method=method, replicate=0, experiment="offline", location=location, weather=weather, noise=noise,
+        theta=0.3, gamma=0.05, scheme="clopper_pearson", n=4, base_seed=100000, family_size=1, fixed_rollouts=4,
+        eta1=high / 2, eta1_low=0.0, eta1_high=high, rollouts=4, steps=100, seconds=1.0, collision_rate=0.0,
+        off_road_rate=0.0, left_corridor_rate=0.0, reached_goal_rate=1.0, max_corridor_use=0.5,
+        mean_corridor_use=0.5, mean_lateral_deviation=0.1, mean_eta2=None, mean_mutual_information=0.1,
+        guaranteed=True, outcomes="1111", config_hash="x",
+    )  # fmt: skip
+
+
+def write_processed(path: Path, n: int, seed: int) -> None:
+    images, steer = synthetic_road_frames(n, np.random.default_rng(seed))
+    columns = {
+        "scenario": ["roundabout"] * n,
+        "weather": ["clear_noon"] * n,
+        "noise": [0.0] * n,
+        "episode": [seed] * n,
+        "step": list(range(n)),
+        "steering": steer.tolist(),
+        "label": SteeringBins().to_class(steer).tolist(),
+        "image": [im.tobytes() for im in images],
+    }
+    write_table_batches(path, PROCESSED_SCHEMA, [columns])
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    """Synthetic training frames, the behaviour-cloned MCD controller trained on them (one tiny epoch), and a sweep
+    that flagged it in rain with noise at the 20 m ring only."""
+    root = tmp_path_factory.mktemp("acquire")
+    write_processed(root / "data/processed/offline/train.parquet", 160, seed=1)
+    write_processed(root / "data/processed/offline/val.parquet", 64, seed=2)
+    run_train(compose_in(root, "train", "experiment=offline", "outputs=pipeline", *ALL_TENTHS, "train.mcd.epochs=1"))
+    swept = [o for o in TINY if not o.startswith("acquire.")]
+    run_safety(compose_in(root, "safety", *swept))  # the sweep's cell at the training condition, really driven
+    for cell in (
+        sweep_cell("roundabout", "rain", 0.1, 0.95),  # above the target: not flagged
+        sweep_cell("roundabout_large", "rain", 0.1, 0.23),  # flagged
+        sweep_cell("roundabout_large", "rain", 0.1, 0.1, method="vi"),  # another controller's
+    ):
+        write_record(root / f"metrics/safety/{cell.name}.json", cell)
+    return root
+
+
+@pytest.fixture(scope="module")
+def one_round(project):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        overrides = [f"paths.root={project}", "profile=tiny", "progress=false", *TINY, "acquire.rounds=1"]
+        return run_acquire(compose("acquire", overrides=overrides), overrides)
+
+
+def test_the_sampler_acquires_at_the_flagged_conditions_and_the_training_one_only():
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        highs = rng.random(6)
+        target = float(rng.random())
+        cells = [sweep_cell(f"l{i}", "rain", 0.1 * (i % 2), float(h)) for i, h in enumerate(highs)]
+        chosen = [w.label for w in targeted_conditions(TRAINING, flagged_cells(cells, target))]
+        expected = [TRAINING.label] + [c.name.removeprefix("mcd-seed0-") for c in cells if c.eta1_high < target]
+        assert chosen == expected
+
+
+def test_the_stage_acquires_where_the_sweep_flagged_this_controller(one_round):
+    assert one_round.flagged == ["roundabout_large-rain-noise0.1"]
+    acquired = one_round.rounds[1].acquired
+    assert [a.condition for a in acquired] == ["roundabout-clear_noon-noise0.0", "roundabout_large-rain-noise0.1"]
+    assert all(a.frames > 0 and a.episodes == 1 for a in acquired)
+    assert one_round.rounds[1].frames_added == sum(a.frames for a in acquired)
+    assert one_round.rounds[1].train_frames == 160 + one_round.rounds[1].frames_added
+    rows = {(c.round, c.cell) for c in one_round.checks}
+    assert rows == {(r, a.condition) for r in (0, 1) for a in acquired}
+    for c in one_round.checks:
+        assert c.low <= c.eta1 <= c.high and c.expert_low <= c.expert <= c.expert_high and c.n == 4
+
+
+def test_round_zero_reads_the_sweeps_own_cell_where_it_is_the_same_cell(project, one_round):
+    """The behaviour-cloned controller at the training condition is the sweep's cell (same model, world, estimator,
+    seeds): read back, not driven again; the flagged cell's record here is another's (a different identity)."""
+    swept = read_record(SafetyCell, project / "metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json", "safety")
+    row = next(c for c in one_round.checks if (c.round, c.cell) == (0, TRAINING.label))
+    assert (row.eta1, row.low, row.high, row.n) == (swept.eta1, swept.eta1_low, swept.eta1_high, swept.n)
+    checks = project / "data/acquire/offline/mcd-seed0/round0/check"
+    assert sorted(p.name for p in checks.glob("*.json")) == ["roundabout_large-rain-noise0.1.json"]
+
+
+def test_every_acquired_label_is_the_experts_command_in_that_state(project, one_round):
+    """The autopilot's command recomputed from each row's recorded pose and speed on its scenario's route: the
+    label is the expert's in the state the learner reached, whoever drove the step."""
+    table = pq.read_table(project / "data/acquire/offline/mcd-seed0/round1/acquired.parquet").to_pydict()
+    learner_steps = 0
+    for scenario in set(table["scenario"]):
+        world = validate(SafetyStage, compose_in(project, "safety", *TINY[:3], f"scenario={scenario}"))
+        route = build_geometry(world.scenario).route
+        for i in [i for i, s in enumerate(table["scenario"]) if s == scenario]:
+            expert = Autopilot(route, world.vehicle, AutopilotConfig(), world.control_hz, seed=table["seed"][i])
+            state = {key: float(table[key][i]) for key in ("x", "y", "yaw", "speed")}
+            assert math.isclose(expert.act(state).label, table["steering"][i], abs_tol=1e-4), (scenario, i)
+            learner_steps += table["applied_steering"][i] != table["steering"][i]
+    assert learner_steps > 0  # the learner drove some steps: the states are its own
+
+
+def test_a_round_is_deterministic(project, one_round):
+    again = project / "again"
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        overrides = [f"paths.root={project}", "profile=tiny", "progress=false", *TINY, "acquire.rounds=1"]
+        overrides += [f"acquire.out_dir={again}", f"acquire.out={again}/acquisition.json"]
+        second = run_acquire(compose("acquire", overrides=overrides), overrides)
+    first_dir = project / "data/acquire/offline/mcd-seed0/round1"
+    assert pq.read_table(first_dir / "acquired.parquet").equals(pq.read_table(again / "round1/acquired.parquet"))
+    first_state = read_checkpoint(first_dir / "models/mcd/seed0.pt")["state"]
+    second_state = read_checkpoint(again / "round1/models/mcd/seed0.pt")["state"]
+    assert all(torch.equal(first_state[k], second_state[k]) for k in first_state)
+    assert [dataclasses.asdict(c) for c in second.checks] == [dataclasses.asdict(c) for c in one_round.checks]
+
+
+def test_retraining_without_acquired_frames_is_behaviour_cloning_bit_for_bit(project, tmp_path):
+    """Aggregation with nothing acquired and the retraining of a round reproduce the train stage's controller."""
+    processed = project / "data/processed/offline"
+    frames = aggregate(RAW_SCHEMA.empty_table(), processed, tmp_path / "processed", SteeringBins())
+    assert frames == 160
+    assert pq.read_table(tmp_path / "processed/train.parquet").equals(pq.read_table(processed / "train.parquet"))
+    overrides = [f"paths.root={project}", "profile=tiny", "progress=false", "experiment=offline", *ALL_TENTHS]
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        path, _ = retrain([*overrides, "train.mcd.epochs=1"], "mcd", tmp_path / "processed", tmp_path / "models")
+    cloned = read_checkpoint(project / "models/offline/mcd/seed0.pt")["state"]
+    retrained = read_checkpoint(path)["state"]
+    assert cloned.keys() == retrained.keys()
+    assert all(torch.equal(cloned[k], retrained[k]) for k in cloned)
+
+
+def test_no_sweep_cells_is_one_line_naming_the_key_before_any_work(tmp_path):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("acquire", overrides=[f"paths.root={tmp_path}", "profile=tiny", "outputs=pipeline"])
+        with pytest.raises(ConfigError, match=r"^acquire.cells_dir=.*no safety cell of offline mcd seed0"):
+            run_acquire(cfg, [])
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_condition_outside_the_world_is_one_line_naming_the_key(tmp_path):
+    training = "acquire.training={location: roundabout, weather: env, noise: 0.0}"
+    cfg = compose_in(tmp_path, "acquire", training)
+    with pytest.raises(ConfigError, match=r"^acquire.training.weather='env' must name a weather"):
+        run_acquire(cfg, [])
+
+
+def test_each_round_is_an_mlflow_run_with_its_sizes_and_check_cells(project, one_round):
+    from mlflow.tracking import MlflowClient
+
+    from uqdrive.tracking import store_uris
+
+    client = MlflowClient(store_uris(project)[0])
+    experiment = client.get_experiment_by_name("uqdrive/acquire")
+    runs = {r.info.run_name.split(" · ")[-1]: r.data.metrics for r in client.search_runs([experiment.experiment_id])}
+    last = runs["offline-mcd-seed0 round 1"]
+    assert last["frames_added"] == one_round.rounds[1].frames_added
+    assert last["val_accuracy"] == one_round.rounds[1].val_accuracy
+    flagged = next(c for c in one_round.checks if (c.round, c.cell) == (1, "roundabout_large-rain-noise0.1"))
+    assert (last["eta1/roundabout_large-rain-noise0.1"], last["eta1_high/roundabout_large-rain-noise0.1"]) == (
+        flagged.eta1,
+        flagged.high,
+    )
+    assert "offline-mcd-seed0 round 0" in runs
+
+
+AXIS = (
+    "acquire.world_axis={key: env_kwargs.config.other_vehicles_type, values: "
+    "{idm: highway_env.vehicle.behavior.IDMVehicle, aggressive: highway_env.vehicle.behavior.AggressiveVehicle}}"
+)
+
+
+def test_a_gymnasium_worlds_flagged_location_is_placed_by_its_axis(tmp_path):
+    """A sweep's Gymnasium cell is named <world>-<label>: the acquisition drives the world at that label's value, as
+    the sweep's cell did; a location the axis does not name is one line naming the key."""
+    gym = ("gym_world=highway_roundabout", "experiment=highway_roundabout", "safety.speed=8.0", AXIS)
+    training = "acquire.training={location: highway_roundabout-idm, weather: env, noise: 0.0}"
+    stage = validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, training))
+    assert placed(stage, Where("highway_roundabout-aggressive", "env", 0.1)) == {
+        "++gym_world.env_kwargs.config.other_vehicles_type": "highway_env.vehicle.behavior.AggressiveVehicle",
+        "gym_world.name": "highway_roundabout-aggressive",
+        "noise": 0.1,
+    }
+    wrong = "acquire.training={location: highway_roundabout-defensive, weather: env, noise: 0.0}"
+    with pytest.raises(ConfigError, match=r"^acquire.training.location='highway_roundabout-defensive' must be"):
+        validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, wrong))
