@@ -34,6 +34,7 @@ from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.failures import job_failures
 from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
@@ -42,7 +43,7 @@ from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
 from uqdrive.sim import build_geometry
 from uqdrive.sim.condition import Condition, WorldChoice
 from uqdrive.sim.config import SimConfig
-from uqdrive.stage import grid, run_cells
+from uqdrive.stage import cell_overrides, grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
 from uqdrive.uq import Estimate
@@ -201,8 +202,9 @@ def reusable_result(path: str | Path, key: str) -> SafetyCell | None:
     return cell if cell.config_hash == key else None
 
 
-def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
-    """The cell's record: η̂1 with its interval and guarantee, how its runs failed, each run's verdict in order."""
+def safety_cell(plan: CellPlan, run: CellRun[Estimate], overrides: Sequence[str] = ()) -> SafetyCell:
+    """The cell's record: η̂1 with its interval and guarantee, how its runs failed (a record per failing run, worst
+    margin first), each run's verdict in order, and the ``overrides`` that compose it (`uqdrive replay`)."""
     estimate, results, stage, where = run.outcome, run.results, plan.stage, plan.job.where
     return SafetyCell(
         method=plan.method,
@@ -230,6 +232,8 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
         config_hash=plan.key,
         unread=run.unread,
         margins=[None if math.isnan(r.margin) else round(r.margin, 6) for r in results],
+        failures=job_failures(plan.job, results),
+        overrides=list(overrides),
     )
 
 
@@ -247,10 +251,11 @@ def cell_figure(plan: CellPlan, positions: CellPositions, estimate: Estimate) ->
     return fig
 
 
-def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> SafetyRun:
+def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Sequence[str] = ()) -> SafetyRun:
     """Estimate η1 for one cell: plan, drive (the rollouts its log holds are replayed), compute, plot, write, log.
     A cell whose result file holds its key is only logged again. ``runner``: shared by many cells
-    (`run_safety_sweep`), else the cell's own."""
+    (`run_safety_sweep`), else the cell's own; ``overrides``: the Hydra overrides that composed ``cfg``, kept in
+    the record so that `uqdrive replay` can compose the cell again."""
     plan = plan_cell(cfg)
     section = plan.stage.safety
     previous = reusable_result(section.out, plan.key)
@@ -260,7 +265,7 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> SafetyRun:
     with nullcontext(runner) if runner else CellRunner.of(plan.stage.executor, plan.stage.progress) as cells:
         run = cells.estimate(f"safety {section.cell}", plan.job, plan.stage.estimator, plan.key, section.rollout_log)
     positions = positions_of(plan.job, run.results, run.outcome.value)
-    cell = safety_cell(plan, run)
+    cell = safety_cell(plan, run, overrides)
     figure = save_figure(cell_figure(plan, positions, run.outcome), Path(section.plots_dir) / f"{section.cell}.png")
     table = write_csv(Path(section.plots_dir) / f"{section.cell}.csv", [r.summary() for r in run.results])
     write_positions(section.positions, positions)
@@ -300,7 +305,12 @@ def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tupl
         cells = [{**cell, "safety.family_size": len(cells)} for cell in cells]
     runner = CellRunner.of(stage.executor, stage.progress)
     parent = partial(stage_parent_run, stage.paths.root, "safety", cfg, overrides, name=f"sweep of {len(cells)} cells")
-    yield from run_cells("safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress, parent)
+    each = iter([cell_overrides(overrides, cell) for cell in cells])  # `run_cells` runs the cells in this order
+
+    def run(config: DictConfig, shared: CellRunner) -> SafetyRun:
+        return run_safety(config, shared, next(each))
+
+    yield from run_cells("safety", overrides, cells, SafetyStage, run, runner, stage.progress, parent)
 
 
 def describe(name: str, run: SafetyRun) -> str:
