@@ -130,8 +130,12 @@ def main(argv: list[str] | None = None) -> int:
     a = parse(argv)
     try:
         line, same = replay(a.record, a.seed, a.out)
-    except ConfigError as err:
-        print(f"uqdrive replay: {err}", file=sys.stderr)
+    except Exception as err:  # a bad record, seed or config (an override conf/ no longer has): one line, exit 2
+        from uqdrive.stage import one_line
+
+        if not isinstance(err, ConfigError) and type(err).__module__.split(".")[0] not in ("hydra", "omegaconf"):
+            raise
+        print(f"uqdrive replay: {one_line(err) if not isinstance(err, ConfigError) else err}", file=sys.stderr)
         return BAD_INPUT
     print(line)
     return 0 if same else DIFFERS
