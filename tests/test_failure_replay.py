@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import ALL_TENTHS, compose_stage
+from mlflow.tracking import MlflowClient
 from PIL import Image
 from test_gym_world import COIN_ID
 
@@ -18,6 +19,7 @@ from uqdrive.pipeline.replay_command import main, replay_command
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety
 from uqdrive.safety.redrive import redrive
 from uqdrive.safety.rollout_log import RolloutLog
+from uqdrive.tracking import store_uris
 
 COIN = ("gym_world=uqdrive_roundabout", f"gym_world.env_id={COIN_ID}", "gym_world.name=coin")
 COIN_CELL = (*COIN, "gym_world.horizon_steps=12", "++gym_world.env_kwargs.rate=0.8")
@@ -34,7 +36,7 @@ def run_cell(root: Path, model: Path, *overrides: str):
 @pytest.fixture(scope="module")
 def pybullet_cell(tmp_path_factory, random_models):
     root = tmp_path_factory.mktemp("replay-pybullet")
-    cfg, cell = run_cell(root, random_models["mcd"], "model=mcd", "weather=rain")
+    cfg, cell = run_cell(root, random_models["mcd"], "model=mcd", "weather=rain", "safety.clips=1")
     return root, cfg, cell
 
 
@@ -55,6 +57,16 @@ def test_a_cell_records_each_failing_rollout_worst_margin_first(pybullet_cell):
         assert f.seed == cell.base_seed + f.index and f.condition == "roundabout-rain-noise0.0"
         assert 0 <= f.step <= f.steps and f.segment in ("approach", "ring", "exit arm") and f.margin < 0
         assert f.cause in ("collision", "off road", "left lane", "short of the goal", "handed over")
+
+
+def test_the_cell_logs_its_worst_failures_clip_to_its_mlflow_run(pybullet_cell):
+    root, _, cell = pybullet_cell
+    clip = root / "data/safety/clips" / f"{cell.name}-seed{cell.failures[0].seed}.mp4"
+    assert clip_frames(clip) == cell.failures[0].steps and clip.with_suffix(".gif").exists()
+    assert len(list((root / "data/safety/clips").glob("*.mp4"))) == 1  # safety.clips=1: the worst only
+    client = MlflowClient(store_uris(root)[0])
+    (run,) = client.search_runs([client.get_experiment_by_name("uqdrive/safety").experiment_id])
+    assert [a.path for a in client.list_artifacts(run.info.run_id, "failures")] == [f"failures/{clip.name}"]
 
 
 def test_replay_re_drives_the_logged_rollout_exactly_and_writes_one_picture_per_step(

@@ -34,6 +34,7 @@ from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.failure_video import worst_clips
 from uqdrive.safety.failures import job_failures
 from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
 from uqdrive.safety.rollout import RolloutResult
@@ -69,6 +70,8 @@ class SafetySection(EstimatorSettings):
     positions: Str
     rollout_log: Str
     plots_dir: Str
+    clips: Annotated[int, Field(ge=0, strict=True)]  # the worst failures re-driven as clips and logged (0: none)
+    clips_dir: Str
 
 
 @schema(root=True)
@@ -260,7 +263,7 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Seq
     section = plan.stage.safety
     previous = reusable_result(section.out, plan.key)
     if previous is not None:
-        log_cell(cfg, plan.stage, previous, [p for p in _cell_files(section) if p.exists()], reused=True)
+        log_cell(cfg, plan.stage, previous, _cell_files(section, previous), reused=True)
         return SafetyRun(previous, reused=True)
     with nullcontext(runner) if runner else CellRunner.of(plan.stage.executor, plan.stage.progress) as cells:
         run = cells.estimate(f"safety {section.cell}", plan.job, plan.stage.estimator, plan.key, section.rollout_log)
@@ -272,7 +275,8 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Seq
     write_record(
         section.out, cell
     )  # before logging: a tracking failure never loses the cell; its presence marks it done
-    log_cell(cfg, plan.stage, cell, [figure, table], reused=run.reused)
+    clips = worst_clips(plan.job, cell.failures, _clip_title(cell), section.clips_dir, cell.name, section.clips)
+    log_cell(cfg, plan.stage, cell, [figure, table, *[c.mp4 for c in clips]], reused=run.reused)
     return SafetyRun(cell, run.reused)
 
 
@@ -342,9 +346,15 @@ CELL_PARAMS = (
 CELL_ARTEFACTS = {".png": "paths.png", ".csv": "rollouts.csv"}  # one name in every cell's run (Compare lines them up)
 
 
-def _cell_files(section: SafetySection) -> list[Path]:
-    plots = Path(section.plots_dir)
-    return [plots / f"{section.cell}{suffix}" for suffix in CELL_ARTEFACTS]
+def _cell_files(section: SafetySection, cell: SafetyCell) -> list[Path]:
+    """The files a finished cell left: its figure, table and clips."""
+    plots, clips = Path(section.plots_dir), Path(section.clips_dir)
+    worst = [clips / f"{cell.name}-seed{f.seed}.mp4" for f in cell.failures[: section.clips]]
+    return [p for p in [*(plots / f"{section.cell}{suffix}" for suffix in CELL_ARTEFACTS), *worst] if p.exists()]
+
+
+def _clip_title(cell: SafetyCell) -> str:
+    return f"{cell.method} seed{cell.replicate} {cell.location} {cell.weather} noise {cell.noise:g}"
 
 
 def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: list[Path], reused: bool) -> None:
@@ -356,4 +366,7 @@ def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: l
         mlflow.log_params({"n": cell.n, "cell_gamma": cell.gamma})  # the rest: the cell's config (`stage_run`)
         mlflow.log_metrics(metrics)
         for path in artifacts:
-            log_artifact_as(path, CELL_ARTEFACTS[path.suffix])
+            if path.suffix in CELL_ARTEFACTS:
+                log_artifact_as(path, CELL_ARTEFACTS[path.suffix])
+            else:  # a failure's clip, by its cell and seed
+                mlflow.log_artifact(str(path), artifact_path="failures")

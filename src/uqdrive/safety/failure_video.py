@@ -10,14 +10,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 from PIL import Image
 
-from uqdrive.safety.failures import FailurePlacer
-from uqdrive.safety.redrive import Watched
+from uqdrive.safety.executors import RolloutJob
+from uqdrive.safety.failures import FailurePlacer, FailureRecord, placer_for
+from uqdrive.safety.redrive import Watched, check_against, redrive
 
 WIDTH, HEIGHT = 640, 512
 TITLE_H, VIEW_H, STRIP_H = 28, 300, 44
@@ -53,6 +56,23 @@ def write_clip(watched: Watched, title: str, placer: FailurePlacer, folder: str 
     small = [Image.fromarray(p) for p in half]
     small[0].save(gif, save_all=True, append_images=small[1:], duration=round(1000 / hz), loop=0, optimize=False)
     return Clip(mp4, gif, len(pictures))
+
+
+def worst_clips(
+    job: RolloutJob, failures: Sequence[FailureRecord], title: str, folder: str | Path, name: str, count: int
+) -> list[Clip]:
+    """Clips of the first ``count`` of ``failures`` (a cell's, worst first), each re-driven and checked against its
+    record before it is drawn; one that differs is not drawn, with a warning (the record stays the cell's word)."""
+    placer, clips = placer_for(job), []
+    for failure in failures[:count]:
+        watched = redrive(job, failure.index)
+        differences = check_against(watched, False, failure.margin, failure)
+        if differences:
+            warnings.warn(f"{name} seed {failure.seed} re-drove differently: {'; '.join(differences)}", stacklevel=2)
+            continue
+        seed_title = f"{title} - seed {failure.seed}"
+        clips.append(write_clip(watched, seed_title, placer, folder, f"{name}-seed{failure.seed}", job.control_hz))
+    return clips
 
 
 def _pictures(watched: Watched, title: str, placer: FailurePlacer):
@@ -111,7 +131,7 @@ def _top_down_transform(x: np.ndarray, y: np.ndarray, placer: FailurePlacer):
 def _background(title: str, series, placer: FailurePlacer, to_pixel) -> np.ndarray:
     """What every picture shares: title, panels' frames, the route and safe set, each strip's whole series in grey."""
     picture = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
-    cv2.putText(picture, title[:90], (8, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, INK, 1, cv2.LINE_AA)
+    cv2.putText(picture, title[:64], (8, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, INK, 1, cv2.LINE_AA)
     x, y, w, h = TOP_DOWN
     cv2.rectangle(picture, (x, y), (x + w - 1, y + h - 1), GREY, 1)
     if placer.geometry is not None:
