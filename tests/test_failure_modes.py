@@ -7,9 +7,9 @@ import dataclasses
 
 from uqdrive.analysis.failure_modes import by_group, failure_modes, mode_sentence, modes_table
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.failures import FailureRecord
+from uqdrive.safety.failures import RolloutFailure
 
-FAILURE = FailureRecord(
+FAILURE = RolloutFailure(
     index=0, seed=100, condition="", termination="off_road", cause="off road", step=5, steps=9, x=0.0, y=0.0,
     progress=3.0, segment="ring", margin=-1.0, warning=-1, warned=False, eta2=None, mutual_information=0.1,
     path_sha256="0" * 64,

@@ -15,7 +15,7 @@ from mlflow.tracking import MlflowClient
 from PIL import Image
 from test_gym_world import COIN_ID
 
-from uqdrive.pipeline.replay_command import main, replay_command
+from uqdrive.pipeline.replay_stage import main, replay_command
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety
 from uqdrive.safety.redrive import redrive
 from uqdrive.safety.rollout_log import RolloutLog

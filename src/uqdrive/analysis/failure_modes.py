@@ -13,7 +13,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.failures import FailureRecord
+from uqdrive.safety.failures import RolloutFailure
 
 GROUPINGS: dict[str, Callable[[SafetyCell], tuple[str, ...]]] = {
     "cell": lambda c: (c.name,),
@@ -36,7 +36,7 @@ class FailureMode:
     count: int
     failures: int
     rollouts: int
-    worst: FailureRecord
+    worst: RolloutFailure
     worst_cell: str
 
     @property

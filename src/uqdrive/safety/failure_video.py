@@ -19,7 +19,7 @@ import numpy as np
 from PIL import Image
 
 from uqdrive.safety.executors import RolloutJob
-from uqdrive.safety.failures import FailurePlacer, FailureRecord, placer_for
+from uqdrive.safety.failures import FailurePlacer, RolloutFailure, placer_for
 from uqdrive.safety.redrive import Watched, check_against, redrive
 
 WIDTH, HEIGHT = 640, 512
@@ -59,7 +59,7 @@ def write_clip(watched: Watched, title: str, placer: FailurePlacer, folder: str 
 
 
 def worst_clips(
-    job: RolloutJob, failures: Sequence[FailureRecord], title: str, folder: str | Path, name: str, count: int
+    job: RolloutJob, failures: Sequence[RolloutFailure], title: str, folder: str | Path, name: str, count: int
 ) -> list[Clip]:
     """Clips of the first ``count`` of ``failures`` (a cell's, worst first), each re-driven and checked against its
     record before it is drawn; one that differs is not drawn, with a warning (the record stays the cell's word)."""

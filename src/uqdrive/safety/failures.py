@@ -25,7 +25,7 @@ NO_PLACE = "episode"  # a Gymnasium world has no route: its failures are placed 
 
 
 @record
-class FailureRecord:
+class RolloutFailure:
     """One failing rollout (see the module docstring). ``step``: the control step at which it failed (its first
     lane exit, else where it ended); ``x``, ``y``: the pose there; ``progress``: metres along the route (None off a
     route); ``segment``: the part of the route (or of the episode) it failed in; ``cause``: the broken rule
@@ -119,14 +119,14 @@ def failure_records(
     condition: Callable[[int], str],
     placer: FailurePlacer,
     base_seed: int,
-) -> list[FailureRecord]:
+) -> list[RolloutFailure]:
     """The failing rollouts of ``results`` (rollout i has seed ``base_seed`` + i; ``condition(i)``: its label),
     worst margin first (a run with no margin, a Gymnasium world's, after those with one, by index)."""
     records = [_record(r, r.seed - base_seed, condition(r.seed - base_seed), placer) for r in results if not r.safe]
     return sorted(records, key=lambda f: (f.margin is None, f.margin if f.margin is not None else 0.0, f.index))
 
 
-def _record(result: RolloutResult, index: int, condition: str, placer: FailurePlacer) -> FailureRecord:
+def _record(result: RolloutResult, index: int, condition: str, placer: FailurePlacer) -> RolloutFailure:
     pose = placer.step(result)
     progress, segment = placer.place(result, pose)
     command = min(pose, result.steps - 1)  # the command decided at that pose (the last one past the end)
@@ -136,7 +136,7 @@ def _record(result: RolloutResult, index: int, condition: str, placer: FailurePl
         value = float(values[command]) if 0 <= command < len(values) else math.nan
         return None if math.isnan(value) else round(value, 6)
 
-    return FailureRecord(
+    return RolloutFailure(
         index=index,
         seed=int(result.seed),
         condition=condition,
@@ -166,6 +166,6 @@ def placer_for(job: RolloutJob) -> FailurePlacer:
     return FailurePlacer(geometry, safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width), 0)
 
 
-def job_failures(job: RolloutJob, results: Sequence[RolloutResult]) -> list[FailureRecord]:
+def job_failures(job: RolloutJob, results: Sequence[RolloutResult]) -> list[RolloutFailure]:
     """The failure records of a job's rollouts, each labelled with the condition it drove."""
     return failure_records(results, lambda i: job.condition(i).label, placer_for(job), job.base_seed)

@@ -19,7 +19,7 @@ import torch
 from uqdrive.network_input import preprocess_frame
 from uqdrive.safety.controller import Command, Policy
 from uqdrive.safety.executors import RolloutJob
-from uqdrive.safety.failures import FailureRecord, path_digest
+from uqdrive.safety.failures import RolloutFailure, path_digest
 from uqdrive.safety.rollout import RolloutResult, World, run_rollouts
 from uqdrive.sim import DrivingEnv
 from uqdrive.sim.gym_world import GymWorld
@@ -100,7 +100,7 @@ def redrive(job: RolloutJob, index: int) -> Watched:
     return Watched(index, result, watcher.frames, watcher.views, np.array(watcher.steer, float))
 
 
-def check_against(watched: Watched, safe: bool, margin: float | None, failure: FailureRecord | None) -> list[str]:
+def check_against(watched: Watched, safe: bool, margin: float | None, failure: RolloutFailure | None) -> list[str]:
     """How the re-driven rollout differs from what the cell recorded for it (empty: it is the same): its outcome
     and margin, and where it failed, the termination, step count and path digest."""
     result, differences = watched.result, []
