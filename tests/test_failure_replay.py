@@ -13,10 +13,13 @@ import pytest
 from conftest import ALL_TENTHS, compose_stage
 from mlflow.tracking import MlflowClient
 from PIL import Image
+from rendered_plots import chromium, render
 from test_gym_world import COIN_ID
 
-from uqdrive.pipeline.replay_stage import main, replay_command
+from uqdrive.pipeline.replay_stage import main
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety
+from uqdrive.report.document import Report
+from uqdrive.report.failure_gallery import failures_section
 from uqdrive.safety.redrive import redrive
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.tracking import store_uris
@@ -95,7 +98,6 @@ def test_replay_re_drives_the_logged_rollout_exactly_and_writes_one_picture_per_
     with Image.open(mp4.with_suffix(".gif")) as gif:
         assert gif.n_frames == worst.steps
     assert main([str(record), "--seed", str(cell.failures[-1].seed), "--out", "clips"]) == 0
-    assert replay_command(record, worst.seed) == f"uqdrive replay {record} --seed {worst.seed}"
 
 
 def test_a_replay_that_differs_from_its_record_says_so_and_fails(pybullet_cell, tmp_path, capsys):
@@ -161,3 +163,35 @@ def test_replay_in_a_gymnasium_world_re_drives_the_failure_exactly(tmp_path, ran
     record = tmp_path / "metrics/safety" / f"{cell.name}.json"
     assert main([str(record), "--first-failure", "--out", "clips"]) == 0
     assert clip_frames(tmp_path / "clips" / f"{cell.name}-seed{cell.failures[0].seed}.mp4") == cell.failures[0].steps
+
+
+def gallery(root: Path, cell) -> tuple[Report, int]:
+    report = Report(root, root / "reports")
+    shown = failures_section(report, [cell], root / "data/safety/clips", root / "metrics/safety", [cell.condition])
+    return report, shown
+
+
+def test_the_report_gallery_shows_the_worst_clip_with_a_replay_command_that_works(pybullet_cell, capsys, monkeypatch):
+    root, _, cell = pybullet_cell
+    report, shown = gallery(root, cell)
+    worst = cell.failures[0]
+    command = f"uqdrive replay metrics/safety/{cell.name}.json --seed {worst.seed}"
+    assert shown == 1 and f"`{command}`" in report.markdown  # safety.clips=1: one clip drawn
+    assert (root / "reports/failures/replays.txt").read_text() == command + "\n"
+    assert f'src="failures/{cell.name}-seed{worst.seed}.gif"' in report.html()
+    assert "mcd's rain failures (4 of 4 rollouts) are 100 % off road on the approach" in report.markdown
+    monkeypatch.chdir(root)
+    assert main([*command.split()[2:], "--out", str(root / "replayed")]) == 0
+    assert "matches the record" in capsys.readouterr().out
+
+
+def test_every_gallery_image_loads_in_a_browser(pybullet_cell):
+    if chromium() is None:
+        pytest.skip("no Chromium: `make chromium` installs it")
+    root, _, cell = pybullet_cell
+    report, _ = gallery(root, cell)
+    page = root / "reports" / "gallery.html"
+    page.write_text(report.html())
+    images = [d for d in render(page, timeout_s=120) if d.kind == "image"]
+    assert [d.plot for d in images] == [f"failures/{cell.name}-seed{cell.failures[0].seed}.gif"]
+    assert all(d.marks == 1 and d.width > 0 for d in images)

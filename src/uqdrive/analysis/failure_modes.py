@@ -84,9 +84,10 @@ def mode_sentence(modes: Sequence[FailureMode]) -> str:
 
 
 def modes_table(modes: Sequence[FailureMode]) -> list[dict[str, object]]:
-    """The modes as rows (a CSV for `dvc plots`, a table in the report)."""
+    """The modes as rows (a CSV for `dvc plots`, a table in the report); ``label``: group and mode, one bar each."""
     return [
         {
+            "label": f"{' '.join(m.group)}: {m.label}",
             "group": " ".join(m.group),
             "mode": m.label,
             "cause": m.cause,

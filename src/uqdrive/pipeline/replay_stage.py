@@ -38,12 +38,6 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def replay_command(record: str | Path, seed: int | None, out: str | Path = "replays") -> str:
-    """The replay as `uqdrive replay` prints it (a gallery shows this line under each clip)."""
-    which = f"--seed {seed}" if seed is not None else "--first-failure"
-    return f"uqdrive replay {record} {which}" + ("" if str(out) == "replays" else f" --out {out}")
-
-
 def read_cell(path: str | Path) -> SafetyCell:
     """The safety cell at ``path``, or one line saying why it is not one that can be replayed."""
     try:
