@@ -3,7 +3,7 @@ step: the frame the network saw, a top-down view with the path so far and the sa
 env's own render where it draws one), and strips of η2, mutual information, the warning tier and the command.
 
 Drawn with OpenCV alone (a static background once, then a few lines per frame), so a clip of a few hundred steps
-costs well under a second to draw; the GIF is the MP4's frames at half size.
+costs well under a second to draw; the GIF is the MP4's pictures at half size, in one fixed palette.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from PIL import Image
 
 from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.failures import FailurePlacer, RolloutFailure, placer_for
-from uqdrive.safety.redrive import Watched, check_against, redrive
+from uqdrive.safety.redrive import Redriver, Watched, check_against
 
 WIDTH, HEIGHT = 640, 512
 TITLE_H, VIEW_H, STRIP_H = 28, 300, 44
@@ -29,6 +29,21 @@ TOP_DOWN = (280, TITLE_H, 352, VIEW_H)
 STRIP_LABELS = ("eta2", "MI", "warning tier", "steer command")  # OpenCV's fonts draw ASCII only
 FOURCC = "mp4v"  # MPEG-4 part 2: what OpenCV's wheels write and read back everywhere (no H.264 encoder in them)
 INK, GREY, PATH, CAR, BAD = (30, 30, 30), (190, 190, 190), (200, 90, 20), (20, 20, 220), (40, 40, 200)
+
+
+def _gif_palette() -> Image.Image:
+    """One palette for every GIF picture: 200 greys (the network's frame) and the drawing's colours beside a coarse
+    colour cube (a Gymnasium env's render). Mapping to a fixed palette costs a third of choosing one per picture."""
+    greys = [(int(v),) * 3 for v in np.linspace(0, 255, 200)]
+    cube = [(r, g, b) for r in (0, 128, 255) for g in (0, 128, 255) for b in (0, 128, 255)]
+    drawing = [colour[::-1] for colour in (INK, GREY, PATH, CAR, BAD)]  # BGR → RGB
+    colours = greys + drawing + cube
+    palette = Image.new("P", (1, 1))
+    palette.putpalette([c for rgb in colours + [(0, 0, 0)] * (256 - len(colours)) for c in rgb])
+    return palette
+
+
+_GIF_PALETTE = _gif_palette()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,8 +68,8 @@ def write_clip(watched: Watched, title: str, placer: FailurePlacer, folder: str 
         writer.write(picture)
     writer.release()
     half = [cv2.cvtColor(cv2.resize(p, (WIDTH // 2, HEIGHT // 2)), cv2.COLOR_BGR2RGB) for p in pictures]
-    small = [Image.fromarray(p) for p in half]
-    small[0].save(gif, save_all=True, append_images=small[1:], duration=round(1000 / hz), loop=0, optimize=False)
+    small = [Image.fromarray(p).quantize(palette=_GIF_PALETTE, dither=Image.Dither.NONE) for p in half]
+    small[0].save(gif, save_all=True, append_images=small[1:], duration=round(1000 / hz), loop=0)
     return Clip(mp4, gif, len(pictures))
 
 
@@ -63,15 +78,20 @@ def worst_clips(
 ) -> list[Clip]:
     """Clips of the first ``count`` of ``failures`` (a cell's, worst first), each re-driven and checked against its
     record before it is drawn; one that differs is not drawn, with a warning (the record stays the cell's word)."""
+    if count == 0 or not failures:
+        return []
     placer, clips = placer_for(job), []
-    for failure in failures[:count]:
-        watched = redrive(job, failure.index)
-        differences = check_against(watched, False, failure.margin, failure)
-        if differences:
-            warnings.warn(f"{name} seed {failure.seed} re-drove differently: {'; '.join(differences)}", stacklevel=2)
-            continue
-        seed_title = f"{title} - seed {failure.seed}"
-        clips.append(write_clip(watched, seed_title, placer, folder, f"{name}-seed{failure.seed}", job.control_hz))
+    with Redriver(job) as driver:
+        for failure in failures[:count]:
+            watched = driver.drive(failure.index)
+            differences = check_against(watched, False, failure.margin, failure)
+            if differences:
+                warnings.warn(
+                    f"{name} seed {failure.seed} re-drove differently: {'; '.join(differences)}", stacklevel=2
+                )
+                continue
+            seed_title = f"{title} - seed {failure.seed}"
+            clips.append(write_clip(watched, seed_title, placer, folder, f"{name}-seed{failure.seed}", job.control_hz))
     return clips
 
 

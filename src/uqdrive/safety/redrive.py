@@ -86,18 +86,40 @@ def _world(job: RolloutJob, index: int) -> World:
     return world
 
 
+class Redriver:
+    """Re-drives rollouts of one job on one policy and world, built once (a cell's clips share them, as a worker's
+    rollouts do), on one torch thread as a worker drives them. A context manager."""
+
+    def __init__(self, job: RolloutJob):
+        self.job, self.world = job, None
+        self.threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        self.policy = job.policy.build(job.control_hz)
+
+    def drive(self, index: int) -> Watched:
+        """Rollout ``index`` (seed base_seed + index), watched."""
+        job = self.job
+        self.world = self.world or _world(job, index)
+        watcher = _Watcher(self.policy, self.world)
+        (result,) = run_rollouts([self.world], watcher, [job.base_seed + index], [job.condition(index)], job.half_width)
+        return Watched(index, result, watcher.frames, watcher.views, np.array(watcher.steer, float))
+
+    def close(self) -> None:
+        if self.world is not None:
+            self.world.close()
+        torch.set_num_threads(self.threads)
+
+    def __enter__(self) -> Redriver:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def redrive(job: RolloutJob, index: int) -> Watched:
-    """Rollout ``index`` of ``job`` (seed base_seed + index) driven alone, on one torch thread as a worker drives it."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    world = _world(job, index)
-    try:
-        watcher = _Watcher(job.policy.build(job.control_hz), world)
-        (result,) = run_rollouts([world], watcher, [job.base_seed + index], [job.condition(index)], job.half_width)
-    finally:
-        world.close()
-        torch.set_num_threads(threads)
-    return Watched(index, result, watcher.frames, watcher.views, np.array(watcher.steer, float))
+    """Rollout ``index`` of ``job`` driven alone (`Redriver`)."""
+    with Redriver(job) as driver:
+        return driver.drive(index)
 
 
 def check_against(watched: Watched, safe: bool, margin: float | None, failure: RolloutFailure | None) -> list[str]:
