@@ -140,6 +140,7 @@ class AvoidCell:
     thresholds: dict[str, float]
     base_seed: int
     outcomes: str
+    failures: list[RolloutFailure] = dataclasses.field(default_factory=list)  # the failing runs, worst margin first
 
     @property
     def safe(self) -> np.ndarray:

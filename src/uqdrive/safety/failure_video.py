@@ -80,7 +80,7 @@ def worst_clips(
     record before it is drawn; one that differs is not drawn, with a warning (the record stays the cell's word)."""
     if count == 0 or not failures:
         return []
-    placer, clips = placer_for(job), []
+    clips = []
     with Redriver(job) as driver:
         for failure in failures[:count]:
             watched = driver.drive(failure.index)
@@ -91,6 +91,7 @@ def worst_clips(
                 )
                 continue
             seed_title = f"{title} - seed {failure.seed}"
+            placer = placer_for(job, failure.index)
             clips.append(write_clip(watched, seed_title, placer, folder, f"{name}-seed{failure.seed}", job.control_hz))
     return clips
 

@@ -117,12 +117,17 @@ def route_segments(geometry: ScenarioGeometry, safe_set: SafeSet | None) -> list
 def failure_records(
     results: Sequence[RolloutResult],
     condition: Callable[[int], str],
-    placer: FailurePlacer,
+    placer: Callable[[int], FailurePlacer],
     base_seed: int,
 ) -> list[RolloutFailure]:
-    """The failing rollouts of ``results`` (rollout i has seed ``base_seed`` + i; ``condition(i)``: its label),
-    worst margin first (a run with no margin, a Gymnasium world's, after those with one, by index)."""
-    records = [_record(r, r.seed - base_seed, condition(r.seed - base_seed), placer) for r in results if not r.safe]
+    """The failing rollouts of ``results`` (rollout i has seed ``base_seed`` + i; ``condition(i)``: its label,
+    ``placer(i)``: the placer of its road), worst margin first (a run with no margin, a Gymnasium world's, after
+    those with one, by index)."""
+    records = []
+    for r in results:
+        if not r.safe:
+            index = r.seed - base_seed
+            records.append(_record(r, index, condition(index), placer(index)))
     return sorted(records, key=lambda f: (f.margin is None, f.margin if f.margin is not None else 0.0, f.index))
 
 
@@ -157,15 +162,25 @@ def _record(result: RolloutResult, index: int, condition: str, placer: FailurePl
     )
 
 
-def placer_for(job: RolloutJob) -> FailurePlacer:
-    """The placer of a safety job's failures, on the road and safe set its rollouts are judged by."""
-    world = job.where.gym_world
+def placer_for(job: RolloutJob, index: int = 0) -> FailurePlacer:
+    """The placer of rollout ``index``'s failures, on the road and safe set it is judged by."""
+    world = job.condition(index).gym_world
     if world is not None:
         return FailurePlacer(None, None, world.horizon_steps)
-    geometry = build_geometry(job.where.scenario)
+    geometry = build_geometry(job.condition(index).scenario)
     return FailurePlacer(geometry, safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width), 0)
 
 
 def job_failures(job: RolloutJob, results: Sequence[RolloutResult]) -> list[RolloutFailure]:
-    """The failure records of a job's rollouts, each labelled with the condition it drove."""
-    return failure_records(results, lambda i: job.condition(i).label, placer_for(job), job.base_seed)
+    """The failure records of a job's rollouts, each labelled with the condition it drove and placed on its road
+    (a mixture's rollouts drive several)."""
+    placers: dict[str, FailurePlacer] = {}
+
+    def placer(index: int) -> FailurePlacer:
+        where = job.condition(index)
+        key = where.location
+        if key not in placers:
+            placers[key] = placer_for(job, index)
+        return placers[key]
+
+    return failure_records(results, lambda i: job.condition(i).label, placer, job.base_seed)
