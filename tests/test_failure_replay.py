@@ -195,3 +195,15 @@ def test_every_gallery_image_loads_in_a_browser(pybullet_cell):
     images = [d for d in render(page, timeout_s=120) if d.kind == "image"]
     assert [d.plot for d in images] == [f"failures/{cell.name}-seed{cell.failures[0].seed}.gif"]
     assert all(d.marks == 1 and d.width > 0 for d in images)
+
+
+def test_in_a_gymnasium_world_that_draws_itself_the_clip_shows_its_render_and_the_path_is_unchanged(
+    tmp_path, random_models
+):
+    cfg, cell = run_cell(tmp_path, random_models["mcd"], "model=mcd", "gym_world=uqdrive_roundabout")
+    plan = plan_cell(cfg)
+    logged = RolloutLog(cfg.safety.rollout_log, plan.key, cell.base_seed).load()
+    worst = cell.failures[0]
+    watched = redrive(plan.job, worst.index)
+    assert all(view is not None and view.ndim == 3 for view in watched.views)  # the env's own render, every step
+    assert np.array_equal(watched.result.x, logged[worst.index].x) and watched.result.steps == worst.steps
