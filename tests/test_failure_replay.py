@@ -16,6 +16,7 @@ from PIL import Image
 from rendered_plots import chromium, render
 from test_gym_world import COIN_ID
 
+from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.replay_stage import main
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety
 from uqdrive.report.document import Report
@@ -207,3 +208,24 @@ def test_in_a_gymnasium_world_that_draws_itself_the_clip_shows_its_render_and_th
     watched = redrive(plan.job, worst.index)
     assert all(view is not None and view.ndim == 3 for view in watched.views)  # the env's own render, every step
     assert np.array_equal(watched.result.x, logged[worst.index].x) and watched.result.steps == worst.steps
+
+
+@pytest.mark.slow
+def test_each_avoid_cell_draws_its_worst_failure_and_logs_it_to_its_run(avoid_config, tmp_path):
+    result = run_avoid(avoid_config("model=mcd", "avoid.clips=1"))
+    client = MlflowClient(store_uris(tmp_path)[0])
+    runs = client.search_runs([client.get_experiment_by_name("uqdrive/avoid").experiment_id])
+    by_cell = {r.data.tags["cell"]: r for r in runs if "cell" in r.data.tags}
+    drawn = 0
+    for condition, cells in result.cells.items():
+        for mode, cell in cells.items():
+            name = f"mcd-seed0-{condition}-{mode}"
+            logged = [a.path for a in client.list_artifacts(by_cell[name].info.run_id, "failures")]
+            if not cell.failures:
+                assert logged == []
+                continue
+            worst = cell.failures[0]
+            clip = tmp_path / "data/avoid/mcd-seed0/clips" / f"{name}-seed{worst.seed}.mp4"
+            assert logged == [f"failures/{clip.name}"] and clip_frames(clip) == worst.steps
+            drawn += 1
+    assert drawn  # the random-weight controller fails somewhere
