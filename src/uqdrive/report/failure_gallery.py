@@ -2,9 +2,9 @@
 `uqdrive.analysis.failure_modes`) and a gallery per condition of the clips the safety stage drew, worst first, each
 with the command that re-drives it.
 
-The clips are GIFs copied beside the report (reports/failures/), shown as images so that every browser plays them;
-the MP4 is linked. A failure whose clip the safety stage did not draw (past `safety.clips` of its cell) is counted
-in the modes, not shown.
+The clips are shown as GIFs made from the stage's MP4s beside the report (reports/failures/), images every browser
+plays; the MP4 is linked. A failure whose clip the safety stage did not draw (past `safety.clips` of its cell) is
+counted in the modes, not shown.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from pathlib import Path
 from uqdrive.analysis.failure_modes import by_group, failure_modes, mode_sentence
 from uqdrive.report.document import Report, fmt, table
 from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.safety.failure_video import gif_of
 from uqdrive.safety.failures import RolloutFailure
 
 GALLERY_CLIPS = 3  # clips per condition: the worst few say what a condition's failures look like
@@ -54,7 +55,7 @@ def failures_section(
 def _gallery(report: Report, cells: Sequence[SafetyCell], clips_dir: Path, record_dir: Path) -> list[str]:
     """One condition's worst clips, each with its replay command (returned)."""
     drawn = [
-        (f, cell) for cell in cells for f in cell.failures if (clips_dir / f"{cell.name}-seed{f.seed}.gif").exists()
+        (f, cell) for cell in cells for f in cell.failures if (clips_dir / f"{cell.name}-seed{f.seed}.mp4").exists()
     ]
     drawn.sort(key=lambda item: (item[0].margin is None, item[0].margin or 0.0))
     if not drawn:
@@ -64,7 +65,7 @@ def _gallery(report: Report, cells: Sequence[SafetyCell], clips_dir: Path, recor
     commands = []
     for failure, cell in drawn[:GALLERY_CLIPS]:
         name = f"{cell.name}-seed{failure.seed}"
-        shutil.copyfile(clips_dir / f"{name}.gif", report.out_dir / "failures" / f"{name}.gif")
+        gif_of(clips_dir / f"{name}.mp4", report.out_dir / "failures" / f"{name}.gif")
         video = Path(os.path.relpath(clips_dir / f"{name}.mp4", report.out_dir)).as_posix()
         record = Path(os.path.relpath(record_dir / f"{cell.name}.json", report.root)).as_posix()
         commands.append(f"uqdrive replay {record} --seed {failure.seed}")
