@@ -138,6 +138,7 @@ def _pictures(watched: Watched, title: str, placer: FailurePlacer):
         if view is not None:
             x, y, w, h = TOP_DOWN
             picture[y : y + h, x : x + w] = cv2.resize(cv2.cvtColor(view, cv2.COLOR_RGB2BGR), (w, h))
+            cv2.putText(picture, "the env's own render", (x + 4, y + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1)
         else:
             cv2.polylines(picture, [points[: k + 1]], False, PATH, 2, cv2.LINE_AA)
             cv2.circle(picture, tuple(int(v) for v in points[k]), 5, CAR, -1, cv2.LINE_AA)
@@ -182,6 +183,7 @@ def _background(title: str, series, placer: FailurePlacer, to_pixel) -> np.ndarr
     cv2.putText(picture, title[:64], (8, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, INK, 1, cv2.LINE_AA)
     x, y, w, h = TOP_DOWN
     cv2.rectangle(picture, (x, y), (x + w - 1, y + h - 1), GREY, 1)
+    cv2.putText(picture, "top-down: path, safe set", (x + 4, y + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1)
     if placer.geometry is not None:
         route = placer.geometry.route
         line = np.stack(to_pixel(route.x, route.y), axis=1).astype(np.int32)
