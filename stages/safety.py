@@ -2,6 +2,7 @@
 (`-m` sweeps cells; the DVC stage `safety` runs params.yaml's whole sweep: stages/safety_sweep.py)."""
 
 import hydra
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from uqdrive.stage import run_stage, stage_main
@@ -15,7 +16,8 @@ def main(cfg: DictConfig) -> None:
         run_safety,
     )
 
-    print(f"{describe(cfg.safety.cell, run_safety(cfg))} -> {cfg.safety.out}")
+    result = run_safety(cfg, overrides=list(HydraConfig.get().overrides.task))  # kept in the record: replay
+    print(f"{describe(cfg.safety.cell, result)} -> {cfg.safety.out}")
 
 
 if __name__ == "__main__":  # the config groups it composes take their defaults from these schemas

@@ -38,10 +38,15 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
             assert (tmp_path / f"data/avoid/mcd-seed0/traces/mcd-seed0-{condition}-{mode}.npz").exists()
             assert (tmp_path / f"plots/avoid/mcd-seed0/cells/mcd-seed0-{condition}-{mode}.png").stat().st_size > 5000
             assert len(cell["outcomes"]) == 4 and cell["outcomes"].count("1") == round(cell["eta1"] * 4)
+            failing = [i for i, outcome in enumerate(cell["outcomes"]) if outcome == "0"]  # each a failure record
+            assert sorted(f["index"] for f in cell["failures"]) == failing
+            assert all(f["seed"] == cell["base_seed"] + f["index"] for f in cell["failures"])
+            assert {f["segment"] for f in cell["failures"]} <= {"before the obstacle", "past the obstacle"}
         for mode in ("off", "fresh_off"):  # warnings off: only counted
             assert saved["cells"][condition][mode]["handover_rate"] == 0
         # fresh_off and calibrated run the validation seeds, the others the stage's
         assert [saved["cells"][condition][m]["base_seed"] for m in Mode] == [200000, 200000, 300000, 300000]
+    assert any(cell["failures"] for by_mode in saved["cells"].values() for cell in by_mode.values())
     for mode in Mode:  # one unknown condition: its mixture is that cell
         assert saved["unknown"][mode]["eta1"] == saved["cells"]["fog"][mode]["eta1"]
     assert saved["cells"][KNOWN]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}

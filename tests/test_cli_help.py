@@ -16,6 +16,7 @@ ARGPARSE_COMMANDS = (
     "frames",
     "plots-page",
     "redecide",
+    "replay",
 )  # `bench` routes to its benchmarks' own parsers
 SECTION = re.compile(r"^(positional arguments|options):$")
 

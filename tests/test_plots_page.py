@@ -13,12 +13,15 @@ import numpy as np
 import pytest
 from conftest import dvc
 from rendered_plots import INSTALL_HINT, chromium, problems, render
+from test_failure_modes import RAIN, cell
 from test_plots import ring_panel
 
+from uqdrive.pipeline.safety_summary_stage import write_failure_modes
 from uqdrive.plots import safety_hexbin_grid
 from uqdrive.plots_page import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
+FAILURE_MODES = "plots/safety/failure_modes.csv"
 IMAGE_PLOTS = (
     "plots/safety/summary",
     "plots/evaluate/figures",
@@ -43,6 +46,8 @@ def plots_project(tmp_path: Path) -> Path:
     for name in ("dvc.yaml", "params.yaml"):
         shutil.copy(ROOT / name, project / name)
     shutil.copytree(ROOT / "plots", project / "plots", ignore=shutil.ignore_patterns("*.png"))
+    if not (project / FAILURE_MODES).exists():  # a committed run from before failure records: constructed failures
+        write_failure_modes(project / FAILURE_MODES, [cell("mcd", "rain", RAIN), cell("vi", "rain", RAIN[:2])])
     subprocess.run(["git", "init", "-q"], cwd=project, check=True, timeout=60)
     dvc(project, "init", "-q")
     shutil.copytree(ROOT / ".dvc/plots", project / ".dvc/plots")

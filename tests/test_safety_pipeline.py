@@ -1,5 +1,6 @@
 """The `safety` stage on the tiny profile: outputs, MLflow run, reuse of finished cells, clear errors, summary."""
 
+import csv
 import json
 import shutil
 
@@ -222,6 +223,15 @@ def test_summary_answers_per_method_over_replicates_and_draws_one_grid_per_locat
     assert summary.family_size == 1 and summary.cell_gamma == 0.05
     for location in ("roundabout", "roundabout_town"):
         assert (tmp_path / f"plots/safety/summary/hexbin_{location}_noise0.0.png").stat().st_size > 5000
+    with (tmp_path / "plots/safety/failure_modes.csv").open() as f:  # `dvc plots`: a bar per mode of method × weather
+        modes = list(csv.DictReader(f))
+    failing = sum(
+        json.loads(p.read_text())["outcomes"].count("0") for p in (tmp_path / "metrics/safety").glob("*-clear_noon-*")
+    )
+    assert sum(int(m["count"]) for m in modes) == failing and {m["group"] for m in modes} <= {
+        "mcd clear_noon",
+        "vi clear_noon",
+    }
     with pytest.raises(FileNotFoundError, match="hmc-seed0-roundabout-clear_noon-noise0.0.json is missing"):
         run_safety_summary(
             stage_config(

@@ -19,6 +19,7 @@ from uqdrive.safety.cell_records import (
     MixtureEstimate,
     Mode,
 )
+from uqdrive.safety.failures import RolloutFailure, job_failures
 from uqdrive.safety.replay import Traces, replay
 from uqdrive.safety.warnings import LEVELS
 from uqdrive.sim import ScenarioGeometry
@@ -40,8 +41,10 @@ def avoid_result(
     unknown = names[1:]
     fixed, family = settings.fixed_rollouts(), settings.family_size
     table = {name: {} for name in names}
+    where = {c.name: c for c in settings.conditions}
     for (condition, mode), cell in cells.items():
-        table[condition][mode] = cell_metrics(cell, settings.spec.speed, geometries[condition], fixed, family)
+        failures = job_failures(settings.job(where[condition], None, cell.base_seed), cell.results)
+        table[condition][mode] = cell_metrics(cell, settings.spec.speed, geometries[condition], fixed, family, failures)
     mixture = {
         mode: unknown_mixture(
             [cells[name, mode] for name in unknown],
@@ -86,10 +89,16 @@ def avoid_result(
 
 
 def cell_metrics(
-    cell: Cell, cruise: float, geometry: ScenarioGeometry | None, fixed_rollouts: int, family_size: int
+    cell: Cell,
+    cruise: float,
+    geometry: ScenarioGeometry | None,
+    fixed_rollouts: int,
+    family_size: int,
+    failures: list[RolloutFailure] | None = None,
 ) -> AvoidCell:
-    """η̂1 with its interval, autonomy, passed and timeout rates, hand-over distances, warning counts, and each
-    run's verdict in rollout order (``fixed_rollouts``: how many every cell runs whatever the outcomes)."""
+    """η̂1 with its interval, autonomy, passed and timeout rates, hand-over distances, warning counts, each run's
+    verdict in rollout order (``fixed_rollouts``: how many every cell runs whatever the outcomes) and its
+    ``failures`` (`uqdrive.safety.failures.job_failures`)."""
     results, est = cell.results, cell.estimate
     per_run = [levels(cell, r) for r in results]
     handed = handed_over(cell)
@@ -134,6 +143,7 @@ def cell_metrics(
         thresholds={"delta1": cell.rule.config.delta1, "delta2": cell.rule.config.delta2, "tau": cell.rule.config.tau},
         base_seed=cell.base_seed,
         outcomes="".join("1" if r.safe else "0" for r in results),
+        failures=failures or [],
     )
 
 

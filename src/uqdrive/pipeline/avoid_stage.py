@@ -34,6 +34,7 @@ from uqdrive.safety.avoid_files import write_cell_data, write_cell_table, write_
 from uqdrive.safety.avoidance import AvoidSettings, build_settings
 from uqdrive.safety.calibration import Calibration, calibrate
 from uqdrive.safety.cell_records import AvoidResult, Mode
+from uqdrive.safety.failure_video import worst_clips
 from uqdrive.safety.replay import Traces
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
@@ -200,6 +201,8 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
             mlflow.log_metrics(numeric_metrics(as_dict(result.cell(condition, mode))))
             log_artifact_as(paths[f"cells/{cell.name}"], "paths.png")
             log_artifact_as(paths[f"cells/{cell.name}.csv"], "rollouts.csv")
+            for clip in paths.get(f"clips/{cell.name}", []):  # a failure's clip, by its cell and seed
+                mlflow.log_artifact(str(clip), artifact_path="failures")
     k = result.calibration
     with stage_run(root, "avoid", cfg, run_name=f"calibration · {settings.method} seed{settings.seed}"):
         mlflow.log_params(
@@ -227,5 +230,19 @@ def run_avoid(cfg: DictConfig) -> AvoidResult:
     result = avoid_result(settings, cells, calib, traces, settings.geometries(), time.perf_counter() - start)
     paths = write_files(settings, cells, calib, plot(settings, cells, calib))
     write_record(settings.stage.avoid.out, result)
+    paths |= write_clips(settings, cells, result)
     log(cfg, settings, cells, result, paths)
     return result
+
+
+def write_clips(settings: AvoidSettings, cells: Cells, result: AvoidResult) -> dict[str, list[Path]]:
+    """Each cell's worst `avoid.clips` failures re-driven (with the cell's warnings) as clips: the MP4s by cell."""
+    where, folder = {c.name: c for c in settings.conditions}, Path(settings.stage.avoid.data_dir) / "clips"
+    clips = {}
+    for (condition, mode), cell in cells.items():
+        job = settings.job(where[condition], None if mode.warnings_off else cell.rule, cell.base_seed)
+        failures = result.cell(condition, mode).failures
+        title = f"{settings.method} seed{settings.seed} {condition} warnings {mode}"
+        drawn = worst_clips(job, failures, title, folder, cell.name, settings.stage.avoid.clips)
+        clips[f"clips/{cell.name}"] = [clip.mp4 for clip in drawn]
+    return clips

@@ -34,6 +34,8 @@ from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
 from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.failure_video import worst_clips
+from uqdrive.safety.failures import job_failures
 from uqdrive.safety.policy_files import load_policy, probe_policy
 from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
 from uqdrive.safety.rollout import RolloutResult
@@ -43,7 +45,7 @@ from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
 from uqdrive.sim import build_geometry
 from uqdrive.sim.condition import Condition, WorldChoice
 from uqdrive.sim.config import SimConfig, names_gym_world
-from uqdrive.stage import grid, run_cells
+from uqdrive.stage import cell_overrides, grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
 from uqdrive.uq import Estimate
@@ -70,6 +72,8 @@ class SafetySection(EstimatorSettings):
     positions: Str
     rollout_log: Str
     plots_dir: Str
+    clips: Annotated[int, Field(ge=0, strict=True)]  # the worst failures re-driven as clips and logged (0: none)
+    clips_dir: Str
 
 
 @schema(root=True)
@@ -210,8 +214,9 @@ def reusable_result(path: str | Path, key: str) -> SafetyCell | None:
     return cell if cell.config_hash == key else None
 
 
-def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
-    """The cell's record: η̂1 with its interval and guarantee, how its runs failed, each run's verdict in order."""
+def safety_cell(plan: CellPlan, run: CellRun[Estimate], overrides: Sequence[str] = ()) -> SafetyCell:
+    """The cell's record: η̂1 with its interval and guarantee, how its runs failed (a record per failing run, worst
+    margin first), each run's verdict in order, and the ``overrides`` that compose it (`uqdrive replay`)."""
     estimate, results, stage, where = run.outcome, run.results, plan.stage, plan.job.where
     return SafetyCell(
         method=plan.method,
@@ -239,6 +244,8 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate]) -> SafetyCell:
         config_hash=plan.key,
         unread=run.unread,
         margins=[None if math.isnan(r.margin) else round(r.margin, 6) for r in results],
+        failures=job_failures(plan.job, results),
+        overrides=list(overrides),
     )
 
 
@@ -256,27 +263,29 @@ def cell_figure(plan: CellPlan, positions: CellPositions, estimate: Estimate) ->
     return fig
 
 
-def run_safety(cfg: DictConfig, runner: CellRunner | None = None) -> SafetyRun:
+def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Sequence[str] = ()) -> SafetyRun:
     """Estimate η1 for one cell: plan, drive (the rollouts its log holds are replayed), compute, plot, write, log.
     A cell whose result file holds its key is only logged again. ``runner``: shared by many cells
-    (`run_safety_sweep`), else the cell's own."""
+    (`run_safety_sweep`), else the cell's own; ``overrides``: the Hydra overrides that composed ``cfg``, kept in
+    the record so that `uqdrive replay` can compose the cell again."""
     plan = plan_cell(cfg)
     section = plan.stage.safety
     previous = reusable_result(section.out, plan.key)
     if previous is not None:
-        log_cell(cfg, plan.stage, previous, [p for p in _cell_files(section) if p.exists()], reused=True)
+        log_cell(cfg, plan.stage, previous, _cell_files(section, previous), reused=True)
         return SafetyRun(previous, reused=True)
     with nullcontext(runner) if runner else CellRunner.of(plan.stage.executor, plan.stage.progress) as cells:
         run = cells.estimate(f"safety {section.cell}", plan.job, plan.stage.estimator, plan.key, section.rollout_log)
     positions = positions_of(plan.job, run.results, run.outcome.value)
-    cell = safety_cell(plan, run)
+    cell = safety_cell(plan, run, overrides)
     figure = save_figure(cell_figure(plan, positions, run.outcome), Path(section.plots_dir) / f"{section.cell}.png")
     table = write_csv(Path(section.plots_dir) / f"{section.cell}.csv", [r.summary() for r in run.results])
     write_positions(section.positions, positions)
     write_record(
         section.out, cell
     )  # before logging: a tracking failure never loses the cell; its presence marks it done
-    log_cell(cfg, plan.stage, cell, [figure, table], reused=run.reused)
+    clips = worst_clips(plan.job, cell.failures, _clip_title(cell), section.clips_dir, cell.name, section.clips)
+    log_cell(cfg, plan.stage, cell, [figure, table, *[c.mp4 for c in clips]], reused=run.reused)
     return SafetyRun(cell, run.reused)
 
 
@@ -309,8 +318,13 @@ def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tupl
         cells = [{**cell, "safety.family_size": len(cells)} for cell in cells]
     runner = CellRunner.of(stage.executor, stage.progress)
     parent = partial(stage_parent_run, stage.paths.root, "safety", cfg, overrides, name=f"sweep of {len(cells)} cells")
-    run = partial(run_cells, "safety", overrides, cells, SafetyStage, run_safety, runner, stage.progress, parent)
-    yield from run(check_model)  # every cell's model first: a missing one stops the sweep before any cell runs
+    each = iter([cell_overrides(overrides, cell) for cell in cells])  # `run_cells` runs the cells in this order
+
+    def run(config: DictConfig, shared: CellRunner) -> SafetyRun:
+        return run_safety(config, shared, next(each))
+
+    # every cell's model first: a missing one stops the sweep before any cell runs
+    yield from run_cells("safety", overrides, cells, SafetyStage, run, runner, stage.progress, parent, check_model)
 
 
 def describe(name: str, run: SafetyRun) -> str:
@@ -342,9 +356,15 @@ CELL_PARAMS = (
 CELL_ARTEFACTS = {".png": "paths.png", ".csv": "rollouts.csv"}  # one name in every cell's run (Compare lines them up)
 
 
-def _cell_files(section: SafetySection) -> list[Path]:
-    plots = Path(section.plots_dir)
-    return [plots / f"{section.cell}{suffix}" for suffix in CELL_ARTEFACTS]
+def _cell_files(section: SafetySection, cell: SafetyCell) -> list[Path]:
+    """The files a finished cell left: its figure, table and clips."""
+    plots, clips = Path(section.plots_dir), Path(section.clips_dir)
+    worst = [clips / f"{cell.name}-seed{f.seed}.mp4" for f in cell.failures[: section.clips]]
+    return [p for p in [*(plots / f"{section.cell}{suffix}" for suffix in CELL_ARTEFACTS), *worst] if p.exists()]
+
+
+def _clip_title(cell: SafetyCell) -> str:
+    return f"{cell.method} seed{cell.replicate} {cell.location} {cell.weather} noise {cell.noise:g}"
 
 
 def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: list[Path], reused: bool) -> None:
@@ -356,4 +376,7 @@ def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: l
         mlflow.log_params({"n": cell.n, "cell_gamma": cell.gamma})  # the rest: the cell's config (`stage_run`)
         mlflow.log_metrics(metrics)
         for path in artifacts:
-            log_artifact_as(path, CELL_ARTEFACTS[path.suffix])
+            if path.suffix in CELL_ARTEFACTS:
+                log_artifact_as(path, CELL_ARTEFACTS[path.suffix])
+            else:  # a failure's clip, by its cell and seed
+                mlflow.log_artifact(str(path), artifact_path="failures")

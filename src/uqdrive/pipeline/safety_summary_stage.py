@@ -10,7 +10,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from omegaconf import DictConfig
 
+from uqdrive.analysis.failure_modes import failure_modes, modes_table
 from uqdrive.analysis.method_answers import SafetySummary, summarise_methods
+from uqdrive.files import write_csv
 from uqdrive.plots import safety_hexbin_grid, save_figure
 from uqdrive.records import write_record
 from uqdrive.resolvers import noise_label
@@ -26,6 +28,7 @@ class SafetySummarySection:
     positions_dir: Str
     out: Str
     figures_dir: Str
+    failure_modes: Str  # the failure modes of each method at each weather, for `dvc plots`
 
 
 @schema(root=True)
@@ -70,5 +73,15 @@ def run_safety_summary(cfg: DictConfig) -> SafetySummary:
     summary = summarise_methods(cells, stage.methods)
     for name, fig in hexbin_figures(stage, cells, summary).items():
         save_figure(fig, Path(stage.summary.figures_dir) / f"{name}.png")
+    write_failure_modes(Path(stage.summary.failure_modes), cells)
     write_record(stage.summary.out, summary)
     return summary
+
+
+def write_failure_modes(path: Path, cells: list[SafetyCell]) -> Path:
+    """Each method's failure modes at each weather as a CSV (`dvc plots`: a bar per mode); a sweep with no failure
+    writes one row that says so, so the plot still shows the answer."""
+    rows = modes_table(failure_modes(cells, "method_weather"))
+    none = {"label": "no failing rollout in any cell", "group": "", "mode": "", "cause": "", "segment": ""}
+    none |= {"warned": False, "count": 0, "share": 0.0, "failures": 0, "rollouts": sum(len(c.outcomes) for c in cells)}
+    return write_csv(path, rows or [none | {"worst_cell": "", "worst_seed": ""}])

@@ -15,6 +15,7 @@ from uqdrive.records import read_record
 from uqdrive.report.answer import answer_markdown
 from uqdrive.report.document import Report
 from uqdrive.report.envelope_section import envelope_section, read_envelopes
+from uqdrive.report.failure_gallery import failures_section
 from uqdrive.report.findings_text import findings_markdown
 from uqdrive.report.headline import Headline, headline_table
 from uqdrive.report.heldout_section import heldout_section
@@ -81,7 +82,9 @@ def build_report(root: Path, out_dir: Path, scope: Scope, records: Records, head
     report.add_contents()
     report.add("## The paper's claims and what the run found\n\n" + findings_markdown(records.findings))
     fidelity_section(report, run, methods, list(scope.weathers), scope.locations[0])
-    safety_section(report, run, methods, conditions_of(scope.locations, scope.weathers, scope.noises))
+    conditions = conditions_of(scope.locations, scope.weathers, scope.noises)
+    safety_section(report, run, methods, conditions)
+    failures_section(report, run.cells, root / "data" / "safety" / "clips", root / "metrics" / "safety", conditions)
     avoid_section(report, run, methods)
     envelope_section(report, records.envelopes)
     heldout_section(report, records.evaluated, scope.posteriors, scope.weathers, scope.noises, scope.replicates[0])

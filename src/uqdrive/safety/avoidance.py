@@ -137,6 +137,7 @@ class AvoidSection(EstimatorSettings):
     data_dir: Str
     rollout_log: Str
     plots_dir: Str
+    clips: Annotated[int, Field(ge=0, strict=True)]  # the worst failures of each cell drawn as clips (0: none)
 
     def __post_init__(self) -> None:
         names = [c.name for c in self.unknown]

@@ -13,6 +13,7 @@ import numpy as np
 
 from uqdrive.records import read_record, record
 from uqdrive.resolvers import condition_label
+from uqdrive.safety.failures import RolloutFailure
 
 
 def safety_cell_name(method: str, replicate: int, location: str, weather: str, noise: float) -> str:
@@ -58,6 +59,8 @@ class SafetyCell:
     config_hash: str
     unread: int = 0  # rollouts run ahead of a sequential estimator that it never read: time spent, not error
     margins: list[float | None] = dataclasses.field(default_factory=list)  # each run's `PathVerdict.margin`, in order
+    failures: list[RolloutFailure] = dataclasses.field(default_factory=list)  # the failing runs, worst margin first
+    overrides: list[str] = dataclasses.field(default_factory=list)  # the Hydra overrides composing the cell (replay)
 
     @property
     def condition(self) -> tuple[str, str, float]:
@@ -137,6 +140,7 @@ class AvoidCell:
     thresholds: dict[str, float]
     base_seed: int
     outcomes: str
+    failures: list[RolloutFailure] = dataclasses.field(default_factory=list)  # the failing runs, worst margin first
 
     @property
     def safe(self) -> np.ndarray:

@@ -36,7 +36,7 @@ def _empty() -> np.ndarray:
 
 @dataclass(frozen=True)
 class RolloutResult:
-    """Outcome of one episode; ``x``, ``y`` are the body-centre positions at every control step
+    """Outcome of one episode; ``x``, ``y``, ``yaw`` are the body-centre poses at every control step
     (and the last pose). Per-decision traces (one value per step): ``eta2``, ``mutual_information``,
     ``warning`` (level, -1 for none), ``command_speed``, ``draws`` (posterior draws the step took),
     ``mutual_information_se`` (how precise the MI is at those draws: its jackknife standard error) and
@@ -60,6 +60,7 @@ class RolloutResult:
     x: np.ndarray
     y: np.ndarray
     eta2: np.ndarray = field(default_factory=_empty)
+    yaw: np.ndarray = field(default_factory=_empty)  # where a failure record places a lane exit (`first_exit`)
     mutual_information: np.ndarray = field(default_factory=_empty)
     warning: np.ndarray = field(default_factory=_empty)
     command_speed: np.ndarray = field(default_factory=_empty)
@@ -193,6 +194,7 @@ def _result(episode: _Episode, safe_set: SafeSet | InfoSafeSet | None, half_widt
         steps=len(commands),
         x=log["x"],
         y=log["y"],
+        yaw=log["yaw"],
         eta2=np.array(eta2, dtype=float),
         mutual_information=np.array(mi, dtype=float),
         warning=np.array([c.warning for c in commands], dtype=np.int8),

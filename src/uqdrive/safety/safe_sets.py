@@ -77,6 +77,17 @@ class SafeSet:
         safe = not (collision or off_road or left) and reached
         return PathVerdict(safe, collision, off_road, left, reached, use, self._margin(geometry, s, use, safe))
 
+    def first_exit(self, geometry: ScenarioGeometry, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> int | None:
+        """The first pose whose body leaves the lane (`judge`'s corridor rule), None if none does or no lane rule
+        applies: where a failure record places a lane exit."""
+        if self.half_width is None or len(x) == 0:
+            return None
+        corners = body_corners(np.asarray(x), np.asarray(y), np.asarray(yaw), *self.car_size)
+        corner_s, lateral = geometry.route.project(corners)
+        outside = (np.abs(lateral) / np.interp(corner_s, geometry.route.s, self.half_width)).reshape(4, -1) > 1.0
+        poses = np.flatnonzero(outside.any(axis=0))
+        return int(poses[0]) if len(poses) else None
+
     def _margin(self, geometry: ScenarioGeometry, progress: np.ndarray, use: float, safe: bool) -> float:
         """min(1 − corridor_use, metres past the goal in lane half-widths), clipped to ≤ 0 for an unsafe path."""
         goal = math.inf

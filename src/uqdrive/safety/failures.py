@@ -1,0 +1,186 @@
+"""A cell's failing rollouts as typed records: what an engineer reads first, replays (`uqdrive replay`) and groups
+into modes (`uqdrive.analysis.failure_modes`).
+
+Each record says which rollout failed (index and seed), under which condition, how it ended (the termination and
+the safe-set rule it broke), where (the step and pose of the failure and the route segment there), how badly (the
+margin) and what the controller saw then (its warning tier, η2 and mutual information at that step, and whether any
+warning fired before). The path's digest lets a replay prove it re-drove the very same path.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from uqdrive.records import record
+from uqdrive.safety.executors import RolloutJob
+from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.safe_sets import SafeSet, obstacle_pass_progress, safe_set_for
+from uqdrive.sim import ScenarioGeometry, build_geometry
+
+NO_PLACE = "episode"  # a Gymnasium world has no route: its failures are placed by time (early, middle, late)
+
+
+@record
+class RolloutFailure:
+    """One failing rollout (see the module docstring). ``step``: the control step at which it failed (its first
+    lane exit, else where it ended); ``x``, ``y``: the pose there; ``progress``: metres along the route (None off a
+    route); ``segment``: the part of the route (or of the episode) it failed in; ``cause``: the broken rule
+    (collision, off road, left lane, short of the goal, handed over, unsafe in a Gymnasium world's predicate);
+    ``warned``: a warning fired at or before that step; ``path_sha256``: digest of the path's poses."""
+
+    index: int
+    seed: int
+    condition: str
+    termination: str
+    cause: str
+    step: int
+    steps: int
+    x: float
+    y: float
+    progress: float | None
+    segment: str
+    margin: float | None
+    warning: int
+    warned: bool
+    eta2: float | None
+    mutual_information: float | None
+    path_sha256: str
+
+
+def path_digest(x: np.ndarray, y: np.ndarray) -> str:
+    """sha256 of a path's poses as float64 bytes: equal exactly when the path is the same bit for bit."""
+    poses = np.stack([np.asarray(x, np.float64), np.asarray(y, np.float64)], axis=1)
+    return hashlib.sha256(np.ascontiguousarray(poses).tobytes()).hexdigest()
+
+
+def failure_cause(result: RolloutResult) -> str:
+    """The safe-set rule a failing rollout broke, the most severe first."""
+    if result.collision:
+        return "collision"
+    if result.off_road:
+        return "off road"
+    if result.left_corridor:
+        return "left lane" if not math.isnan(result.corridor_use) else "unsafe"
+    if result.termination == "handover":
+        return "handed over"
+    return "short of the goal"
+
+
+class FailurePlacer:
+    """Places a failure on its route: the safe set's first lane exit, the segment it lies in. ``geometry`` None: a
+    Gymnasium world, placed by the step within ``horizon_steps``."""
+
+    def __init__(self, geometry: ScenarioGeometry | None, safe_set: SafeSet | None, horizon_steps: int):
+        self.geometry, self.safe_set, self.horizon_steps = geometry, safe_set, max(1, horizon_steps)
+        self.segments = route_segments(geometry, safe_set) if geometry is not None else []
+
+    def step(self, result: RolloutResult) -> int:
+        """The pose index of the failure: the body's first lane exit where it left its lane, else the last pose."""
+        if self.safe_set is not None and result.left_corridor and len(result.yaw) == len(result.x):
+            exit_pose = self.safe_set.first_exit(self.geometry, result.x, result.y, result.yaw)
+            if exit_pose is not None:
+                return exit_pose
+        return max(len(result.x) - 1, 0)
+
+    def place(self, result: RolloutResult, pose: int) -> tuple[float | None, str]:
+        """Metres along the route at ``pose`` and the segment there (a Gymnasium world: a third of its horizon)."""
+        if self.geometry is None:
+            third = min(2, 3 * pose // self.horizon_steps)
+            return None, f"{('early', 'middle', 'late')[third]} in the {NO_PLACE}"
+        s, _ = self.geometry.route.project(np.array([[result.x[pose], result.y[pose]]]))
+        progress = float(s[0])
+        name = next((name for name, start in reversed(self.segments) if progress >= start), self.segments[0][0])
+        return round(progress, 3), name
+
+
+def route_segments(geometry: ScenarioGeometry, safe_set: SafeSet | None) -> list[tuple[str, float]]:
+    """The route's named parts as (name, start in metres), in order: the roundabout's approach, ring and exit arm;
+    the obstacle road before and past the obstacle; a straight road whole."""
+    kind, route = geometry.config.kind, geometry.route
+    if kind == "roundabout":
+        cx, cy, _ = geometry.island
+        reach = geometry.config.ring_radius + geometry.config.ring_width / 2  # as `safe_set_for` finds the exit
+        on_ring = np.flatnonzero(np.hypot(route.x - cx, route.y - cy) <= reach)
+        entry = float(route.s[on_ring[0]]) if len(on_ring) else 0.0
+        exit_ = float(route.s[on_ring[-1]]) if len(on_ring) else float(route.s[-1])
+        return [("approach", 0.0), ("ring", entry), ("exit arm", exit_)]
+    if kind == "obstacle" and safe_set is not None:
+        passed = obstacle_pass_progress(geometry, safe_set.car_size[0])
+        return [("before the obstacle", 0.0), ("past the obstacle", passed)]
+    return [("road", 0.0)]
+
+
+def failure_records(
+    results: Sequence[RolloutResult],
+    condition: Callable[[int], str],
+    placer: Callable[[int], FailurePlacer],
+    base_seed: int,
+) -> list[RolloutFailure]:
+    """The failing rollouts of ``results`` (rollout i has seed ``base_seed`` + i; ``condition(i)``: its label,
+    ``placer(i)``: the placer of its road), worst margin first (a run with no margin, a Gymnasium world's, after
+    those with one, by index)."""
+    records = []
+    for r in results:
+        if not r.safe:
+            index = r.seed - base_seed
+            records.append(_record(r, index, condition(index), placer(index)))
+    return sorted(records, key=lambda f: (f.margin is None, f.margin if f.margin is not None else 0.0, f.index))
+
+
+def _record(result: RolloutResult, index: int, condition: str, placer: FailurePlacer) -> RolloutFailure:
+    pose = placer.step(result)
+    progress, segment = placer.place(result, pose)
+    command = min(pose, result.steps - 1)  # the command decided at that pose (the last one past the end)
+    warnings = np.asarray(result.warning)
+
+    def at(values: np.ndarray) -> float | None:
+        value = float(values[command]) if 0 <= command < len(values) else math.nan
+        return None if math.isnan(value) else round(value, 6)
+
+    return RolloutFailure(
+        index=index,
+        seed=int(result.seed),
+        condition=condition,
+        termination=result.termination,
+        cause=failure_cause(result),
+        step=int(pose),
+        steps=int(result.steps),
+        x=round(float(result.x[pose]), 4) if len(result.x) else math.nan,
+        y=round(float(result.y[pose]), 4) if len(result.y) else math.nan,
+        progress=progress,
+        segment=segment,
+        margin=None if math.isnan(result.margin) else round(float(result.margin), 6),
+        warning=int(warnings[command]) if 0 <= command < len(warnings) else -1,
+        warned=bool((warnings[: command + 1] >= 0).any()) if command >= 0 else False,
+        eta2=at(result.eta2),
+        mutual_information=at(result.mutual_information),
+        path_sha256=path_digest(result.x, result.y),
+    )
+
+
+def placer_for(job: RolloutJob, index: int = 0) -> FailurePlacer:
+    """The placer of rollout ``index``'s failures, on the road and safe set it is judged by."""
+    world = job.condition(index).gym_world
+    if world is not None:
+        return FailurePlacer(None, None, world.horizon_steps)
+    geometry = build_geometry(job.condition(index).scenario)
+    return FailurePlacer(geometry, safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width), 0)
+
+
+def job_failures(job: RolloutJob, results: Sequence[RolloutResult]) -> list[RolloutFailure]:
+    """The failure records of a job's rollouts, each labelled with the condition it drove and placed on its road
+    (a mixture's rollouts drive several)."""
+    placers: dict[str, FailurePlacer] = {}
+
+    def placer(index: int) -> FailurePlacer:
+        where = job.condition(index)
+        key = where.location
+        if key not in placers:
+            placers[key] = placer_for(job, index)
+        return placers[key]
+
+    return failure_records(results, lambda i: job.condition(i).label, placer, job.base_seed)
