@@ -11,10 +11,10 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from test_train import write_processed
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.data.synthetic import synthetic_road_frames
-from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, write_table_batches
+from uqdrive.data.tables import RAW_SCHEMA
 from uqdrive.models.checkpoint import read_checkpoint
 from uqdrive.pipeline.acquire_stage import (
     AcquireStage,
@@ -64,28 +64,13 @@ def sweep_cell(location: str, weather: str, noise: float, high: float, method: s
     )  # fmt: skip
 
 
-def write_processed(path: Path, n: int, seed: int) -> None:
-    images, steer = synthetic_road_frames(n, np.random.default_rng(seed))
-    columns = {
-        "scenario": ["roundabout"] * n,
-        "weather": ["clear_noon"] * n,
-        "noise": [0.0] * n,
-        "episode": [seed] * n,
-        "step": list(range(n)),
-        "steering": steer.tolist(),
-        "label": SteeringBins().to_class(steer).tolist(),
-        "image": [im.tobytes() for im in images],
-    }
-    write_table_batches(path, PROCESSED_SCHEMA, [columns])
-
-
 @pytest.fixture(scope="module")
 def project(tmp_path_factory):
     """Synthetic training frames, the behaviour-cloned MCD controller trained on them (one tiny epoch), and a sweep
     that flagged it in rain with noise at the 20 m ring only."""
     root = tmp_path_factory.mktemp("acquire")
-    write_processed(root / "data/processed/offline/train.parquet", 160, seed=1)
-    write_processed(root / "data/processed/offline/val.parquet", 64, seed=2)
+    write_processed(root / "data/processed/offline/train.parquet", 160, seed=1, scenario="roundabout")
+    write_processed(root / "data/processed/offline/val.parquet", 64, seed=2, scenario="roundabout")
     run_train(compose_in(root, "train", "experiment=offline", "outputs=pipeline", *ALL_TENTHS, "train.mcd.epochs=1"))
     swept = [o for o in TINY if not o.startswith("acquire.")]
     run_safety(compose_in(root, "safety", *swept))  # the sweep's cell at the training condition, really driven

@@ -28,10 +28,10 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 METHODS = ("mcd", "vi", "hmc", "ensemble", "laplace")
 
 
-def write_processed(path: Path, n: int, seed: int) -> None:
+def write_processed(path: Path, n: int, seed: int, scenario: str = "synthetic") -> None:
     images, steer = synthetic_road_frames(n, np.random.default_rng(seed))
     columns = {
-        "scenario": ["synthetic"] * n,
+        "scenario": [scenario] * n,
         "weather": ["clear_noon"] * n,
         "noise": [0.0] * n,
         "episode": [seed] * n,
