@@ -41,6 +41,12 @@ def one_thread():
     torch.set_num_threads(previous)
 
 
+def cell_result(record: dict) -> dict:
+    """A safety cell's record without its provenance (how long it took, the overrides that composed it): what two
+    runs of one cell must agree on."""
+    return {k: v for k, v in record.items() if k not in ("seconds", "overrides")}
+
+
 # The random-weight models predict all 21 tenths: stages using them widen the experiment's class set to match.
 ALL_TENTHS = ("experiment.bins.low=-1.0", "experiment.bins.high=1.0")
 
