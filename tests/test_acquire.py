@@ -28,7 +28,7 @@ from uqdrive.pipeline.acquire_stage import (
 from uqdrive.pipeline.safety_stage import SafetyStage, run_safety
 from uqdrive.pipeline.train_stage import run_train
 from uqdrive.records import read_record, write_record
-from uqdrive.safety.acquisition import flagged_cells
+from uqdrive.safety.acquisition import AcquisitionCheck, before_after, flagged_cells
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import Autopilot, AutopilotConfig, build_geometry
@@ -112,6 +112,41 @@ def test_the_stage_acquires_where_the_sweep_flagged_this_controller(one_round):
     assert rows == {(r, a.condition) for r in (0, 1) for a in acquired}
     for c in one_round.checks:
         assert c.low <= c.eta1 <= c.high and c.expert_low <= c.expert <= c.expert_high and c.n == 4
+
+
+def test_each_round_is_compared_with_behaviour_cloning_on_the_shared_seeds(one_round):
+    first = {c.cell: c.outcomes for c in one_round.checks if c.round == 0}
+    compared = {b.cell: b for b in one_round.before_after}
+    assert set(compared) == set(first) and all(b.round == 1 and b.level == 0.05 / 2 for b in compared.values())
+    for c in (c for c in one_round.checks if c.round == 1):
+        assert len(c.outcomes) == c.n == len(first[c.cell])
+        gain = (c.outcomes.count("1") - first[c.cell].count("1")) / c.n
+        assert compared[c.cell].gain == pytest.approx(gain) and compared[c.cell].low <= gain <= compared[c.cell].high
+
+
+def check_row(round_: int, cell: str, outcomes: str) -> AcquisitionCheck:
+    n = len(outcomes)
+    eta1 = outcomes.count("1") / n
+    return AcquisitionCheck("mcd", 0, round_, cell, eta1, 0.0, 1.0, n, 1.0, 0.0, 1.0, outcomes)
+
+
+def test_before_after_is_the_exact_mcnemar_test_at_the_bonferroni_level():
+    """14 pairs, all discordant one way: p = 2·0.5^14 ≤ 0.05/2; 6 one way: 2·0.5^6 = 0.031 > 0.025 is undecided; the
+    direction is the gain's; its false-verdict rate, summed exactly over every null table of 14 pairs, ≤ the level."""
+    checks = [check_row(0, "a", "0" * 14), check_row(1, "a", "1" * 14)]
+    checks += [check_row(0, "b", "1" * 6 + "0" * 8), check_row(1, "b", "0" * 14)]
+    (a, b) = before_after(checks)
+    assert (a.verdict, b.verdict) == ("safer", "undecided") and a.p_value == pytest.approx(2 * 0.5**14)
+    assert b.p_value == pytest.approx(2 * 0.5**6) and a.level == 0.025
+    for concordant in range(15):  # under H0 the discordant pairs split as fair coins, whatever the concordant ones
+        m = 14 - concordant
+        error = 0.0
+        for k in range(m + 1):
+            after = "1" * k + "0" * (m - k) + "1" * concordant
+            before = "0" * k + "1" * (m - k) + "1" * concordant
+            verdict = before_after([check_row(0, "c", before), check_row(1, "c", after)], alpha=0.05)[0].verdict
+            error += math.comb(m, k) * 0.5**m * (verdict != "undecided")
+        assert error <= 0.05
 
 
 def test_round_zero_reads_the_sweeps_own_cell_where_it_is_the_same_cell(project, one_round):

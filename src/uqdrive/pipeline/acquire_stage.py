@@ -41,6 +41,7 @@ from uqdrive.safety.acquisition import (
     RoundRecord,
     RoundSummary,
     acquire_episodes,
+    before_after,
     expert_job,
     flagged_cells,
 )
@@ -248,7 +249,7 @@ def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
         rows.append(
             AcquisitionCheck(
                 stage.model["name"], stage.seed, k, where.label, cell.eta1, cell.eta1_low, cell.eta1_high, cell.n,
-                expert.value, expert.low, expert.high,
+                expert.value, expert.low, expert.high, cell.outcomes,
             )
         )  # fmt: skip
     return rows
@@ -342,6 +343,7 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
         for k in range(1, section.rounds + 1):
             previous = Path(history[-1].model)
             history.append(reused_round(ctx, k) or run_round(ctx, k, previous))
+    rows = [c for r in history for c in r.checks]
     acquisition = Acquisition(
         stage.model["name"],
         stage.seed,
@@ -349,7 +351,8 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
         section.target,
         [w.label for w in conditions[1:]],
         [r.summary for r in history],
-        [c for r in history for c in r.checks],
+        rows,
+        before_after(rows),
     )
     write_record(section.out, acquisition)
     for done in history:
@@ -367,4 +370,7 @@ def describe(a: Acquisition) -> str:
             if c.round == s.round
         )
         lines.append(f"acquire {a.method} seed{a.replicate} round {s.round}: +{s.frames_added} frames -> {checks}")
+    decided = [f"{b.cell} {b.verdict} ({b.gain:+.2f}, p={b.p_value:.2g})" for b in a.before_after if b.round == s.round]
+    if decided:
+        lines.append(f"  against behaviour cloning (each at {a.before_after[0].level:.2g}): " + ", ".join(decided))
     return "\n".join(lines)

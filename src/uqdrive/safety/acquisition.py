@@ -23,6 +23,7 @@ from uqdrive.safety.rollout import World, run_rollouts
 from uqdrive.sim import Autopilot, AutopilotConfig
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.gym_world import GymWorld
+from uqdrive.uq.paired import paired_table, paired_test
 
 MIX_STREAM = 0xDA66E  # who drives each step: a stream of the episode's seed apart from the episode's own draws
 RECORDED = ("t", "x", "y", "yaw", "speed", "lateral_deviation")  # info keys kept with each frame (as a collection)
@@ -159,6 +160,23 @@ class AcquisitionCheck:
     expert: float
     expert_low: float
     expert_high: float
+    outcomes: str = ""  # each check rollout's 0/1 by seed: every round drives the same seeds, so rounds pair
+
+
+@record
+class BeforeAfter:
+    """Round ``round``'s controller against the behaviour-cloned one (round 0) at ``cell``, paired by seed: the gain
+    in η̂1, its interval (coverage ≥ 1 − ``level`` for any joint law of the pairs), the exact McNemar p-value and
+    the verdict at ``level`` (the family's α split over every round × cell compared: Bonferroni)."""
+
+    round: int
+    cell: str
+    gain: float
+    low: float
+    high: float
+    p_value: float
+    level: float
+    verdict: str  # safer | less safe | undecided
 
 
 @record
@@ -195,3 +213,19 @@ class Acquisition:
     flagged: list[str]
     rounds: list[RoundSummary]
     checks: list[AcquisitionCheck]
+    before_after: list[BeforeAfter] = dataclasses.field(default_factory=list)
+
+
+def before_after(checks: Sequence[AcquisitionCheck], alpha: float = 0.05) -> list[BeforeAfter]:
+    """Every later round against round 0 at each cell both checked (exact paired tests on the cells' shared seeds),
+    family-wise at ``alpha`` over all of them; these trained controllers only, one replicate."""
+    first = {c.cell: c for c in checks if c.round == 0 and c.outcomes}
+    later = [c for c in checks if c.round > 0 and c.cell in first and len(c.outcomes) == len(first[c.cell].outcomes)]
+    level = alpha / max(len(later), 1)
+    compared = []
+    for c in later:
+        table = paired_table([o == "1" for o in c.outcomes], [o == "1" for o in first[c.cell].outcomes])
+        test = paired_test(table, level)
+        verdict = "undecided" if test.p_value > level else "safer" if test.effect > 0 else "less safe"
+        compared.append(BeforeAfter(c.round, c.cell, test.effect, test.low, test.high, test.p_value, level, verdict))
+    return compared
