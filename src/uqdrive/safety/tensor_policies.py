@@ -12,6 +12,7 @@ same rollout draws the same masks in any process. ONNX runs in inference mode (n
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from pathlib import Path
 from typing import Literal
@@ -37,7 +38,7 @@ def network_input(frame: np.ndarray | None, kind: FrameInput) -> np.ndarray:
     return (np.ascontiguousarray(frame.transpose(2, 0, 1))[None] / np.float32(255.0)).astype(np.float32)
 
 
-class TensorPolicy:
+class TensorPolicy(ABC):
     """Frames → a network's output → an `Action` (see the module); subclasses give `run` on a batch."""
 
     needs_camera = True
@@ -47,8 +48,9 @@ class TensorPolicy:
         self.output, self.frame_input, self.mc_draws = output, frame_input, int(mc_draws)
         self.seed, self.frame = 0, -1
 
+    @abstractmethod
     def run(self, x: np.ndarray, draws: int) -> np.ndarray:
-        raise NotImplementedError
+        """The network's output on the batch ``x`` ([2·draws, …] with MC dropout on, else [1, …])."""
 
     def reset(self, seed: int) -> None:
         self.seed, self.frame = int(seed), -1
