@@ -188,6 +188,14 @@ client, or remakes the Gymnasium env). A stage of many cells so builds each env 
 cell (≈ 0.15 s each); only the last settings' envs are kept."""
 
 
+def job_env(job: Any, gym_world: GymWorldConfig | None) -> World:
+    """A new world for ``job``'s rollouts: the Gymnasium world ``gym_world`` where its conditions name one, else the
+    pybullet world with the job's camera, car, control rate and horizon."""
+    if gym_world is not None:
+        return GymWorld(gym_world)
+    return DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
+
+
 class WorkerEnvs:
     """A worker's envs for its whole life, at most ``width``: taken from the process's spares (`_spare_envs`), built
     as a chunk first needs them (a worker given 2 rollouts builds 2 worlds, not ``width``), left to the next job of
@@ -207,10 +215,7 @@ class WorkerEnvs:
         """The first ``count`` envs (at most ``width``), built where missing."""
         count, job = min(count, self.width), self.job
         while len(self.envs) < count:
-            if self.gym_world is not None:
-                self.envs.append(GymWorld(self.gym_world))
-            else:
-                self.envs.append(DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s))
+            self.envs.append(job_env(job, self.gym_world))
         return self.envs[:count]
 
     def close(self) -> None:

@@ -18,10 +18,9 @@ import torch
 
 from uqdrive.network_input import preprocess_frame
 from uqdrive.safety.controller import Command, Policy
-from uqdrive.safety.executors import RolloutJob
+from uqdrive.safety.executors import RolloutJob, job_env
 from uqdrive.safety.failures import RolloutFailure, path_digest
 from uqdrive.safety.rollout import RolloutResult, World, run_rollouts
-from uqdrive.sim import DrivingEnv
 from uqdrive.sim.gym_world import GymWorld
 
 
@@ -76,12 +75,13 @@ def _env_render(world: World) -> np.ndarray | None:
 def _world(job: RolloutJob, index: int) -> World:
     """A fresh world for rollout ``index``; a Gymnasium env that can draw itself is asked to (rendering reads the
     env's state and changes none of it: `check_against` proves the path unchanged)."""
-    where = job.condition(index)
-    if where.gym_world is None:
-        return DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
-    world = GymWorld(where.gym_world)
-    inner = world.env.unwrapped
-    if getattr(inner, "render_mode", None) is None and "rgb_array" in inner.metadata.get("render_modes", []):
+    world = job_env(job, job.condition(index).gym_world)
+    inner = world.env.unwrapped if isinstance(world, GymWorld) else None
+    if (
+        inner is not None
+        and getattr(inner, "render_mode", None) is None
+        and "rgb_array" in inner.metadata.get("render_modes", [])
+    ):
         inner.render_mode = "rgb_array"
     return world
 
