@@ -221,8 +221,17 @@ def _strips(picture, series, k: int, steps: int) -> None:
         cursor = 121 + (WIDTH - 130) * k // max(steps - 1, 1)
         cv2.line(picture, (cursor, top), (cursor, top + STRIP_H - 6), BAD, 1)
         value = float(values[k]) if k < len(values) else math.nan
-        text = "-" if math.isnan(value) else f"{value:.2f}"
+        text = _strip_text(STRIP_LABELS[i], value)
         cv2.putText(picture, text, (60, top + 34), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1)
+
+
+def _strip_text(label: str, value: float) -> str:
+    """A strip's value at the cursor: a warning tier by name (-1: none raised), every other value to two places."""
+    if math.isnan(value):
+        return "-"
+    if label == "warning tier":
+        return "none" if value < 0 else f"warning {int(value)}"
+    return f"{value:.2f}"
 
 
 def _camera(picture: np.ndarray, frame: np.ndarray | None) -> None:
