@@ -11,8 +11,8 @@ from uqdrive.stage import run_stage, stage_main
 @hydra.main(version_base="1.3", config_path="../conf", config_name="avoid")
 @stage_main
 def main(cfg: DictConfig) -> None:
+    from uqdrive.avoid.results import Mode
     from uqdrive.pipeline.avoid_stage import run_avoid  # not at the top: spawned workers re-import this script
-    from uqdrive.safety.cell_records import Mode
 
     r = run_avoid(cfg)
     for condition in r.conditions:
@@ -39,7 +39,7 @@ def main(cfg: DictConfig) -> None:
 
 if __name__ == "__main__":  # the config groups it composes take their defaults from these schemas
     from uqdrive.models.schemas import register_schemas as register_models
-    from uqdrive.safety.warnings import register_schema as register_warning
+    from uqdrive.policy.warnings import register_schema as register_warning
     from uqdrive.sim.config import register_schemas as register_world
 
     run_stage(main, register_world, register_warning, register_models)

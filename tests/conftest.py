@@ -10,7 +10,7 @@ from hydra import compose, initialize_config_dir
 
 import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
 from uqdrive.models.schemas import register_schemas as register_models
-from uqdrive.safety.warnings import register_schema as register_warning
+from uqdrive.policy.warnings import register_schema as register_warning
 from uqdrive.sim.config import register_schemas as register_world
 
 for register in (register_world, register_warning, register_models):  # the config groups' defaults, as the stages do

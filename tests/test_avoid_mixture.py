@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from uqdrive.avoid.plan import KNOWN, UNKNOWN, build_settings
+from uqdrive.avoid.results import Mode
 from uqdrive.pipeline.avoid_stage import run_avoid
-from uqdrive.safety.avoidance import KNOWN, UNKNOWN, build_settings
-from uqdrive.safety.cell_records import Mode
 from uqdrive.safety.executors import LockstepJob
 from uqdrive.sim.condition import variant_of
 

@@ -8,12 +8,12 @@ from mlflow.tracking import MlflowClient
 from scipy import stats
 
 import uqdrive.safety.runner as runner
+from uqdrive.avoid.plan import KNOWN, build_settings
+from uqdrive.avoid.results import Mode
 from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
+from uqdrive.policy.warnings import WarningController
 from uqdrive.records import as_dict
-from uqdrive.safety.avoidance import KNOWN, build_settings
-from uqdrive.safety.cell_records import Mode
-from uqdrive.safety.warnings import WarningController
 from uqdrive.tracking import store_uris
 
 

@@ -14,9 +14,9 @@ import pytest
 import torch
 
 from uqdrive.bench.posterior_bench import random_posteriors
-from uqdrive.cli import main
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import save_posterior
+from uqdrive.tools.cli import main
 
 
 @pytest.mark.parametrize(

@@ -14,8 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from uqdrive.data.binning import SteeringBins
-from uqdrive.safety.calibration import (
+from uqdrive.avoid.calibration import (
     NEVER_FIRES,
     calibrate,
     candidates,
@@ -24,10 +23,11 @@ from uqdrive.safety.calibration import (
     fresh_seed_check,
     min_calibration_runs,
 )
-from uqdrive.safety.draws import DrawSettings
+from uqdrive.avoid.trace_replay import Replay, Traces, replay
+from uqdrive.data.binning import SteeringBins
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.safety.executors import ControllerSpec
-from uqdrive.safety.replay import Replay, Traces, replay
-from uqdrive.safety.warnings import WarningConfig, WarningRule
 
 FAST = WarningConfig(theta=0.3)  # the paper's thresholds and actions, 21 draws per frame
 RULE = WarningRule(FAST, DrawSettings())  # the paper's fixed draws: η̂2 = k/21 at one look

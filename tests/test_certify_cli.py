@@ -14,8 +14,8 @@ import pytest
 from test_uq_threshold import assert_guarantee, decisions, forward
 from user_policy_kit import Constant, save_torchscript, write_package, write_yaml
 
-from uqdrive.cli import main
 from uqdrive.pipeline.certify_stage import CertifySection
+from uqdrive.tools.cli import main
 from uqdrive.tracking import store_uris
 
 KEEPER = "policy:\n  _target_: h50_user_policies.policies.LaneKeeper\n"

@@ -6,7 +6,7 @@ import re
 import pytest
 
 from uqdrive.bench import available
-from uqdrive.cli import COMMANDS, main
+from uqdrive.tools.cli import COMMANDS, main
 
 ARGPARSE_COMMANDS = (
     "bound",

@@ -119,7 +119,7 @@ def test_a_model_file_of_random_bytes_is_one_line_naming_it_without_torchs_advic
 
 
 def test_the_version_is_one_line(capsys):
-    from uqdrive.cli import main
+    from uqdrive.tools.cli import main
 
     assert main(["--version"]) == 0 and capsys.readouterr().out == f"uqdrive {uqdrive.__version__}\n"
 

@@ -49,7 +49,7 @@ def test_the_cell_digest_covers_the_rollout_code_the_stage_and_the_posterior_mod
     from uqdrive.safety.runner import code_digest
 
     closure = import_closure(SRC / "uqdrive/safety/runner.py", ["uqdrive.pipeline.safety_stage", "uqdrive.models.vi"])
-    assert {SRC / f"uqdrive/{f}" for f in ("plots.py", "sim/world.py", "models/vi.py", "uq/sequential.py")} <= closure
+    assert {SRC / f"uqdrive/{f}" for f in ("figures.py", "sim/world.py", "models/vi.py", "uq/sequential.py")} <= closure
     assert SRC / "uqdrive/models/hmc.py" not in closure
     assert code_digest(["uqdrive.pipeline.safety_stage", "uqdrive.models.vi"]) == files_digest(closure, SRC)
 
@@ -133,7 +133,7 @@ def test_no_stage_imports_a_file_dvc_ignores(gym):
     with Repo(str(ROOT)) as repo:
         hidden = repo.dvcignore.is_ignored_file
         ignored = {s.name: [f.as_posix() for f in s.imports if hidden(str(ROOT / f))] for s in stages(gym)}
-        assert repo.dvcignore.is_ignored_file(str(ROOT / "src/uqdrive/cli.py"))  # the check sees .dvcignore
+        assert repo.dvcignore.is_ignored_file(str(ROOT / "src/uqdrive/tools/cli.py"))  # the check sees .dvcignore
     assert not {name: files for name, files in ignored.items() if files}
 
 

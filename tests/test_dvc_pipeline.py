@@ -121,7 +121,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert "Data and pipelines are up to date" in dvc(project, "status")
     # `dvc plots show` draws offline: the page `make install` writes carries Vega, Vega-Lite and Vega-Embed
     subprocess.run(
-        [sys.executable, "-m", "uqdrive.cli", "plots-page", "--out", ".dvc/plots_page.html"],
+        [sys.executable, "-m", "uqdrive.tools.cli", "plots-page", "--out", ".dvc/plots_page.html"],
         cwd=project,
         check=True,
         timeout=300,

@@ -19,9 +19,9 @@ from test_gym_world import COIN_ID
 from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.replay_stage import main
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety
+from uqdrive.replay.redrive import redrive
 from uqdrive.report.document import Report
 from uqdrive.report.failure_gallery import failures_section
-from uqdrive.safety.redrive import redrive
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.tracking import store_uris
 

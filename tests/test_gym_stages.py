@@ -16,13 +16,13 @@ from test_gym_world import COIN_ID, CRASH_RATE, coin_crash_step
 from test_stage_sweeps import sweep
 
 import uqdrive.safety.runner as runner
+from uqdrive.avoid.plan import build_settings
+from uqdrive.avoid.results import Mode
 from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.collect_stage import run_collect
 from uqdrive.pipeline.envelope_stage import run_envelope
 from uqdrive.pipeline.findings_stage import run_findings
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety, run_safety_sweep
-from uqdrive.safety.avoidance import build_settings
-from uqdrive.safety.cell_records import Mode
 from uqdrive.schema import ConfigError
 from uqdrive.tracking import store_uris
 from uqdrive.uq import clopper_pearson_interval

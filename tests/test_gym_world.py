@@ -11,7 +11,7 @@ import pytest
 from gymnasium import spaces
 
 from uqdrive.network_input import preprocess_frame
-from uqdrive.safety.controller import Command, ConstantPolicy
+from uqdrive.policy.controller import Command, ConstantPolicy
 from uqdrive.safety.info_safe_set import InfoSafeSet
 from uqdrive.safety.rollout import run_rollouts, stopped_speed
 from uqdrive.schema import ConfigError

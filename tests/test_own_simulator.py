@@ -64,7 +64,7 @@ def readme_hooks() -> str:
 
 
 POLICIES = '''
-from uqdrive.safety.user_policy import Action
+from uqdrive.policy.user_policy import Action
 
 
 class Straight:

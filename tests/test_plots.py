@@ -5,17 +5,12 @@ from types import SimpleNamespace
 import matplotlib.pyplot as plt
 import numpy as np
 
-from uqdrive.plots import (
-    avoid_signals_figure,
-    avoid_tradeoff_figure,
-    avoid_trajectories_figure,
-    class_histogram_figure,
-    condition_lines_figure,
-    eta1_intervals_figure,
-    reliability_grid,
-    safety_hexbin_grid,
-    save_figure,
-)
+from uqdrive.avoid.figure import avoid_signals_figure, avoid_tradeoff_figure, avoid_trajectories_figure
+from uqdrive.data.figure import class_histogram_figure
+from uqdrive.figures import save_figure
+from uqdrive.models.figure import condition_lines_figure, reliability_grid
+from uqdrive.report.figure import eta1_intervals_figure
+from uqdrive.safety.figure import safety_hexbin_grid
 
 
 def ring_panel(rng: np.random.Generator, eta1: float) -> dict[str, np.ndarray]:
@@ -76,7 +71,7 @@ def avoid_panel(rng: np.random.Generator) -> dict:
 
 
 def every_figure(rng: np.random.Generator) -> dict[str, object]:
-    """Each figure-building function of `uqdrive.plots`, on small inputs shaped as the stages pass them."""
+    """Each figure-building function (the `figure` modules), on small inputs shaped as the stages pass them."""
     thresholds = SimpleNamespace(delta1=0.8, delta2=0.6, tau=0.3)
     bins = np.linspace(0, 1, 6)
     reliability = {

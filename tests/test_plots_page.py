@@ -17,8 +17,8 @@ from test_failure_modes import RAIN, cell
 from test_plots import ring_panel
 
 from uqdrive.pipeline.safety_summary_stage import write_failure_modes
-from uqdrive.plots import safety_hexbin_grid
-from uqdrive.plots_page import write_page
+from uqdrive.safety.figure import safety_hexbin_grid
+from uqdrive.tools.plots_page import write_page
 
 ROOT = Path(__file__).resolve().parents[1]
 FAILURE_MODES = "plots/safety/failure_modes.csv"

@@ -12,6 +12,7 @@ import pytest
 from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_comparisons
 from uqdrive.analysis.method_answers import summarise_avoid, summarise_methods
 from uqdrive.analysis.method_claims import method_claims
+from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
 from uqdrive.data.frames import encode_png
 from uqdrive.data.preprocess import Preprocessed
 from uqdrive.envelope.map_records import EnvelopeAxis, EnvelopeRegion, EnvelopeResult, EnvelopeSearch, GridCost
@@ -21,15 +22,7 @@ from uqdrive.pipeline.report_stage import run_report
 from uqdrive.records import write_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import claims_markdown, findings_markdown
-from uqdrive.safety.cell_records import (
-    AvoidCell,
-    AvoidResult,
-    CalibrationSummary,
-    FreshSeedRecord,
-    MixtureEstimate,
-    Mode,
-    SafetyCell,
-)
+from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.verdict import Verdict
 
 METHODS, WEATHERS, NOISES, SEEDS = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05), (0, 1)

@@ -8,7 +8,7 @@ from conftest import CONF
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
 from uqdrive.network_input import preprocess_frame
-from uqdrive.safety.controller import Controller
+from uqdrive.policy.controller import Controller
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.uq import decision_confidence, frame_measures
 

@@ -17,11 +17,11 @@ from test_uq_tier import tier_probabilities, wrong_tier_rate
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
 from uqdrive.models.posterior import Posterior
-from uqdrive.safety.controller import NO_WARNING, Controller
-from uqdrive.safety.draws import DrawSettings
+from uqdrive.policy.controller import NO_WARNING, Controller
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import WarningConfig, WarningController, WarningRule, levels_of
 from uqdrive.safety.executors import ControllerSpec
 from uqdrive.safety.rollout import run_rollout
-from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule, levels_of
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition

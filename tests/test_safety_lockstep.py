@@ -13,12 +13,12 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.envelope.sources import UniformIn
 from uqdrive.envelope.space import Axis, AxisSettings, ConditionSpace
 from uqdrive.models import load_posterior
+from uqdrive.policy.controller import Controller
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.safety import executors
-from uqdrive.safety.controller import Controller
-from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, RolloutWorker, lockstep_chunks, make_executor
 from uqdrive.safety.rollout import run_rollout, run_rollouts
-from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition

@@ -16,10 +16,10 @@ import torch
 from omegaconf import DictConfig
 
 from uqdrive.pipeline.certify_stage import compose_certify, parse, run_certify
+from uqdrive.policy.sb3_policy import SB3Policy, load_sb3
+from uqdrive.policy.user_policy import PolicyFailure
 from uqdrive.safety.policy_files import load_policy
 from uqdrive.safety.rollout_log import RolloutLog
-from uqdrive.safety.sb3_policy import SB3Policy, load_sb3
-from uqdrive.safety.user_policy import PolicyFailure
 
 sb3 = pytest.importorskip("stable_baselines3", reason="stable-baselines3 is not installed (pip install 'uqdrive[sb3]')")
 CENTRES = np.round(np.linspace(-1.0, 1.0, 21), 1)
@@ -27,7 +27,7 @@ WRAPPER = '''
 from stable_baselines3 import PPO
 
 from uqdrive.network_input import preprocess_frame
-from uqdrive.safety.user_policy import Action
+from uqdrive.policy.user_policy import Action
 
 
 class ViaPredict:

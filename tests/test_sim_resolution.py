@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uqdrive.frame_gallery import main as frames_main
-from uqdrive.resolution import marking_contrast, project, render_at
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.tools.frame_gallery import main as frames_main
+from uqdrive.tools.resolution import marking_contrast, project, render_at
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 STRAIGHT = ScenarioConfig.from_yaml(CONF / "scenario" / "straight.yaml")

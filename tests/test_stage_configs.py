@@ -187,9 +187,9 @@ def test_the_paper_profile_keeps_the_papers_guarantee_in_fewer_rollouts(stage_co
     """θ = γ = 0.05 in every cell, as the paper's Chernoff n = 738 gives it, by the sequential scheme (36 rollouts
     where η1 is 0 or 1): the safety sweep, and avoidance on the paper's cells (the known condition, the unknown ones
     as one mixture cell), each running a fixed sample large enough to calibrate on."""
+    from uqdrive.avoid.calibration import min_calibration_runs
+    from uqdrive.avoid.plan import KNOWN, UNKNOWN, build_settings
     from uqdrive.pipeline.safety_stage import SafetyStage
-    from uqdrive.safety.avoidance import KNOWN, UNKNOWN, build_settings
-    from uqdrive.safety.calibration import min_calibration_runs
     from uqdrive.schema import validate
 
     safety = validate(SafetyStage, stage_config("safety", "profile=paper")).estimator

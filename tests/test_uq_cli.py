@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from uqdrive.cli import main
+from uqdrive.tools.cli import main
 
 
 def test_bound_table(capsys: pytest.CaptureFixture[str]) -> None:

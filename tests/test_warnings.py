@@ -9,11 +9,9 @@ from conftest import CONF
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
 from uqdrive.models.posterior import Posterior
-from uqdrive.safety.controller import NO_WARNING, Controller
-from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.rollout import run_rollout
-from uqdrive.safety.safe_sets import HANDOVER
-from uqdrive.safety.warnings import (
+from uqdrive.policy.controller import NO_WARNING, Controller
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import (
     WarningAction,
     WarningActions,
     WarningConfig,
@@ -21,6 +19,8 @@ from uqdrive.safety.warnings import (
     WarningRule,
     classify,
 )
+from uqdrive.safety.rollout import run_rollout
+from uqdrive.safety.safe_sets import HANDOVER
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition

@@ -21,9 +21,10 @@ from collections.abc import Iterator
 import numpy as np
 
 from uqdrive.analysis.method_claims import ClaimRecord
+from uqdrive.avoid.results import PAIRS, AvoidCell, AvoidResult, Mode
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
-from uqdrive.safety.cell_records import PAIRS, AvoidCell, AvoidResult, Mode, SafetyCell
+from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.family import ESTIMAND, Comparison, decide_findings
 from uqdrive.uq.verdict import Reason, Verdict
 

@@ -18,9 +18,10 @@ from typing import Any
 import numpy as np
 
 from uqdrive import paper
+from uqdrive.avoid.results import AvoidResult, Mode
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
-from uqdrive.safety.cell_records import AvoidResult, Mode, SafetyCell
+from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.replicates import replicate_bounded_interval
 
 INTERVAL = "hoeffding over replicates (independent training runs; nothing else assumed)"

@@ -26,9 +26,10 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from uqdrive import paper
+from uqdrive.avoid.results import PAIRS, AvoidCell, AvoidResult, Mode
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
-from uqdrive.safety.cell_records import PAIRS, AvoidCell, AvoidResult, Mode, SafetyCell
+from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.claims import ClaimResult, MethodClaim, ScoreClaim, decide_claims
 from uqdrive.uq.paired import paired_table
 from uqdrive.uq.verdict import Reason, Verdict  # noqa: F401  (record field types)

@@ -5,7 +5,7 @@ One frame = preprocess (gray 64×48) + trunk + the posterior's draws + π(o), η
 + warning level and action, i.e. `WarningController.act` with the paper's warning config (δ1 0.7, δ2 0.6, τ 0.45,
 θ = γ = 0.05; ``--theta 0.1``: the quick profile's 185 draws). ``fixed``: 2 × 738 draws (Chernoff's n for π(o)
 and MI, as many for η2), warnings on or off alike. ``sequential``: π(o)'s draws until its mode is settled and
-η2's until its tier is decided, each with error ≤ γ outside ±θ, at most 738 each (`uqdrive.safety.draws`).
+η2's until its tier is decided, each with error ≤ γ outside ±θ, at most 738 each (`uqdrive.policy.draws`).
 ``recorded``: the warnings-off controller with sequential draws (the avoid stage's off cells): the same π(o),
 both streams read to the cap and recorded for the calibration's replay. Frames: what the autopilot sees on the
 experiment's road in each weather × noise condition. Each method (random weights of the real architecture, or
@@ -27,9 +27,9 @@ import yaml
 from uqdrive.bench.posterior_bench import random_posteriors
 from uqdrive.bench.rollout_bench import CONDITIONS, CONF, experiment_camera, recorded_frames
 from uqdrive.models.checkpoint import load_posterior
-from uqdrive.safety.controller import Controller
-from uqdrive.safety.draws import DrawSettings
-from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule
+from uqdrive.policy.controller import Controller
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.sim import ScenarioConfig
 
 TARGET_MS = 10.0

@@ -36,10 +36,10 @@ from uqdrive.bench import gym_step_bench
 from uqdrive.bench.posterior_bench import random_posteriors
 from uqdrive.models.checkpoint import load_posterior, save_posterior
 from uqdrive.parallel import ProcessPool
-from uqdrive.safety.controller import AutopilotPolicy, Policy
-from uqdrive.safety.draws import DrawSettings
+from uqdrive.policy.controller import AutopilotPolicy, Policy
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.safety.executors import ControllerSpec, RolloutJob
-from uqdrive.safety.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import SimConfig

@@ -17,9 +17,9 @@ from uqdrive.envelope.search import SearchSettings
 from uqdrive.envelope.sources import Listed, UniformIn
 from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, ConditionSpace
 from uqdrive.models.posterior import posterior_from_config
+from uqdrive.policy.draws import DrawSettings
 from uqdrive.resolvers import driver
 from uqdrive.safety.cells import cell_posterior
-from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, PolicyRecipe, RolloutJob, job_world
 from uqdrive.safety.policy_files import load_policy, probe_policy
 from uqdrive.schema import ConfigError, Count, Positive, Seed, Str, invalid, schema, validate

@@ -20,25 +20,25 @@ import mlflow
 import numpy as np
 from omegaconf import DictConfig
 
-from uqdrive.analysis.avoid_answers import avoid_result
-from uqdrive.plots import (
+from uqdrive.avoid.answers import avoid_result
+from uqdrive.avoid.calibration import Calibration, calibrate
+from uqdrive.avoid.cells import Cell, distance_label, distances, panel, traces_of
+from uqdrive.avoid.figure import (
     avoid_signals_figure,
     avoid_tradeoff_figure,
     avoid_trajectories,
     avoid_trajectories_figure,
-    save_figure,
 )
+from uqdrive.avoid.outputs import write_cell_data, write_cell_table, write_signals, write_tradeoff
+from uqdrive.avoid.plan import AvoidSettings, build_settings
+from uqdrive.avoid.results import AvoidResult, Mode
+from uqdrive.avoid.trace_replay import Traces
+from uqdrive.figures import save_figure
+from uqdrive.policy.warnings import WarningRule
 from uqdrive.records import as_dict, write_record
-from uqdrive.safety.avoid_cells import Cell, distance_label, distances, panel, traces_of
-from uqdrive.safety.avoid_files import write_cell_data, write_cell_table, write_signals, write_tradeoff
-from uqdrive.safety.avoidance import AvoidSettings, build_settings
-from uqdrive.safety.calibration import Calibration, calibrate
-from uqdrive.safety.cell_records import AvoidResult, Mode
-from uqdrive.safety.failure_video import worst_clips
-from uqdrive.safety.replay import Traces
+from uqdrive.replay.video import worst_clips
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
-from uqdrive.safety.warnings import WarningRule
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_run
 

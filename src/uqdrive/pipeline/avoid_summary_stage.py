@@ -10,11 +10,12 @@ import matplotlib.pyplot as plt
 from omegaconf import DictConfig
 
 from uqdrive.analysis.method_answers import UNKNOWN, AvoidSummary, summarise_avoid
-from uqdrive.plots import avoid_trajectories_figure, save_figure
+from uqdrive.avoid.figure import avoid_trajectories_figure
+from uqdrive.avoid.outputs import read_trace_panel
+from uqdrive.avoid.plan import KNOWN
+from uqdrive.avoid.results import AvoidResult, Mode, read_avoid_results
+from uqdrive.figures import save_figure
 from uqdrive.records import write_record
-from uqdrive.safety.avoid_files import read_trace_panel
-from uqdrive.safety.avoidance import KNOWN
-from uqdrive.safety.cell_records import AvoidResult, Mode, read_avoid_results
 from uqdrive.schema import Str, schema, validate
 from uqdrive.stage_schemas import NonEmptyNames, NonEmptySeeds, Stage
 

@@ -17,10 +17,10 @@ from tqdm import tqdm
 
 from uqdrive.data.frames import encode_png
 from uqdrive.data.tables import RAW_SCHEMA, write_table_batches
+from uqdrive.figures import mosaic
 from uqdrive.files import atomic_path
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.parallel import ProcessPool
-from uqdrive.plots import mosaic
 from uqdrive.records import as_dict, record, write_record
 from uqdrive.schema import Count, Seed, Str, schema, validate
 from uqdrive.sim.condition import WorldChoice

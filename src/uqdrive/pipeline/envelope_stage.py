@@ -32,8 +32,8 @@ from uqdrive.envelope.map_records import EnvelopeResult, envelope_result
 from uqdrive.envelope.partition import Region, partition
 from uqdrive.envelope.plan import Envelope, build_envelope
 from uqdrive.envelope.search import SearchResult, search
+from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
-from uqdrive.plots import save_figure
 from uqdrive.records import write_record
 from uqdrive.safety.runner import CellRun, CellRunner, cell_key
 from uqdrive.tracking import numeric_metrics, stage_run

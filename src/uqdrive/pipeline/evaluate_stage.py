@@ -15,13 +15,14 @@ from tqdm import tqdm
 
 from uqdrive.data.datasets import FrameSet
 from uqdrive.data.heldout import heldout_path, load_heldout
+from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
 from uqdrive.models.agreement import agreement_with_reference
 from uqdrive.models.checkpoint import load_posterior
+from uqdrive.models.figure import condition_lines_figure, reliability_grid
 from uqdrive.models.heldout_eval import HeldoutCell, HeldoutTable, cell_generator, heldout_cell, noise_key, predict
 from uqdrive.models.metrics import reliability_bins
 from uqdrive.models.posterior import Posterior
-from uqdrive.plots import condition_lines_figure, reliability_grid, save_figure
 from uqdrive.records import write_record
 from uqdrive.schema import Count, Positive, Str, schema, validate
 from uqdrive.stage_schemas import Experiment, Named, NonEmptyMethodNames, NonEmptyNames, NonEmptyNoises, Stage

@@ -12,8 +12,9 @@ from omegaconf import DictConfig
 
 from uqdrive.analysis.comparisons import Findings, avoid_comparisons, decide, safety_comparisons
 from uqdrive.analysis.method_claims import method_claims
+from uqdrive.avoid.results import read_avoid_results
 from uqdrive.records import write_record
-from uqdrive.safety.cell_records import read_avoid_results, read_safety_cells
+from uqdrive.safety.cell_records import read_safety_cells
 from uqdrive.schema import OpenUnit, Str, schema, validate
 from uqdrive.stage_schemas import SafetyGrid
 

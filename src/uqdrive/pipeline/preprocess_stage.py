@@ -10,10 +10,11 @@ import pyarrow as pa
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from uqdrive.data.figure import class_histogram_figure
 from uqdrive.data.preprocess import Preprocessed, Split, class_histogram, preprocess_raw
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, read_table, write_table_batches
+from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
-from uqdrive.plots import class_histogram_figure, save_figure
 from uqdrive.records import as_dict, write_record
 from uqdrive.schema import OpenUnit, Seed, schema, validate
 from uqdrive.stage_schemas import Experiment, Stage

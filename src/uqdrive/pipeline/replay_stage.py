@@ -86,9 +86,9 @@ def rollout_index(cell: SafetyCell, path: str | Path, seed: int | None) -> int:
 def replay(path: str | Path, seed: int | None, out: str | Path) -> tuple[str, bool]:
     """Re-drive the rollout and write its clip; the line to print and whether it matched the record."""
     from uqdrive.pipeline.safety_stage import plan_cell
-    from uqdrive.safety.failure_video import write_clip
+    from uqdrive.replay.redrive import check_against, redrive
+    from uqdrive.replay.video import write_clip
     from uqdrive.safety.failures import placer_for
-    from uqdrive.safety.redrive import check_against, redrive
 
     cell = read_cell(path)
     index = rollout_index(cell, path, seed)

@@ -17,10 +17,11 @@ import mlflow
 from omegaconf import DictConfig
 
 from uqdrive.analysis.method_answers import SafetySummary
+from uqdrive.figures import save_figure
 from uqdrive.files import atomic_path, write_csv
-from uqdrive.plots import eta1_intervals_figure, save_figure
 from uqdrive.records import write_record
 from uqdrive.report.assemble import build_report, read_records
+from uqdrive.report.figure import eta1_intervals_figure
 from uqdrive.report.headline import Headline, headline_metrics
 from uqdrive.report.overview import Scope
 from uqdrive.schema import Str, schema, validate

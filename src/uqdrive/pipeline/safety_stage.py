@@ -25,17 +25,18 @@ import mlflow
 from omegaconf import DictConfig
 from pydantic import Field
 
+from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
 from uqdrive.models.posterior import posterior_from_config
-from uqdrive.plots import safety_hexbin, save_figure, visits_colour_bar
+from uqdrive.policy.draws import DrawSettings
 from uqdrive.records import as_dict, read_record, write_record
+from uqdrive.replay.video import worst_clips
 from uqdrive.resolvers import driver, world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
-from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
-from uqdrive.safety.failure_video import worst_clips
 from uqdrive.safety.failures import job_failures
+from uqdrive.safety.figure import safety_hexbin, visits_colour_bar
 from uqdrive.safety.policy_files import load_policy, probe_policy
 from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
 from uqdrive.safety.rollout import RolloutResult

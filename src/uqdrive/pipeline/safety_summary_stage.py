@@ -12,11 +12,12 @@ from omegaconf import DictConfig
 
 from uqdrive.analysis.failure_modes import failure_modes, modes_table
 from uqdrive.analysis.method_answers import SafetySummary, summarise_methods
+from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
-from uqdrive.plots import safety_hexbin_grid, save_figure
 from uqdrive.records import write_record
 from uqdrive.resolvers import noise_label
 from uqdrive.safety.cell_records import SafetyCell, read_safety_cells
+from uqdrive.safety.figure import safety_hexbin_grid
 from uqdrive.safety.positions import read_positions
 from uqdrive.schema import Str, schema, validate
 from uqdrive.stage_schemas import SafetyGrid

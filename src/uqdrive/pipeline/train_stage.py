@@ -22,6 +22,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from uqdrive.data.datasets import load_frames
+from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
 from uqdrive.models.checkpoint import save_posterior
 from uqdrive.models.metrics import majority_accuracy
@@ -30,7 +31,6 @@ from uqdrive.models.posterior import Fitted, posterior_settings
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.models.training import TrainingData, compute_features, evaluate
 from uqdrive.parallel import ProcessPool
-from uqdrive.plots import save_figure
 from uqdrive.records import as_dict, write_record
 from uqdrive.schema import Count, Str, schema, validate
 from uqdrive.stage import compose_cell, grid

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from uqdrive.analysis.comparisons import Findings
 from uqdrive.analysis.method_answers import AvoidSummary, SafetySummary
+from uqdrive.avoid.results import read_avoid_results
 from uqdrive.data.preprocess import Preprocessed
 from uqdrive.envelope.map_records import EnvelopeResult
 from uqdrive.models.heldout_eval import HeldoutTable
@@ -31,7 +32,7 @@ from uqdrive.report.sections import (
     training_section,
 )
 from uqdrive.resolvers import condition_label
-from uqdrive.safety.cell_records import read_avoid_results, read_safety_cells
+from uqdrive.safety.cell_records import read_safety_cells
 
 
 @dataclasses.dataclass(frozen=True)

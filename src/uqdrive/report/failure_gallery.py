@@ -15,9 +15,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from uqdrive.analysis.failure_modes import by_group, failure_modes, mode_sentence
+from uqdrive.replay.video import gif_of
 from uqdrive.report.document import Report, fmt, table
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.failure_video import gif_of
 from uqdrive.safety.failures import RolloutFailure
 
 GALLERY_CLIPS = 3  # clips per condition: the worst few say what a condition's failures look like

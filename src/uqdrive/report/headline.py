@@ -15,10 +15,10 @@ import yaml
 
 from uqdrive.analysis.comparisons import Findings
 from uqdrive.analysis.method_answers import UNKNOWN, MethodAnswer, pooled_answer
+from uqdrive.avoid.results import Mode
 from uqdrive.records import read_record, record
 from uqdrive.report.document import fmt, table
 from uqdrive.resolvers import condition_label
-from uqdrive.safety.cell_records import Mode
 
 
 @record

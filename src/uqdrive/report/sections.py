@@ -9,10 +9,11 @@ from pathlib import Path
 
 from uqdrive import paper
 from uqdrive.analysis.method_answers import UNKNOWN, AvoidSummary, MethodAnswer, SafetySummary, pooled_answer
+from uqdrive.avoid.results import AvoidResult, Mode
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.records import read_record
 from uqdrive.report.document import Report, fmt, table
-from uqdrive.safety.cell_records import AvoidResult, Mode, SafetyCell
+from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.stage_schemas import training_stage
 
 STOPPING_NOTE = "a car at 8 m/s needs 5.3 m to stop at 6 m/s²"

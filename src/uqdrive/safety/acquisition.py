@@ -15,9 +15,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from uqdrive.policy.controller import Command, Policy
 from uqdrive.records import record
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.controller import Command, Policy
 from uqdrive.safety.executors import PolicyRecipe, RolloutJob
 from uqdrive.safety.rollout import World, run_rollouts
 from uqdrive.sim import Autopilot, AutopilotConfig

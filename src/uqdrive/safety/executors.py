@@ -25,12 +25,12 @@ import torch
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.checkpoint import load_posterior
 from uqdrive.parallel import ProcessPool, report
-from uqdrive.safety.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
-from uqdrive.safety.draws import DrawSettings
+from uqdrive.policy.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import WarningController, WarningRule
 from uqdrive.safety.info_safe_set import InfoSafeSet
 from uqdrive.safety.rollout import RolloutResult, World, run_rollouts
 from uqdrive.safety.safe_sets import SafeSet, safe_set_for
-from uqdrive.safety.warnings import WarningController, WarningRule
 from uqdrive.schema import ConfigError
 from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, ConditionSource

@@ -1,11 +1,11 @@
 """A user's policy by config: a policy YAML (a class of the user's package by ``_target_``, or a network file) or a
 network file itself (``.pt``/``.ts``: TorchScript, ``.onnx``: ONNX, ``.zip``: a stable-baselines3 agent,
-`uqdrive.safety.sb3_policy`), as a picklable `UserPolicySpec` that every
+`uqdrive.policy.sb3_policy`), as a picklable `UserPolicySpec` that every
 worker builds its policy from.
 
 The policy YAML::
 
-    policy:                     # a class implementing uqdrive.safety.user_policy.DrivingPolicy, by Hydra's
+    policy:                     # a class implementing uqdrive.policy.user_policy.DrivingPolicy, by Hydra's
       _target_: mypkg.LaneKeeper  # instantiate, with its settings as keyword arguments
       gain: 3.0
     # or, in place of `policy`, a network file (relative to this YAML):
@@ -16,7 +16,7 @@ The policy YAML::
     speed: 6.0                  # m/s of an action that gives none
     eps: 0.1                    # η2's ball (steering units)
     bins: {low: -1.0, high: 1.0}  # the steering classes of logits and probability draws
-    warnings:                   # optional: the paper's warning system on the policy's draws (uqdrive.safety.warnings)
+    warnings:                   # optional: the paper's warning system on the policy's draws (uqdrive.policy.warnings)
       delta1: 0.7               #   η̂2 < δ1: warning 1; η̂2 < δ2: warning 2; MI > τ: warning 0
       delta2: 0.6
       tau: 0.45
@@ -43,11 +43,11 @@ from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import source_digest
+from uqdrive.policy.sb3_policy import SB3Policy
+from uqdrive.policy.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
+from uqdrive.policy.user_policy import PolicyFailure, UserPolicies, UserWarnings
+from uqdrive.policy.warnings import WarningConfig
 from uqdrive.safety.cells import file_digest
-from uqdrive.safety.sb3_policy import SB3Policy
-from uqdrive.safety.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
-from uqdrive.safety.user_policy import PolicyFailure, UserPolicies, UserWarnings
-from uqdrive.safety.warnings import WarningConfig
 from uqdrive.schema import ConfigError, Positive, Str, schema, validate
 
 TORCHSCRIPT = (".pt", ".ts", ".pth", ".jit")

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from uqdrive.safety.controller import Command, Policy
+from uqdrive.policy.controller import Command, Policy
 from uqdrive.safety.info_safe_set import InfoSafeSet
 from uqdrive.safety.safe_sets import HANDOVER, SafeSet, safe_set_for
 from uqdrive.sim import DrivingEnv
@@ -42,7 +42,7 @@ class RolloutResult:
     ``mutual_information_se`` (how precise the MI is at those draws: its jackknife standard error) and
     ``eta2_counts`` [steps, looks] (successes at each look of the step's η2 stream; -1 past the looks read) and
     ``mi_stages`` [steps, stages, 3] (draws, MI, SE at each stage of its π(o) draws; NaN past those read): what a
-    warning rule reads (`uqdrive.safety.warnings.WarningRule.levels`)."""
+    warning rule reads (`uqdrive.policy.warnings.WarningRule.levels`)."""
 
     seed: int
     safe: bool

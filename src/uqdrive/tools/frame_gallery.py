@@ -3,7 +3,7 @@
 Writes ``<weather>.png`` (camera resolution, RGB) and ``weathers.png``: the weathers side
 by side, top row as rendered, bottom row as the network sees it (grey 64x48), enlarged.
 ``--compare-render 160x120`` writes instead ``resolution.png`` and ``resolution.json``: the
-network's input at the configured render size against that one (`uqdrive.resolution`).
+network's input at the configured render size against that one (`uqdrive.tools.resolution`).
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
     conf = args.conf or find_conf()
     if args.compare_render:
-        from uqdrive.resolution import write
+        from uqdrive.tools.resolution import write
 
         seeds = range(args.seed, args.seed + args.episodes)
         result = write(Path(args.out), conf, args.compare_render, seeds, args.every, args.sigma)

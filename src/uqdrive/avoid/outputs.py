@@ -1,6 +1,6 @@
 """The files an avoid stage writes per cell and for its calibration: per-rollout tables and the trade-off (CSV, DVC
 plot data), per-frame traces (npz, for the summary figure) and η2 / MI against the distance to the obstacle (in a
-Gymnasium world: the metres before the run ended, `uqdrive.safety.avoid_cells.distances`)."""
+Gymnasium world: the metres before the run ended, `uqdrive.avoid.cells.distances`)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
+from uqdrive.avoid.calibration import Calibration
+from uqdrive.avoid.cells import Cell, distances, levels, obstacle_box, road_box
 from uqdrive.files import atomic_path, write_csv
-from uqdrive.safety.avoid_cells import Cell, distances, levels, obstacle_box, road_box
-from uqdrive.safety.calibration import Calibration
-from uqdrive.safety.warnings import LEVELS
+from uqdrive.policy.warnings import LEVELS
 from uqdrive.sim import ScenarioGeometry
 
 

@@ -21,8 +21,8 @@ import numpy as np
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
-from uqdrive.safety.controller import NO_WARNING, Command, Controller
-from uqdrive.safety.draws import DrawSettings, FrameDecision, first_draws, refined_mutual_information
+from uqdrive.policy.controller import NO_WARNING, Command, Controller
+from uqdrive.policy.draws import DrawSettings, FrameDecision, first_draws, refined_mutual_information
 from uqdrive.schema import Bool, ConfigError, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
 from uqdrive.uq import chernoff_n
 from uqdrive.uq.tier import DOUBTFUL, UNSURE, TierRule, tier_rule
@@ -246,7 +246,7 @@ class WarningActions:
 class WarningController(Controller):
     """The Bayesian controller with the warning system: π(o) steers, the warning level of ``rule`` sets the speed.
 
-    Draws as the rule's draw settings say (`uqdrive.safety.draws`; its cap: Chernoff's n for the config's θ, γ)
+    Draws as the rule's draw settings say (`uqdrive.policy.draws`; its cap: Chernoff's n for the config's θ, γ)
     and decides each frame's η2 tier by the rule's tier rule. A hand-over brakes with the steering wheel held
     where it was when it fired (the network is not trusted any more), at speed 0 with ``handover`` set; the
     rollout ends once the car has stopped. Each lockstep slot keeps its own actions' state.

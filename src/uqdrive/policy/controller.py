@@ -20,7 +20,7 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.datasets import to_inputs
 from uqdrive.models.posterior import Posterior
 from uqdrive.network_input import preprocess_frame
-from uqdrive.safety.draws import (
+from uqdrive.policy.draws import (
     ETA2_STREAM,
     PI_STREAM,
     Draws,
@@ -39,7 +39,7 @@ from uqdrive.uq import draw_measures
 from uqdrive.uq.tier import CONFIDENT, TierRule
 
 NO_WARNING = -1
-"""Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.safety.warnings`)."""
+"""Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.policy.warnings`)."""
 
 
 @dataclass(frozen=True)
@@ -99,7 +99,7 @@ class Controller:
     """Bayesian end-to-end controller: steer = π(o), the class centre of the predictive's mode.
 
     Each frame draws weight samples for π(o), the mutual information and the entropy, and separate ones for η2
-    around that π(o) (`uqdrive.safety.draws`: 2·``n_samples`` of them with fixed draws, as many as the frame's
+    around that π(o) (`uqdrive.policy.draws`: 2·``n_samples`` of them with fixed draws, as many as the frame's
     decisions need with sequential ones). With π(o) picked from the draws that also count η2, η̂2 would not be a
     plain binomial mean (π(o) is chosen where the draws agree), and Chernoff's n (or any estimator in
     `uqdrive.uq`) would not apply as stated. Separate draws make η̂2 a binomial mean given π(o), exactly; the
@@ -168,7 +168,7 @@ class Controller:
         return self._sequential(features, episodes)
 
     def _sequential(self, features: torch.Tensor, episodes: list[SlotDraws]) -> list[FrameDecision]:
-        """Sequential draws (`uqdrive.safety.draws`): π(o) settled, then η2's stream read by the tier rule and MI's
+        """Sequential draws (`uqdrive.policy.draws`): π(o) settled, then η2's stream read by the tier rule and MI's
         draws made while the controller's τ is undecided, or both streams read to the cap (recorded)."""
         record = self.draws.records(acts_on_warnings=self.tier is not None)
         reads_eta2 = record or (self.tier is not None and self.tier.reads_draws)

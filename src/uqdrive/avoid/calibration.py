@@ -2,7 +2,7 @@
 
 What is replayed is the rule that will be deployed (`WarningRule`: the thresholds, the tier rule that decides
 η2's tier from a frame's draws, the actions): each candidate is the deployed rule at its thresholds, reading the
-recorded η2 streams as its controller reads them (`uqdrive.safety.replay`), and the chosen candidate is the
+recorded η2 streams as its controller reads them (`uqdrive.avoid.trace_replay`), and the chosen candidate is the
 object the calibrated cells deploy.
 
 The paper sets δ1 = 0.7, δ2 = 0.6, τ = 0.45 by looking at how uncertainty behaves as the car
@@ -33,8 +33,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import special
 
-from uqdrive.safety.replay import Replay, Traces, replay
-from uqdrive.safety.warnings import WarningConfig, WarningRule
+from uqdrive.avoid.trace_replay import Replay, Traces, replay
+from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.schema import ConfigError
 from uqdrive.uq import clopper_pearson_interval
 from uqdrive.uq.ltt import fixed_sequence, interleaved_split, pareto_order, rate_above_p

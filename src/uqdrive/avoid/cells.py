@@ -11,10 +11,10 @@ import dataclasses
 
 import numpy as np
 
-from uqdrive.safety.cell_records import Mode
-from uqdrive.safety.replay import Traces
+from uqdrive.avoid.results import Mode
+from uqdrive.avoid.trace_replay import Traces
+from uqdrive.policy.warnings import LEVELS, WarningRule
 from uqdrive.safety.rollout import RolloutResult
-from uqdrive.safety.warnings import LEVELS, WarningRule
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.uq import Estimate
 

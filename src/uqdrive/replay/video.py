@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from uqdrive.replay.redrive import Redriver, Watched, check_against
 from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.failures import FailurePlacer, RolloutFailure, placer_for
-from uqdrive.safety.redrive import Redriver, Watched, check_against
 
 WIDTH, HEIGHT = 640, 512
 TITLE_H, VIEW_H, STRIP_H = 28, 300, 44

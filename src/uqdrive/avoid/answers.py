@@ -8,20 +8,13 @@ from collections import Counter
 
 import numpy as np
 
-from uqdrive.safety.avoid_cells import Cell, handed_over, handover_distances, levels
-from uqdrive.safety.avoidance import AvoidSettings
-from uqdrive.safety.calibration import Calibration, fresh_seed_check
-from uqdrive.safety.cell_records import (
-    AvoidCell,
-    AvoidResult,
-    CalibrationSummary,
-    FreshSeedRecord,
-    MixtureEstimate,
-    Mode,
-)
+from uqdrive.avoid.calibration import Calibration, fresh_seed_check
+from uqdrive.avoid.cells import Cell, handed_over, handover_distances, levels
+from uqdrive.avoid.plan import AvoidSettings
+from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
+from uqdrive.avoid.trace_replay import Traces, replay
+from uqdrive.policy.warnings import LEVELS
 from uqdrive.safety.failures import RolloutFailure, job_failures
-from uqdrive.safety.replay import Traces, replay
-from uqdrive.safety.warnings import LEVELS
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.sim.condition import Mixture
 from uqdrive.uq.pooled import pooled

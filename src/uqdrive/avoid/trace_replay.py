@@ -2,7 +2,7 @@
 
 A warnings-off rollout records, frame by frame, the successes at every look of the frame's η2 stream and the MI
 at every stage of its π(o) draws, to the cap: the streams a warning controller reads on that seed
-(`uqdrive.safety.draws`). A candidate `WarningRule` reads them as its controller would (`TierRule.tiers`,
+(`uqdrive.policy.draws`). A candidate `WarningRule` reads them as its controller would (`TierRule.tiers`,
 `refined_mutual_information`), so its warning levels, and whether and where it first acts, are exactly the
 controller's until its first action changes a command.
 Past a slow-down the replay keeps the recorded path and replays the speed only: in closed loop the path departs
@@ -20,9 +20,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from uqdrive.safety.controller import NO_WARNING
-from uqdrive.safety.draws import refined_mutual_information
-from uqdrive.safety.warnings import WarningActions, WarningRule, levels_of
+from uqdrive.policy.controller import NO_WARNING
+from uqdrive.policy.draws import refined_mutual_information
+from uqdrive.policy.warnings import WarningActions, WarningRule, levels_of
 
 
 @dataclasses.dataclass(frozen=True)

@@ -18,13 +18,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "findings": ("uqdrive.report.findings_text", "print metrics/findings.json as the report states it"),
     "headline": ("uqdrive.report.headline", "print metrics/summary.json as the README's results table"),
-    "frames": ("uqdrive.frame_gallery", "write one example camera frame per weather to docs/"),
+    "frames": ("uqdrive.tools.frame_gallery", "write one example camera frame per weather to docs/"),
     "redecide": ("uqdrive.analysis.redecide", "re-decide a findings file's recorded counts with the current tests"),
     "replay": (
         "uqdrive.pipeline.replay_stage",
         "re-drive one rollout of a safety cell exactly and write it as a clip (MP4, GIF)",
     ),
-    "plots-page": ("uqdrive.plots_page", "write the page `dvc plots show` fills, its scripts inlined (no CDN)"),
+    "plots-page": ("uqdrive.tools.plots_page", "write the page `dvc plots show` fills, its scripts inlined (no CDN)"),
 }
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from uqdrive.network_input import preprocess_frame
-from uqdrive.safety.controller import Command, Policy
+from uqdrive.policy.controller import Command, Policy
 from uqdrive.safety.executors import RolloutJob, job_env
 from uqdrive.safety.failures import RolloutFailure, path_digest
 from uqdrive.safety.rollout import RolloutResult, World, run_rollouts

@@ -27,7 +27,7 @@ until its tier rule decides (`uqdrive.uq.tier.TierTest`: error ≤ γ outside ±
 exactly) and π(o)'s until its MI is decided for its τ. A controller that acts on no warning (``unacted``) reads
 both to the cap (``record``, the default) and records the successes at every look of η2's stream and the MI at
 every stage of π(o)'s: what the threshold calibration needs to replay any thresholds' rule exactly as its
-controller would have read the same streams (`uqdrive.safety.replay`). ``skip``, for rollouts nobody replays
+controller would have read the same streams (`uqdrive.avoid.trace_replay`). ``skip``, for rollouts nobody replays
 (the offline-safety sweep never calibrates), draws no η2 stream and no MI stage past π(o)'s.
 
 Warnings off and on so differ only by the warnings: on the same seed they draw the same streams, take the same

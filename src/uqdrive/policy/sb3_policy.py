@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
-from uqdrive.safety.tensor_policies import first_line
-from uqdrive.safety.user_policy import Action, PolicyFailure
+from uqdrive.policy.tensor_policies import first_line
+from uqdrive.policy.user_policy import Action, PolicyFailure
 
 SB3_MISSING = "a stable-baselines3 agent needs stable-baselines3, which is not installed: pip install 'uqdrive[sb3]'"
 GREY = {(INPUT_HEIGHT, INPUT_WIDTH): (), (1, INPUT_HEIGHT, INPUT_WIDTH): (0,), (INPUT_HEIGHT, INPUT_WIDTH, 1): (2,)}

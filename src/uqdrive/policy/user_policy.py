@@ -26,8 +26,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from uqdrive.safety.controller import Command
-from uqdrive.safety.warnings import WarningActions, WarningConfig, classify
+from uqdrive.policy.controller import Command
+from uqdrive.policy.warnings import WarningActions, WarningConfig, classify
 from uqdrive.schema import ConfigError
 from uqdrive.uq import draw_measures
 
@@ -65,7 +65,7 @@ class PolicyFailure(ConfigError):
 def check_action(name: str, action: Any, classes: int) -> Action:
     """``action`` as an `Action`, or a `PolicyFailure` naming ``name``, what was expected and what came back."""
     if not isinstance(action, Action):
-        raise PolicyFailure(f"{name}: act() must return uqdrive.safety.user_policy.Action, got {type(action).__name__}")
+        raise PolicyFailure(f"{name}: act() must return uqdrive.policy.user_policy.Action, got {type(action).__name__}")
     steer = action.steer
     if isinstance(steer, bool) or not isinstance(steer, (int, float, np.floating, np.integer)):
         raise PolicyFailure(f"{name}: expected a float steer in [-1, 1], got {type(steer).__name__} {steer!r}")

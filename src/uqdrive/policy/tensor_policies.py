@@ -22,7 +22,7 @@ import torch
 
 from uqdrive.data.datasets import to_inputs
 from uqdrive.network_input import preprocess_frame
-from uqdrive.safety.user_policy import Action, PolicyFailure
+from uqdrive.policy.user_policy import Action, PolicyFailure
 
 Output = Literal["auto", "logits", "steering"]
 FrameInput = Literal["gray", "rgb"]

@@ -18,15 +18,15 @@ import numpy as np
 from omegaconf import DictConfig
 from pydantic import Field
 
+from uqdrive.avoid.calibration import fresh_check_runs, min_calibration_runs
+from uqdrive.avoid.results import Mode
 from uqdrive.models.posterior import posterior_from_config
+from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.resolvers import world_location
-from uqdrive.safety.calibration import fresh_check_runs, min_calibration_runs
-from uqdrive.safety.cell_records import Mode
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
-from uqdrive.safety.draws import DrawSettings
 from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
 from uqdrive.safety.safe_sets import obstacle_pass_progress
-from uqdrive.safety.warnings import WarningConfig, WarningRule
 from uqdrive.schema import (
     Bool,
     ConfigError,
@@ -87,7 +87,7 @@ class FreshCheckSettings:
 
 @schema(frozen=True)
 class CalibrationSettings:
-    """Threshold calibration by Learn-then-Test (`uqdrive.safety.calibration`): with probability ≥ 1 − ``gamma``
+    """Threshold calibration by Learn-then-Test (`uqdrive.avoid.calibration`): with probability ≥ 1 − ``gamma``
     every certified candidate keeps the replayed known-condition autonomy ≥ ``autonomy_target`` (and, with
     ``missed_limit``, each unknown condition's replayed missed-collision rate ≤ it); among the certified, the
     most replayed unknown-condition safety. The candidate grids are kept sorted and without repeats."""
@@ -233,7 +233,7 @@ class AvoidSettings:
         return RolloutJob(policy, where, base_seed, self.camera, self.vehicle, self.control_hz, self.horizon_s)
 
     def replay_args(self) -> dict[str, float]:
-        """The car and calibration settings the threshold replay needs (`uqdrive.safety.calibration.replay`); a
+        """The car and calibration settings the threshold replay needs (`uqdrive.avoid.calibration.replay`); a
         Gymnasium world's car is not ours: the replay brakes it within our car's limits, from cruise speed."""
         known = self.known
         start = self.spec.speed if known.gym_world is not None else known.scenario.start_speed

@@ -1,0 +1,177 @@
+"""The avoid stage's records (metrics/avoid/<method>-<replicate>.json): every cell by condition and warnings mode,
+each cell's outcomes in rollout order so cells on the same seeds pair, the unknown mixtures and the calibration."""
+
+from __future__ import annotations
+
+import dataclasses
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uqdrive.records import read_record, record
+from uqdrive.safety.failures import RolloutFailure
+
+
+class Mode(StrEnum):
+    """An avoid cell's warnings: off (only counted) and on (the configured thresholds) on the stage's seeds; off again
+    and calibrated on fresh seeds the calibration never saw. Each of `PAIRS` is two cells on the same seeds."""
+
+    OFF = "off"
+    ON = "on"
+    FRESH_OFF = "fresh_off"
+    CALIBRATED = "calibrated"
+
+    @property
+    def warnings_off(self) -> bool:
+        return self in (Mode.OFF, Mode.FRESH_OFF)
+
+    @property
+    def fresh(self) -> bool:
+        """Drives the validation seeds, which the calibration never saw."""
+        return self in (Mode.FRESH_OFF, Mode.CALIBRATED)
+
+
+PAIRS = ((Mode.ON, Mode.OFF), (Mode.CALIBRATED, Mode.FRESH_OFF))  # (warnings, the same seeds without)
+
+
+@record
+class AvoidCell:
+    """One collision-avoidance cell (condition × warnings mode) of one controller."""
+
+    eta1: float
+    eta1_low: float
+    eta1_high: float
+    n: int
+    handover_rate: float
+    autonomy: float
+    full_speed_fraction: float
+    collision_rate: float
+    off_road_rate: float
+    passed_rate: float  # past the obstacle (a Gymnasium world: safe to the end of its episode)
+    # timed out short of the goal (a Gymnasium world: its safe_if failed at the last step)
+    timeout_before_obstacle_rate: float
+    handover_distance_min: float | None
+    handover_distance_median: float | None
+    handover_distances: list[float]
+    mean_steps: float
+    seconds: float
+    reused: bool
+    warning0_frames: int
+    warning0_runs: int
+    warning1_frames: int
+    warning1_runs: int
+    warning2_frames: int
+    warning2_runs: int
+    terminations: dict[str, int]
+    guaranteed: bool
+    scheme: str
+    theta: float
+    gamma: float
+    family_size: int
+    fixed_rollouts: int
+    thresholds: dict[str, float]
+    base_seed: int
+    outcomes: str
+    failures: list[RolloutFailure] = dataclasses.field(default_factory=list)  # the failing runs, worst margin first
+
+    @property
+    def safe(self) -> np.ndarray:
+        return np.frombuffer(self.outcomes.encode(), np.uint8) == ord("1")
+
+
+@record
+class MixtureEstimate:
+    """The unknown conditions as one uniform mixture: of their cells (Hoeffding's interval, fixed n), or the one
+    cell whose rollouts drew their variant (its own estimate; ``variants``: each variant's runs and safe runs in
+    the cell's fixed sample, where it has one)."""
+
+    eta1: float
+    eta1_low: float
+    eta1_high: float
+    theta: float
+    gamma: float
+    n: int
+    autonomy: float
+    interval: str
+    variants: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
+
+
+@record
+class FreshSeedRecord:
+    """The calibrated rule in closed loop on fresh seeds: its known-condition autonomy tested by one exact test fixed
+    in advance (H0 "autonomy < ``target``" on the cell's ``runs`` fixed runs, one-sided exact binomial; ``target_met``:
+    rejected at ``level``), and its η̂1 known and in the unknown conditions (descriptive)."""
+
+    runs: int
+    autonomous: int
+    target: float
+    level: float
+    p_value: float
+    target_met: bool
+    known_autonomy: float
+    known_eta1: float
+    unknown_eta1: float
+    base_seed: int
+
+
+@record
+class CalibrationSummary:
+    """The thresholds Learn-then-Test chose, what it certified (``guarantee``, in words, naming the deployed rule),
+    the deployed rule itself (``rule``: thresholds, actions, draws, the tier rule with its exact wrong-tier error and
+    whether the middle tier is guaranteed), the candidates whose tier rule was refused, the replay at the chosen
+    thresholds and the closed-loop check on fresh seeds."""
+
+    delta1: float
+    delta2: float
+    tau: float
+    feasible: bool
+    certified: int
+    guarantee: str
+    autonomy_target: float
+    max_certifiable_target: float
+    gamma: float
+    missed_limit: float | None
+    order: str
+    calibration_runs: dict[str, int]
+    learn_runs: dict[str, int]
+    candidates: int
+    replayed: dict[str, Any]
+    fresh_seed_check: FreshSeedRecord
+    uncaught_variants: list[dict[str, Any]]
+    replay_check: dict[str, dict[str, float]]
+    rule: dict[str, Any]
+    middle_guaranteed: bool
+    refused: dict[str, str]  # "delta1/delta2" → why its tier rule was refused
+
+
+@record
+class AvoidResult:
+    """One avoid stage (method × replicate): every cell by condition and mode, the unknown mixtures, the
+    calibration."""
+
+    method: str
+    replicate: int
+    experiment: str
+    cells: dict[str, dict[Mode, AvoidCell]]  # condition → mode → cell
+    unknown: dict[Mode, MixtureEstimate]
+    calibration: CalibrationSummary
+    warning: dict[str, Any]
+    samples_per_frame: int
+    conditions: list[str]
+    horizon_s: float
+    speed: float
+    seconds: float
+
+    def cell(self, condition: str, mode: Mode) -> AvoidCell:
+        return self.cells[condition][mode]
+
+
+def read_avoid_results(folder: str | Path, methods: list[str], replicates: list[int]) -> list[AvoidResult]:
+    """Every method × replicate's avoid result, as written."""
+    return [
+        read_record(AvoidResult, Path(folder) / f"{m}-seed{r}.json", f"avoid@{m}-{r}")
+        for m in methods
+        for r in replicates
+    ]

@@ -1,0 +1,1 @@
+"""A recorded failing rollout driven again, exactly, and written as a video."""
