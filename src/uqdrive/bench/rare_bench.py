@@ -7,7 +7,7 @@ exact Clopper–Pearson the project's sequential threshold test, calibrated by e
 (×1.05 apart) so that stopping at any of them keeps its error ≤ γ. Importance sampling: the defensive mixture with
 a cross-entropy proposal and the betting bound (`uqdrive.uq.rare`). Monte Carlo: the exact sequential test
 (E[n] exact) and the same betting bound on nominal draws (simulated); the saving is against the better of the two
-and for the default settings (a second importance-sampling row, rounds of 10, shows one knob's effect).
+and for the default settings (a second importance-sampling row, rounds of 20, shows one knob's effect).
 Each design's error at the null boundary (true failure probability = 1 − target) is printed beside it: exact for
 the exact test, simulated for the others. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures. Last
 line: RESULT rare refute_saving_1e3=… refute_saving_1e4=… (Monte Carlo rollouts / importance sampling's)
@@ -30,7 +30,7 @@ CASES = ((1e-3, 1e-4), (1e-4, 1e-5))  # (true failure probability, ε = 1 − ta
 IS_BUDGET = 5_000  # importance sampling: most rollouts per run
 MC_CAP = 2.0  # Monte Carlo: most rollouts per run, × 1/ε (20 × the 1/p a failure takes)
 IS_DEFAULT = "IS cross-entropy + betting"  # the default settings: the RESULT's saving is theirs
-SMALL_ROUNDS = 10  # a second importance-sampling row: smaller rounds adapt sooner (less parallel per round)
+LONG_ROUNDS = 20  # a second importance-sampling row: longer rounds run more in parallel but adapt later
 CERTIFY_BUDGET = 4  # certification: most rollouts, × the zero-failure floor (the test's later looks share γ)
 LOOKS_FROM, LOOK_RATIO = 0.01, 1.05  # the exact test's looks: from 0.01/ε (at least 10) on, 5 % apart
 
@@ -67,7 +67,7 @@ def _designs(args: argparse.Namespace) -> tuple[tuple[str, int, int | None], ...
     return (
         ("MC betting bound", args.mc_runs, None),
         (IS_DEFAULT, args.runs, default),
-        (f"IS, rounds of {SMALL_ROUNDS} (not the default)", args.runs, SMALL_ROUNDS),
+        (f"IS, rounds of {LONG_ROUNDS} (not the default)", args.runs, LONG_ROUNDS),
     )
 
 

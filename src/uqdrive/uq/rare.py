@@ -64,7 +64,7 @@ class RareSettings:
     gamma: OpenUnit = 0.05
     defensive: Defensive = 0.1
     refute_budget: Count = 5_000
-    round_size: Count = 20
+    round_size: Count = 10
     elite: OpenUnit = 0.1
     smoothing: Defensive = 1.0
     certify_budget: Count = 100_000
