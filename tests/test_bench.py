@@ -121,5 +121,9 @@ def test_rare_benchmark_prints_its_result_line_with_each_designs_coverage(capsys
     assert main(["bench", "rare", "--runs", "20", "--mc-runs", "2", "--look-ratio", "1.5"]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert sum(" coverage " in line for line in out) == 2 and sum("IS cross-entropy" in line for line in out) == 2
-    pattern = r"RESULT rare refute_saving_1e3=[\d.]+ refute_saving_1e4=[\d.]+ certify_rollouts_at_0=\d+"
+    coverage = r"mc_exact:[\d.]+,mc_betting:[\d.]+,is:[\d.]+,is_rounds20:[\d.]+"
+    pattern = (
+        r"RESULT rare refute_saving_1e3=[\d.]+ refute_saving_1e4=[\d.]+ certify_rollouts_at_0=\d+ "
+        rf"coverage_1e3={coverage} coverage_1e4={coverage}"
+    )
     assert re.fullmatch(pattern, out[-1]), out[-1]

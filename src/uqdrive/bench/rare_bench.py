@@ -11,7 +11,7 @@ and for the default settings (a second importance-sampling row, rounds of 20, sh
 Each design's error at the null boundary (true failure probability = 1 − target) is printed beside it: exact for
 the exact test, simulated for the others. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures. Last
 line: RESULT rare refute_saving_1e3=… refute_saving_1e4=… (Monte Carlo rollouts / importance sampling's)
-certify_rollouts_at_0=….
+certify_rollouts_at_0=… coverage_1e3=<design>:<1 − error at the null boundary>,… coverage_1e4=….
 """
 
 from __future__ import annotations
@@ -31,6 +31,12 @@ IS_BUDGET = 5_000  # importance sampling: most rollouts per run
 MC_CAP = 2.0  # Monte Carlo: most rollouts per run, × 1/ε (20 × the 1/p a failure takes)
 IS_DEFAULT = "IS cross-entropy + betting"  # the default settings: the RESULT's saving is theirs
 LONG_ROUNDS = 20  # a second importance-sampling row: longer rounds run more in parallel but adapt later
+SHORT = {  # a design's name in the RESULT line's coverage fields
+    "MC exact sequential Clopper-Pearson": "mc_exact",
+    "MC betting bound": "mc_betting",
+    IS_DEFAULT: "is",
+    f"IS, rounds of {LONG_ROUNDS} (not the default)": f"is_rounds{LONG_ROUNDS}",
+}
 CERTIFY_BUDGET = 4  # certification: most rollouts, × the zero-failure floor (the test's later looks share γ)
 LOOKS_FROM, LOOK_RATIO = 0.01, 1.05  # the exact test's looks: from 0.01/ε (at least 10) on, 5 % apart
 
@@ -71,8 +77,9 @@ def _designs(args: argparse.Namespace) -> tuple[tuple[str, int, int | None], ...
     )
 
 
-def _case(p: float, eps: float, args: argparse.Namespace) -> float:
-    """Print one case's designs; return the saving (better Monte Carlo's rollouts / importance sampling's)."""
+def _case(p: float, eps: float, args: argparse.Namespace) -> tuple[float, str]:
+    """Print one case's designs; return the saving (better Monte Carlo's rollouts / importance sampling's) and
+    each design's coverage at the null boundary, as RESULT fields."""
     start = time.perf_counter()
     exact = ThresholdTest(1 - eps, args.gamma, exact_looks(eps, args.look_ratio), theta=0.0, forced=False)
     _, refuted, mean_n = exact.operating_characteristics(np.array([1 - p]))
@@ -90,7 +97,8 @@ def _case(p: float, eps: float, args: argparse.Namespace) -> float:
     for name, (mean, share, error, how, seconds) in rows.items():
         print(f"  {name:<36} {mean:>11.1f} {share:>10.4f} {error:>10.4f} {1 - error:>8.4f}  {how}, {seconds:.1f} s")
     monte_carlo = min(rows["MC exact sequential Clopper-Pearson"][0], rows["MC betting bound"][0])
-    return monte_carlo / rows[IS_DEFAULT][0]
+    coverage = ",".join(f"{SHORT[name]}:{1 - error:.4f}" for name, (_, _, error, _, _) in rows.items())
+    return monte_carlo / rows[IS_DEFAULT][0], coverage
 
 
 def main(argv: list[str]) -> int:
@@ -105,7 +113,7 @@ def main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     if not args.look_ratio > 1:
         ap.error(f"--look-ratio={args.look_ratio} must be > 1")
-    savings = [_case(p, eps, args) for p, eps in CASES]
+    (saving_3, coverage_3), (saving_4, coverage_4) = (_case(p, eps, args) for p, eps in CASES)
     zero = {}
     for _, eps in CASES[:1]:  # the floor scales as 1/ε: 10⁻⁵ needs ten times the rollouts of 10⁻⁴
         budget = CERTIFY_BUDGET * floor_rollouts(1 - eps, args.gamma)
@@ -118,7 +126,7 @@ def main(argv: list[str]) -> int:
             f"exact worst error {max(test.worst_errors()):.4f}"
         )
     print(
-        f"RESULT rare refute_saving_1e3={savings[0]:.1f} refute_saving_1e4={savings[1]:.1f} "
-        f"certify_rollouts_at_0={zero[CASES[0][1]]}"
+        f"RESULT rare refute_saving_1e3={saving_3:.1f} refute_saving_1e4={saving_4:.1f} "
+        f"certify_rollouts_at_0={zero[CASES[0][1]]} coverage_1e3={coverage_3} coverage_1e4={coverage_4}"
     )
     return 0
