@@ -50,6 +50,10 @@ def test_the_stage_refutes_certifies_logs_and_a_rerun_replays_every_rollout(rare
     assert record["certified"] == "below" and record["certify_rollouts"] == 35  # ceil(1.2 × 29): the first look
     assert record["domain"]["noise"] == [0.0, 0.2, 2.0, 5.0] and record["domain"]["weather.blend"][2:] == [1.0, 1.0]
     assert record["failures"] == len(record["failure_records"]) >= 1 and record["lower_bound"] > 0.1
+    estimate, weights = record["estimate"], [r["weight"] for r in record["failure_records"]]
+    assert estimate["estimate"] == pytest.approx(sum(weights) / record["refute_rollouts"])  # mean of w·1{fail}
+    assert estimate["interval"][0] <= estimate["estimate"] <= estimate["interval"][1]
+    assert (estimate["if_dominant"] is None) == (max(weights) > 1)
     first = record["failure_records"][0]
     assert set(first) == {"seed", "noise", "weather.blend", "weight"} and 0 <= first["noise"] <= 0.2
     saved = json.loads((tmp_path / "metrics/rare/vi-seed0.json").read_text())

@@ -17,7 +17,8 @@ import pytest
 from scipy import stats
 
 from uqdrive.bench.rare_world import COVERING, DOMAIN, MISSING, CornerWorld
-from uqdrive.uq.rare import RareSettings, refute
+from uqdrive.uq.betting import mean_interval
+from uqdrive.uq.rare import RareSettings, failure_estimate, refute
 
 RUNS = 10_000
 GAMMA = 0.05
@@ -78,3 +79,38 @@ def test_a_normal_approximation_bound_fails_the_same_check() -> None:
     over-covering design's 0.088 at the same budget), its Clopper–Pearson lower limit above γ."""
     errors, _ = null_error(1e-2, "monte-carlo", seed=11, evidence=NormalEvidence(RUNS, 1e-2))
     assert cp_limits(errors, RUNS)[0] > GAMMA, errors
+
+
+ESTIMATE_BUDGET = 200  # rollouts a run; the claim tested is far from p (target 0.5), so no run stops early
+
+
+@pytest.mark.parametrize(("p", "design"), [(1e-2, "over-covering"), (1e-3, "over-covering"), (1e-2, "cross-entropy")])
+def test_the_importance_sampled_estimates_intervals_cover_p(p: float, design: str) -> None:
+    """p̂'s two-sided intervals at γ over 10,000 runs: the one on [0, 1/λ] always; the one on [0, 1] where its
+    assumption holds — at p = 10⁻³ the uniform proposal dominates the nominal Beta(2, 5)² on the failure corner,
+    so every failure's weight is ≤ 1. At 10⁻² the corner reaches where the nominal density exceeds 1, failures
+    weigh more, and the estimate drops that interval (as it does for the adapted proposal's heavier failures)."""
+    keywords, defensive, _ = DESIGNS[design]
+    settings = RareSettings(target=0.5, gamma=GAMMA, defensive=defensive, refute_budget=ESTIMATE_BUDGET)
+    run = refute(CornerWorld.at(p, DOMAIN), DOMAIN, settings, np.random.default_rng(7), runs=RUNS, **keywords)
+    assert not run.refuted.any() and run.failures.mean() >= 1  # every run sees the whole budget, and failures
+    x = run.observations
+    anywhere = mean_interval(x, 0.0, 1.0 / defensive, GAMMA)
+    missed = int(((anywhere.low > p) | (anywhere.high < p)).sum())
+    assert cp_limits(missed, RUNS)[1] < GAMMA, missed
+    assert (x.max() <= 1.0) == (p == 1e-3)
+    if x.max() <= 1.0:
+        inside = mean_interval(x, 0.0, 1.0, GAMMA)
+        missed = int(((inside.low > p) | (inside.high < p)).sum())
+        assert cp_limits(missed, RUNS)[1] < GAMMA, missed
+        assert np.median(inside.high - inside.low) < np.median(anywhere.high - anywhere.low)  # what it buys
+
+
+def test_the_estimate_drops_the_dominance_interval_when_a_failure_weighs_more_than_one() -> None:
+    x = np.zeros(500)
+    x[[40, 300]] = 0.6
+    assert failure_estimate(x, 0.1, GAMMA).if_dominant is not None
+    x[100] = 4.0  # a failure the proposal under-weighted: the nominal density is 4 × the mixture's there
+    estimate = failure_estimate(x, 0.1, GAMMA)
+    assert estimate.if_dominant is None and estimate.estimate == pytest.approx(5.2 / 500)
+    assert estimate.interval[0] <= estimate.estimate <= estimate.interval[1]

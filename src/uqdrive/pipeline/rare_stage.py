@@ -22,14 +22,16 @@ from uqdrive.records import write_record
 from uqdrive.safety.runner import CellRun, CellRunner, cell_key
 from uqdrive.schema import validate
 from uqdrive.tracking import numeric_metrics, stage_run
-from uqdrive.uq.rare import certify, failure_lower_bound, refute
+from uqdrive.uq.rare import FailureEstimate, certify, failure_estimate, failure_lower_bound, refute
 
 
 @dataclasses.dataclass(frozen=True)
 class RareResult:
     """The stage's record: the claim, the refutation (``refuted`` shows η1 < target over the domain with error
-    ≤ γ; ``lower_bound``: on the failure probability p = 1 − η1), the certification (``certified``: above, below,
-    undecided or not_run) and the failures found, each with its seed and condition for replay."""
+    ≤ γ; ``lower_bound``: on the failure probability p = 1 − η1), the importance-sampled estimate of p from the
+    same rollouts (``estimate``: `FailureEstimate`, two-sided intervals, one labelled with its assumption), the
+    certification (``certified``: above, below, undecided or not_run) and the failures found, each with its seed
+    and condition for replay."""
 
     method: str
     replicate: int
@@ -40,6 +42,7 @@ class RareResult:
     refute_rollouts: int
     failures: int
     lower_bound: float
+    estimate: FailureEstimate
     certified: str
     certify_rollouts: int
     failure_records: list[dict]
@@ -109,6 +112,7 @@ def run_rare(cfg: DictConfig) -> RareRun:
         n,
         int(found.failures[0]),
         failure_lower_bound(found.observations[0, :n], section.gamma),
+        failure_estimate(found.observations[0, :n], section.defensive, section.gamma),
         certified,
         certify_rollouts,
         records,
@@ -126,6 +130,8 @@ def _log(cfg: DictConfig, result: RareResult, out: Path) -> None:
         "refute_rollouts": result.refute_rollouts,
         "failures": result.failures,
         "failure_lower_bound": result.lower_bound,
+        "failure_estimate": result.estimate.estimate,
+        "failure_interval_high": result.estimate.interval[1],
         "certified": {"above": 1, "below": -1}.get(result.certified, 0),
         "certify_rollouts": result.certify_rollouts,
         "seconds": result.seconds,
@@ -141,7 +147,17 @@ def describe(run: RareRun) -> str:
     verdict = f"refuted: η1 < {r.target:g}" if r.refuted else f"not refuted (η1 < {r.target:g} not shown)"
     return (
         f"rare {r.method} seed{r.replicate}: {verdict} after {r.refute_rollouts} rollouts, {r.failures} failures, "
-        f"failure probability over the domain >= {r.lower_bound:.3g} (error <= {r.gamma:g}); certification "
+        f"failure probability over the domain >= {r.lower_bound:.3g} (error <= {r.gamma:g}), estimated "
+        f"{_estimate(r.estimate, r.gamma)}; certification "
         f"{r.certified} after {r.certify_rollouts} rollouts in {r.seconds:.0f} s"
         f"{' (reused: every rollout replayed)' if run.reused else ''}"
     )
+
+
+def _estimate(e: FailureEstimate, gamma: float) -> str:
+    """p̂ with its intervals, the assumption named where one is needed."""
+    text = f"{e.estimate:.3g} ({1 - gamma:g}: [{e.interval[0]:.3g}, {e.interval[1]:.3g}] without assumption"
+    if e.if_dominant is not None:
+        low, high = e.if_dominant
+        text += f"; [{low:.3g}, {high:.3g}] if the proposal dominated the domain's density where the car failed"
+    return text + ")"

@@ -32,7 +32,7 @@ import numpy as np
 from pydantic import Field, Strict
 
 from uqdrive.schema import Count, OpenUnit, invalid, schema
-from uqdrive.uq.betting import CAP
+from uqdrive.uq.betting import CAP, mean_interval
 from uqdrive.uq.rare_proposal import ProductBeta, check_support, cross_entropy_step, mixture_sample
 from uqdrive.uq.threshold import ThresholdDecision, ThresholdTest
 
@@ -221,6 +221,30 @@ def failure_lower_bound(observations: np.ndarray, gamma: float, grid: np.ndarray
     crossed = test.observe(x) >= 0
     below = np.cumprod(crossed).astype(bool)
     return float(grid[below][-1]) if below.any() else 0.0
+
+
+@dataclass(frozen=True)
+class FailureEstimate:
+    """The importance-sampled estimate p̂ = mean of X_i over a run's rollouts, with two two-sided betting intervals
+    at level 1 − γ (`uqdrive.uq.betting`, valid at the run's data-dependent stopping time): ``interval`` on
+    X ∈ [0, 1/λ], valid without assumption and wide; ``if_dominant`` on X ∈ [0, 1], valid only if every round's
+    mixture dominates the nominal density where the car fails (then every failure's weight is ≤ 1) — None where a
+    failure's weight above 1 shows that it did not. Neither is a certification: that is `certify`'s."""
+
+    estimate: float
+    interval: tuple[float, float]
+    if_dominant: tuple[float, float] | None
+
+
+def failure_estimate(observations: np.ndarray, defensive: float, gamma: float) -> FailureEstimate:
+    """p̂ and its intervals from one run's X_1 … X_t (in order; every weight ≤ 1/``defensive``)."""
+    x = np.asarray(observations, float)
+    anywhere = mean_interval(x, 0.0, 1.0 / defensive, gamma)
+    dominated = None
+    if x.max(initial=0.0) <= 1.0:
+        inside = mean_interval(x, 0.0, 1.0, gamma)
+        dominated = (float(inside.low), float(inside.high))
+    return FailureEstimate(float(x.mean()), (float(anywhere.low), float(anywhere.high)), dominated)
 
 
 def certification_test(settings: RareSettings) -> ThresholdTest:
