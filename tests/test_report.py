@@ -317,6 +317,8 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     figures = len(EXPERIMENTS) * len(METHODS) + 3  # learning curves, η1 chart, one hexbin, vi's map; the rest missing
     assert result.figures == figures and html.count('src="data:image/png;base64,') == figures
     assert not re.search(r'src="(?!data:)', html)  # self-contained: no file links left
+    prose = re.sub(r"`[^`]*`", "", (tmp_path / "reports/report.md").read_text())
+    assert not re.findall(r"<[a-z_]+>", prose)  # a placeholder such as <cell> outside code vanishes from the HTML
 
 
 def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp_path):

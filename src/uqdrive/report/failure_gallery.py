@@ -36,7 +36,7 @@ def failures_section(
     modes = failure_modes(cells, "method_weather")
     report.add(
         "## Failures: modes and a gallery\n\n"
-        "Every failing rollout of every cell is recorded (metrics/safety/<cell>.json, `failures`, worst margin first) "
+        "Every failing rollout of every cell is recorded (`metrics/safety/<cell>.json`, `failures`, worst margin first) "
         "and grouped into modes by how it ended, where on the route and whether a warning fired first."
     )
     if not modes:
