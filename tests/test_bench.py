@@ -53,11 +53,16 @@ def test_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str], ar
 
 
 @pytest.mark.slow
-def test_the_peer_benchmark_answers_with_both_tools_and_counts_their_episodes(capsys: pytest.CaptureFixture) -> None:
-    """A question both must certify (every 10-step episode of a gentle steer is safe): PyDSMC's sound method runs its
-    worst-case count for half-width 0.3 (12 episodes), uqdrive's test stops at its first look."""
+@pytest.mark.parametrize("world", ["uqdrive_roundabout", "highway_roundabout"])
+def test_the_peer_benchmark_answers_with_both_tools_and_counts_their_episodes(
+    capsys: pytest.CaptureFixture, world: str
+) -> None:
+    """A question both must certify (every 10-step episode of a gentle or no steer is safe): PyDSMC's sound method
+    runs its worst-case count for half-width 0.3 (12 episodes), uqdrive's test stops at its first look. In
+    HighwayEnv PyDSMC drives the same `GymWorld` (env, hooks, safe set) through `WorldEnv`."""
     pytest.importorskip("pydsmc", reason="PyDSMC is not installed (pip install 'uqdrive[peer]')")
-    argv = ["--horizon", "10", "--eta", "0.5", "--theta", "0.3", "--look-size", "4"]
+    steer = "0.15" if world == "uqdrive_roundabout" else "0"
+    argv = ["--world", world, "--steer", steer, "--horizon", "10", "--eta", "0.5", "--theta", "0.3", "--look-size", "4"]
     assert main(["bench", "peer", *argv]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     pattern = r"RESULT peer episodes_ratio=([\d.]+) pydsmc_episodes=(\d+) uqdrive_episodes=(\d+) (.*)"

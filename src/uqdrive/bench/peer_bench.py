@@ -1,10 +1,13 @@
 """`uqdrive bench peer`: episodes that PyDSMC and uqdrive take to answer one question about one agent in one env:
 "η1 ≥ eta?" with error ≤ γ and indifference θ (certified: η1 > eta − θ; refuted: η1 < eta + θ).
 
-The env is uqdrive's roundabout as a Gymnasium env (``uqdrive/Roundabout-v0``, truncated at ``--horizon`` steps), the
-agent a fixed steering command (action ``[steer]``), an episode safe while no step's info reports a collision or
-leaving the road. uqdrive: `uqdrive certify` in the world ``uqdrive_roundabout`` (its sequential threshold test,
-exact error, a look every ``--look-size`` episodes). PyDSMC (``pydsmc``, `pip install 'uqdrive[peer]'`): a custom
+The env (``--world``): uqdrive's roundabout as a Gymnasium env (``uqdrive/Roundabout-v0``, world
+``uqdrive_roundabout``), or HighwayEnv's roundabout (``highway_roundabout``: ``roundabout-v0`` behind uqdrive's hooks,
+handed to PyDSMC as `WorldEnv`, the very env, hooks and safe set the certify run drives), truncated at
+``--horizon`` steps. The agent: a fixed steering command (action ``[steer]``) at the cruise speed; an episode is
+safe while every step keeps the world's safe set (its ``safe_if``; uqdrive's roundabout: no collision, on the
+road). uqdrive: `uqdrive certify` in that world (its sequential threshold test, exact error, a look every
+``--look-size`` episodes). PyDSMC (``pydsmc``, `pip install 'uqdrive[peer]'`): a custom
 binomial property with its sound method (Clopper–Pearson to half-width θ at confidence 1 − γ), evaluated in runs of
 ``--look-size`` episodes until it converges; its estimate ≥ eta is its "certified" (η1 > eta − θ with probability
 ≥ 1 − γ), below it "refuted". Prints both answers and ``RESULT peer episodes_ratio=<PyDSMC / uqdrive>``.
@@ -15,13 +18,43 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+import gymnasium
 import numpy as np
 import torch
 
+from uqdrive.sim.gym_world import GymWorld
+
 ENV_ID = "uqdrive/Roundabout-v0"
+WORLDS = ("uqdrive_roundabout", "highway_roundabout")
+CRUISE = 6.0  # m/s: the speed of a policy file's actions, which give none (`uqdrive certify`'s default)
 PYDSMC_MISSING = "uqdrive bench peer needs PyDSMC, which is not installed: pip install 'uqdrive[peer]'"
+
+
+class WorldEnv(gymnasium.Env):
+    """A uqdrive Gymnasium world as a plain env: action [steer] at a fixed ``speed``, the world's frame as the
+    observation, its info (the hooks' state and the env's scalars, what the safe set reads) as the info; an
+    episode ends where the world ends it (the safe set broken, the env done, the horizon)."""
+
+    def __init__(self, world: GymWorld, speed: float):
+        self.world, self.speed = world, speed
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.observation_space = gymnasium.spaces.Box(0, 255, (48, 64, 3), np.uint8)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        seed = int(self.np_random.integers(2**31)) if seed is None else seed
+        return self.world.reset(seed), dict(self.world.last_info)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        frame, info = self.world.step(float(np.asarray(action).ravel()[0]), self.speed)
+        return frame, 0.0, self.world.done, False, info
+
+    def close(self) -> None:
+        self.world.close()
 
 
 class _Steer(torch.nn.Module):
@@ -42,31 +75,45 @@ def uqdrive_answer(args: argparse.Namespace, folder: Path) -> dict:
     policy = folder / "steer.pt"
     torch.jit.save(torch.jit.script(_Steer(args.steer)), str(policy))
     flags = [f"--eta={args.eta}", f"--theta={args.theta}", f"--gamma={args.gamma}", f"--look-size={args.look_size}"]
-    argv = ["--policy", str(policy), "--world", "uqdrive_roundabout", "--root", str(folder), "--no-progress", *flags]
+    argv = ["--policy", str(policy), "--world", args.world, "--root", str(folder), "--no-progress", *flags]
     argv += [f"--budget={args.budget}", "--out", str(folder / "certify.json")]
     argv.append(f"gym_world.horizon_steps={args.horizon}")
     record = run_certify(compose_certify(parse(argv)))
     return {"verdict": record.verdict, "episodes": record.rollouts, "eta1_hat": record.eta1_hat}
 
 
-def pydsmc_answer(args: argparse.Namespace) -> dict:
+def world_env(args: argparse.Namespace, folder: Path) -> tuple[Any, Callable[[dict], bool]]:
+    """PyDSMC's env for ``--world`` and whether one step's info keeps the safe set."""
+    if args.world == "uqdrive_roundabout":
+        import uqdrive.sim.gym_env  # noqa: F401  (registers uqdrive/Roundabout-v0)
+
+        env = gymnasium.make(ENV_ID, max_episode_steps=args.horizon)
+        return env, lambda info: not (info.get("collision") or info.get("off_road"))
+    from uqdrive.pipeline.certify_stage import CertifyStage, compose_certify, parse
+    from uqdrive.schema import validate
+
+    argv = ["--policy", str(folder / "steer.pt"), "--world", args.world, f"gym_world.horizon_steps={args.horizon}"]
+    config = validate(CertifyStage, compose_certify(parse(argv))).gym_world
+    return WorldEnv(GymWorld(config), CRUISE), lambda info: all(info[k] == v for k, v in config.safe_if.items())
+
+
+def pydsmc_answer(args: argparse.Namespace, folder: Path) -> dict:
     """PyDSMC's estimate of the same agent's η1 in the same env, read as a verdict."""
     try:
         import pydsmc
     except ImportError:
         raise SystemExit(PYDSMC_MISSING) from None
-    import gymnasium
 
-    import uqdrive.sim.gym_env  # noqa: F401  (registers uqdrive/Roundabout-v0)
+    env, safe_step = world_env(args, folder)
 
     def safe(_property, trajectory) -> float:
-        return float(not any(step[5].get("collision") or step[5].get("off_road") for step in trajectory))
+        return float(all(safe_step(step[5]) for step in trajectory))
 
     prop = pydsmc.create_custom_property(
         "safe", safe, epsilon=args.theta, kappa=args.gamma, bounds=(0, 1), binomial=True, sound=True
     )
-    env = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(ENV_ID, max_episode_steps=args.horizon)])
-    evaluator = pydsmc.Evaluator(env, log_dir=None, log_level=40)
+    vector = gymnasium.vector.SyncVectorEnv([lambda: env])
+    evaluator = pydsmc.Evaluator(vector, log_dir=None, log_level=40)
     evaluator.register_property(prop)
     action = np.full((1, 1), args.steer, np.float32)
     evaluator.eval(
@@ -76,13 +123,14 @@ def pydsmc_answer(args: argparse.Namespace) -> dict:
         episode_limit=args.pydsmc_limit,
         num_threads=1,
     )
-    env.close()
+    vector.close()
     verdict = ("certified" if prop.mean >= args.eta else "refuted") if prop.converged() else "undecided"
     return {"verdict": verdict, "episodes": prop.num_episodes, "eta1_hat": prop.mean}
 
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench peer", description=__doc__)
+    ap.add_argument("--world", choices=WORLDS, default=WORLDS[0], help="the env both tools drive")
     ap.add_argument("--steer", type=float, default=0.15, help="the agent's fixed steering command, in [-1, 1]")
     ap.add_argument("--horizon", type=int, default=30, help="episode length in steps (15 a second)")
     ap.add_argument("--eta", type=float, default=0.9, help="the question: eta1 >= this?")
@@ -94,9 +142,9 @@ def main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as folder:
         ours = uqdrive_answer(args, Path(folder))
-    theirs = pydsmc_answer(args)
+        theirs = pydsmc_answer(args, Path(folder))
     print(f"question: eta1 >= {args.eta:g}? (theta={args.theta:g}, gamma={args.gamma:g}) for steer {args.steer:g} "
-          f"in {ENV_ID}, {args.horizon} steps")  # fmt: skip
+          f"in {args.world}, {args.horizon} steps")  # fmt: skip
     for name, answer in (("uqdrive", ours), ("PyDSMC", theirs)):
         print(f"{name:>8}: {json.dumps(answer)}")
     print(
