@@ -7,6 +7,7 @@ tests/test_uq_threshold.py, over a fine grid."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import mlflow
 import numpy as np
@@ -17,6 +18,8 @@ from user_policy_kit import Constant, save_torchscript, write_package, write_yam
 from uqdrive.pipeline.certify_stage import CertifySection
 from uqdrive.tools.cli import main
 from uqdrive.tracking import store_uris
+
+ROOT = Path(__file__).resolve().parents[1]
 
 KEEPER = "policy:\n  _target_: h50_user_policies.policies.LaneKeeper\n"
 
@@ -129,3 +132,11 @@ def test_a_gymnasium_world_is_a_world_to_certify_in(tmp_path, monkeypatch):
     code, record = certify(tmp_path, hard, "--eta", "0.5", "--world", "uqdrive_roundabout")
     assert code == 1 and record["safe"] == 0
     assert certify(tmp_path, hard, "--world", "nowhere")[0] == 2
+    # the same world from a file of the user's own, outside the project: the same rollouts
+    own = tmp_path / "myconf/gym_world/mine.yaml"
+    own.parent.mkdir(parents=True)
+    own.write_text((ROOT / "conf/gym_world/uqdrive_roundabout.yaml").read_text().replace("name: uqdrive_", "name: my_"))
+    code, mine = certify(tmp_path, hard, "--eta", "0.5", "--world", str(own))
+    assert code == 1 and mine["world"] == "my_roundabout" and mine["outcomes"] == record["outcomes"]
+    (tmp_path / "mine.yaml").write_text(own.read_text())
+    assert certify(tmp_path, hard, "--world", str(tmp_path / "mine.yaml"))[0] == 2  # not in a gym_world/ folder

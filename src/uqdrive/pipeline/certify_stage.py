@@ -198,7 +198,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     kinds = "a TorchScript (.pt), ONNX (.onnx), stable-baselines3 (.zip) or policy YAML file"
     p.add_argument("--policy", required=True, help=kinds)
     p.add_argument(
-        "--world", default="roundabout", help="a location in conf/scenario/ or a Gymnasium world in conf/gym_world/"
+        "--world",
+        default="roundabout",
+        help="a location in conf/scenario/, a Gymnasium world in conf/gym_world/, or a file DIR/gym_world/NAME.yaml",
     )
     p.add_argument(
         "--weather", default="clear_noon", help="weather in conf/weather/, pybullet only (default: clear_noon)"
@@ -231,18 +233,7 @@ def compose_certify(a: argparse.Namespace) -> DictConfig:
     from uqdrive.sim.config import register_schemas
 
     conf = find_conf()
-    worlds = {p.stem: "scenario" for p in (conf / "scenario").glob("*.yaml")}
-    worlds |= {p.stem: "gym_world" for p in (conf / "gym_world").glob("*.yaml")}  # the env is the world: no weather
-    if a.world not in worlds:
-        raise ConfigError(
-            f"--world={a.world!r} is not known; choose one of {sorted(worlds)} (conf/scenario/, conf/gym_world/)"
-        )
-    if not (conf / "weather" / f"{a.weather}.yaml").is_file():
-        names = sorted(p.stem for p in (conf / "weather").glob("*.yaml"))
-        raise ConfigError(f"--weather={a.weather!r} is not known; choose one of {names}")
-    place = (
-        [f"gym_world={a.world}"] if worlds[a.world] == "gym_world" else [f"scenario={a.world}", f"weather={a.weather}"]
-    )
+    place = _world_overrides(a, conf)
     register_schemas()
     register_resolvers()
     root = Path(a.root).resolve()
@@ -256,6 +247,33 @@ def compose_certify(a: argparse.Namespace) -> DictConfig:
     ]  # fmt: skip
     with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
         return compose("certify", overrides=overrides)
+
+
+def _world_overrides(a: argparse.Namespace, conf: Path) -> list[str]:
+    """Where ``--world`` and ``--weather`` put the policy, as overrides: a location of conf/scenario/ in a weather
+    of conf/weather/, a Gymnasium world of conf/gym_world/, or a world file of the user's own in a folder named
+    ``gym_world`` (its parent joins Hydra's search path). Anything else: one line saying what there is."""
+    if a.world.endswith(".yaml"):
+        path = Path(a.world).resolve()
+        if not path.is_file() or path.parent.name != "gym_world":
+            raise ConfigError(
+                f"--world={a.world!r}: a world file must exist in a folder named gym_world/ (its config group), "
+                "e.g. myconf/gym_world/drift.yaml"
+            )
+        return [f"hydra.searchpath=[{_quoted(path.parent.parent.as_uri())}]", f"gym_world={path.stem}"]
+    worlds = {p.stem: "scenario" for p in (conf / "scenario").glob("*.yaml")}
+    worlds |= {p.stem: "gym_world" for p in (conf / "gym_world").glob("*.yaml")}  # the env is the world: no weather
+    if a.world not in worlds:
+        raise ConfigError(
+            f"--world={a.world!r} is not known; choose one of {sorted(worlds)} (conf/scenario/, conf/gym_world/) "
+            "or give a world file, e.g. myconf/gym_world/drift.yaml"
+        )
+    if not (conf / "weather" / f"{a.weather}.yaml").is_file():
+        names = sorted(p.stem for p in (conf / "weather").glob("*.yaml"))
+        raise ConfigError(f"--weather={a.weather!r} is not known; choose one of {names}")
+    if worlds[a.world] == "gym_world":
+        return [f"gym_world={a.world}"]
+    return [f"scenario={a.world}", f"weather={a.weather}"]
 
 
 def main(argv: list[str] | None = None) -> int:
