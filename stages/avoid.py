@@ -30,7 +30,7 @@ def main(cfg: DictConfig) -> None:
             f"avoid {cfg.avoid.name} unknown mixture warnings {mode:>10}: eta1 = {u.eta1:.2f} "
             f"[{u.eta1_low:.2f}, {u.eta1_high:.2f}], autonomy {u.autonomy:.2f}"
         )
-    k = r.calibration
+    k = r.calibration.certificate
     print(
         f"calibrated: delta1={k.delta1:g} delta2={k.delta2:g} tau={k.tau:g}, {k.certified} of {k.candidates} "
         f"candidates certified; {k.guarantee} ({r.seconds:.0f} s) -> {cfg.avoid.out}"

@@ -50,7 +50,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     for mode in Mode:  # one unknown condition: its mixture is that cell
         assert saved["unknown"][mode]["eta1"] == saved["cells"]["fog"][mode]["eta1"]
     assert saved["cells"][KNOWN]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
-    calibration = saved["calibration"]
+    calibration = saved["calibration"]["certificate"]
     assert saved["cells"][KNOWN]["calibrated"]["thresholds"] == {k: calibration[k] for k in ("delta1", "delta2", "tau")}
     # Learn-then-Test on the 4 known runs: with no hand-over in any, the null "hand-over rate > 0.7" has
     # p = 0.3^4 = 0.008 <= 0.05, so the never-firing candidate (first in the sequence) at least is certified
@@ -60,14 +60,16 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     calibrated = saved["cells"][KNOWN]["calibrated"]
     autonomous = round(calibrated["autonomy"] * 4)  # of the cell's 4 fixed runs
     p_value = sum(stats.binom.pmf(k, 4, 0.3) for k in range(autonomous, 5))  # P(Bin(4, target) >= autonomous)
-    check = calibration["fresh_seed_check"]
+    check = saved["calibration"]["fresh_seed_check"]
     assert check == {
-        "runs": 4,
-        "autonomous": autonomous,
-        "target": 0.3,
-        "level": 0.025,  # γ over the tiny profile's 2 controllers: 4 fresh runs give power 0.8 at autonomy 0.95
-        "p_value": pytest.approx(p_value),
-        "target_met": p_value <= 0.025,
+        "check": {
+            "runs": 4,
+            "autonomous": autonomous,
+            "target": 0.3,
+            "level": 0.025,  # γ over the tiny profile's 2 controllers: 4 fresh runs give power 0.8 at autonomy 0.95
+            "p_value": pytest.approx(p_value),
+            "target_met": p_value <= 0.025,
+        },
         "known_autonomy": calibrated["autonomy"],
         "known_eta1": calibrated["eta1"],
         "unknown_eta1": saved["unknown"]["calibrated"]["eta1"],
@@ -81,7 +83,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     )
     assert 0 <= rule["tier"]["wrong_tier_error"] <= rule["tier"]["gamma"]
     assert calibration["middle_guaranteed"] == rule["tier"]["middle_guaranteed"]
-    assert calibration["candidates"] > 100 and set(calibration["replay_check"]) == {KNOWN, "fog"}
+    assert calibration["candidates"] > 100 and set(saved["calibration"]["replay_check"]) == {KNOWN, "fog"}
     rows = (tmp_path / "plots/avoid/mcd-seed0/tradeoff.csv").read_text().splitlines()
     assert len(rows) == calibration["candidates"] + 1 and rows[0].startswith("delta1,delta2,tau")
     for name in ("trajectories", "warnings", "tradeoff"):
