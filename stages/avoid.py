@@ -1,6 +1,7 @@
 """DVC stage `avoid@<method>`: collision avoidance with the warning system, warnings off/on/calibrated, in the
-known condition and each unknown one (`model=<method>`, the `avoid` experiment's controllers); `--config-name
-gym_avoid gym_world=<world>` in a Gymnasium world (dvc.yaml's gym_avoid)."""
+known condition and each unknown one (`model=<method>`, the `avoid` experiment's controllers; `avoid.policy=<file>`:
+a policy of yours that gives draws); `--config-name gym_avoid gym_world=<world>` in a Gymnasium world (dvc.yaml's
+gym_avoid)."""
 
 import hydra
 from omegaconf import DictConfig

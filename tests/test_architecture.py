@@ -237,7 +237,7 @@ def test_the_avoid_stages_config_enters_at_most_12_files_on_its_way_to_the_maths
     module's imports (package re-exports too) and the classes' bases; calls into other libraries end the walk, and
     so do the config's sections (a `@schema` section handed on is a piece, not the config). The count is the files
     under src/uqdrive that hold a function so entered (its own module included). Before the avoid run was computed
-    once (`AvoidRun`): 7 files, 40 calls; after: 7 files, 31 calls (the geometries and names built once, the
-    answers reading the run)."""
+    once (`AvoidRun`): 7 files, 40 calls; after: 7 files, 34 calls (the geometries and names built once, the
+    answers reading the run; the trained model and a user's policy each a driver of the plan)."""
     files, calls = config_path(CallGraph(), ("uqdrive.pipeline.avoid_stage", "run_avoid"), "cfg")
     assert len(files) <= 12, f"{len(files)} files, {calls} calls: {sorted(files)}"

@@ -1,12 +1,13 @@
 """The `avoid` stage: real-time collision avoidance with the three-tier warning system (the paper's section
 "Real-time Collision Avoidance"), for one controller of the `avoid` experiment (or of a Gymnasium world's:
-conf/gym_avoid.yaml).
+conf/gym_avoid.yaml), or a user's policy that gives draws (``avoid.policy``).
 
 On the obstacle road (or in the Gymnasium world), one cell per condition × warnings mode, every cell on the same
 seeds: the known condition (the training weather; the world as collected) and the unknown ones (a cell per variant,
 or one mixture cell), warnings off and on (the configured thresholds). Thresholds are then calibrated on the
 warnings-off rollouts and checked in closed loop on fresh seeds (off again and calibrated). A cell whose rollout log
-holds its identity is replayed, not rerun.
+holds its identity is replayed, not rerun. The drive computes all of it once (`uqdrive.avoid.cells.AvoidRun`); the
+answers, figures, files and MLflow runs read that.
 """
 
 from __future__ import annotations
