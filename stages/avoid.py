@@ -1,6 +1,7 @@
 """DVC stage `avoid@<method>`: collision avoidance with the warning system, warnings off/on/calibrated, in the
-known condition and each unknown one (`model=<method>`, the `avoid` experiment's controllers); `--config-name
-gym_avoid gym_world=<world>` in a Gymnasium world (dvc.yaml's gym_avoid)."""
+known condition and each unknown one (`model=<method>`, the `avoid` experiment's controllers; `avoid.policy=<file>`:
+a policy of yours that gives draws); `--config-name gym_avoid gym_world=<world>` in a Gymnasium world (dvc.yaml's
+gym_avoid)."""
 
 import hydra
 from omegaconf import DictConfig
@@ -30,7 +31,7 @@ def main(cfg: DictConfig) -> None:
             f"avoid {cfg.avoid.name} unknown mixture warnings {mode:>10}: eta1 = {u.eta1:.2f} "
             f"[{u.eta1_low:.2f}, {u.eta1_high:.2f}], autonomy {u.autonomy:.2f}"
         )
-    k = r.calibration
+    k = r.calibration.certificate
     print(
         f"calibrated: delta1={k.delta1:g} delta2={k.delta2:g} tau={k.tau:g}, {k.certified} of {k.candidates} "
         f"candidates certified; {k.guarantee} ({r.seconds:.0f} s) -> {cfg.avoid.out}"

@@ -87,3 +87,157 @@ def test_pipeline_holds_one_stage_module_per_stage_and_each_run_returns_a_datacl
                 if returns.startswith(("dict", "list", "None")) or not returns:
                     plain.append(f"{path.name}:{node.name} -> {returns or '?'}")
     assert not plain, plain
+
+
+WHOLE_CONFIG = {"DictConfig", "AvoidStage", "AvoidSettings"}  # the avoid stage's config: composed, validated, built
+
+
+class CallGraph:
+    """Every function and class under src/uqdrive by module, what each module's names refer to, and the types that
+    carry the config whole: `WHOLE_CONFIG` and every class with a field of such a type."""
+
+    def __init__(self) -> None:
+        self.defs, self.imports, self.paths, self.homes = {}, {}, {}, {}
+        for path, tree in modules().items():
+            parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+            name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            self.paths[name] = path
+            self.defs[name] = {n.name: n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+            self.homes |= {n.name: name for n in self.defs[name].values() if isinstance(n, ast.ClassDef)}
+            package = name if parts[-1] == "__init__" else name.rsplit(".", 1)[0]
+            self.imports[name] = {
+                a.asname or a.name: (f"{package}.{node.module}" if node.level else node.module, a.name)
+                for node in tree.body
+                if isinstance(node, ast.ImportFrom) and node.module and (node.level or node.module.startswith("uq"))
+                for a in node.names
+            }
+        self.config_types = set(WHOLE_CONFIG)
+        while grown := {name for name in self.homes if self._holds_config(name)} - self.config_types:
+            self.config_types |= grown
+
+    def _holds_config(self, type_name: str) -> bool:
+        cls = self.defs[self.homes[type_name]][type_name]
+        fields = [n.annotation for n in cls.body if isinstance(n, ast.AnnAssign)]
+        return any(n.id in self.config_types for f in fields for n in ast.walk(f) if isinstance(n, ast.Name))
+
+    def resolve(self, module: str, name: str) -> tuple[str, ast.AST] | None:
+        """The definition ``name`` means in ``module``, through imports and package re-exports."""
+        for _ in range(5):
+            if name in self.defs.get(module, {}):
+                return module, self.defs[module][name]
+            if name not in self.imports.get(module, {}):
+                return None
+            module, name = self.imports[module][name]
+        return None
+
+    def member(self, module: str, cls: ast.ClassDef, name: str) -> tuple[str, ast.AST] | None:
+        """A class's method or field annotation, its bases searched too."""
+        for node in cls.body:
+            if isinstance(node, ast.FunctionDef) and node.name == name:
+                return module, node
+            if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.target.id == name:
+                return module, node
+        for base in cls.bases:
+            found = isinstance(base, ast.Name) and self.resolve(module, base.id)
+            if found and isinstance(found[1], ast.ClassDef) and (hit := self.member(*found, name)):
+                return hit
+        return None
+
+    def member_of(self, type_name: str, name: str) -> tuple[str, ast.AST] | None:
+        module = self.homes.get(type_name)
+        cls = module and self.defs[module].get(type_name)
+        return isinstance(cls, ast.ClassDef) and self.member(module, cls, name) or None
+
+    def class_of(self, annotation: ast.AST | None) -> str | None:
+        """The project class an annotation names: ``X``, ``mod.X``, ``"X"`` or ``X | None`` (not a container)."""
+        if isinstance(annotation, ast.BinOp) and isinstance(annotation.op, ast.BitOr):
+            return self.class_of(annotation.left) or self.class_of(annotation.right)
+        name = annotation.attr if isinstance(annotation, ast.Attribute) else getattr(annotation, "id", None)
+        if isinstance(annotation, ast.Constant) and isinstance(annotation.value, str):
+            name = annotation.value
+        return name if name in self.homes or name in self.config_types else None
+
+
+def config_path(graph: CallGraph, start: tuple[str, str], param: str) -> tuple[set[str], int]:
+    """The files the config enters from ``start``'s ``param`` and the calls that carry it there (see the test)."""
+    files, calls, seen = set(), 0, set()
+    todo = [(start[0], graph.defs[start[0]][start[1]], ((param, "DictConfig"),))]
+    while todo:
+        module, fn, bound = todo.pop()
+        if (module, fn.name, bound) in seen:
+            continue
+        seen.add((module, fn.name, bound))
+        files.add(str(graph.paths[module].relative_to(PACKAGE)))
+        args = fn.args.posonlyargs + fn.args.args + fn.args.kwonlyargs
+        types = {a.arg: t for a in args if (t := graph.class_of(a.annotation))} | dict(bound)
+
+        def type_of(node: ast.AST, module=module, types=types) -> str | None:
+            if isinstance(node, ast.Name):
+                return types.get(node.id)
+            if isinstance(node, ast.Attribute) and (owner := type_of(node.value)):
+                hit = graph.member_of(owner, node.attr)
+                return hit and graph.class_of(getattr(hit[1], "annotation", None) or getattr(hit[1], "returns", None))
+            if isinstance(node, ast.Call) and (callee := _callee(graph, module, node, type_of)):
+                named = [a.id for a in node.args if isinstance(a, ast.Name) and a.id in graph.config_types]
+                return graph.class_of(getattr(callee[1], "returns", None)) or (named or [None])[0]  # validate(X, cfg)
+            return None
+
+        for _ in range(2):  # locals bound from a call or a field of a known class
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Assign) and (t := type_of(node.value)):
+                    types |= {target.id: t for target in node.targets if isinstance(target, ast.Name)}
+                if isinstance(node, ast.withitem) and isinstance(node.optional_vars, ast.Name):
+                    if t := type_of(node.context_expr):
+                        types[node.optional_vars.id] = t
+        for node in ast.walk(fn):
+            if isinstance(node, ast.Call) and (entered := _entered(graph, module, node, type_of)):
+                calls += 1
+                todo.append(entered)
+    return files, calls
+
+
+def _entered(graph: CallGraph, module: str, call: ast.Call, type_of) -> tuple | None:
+    """The function a call hands the config to, with its parameters that receive it, or None."""
+    config = graph.config_types
+    carried = [t if (t := type_of(a)) in config else None for a in call.args]
+    carried += [t if (t := type_of(k.value)) in config else None for k in call.keywords]
+    method = isinstance(call.func, ast.Attribute) and type_of(call.func.value)
+    callee = _callee(graph, module, call, type_of)
+    if not (any(carried) or method in config) or not callee or not isinstance(callee[1], ast.FunctionDef):
+        return None
+    params = [a.arg for a in callee[1].args.posonlyargs + callee[1].args.args]
+    binding = {
+        p: t for p, t in zip(params[1:] if method and _bound(callee[1]) else params, carried[: len(call.args)]) if t
+    }
+    binding |= {k.arg: t for k, t in zip(call.keywords, carried[len(call.args) :]) if t and k.arg}
+    if method and params and method in config:
+        binding[params[0]] = method
+    return callee[0], callee[1], tuple(sorted(binding.items()))
+
+
+def _bound(fn: ast.FunctionDef) -> bool:
+    """A method that takes its instance or class first (not a staticmethod)."""
+    return not any(ast.unparse(d) == "staticmethod" for d in fn.decorator_list)
+
+
+def _callee(graph: CallGraph, module: str, call: ast.Call, type_of) -> tuple[str, ast.AST] | None:
+    if isinstance(call.func, ast.Name):
+        return graph.resolve(module, call.func.id)
+    if isinstance(call.func, ast.Attribute) and (owner := type_of(call.func.value)):
+        return graph.member_of(owner, call.func.attr)
+    return None
+
+
+def test_the_avoid_stages_config_enters_at_most_12_files_on_its_way_to_the_maths():
+    """How the count is made (statically, with `ast`): start at `pipeline/avoid_stage.run_avoid(cfg)` and follow
+    every call that hands on the stage's config whole, i.e. passes, or calls a method of, a value of a config type:
+    the composed config, the validated stage, the settings built from it (`WHOLE_CONFIG`), or any class holding one
+    of them in a field (the run driven from the settings). A value's type is its parameter's annotation, what the
+    caller passed, a field's or property's annotation, or a callee's return annotation. Callees resolve through the
+    module's imports (package re-exports too) and the classes' bases; calls into other libraries end the walk, and
+    so do the config's sections (a `@schema` section handed on is a piece, not the config). The count is the files
+    under src/uqdrive that hold a function so entered (its own module included). Before the avoid run was computed
+    once (`AvoidRun`): 7 files, 40 calls; after: 7 files, 34 calls (the geometries and names built once, the
+    answers reading the run; the trained model and a user's policy each a driver of the plan)."""
+    files, calls = config_path(CallGraph(), ("uqdrive.pipeline.avoid_stage", "run_avoid"), "cfg")
+    assert len(files) <= 12, f"{len(files)} files, {calls} calls: {sorted(files)}"

@@ -67,7 +67,7 @@ def test_the_mixture_stage_runs_every_cell_to_its_floor_and_reports_the_mixture_
         cell = saved["cells"][condition][mode]
         # the estimator (chernoff_n(0.7, 0.05) = 4) reads 4; the cell runs 6, the sample the pairs use
         assert cell["n"] == 4 and len(cell["outcomes"]) == 6 and cell["fixed_rollouts"] == 6
-    assert saved["calibration"]["calibration_runs"] == {KNOWN: 6, UNKNOWN: 6}
+    assert saved["calibration"]["certificate"]["calibration_runs"] == {KNOWN: 6, UNKNOWN: 6}
     for mode in Mode:
         mixture, cell = saved["unknown"][mode], saved["cells"][UNKNOWN][mode]
         assert (mixture["eta1"], mixture["eta1_low"], mixture["n"]) == (cell["eta1"], cell["eta1_low"], 4)

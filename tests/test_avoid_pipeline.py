@@ -4,8 +4,10 @@ summary, clear errors."""
 import json
 
 import pytest
+import torch
 from mlflow.tracking import MlflowClient
 from scipy import stats
+from user_policy_kit import linear_module, save_torchscript, write_yaml
 
 import uqdrive.safety.runner as runner
 from uqdrive.avoid.plan import KNOWN, build_settings
@@ -14,6 +16,7 @@ from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
 from uqdrive.policy.warnings import WarningController
 from uqdrive.records import as_dict
+from uqdrive.schema import ConfigError
 from uqdrive.tracking import store_uris
 
 
@@ -50,7 +53,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     for mode in Mode:  # one unknown condition: its mixture is that cell
         assert saved["unknown"][mode]["eta1"] == saved["cells"]["fog"][mode]["eta1"]
     assert saved["cells"][KNOWN]["on"]["thresholds"] == {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
-    calibration = saved["calibration"]
+    calibration = saved["calibration"]["certificate"]
     assert saved["cells"][KNOWN]["calibrated"]["thresholds"] == {k: calibration[k] for k in ("delta1", "delta2", "tau")}
     # Learn-then-Test on the 4 known runs: with no hand-over in any, the null "hand-over rate > 0.7" has
     # p = 0.3^4 = 0.008 <= 0.05, so the never-firing candidate (first in the sequence) at least is certified
@@ -60,14 +63,16 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     calibrated = saved["cells"][KNOWN]["calibrated"]
     autonomous = round(calibrated["autonomy"] * 4)  # of the cell's 4 fixed runs
     p_value = sum(stats.binom.pmf(k, 4, 0.3) for k in range(autonomous, 5))  # P(Bin(4, target) >= autonomous)
-    check = calibration["fresh_seed_check"]
+    check = saved["calibration"]["fresh_seed_check"]
     assert check == {
-        "runs": 4,
-        "autonomous": autonomous,
-        "target": 0.3,
-        "level": 0.025,  # γ over the tiny profile's 2 controllers: 4 fresh runs give power 0.8 at autonomy 0.95
-        "p_value": pytest.approx(p_value),
-        "target_met": p_value <= 0.025,
+        "check": {
+            "runs": 4,
+            "autonomous": autonomous,
+            "target": 0.3,
+            "level": 0.025,  # γ over the tiny profile's 2 controllers: 4 fresh runs give power 0.8 at autonomy 0.95
+            "p_value": pytest.approx(p_value),
+            "target_met": p_value <= 0.025,
+        },
         "known_autonomy": calibrated["autonomy"],
         "known_eta1": calibrated["eta1"],
         "unknown_eta1": saved["unknown"]["calibrated"]["eta1"],
@@ -81,7 +86,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     )
     assert 0 <= rule["tier"]["wrong_tier_error"] <= rule["tier"]["gamma"]
     assert calibration["middle_guaranteed"] == rule["tier"]["middle_guaranteed"]
-    assert calibration["candidates"] > 100 and set(calibration["replay_check"]) == {KNOWN, "fog"}
+    assert calibration["candidates"] > 100 and set(saved["calibration"]["replay_check"]) == {KNOWN, "fog"}
     rows = (tmp_path / "plots/avoid/mcd-seed0/tradeoff.csv").read_text().splitlines()
     assert len(rows) == calibration["candidates"] + 1 and rows[0].startswith("delta1,delta2,tau")
     for name in ("trajectories", "warnings", "tradeoff"):
@@ -242,3 +247,53 @@ def test_warnings_on_and_off_and_thresholds_at_0_or_1_share_the_configured_draws
         edge = settings.rule.with_thresholds(delta1, delta2, 0.45)
         policy = settings.job(settings.known, edge, 0).policy
         assert policy.draws.scheme == "sequential" and isinstance(policy.build(15.0), WarningController)
+
+
+def dropout_policy(folder, draws: int):
+    """A user's Bayesian policy: a torch module with dropout kept on, ``draws`` passes a frame (its YAML)."""
+    torch.manual_seed(0)
+    module = torch.nn.Sequential(torch.nn.Flatten(), torch.nn.Dropout(0.5), torch.nn.Linear(48 * 64, 21))
+    save_torchscript(module, folder / "dropout.pt")
+    return write_yaml(folder / f"dropout{draws}.yaml", f"file: dropout.pt\nmc_draws: {draws}\n")
+
+
+@pytest.mark.slow
+def test_a_users_bayesian_policy_runs_the_stage_with_warnings_off_on_and_calibrated(avoid_config, tmp_path):
+    """The avoid stage certifies a user's controller as it does uqdrive's: every cell on the policy's own draws (21 a
+    frame: the tiny profile's warning.samples), the thresholds calibrated on its warnings-off runs and deployed."""
+    result = run_avoid(avoid_config("model=mcd", f"avoid.policy={dropout_policy(tmp_path, 21)}"))
+    saved = json.loads((tmp_path / "metrics/avoid/dropout21-seed0.json").read_text())
+    assert saved == as_dict(result) and result.method == "dropout21" and result.samples_per_frame == 21
+    for condition in result.conditions:
+        for mode in Mode:
+            cell = result.cell(condition, mode)
+            assert cell.n == 4 and 0 <= cell.eta1_low <= cell.eta1 <= cell.eta1_high <= 1
+        assert result.cell(condition, Mode.OFF).handover_rate == 0
+    assert sum(result.cell(c, Mode.OFF).warning2_runs for c in result.conditions) > 0  # counted on its draws
+    certificate = result.calibration.certificate
+    assert certificate.calibration_runs == {KNOWN: 4, "fog": 4} and certificate.candidates > 100
+    assert certificate.rule["tier"]["scheme"] == "fixed" and certificate.rule["tier"]["looks"] == [21]
+    calibrated = result.cell(KNOWN, Mode.CALIBRATED).thresholds
+    assert calibrated == {k: getattr(certificate, k) for k in ("delta1", "delta2", "tau")}
+    assert set(result.calibration.replay_check) == {KNOWN, "fog"}
+
+
+@pytest.mark.parametrize(
+    ("draws", "match"),
+    [
+        (0, r"^avoid.policy=.*plain.yaml: the avoid stage needs a policy that gives draws \(Action.draws: its "),
+        (8, r"^avoid.policy=.*dropout8.yaml: .*dropout.pt gives 8 draws a frame; the warning rule reads 21 "),
+    ],
+)
+def test_a_users_policy_without_the_rules_draws_is_refused_in_one_line_before_any_rollout(
+    avoid_config, tmp_path, monkeypatch, draws, match
+):
+    if draws:
+        path = dropout_policy(tmp_path, draws)
+    else:
+        save_torchscript(linear_module(), tmp_path / "plain.pt")
+        path = write_yaml(tmp_path / "plain.yaml", "file: plain.pt\n")
+    monkeypatch.setattr(runner, "make_executor", lambda *args, **kwargs: pytest.fail("rollouts started"))
+    with pytest.raises(ConfigError, match=match):
+        run_avoid(avoid_config("model=mcd", f"avoid.policy={path}"))
+    assert not (tmp_path / "metrics").exists()

@@ -27,6 +27,7 @@ from uqdrive.avoid.trace_replay import Replay, Traces, replay
 from uqdrive.data.binning import SteeringBins
 from uqdrive.policy.draws import DrawSettings
 from uqdrive.policy.warnings import WarningConfig, WarningRule
+from uqdrive.records import as_dict
 from uqdrive.safety.executors import ControllerSpec
 
 FAST = WarningConfig(theta=0.3)  # the paper's thresholds and actions, 21 draws per frame
@@ -103,13 +104,17 @@ def test_the_chosen_thresholds_are_certified_by_an_exact_p_value_and_the_safest_
     table, chosen = calib.table, calib.chosen
     # the chosen candidate's p-value, recomputed from its replayed hand-overs with binomial coefficients
     handovers = replay(t, [calib.rule], **ARGS).handover[0, t.group == 0]
-    assert (calib.delta1, calib.delta2, calib.tau) == (
+    assert (calib.certificate.delta1, calib.certificate.delta2, calib.certificate.tau) == (
         table["delta1"][chosen],
         table["delta2"][chosen],
         table["tau"][chosen],
     )
     assert binomial_lower_tail(int(handovers.sum()), handovers.size, 1 - target) <= 0.05
-    assert calib.feasible and table["certified"][chosen] and calib.certified == table["certified"].sum()
+    assert (
+        calib.certificate.feasible
+        and table["certified"][chosen]
+        and calib.certificate.certified == table["certified"].sum()
+    )
     # a candidate whose null was not rejected is never chosen: no certified one is safer in the unknown condition
     assert table["eta1_unknown"][chosen] == table["eta1_unknown"][table["certified"]].max()
     assert not table["certified"][table["p_value"] > 0.05].any()
@@ -123,8 +128,11 @@ def test_the_chosen_thresholds_are_certified_by_an_exact_p_value_and_the_safest_
     assert failed.size and table["certified"][sequence].tolist() == [i < failed[0] for i in range(sequence.size)]
     always = np.flatnonzero(table["delta2"] == 1.0)  # hand over at the first frame with any disagreement
     assert not table["certified"][always].any() and table["autonomy"][always].max() < 0.5
-    assert calib.calibration_runs == {"known": 30, "unknown": 40} and calib.learn_runs == {"known": 0, "unknown": 0}
-    assert f"each of the {calib.certified} certified candidates" in calib.guarantee
+    assert calib.certificate.calibration_runs == {"known": 30, "unknown": 40} and calib.certificate.learn_runs == {
+        "known": 0,
+        "unknown": 0,
+    }
+    assert f"each of the {calib.certificate.certified} certified candidates" in calib.certificate.guarantee
 
 
 def test_nothing_certifiable_falls_back_to_the_never_firing_candidate_and_says_so():
@@ -134,12 +142,18 @@ def test_nothing_certifiable_falls_back_to_the_never_firing_candidate_and_says_s
         t, ["known", "unknown"], RULE, DELTAS, TAUS, target=0.8, gamma=0.05, calibration_fraction=0.5, **ARGS
     )
     never = list(zip(calib.table["delta1"], calib.table["delta2"], calib.table["tau"])).index(NEVER_FIRES)
-    assert calib.calibration_runs == {"known": 10, "unknown": 5} and calib.learn_runs == {"known": 10, "unknown": 5}
+    assert calib.certificate.calibration_runs == {"known": 10, "unknown": 5} and calib.certificate.learn_runs == {
+        "known": 10,
+        "unknown": 5,
+    }
     assert calib.table["p_value"][never] == pytest.approx(0.8**10, rel=1e-12)
-    assert not calib.feasible and calib.certified == 0 and calib.chosen == never
-    assert (calib.delta1, calib.delta2, calib.tau) == NEVER_FIRES
-    assert calib.max_target == pytest.approx(0.05 ** (1 / 10)) and "Nothing certified at gamma=0.05" in calib.guarantee
-    assert "can certify known-condition autonomy ≥ 0.741 at most" in calib.guarantee
+    assert not calib.certificate.feasible and calib.certificate.certified == 0 and calib.chosen == never
+    assert (calib.certificate.delta1, calib.certificate.delta2, calib.certificate.tau) == NEVER_FIRES
+    assert (
+        calib.certificate.max_certifiable_target == pytest.approx(0.05 ** (1 / 10))
+        and "Nothing certified at gamma=0.05" in calib.certificate.guarantee
+    )
+    assert "can certify known-condition autonomy ≥ 0.741 at most" in calib.certificate.guarantee
 
 
 def test_fewest_runs_that_can_certify_a_target():
@@ -173,7 +187,10 @@ def test_the_learned_order_reads_only_the_learn_split():
     assert (shaken.table["sequence"] == calib.table["sequence"]).all()
     assert (shaken.table["p_value"] >= calib.table["p_value"]).all()
     assert (shaken.table["p_value"] > calib.table["p_value"]).any()
-    assert calib.calibration_runs == calib.learn_runs == {"known": 15, "unknown": 15} and calib.order == "learned"
+    assert (
+        calib.certificate.calibration_runs == calib.certificate.learn_runs == {"known": 15, "unknown": 15}
+        and calib.certificate.order == "learned"
+    )
     in_order = np.argsort(np.where(calib.table["sequence"] < 0, np.inf, calib.table["sequence"]))
     tested = in_order[: int((calib.table["sequence"] >= 0).sum())]
     certified = calib.table["certified"][tested]
@@ -185,7 +202,7 @@ def test_a_silent_failure_is_never_saved_by_any_threshold():
         traces(), ["known", "unknown"], RULE, [0.5, 0.6, 0.7, 0.9, 0.95, 1.0], [0.45], target=0.02, gamma=0.05, **ARGS
     )
     # the dipping collision can be saved, the silent one never: unknown η̂1 tops out at 1/2
-    assert calib.feasible and calib.table["eta1_unknown"].max() == 0.5
+    assert calib.certificate.feasible and calib.table["eta1_unknown"].max() == 0.5
     assert calib.table["eta1_unknown"][calib.chosen] == 0.5
 
 
@@ -265,12 +282,12 @@ def test_the_certificate_names_the_deployed_rule_and_swapping_its_tier_settings_
     out = {}
     for rule in (loose, tight):
         out[rule] = calibrate(t, ["known", "unknown"], rule, DELTAS, TAUS, target=0.6, gamma=0.05, **ARGS)
-        assert out[rule].rule.draws is rule.draws and out[rule].feasible
-        assert f"Chosen and deployed rule: {out[rule].rule.describe()}." in out[rule].guarantee
-    assert "sequential tier rule theta=0.2, gamma=0.1" in out[loose].guarantee
-    assert "sequential tier rule theta=0.1, gamma=0.05" in out[tight].guarantee
-    assert out[loose].guarantee != out[tight].guarantee
-    assert "exact up to a run's first warning action" in out[tight].guarantee
+        assert out[rule].rule.draws is rule.draws and out[rule].certificate.feasible
+        assert f"Chosen and deployed rule: {out[rule].rule.describe()}." in out[rule].certificate.guarantee
+    assert "sequential tier rule theta=0.2, gamma=0.1" in out[loose].certificate.guarantee
+    assert "sequential tier rule theta=0.1, gamma=0.05" in out[tight].certificate.guarantee
+    assert out[loose].certificate.guarantee != out[tight].certificate.guarantee
+    assert "exact up to a run's first warning action" in out[tight].certificate.guarantee
     assert not np.array_equal(out[loose].table["p_value"], out[tight].table["p_value"])  # the tiers differ
 
 
@@ -281,7 +298,7 @@ def test_the_calibrated_cell_deploys_the_very_rule_it_certified(random_models):
     spec = ControllerSpec(8.0, str(random_models["vi"]), "vi", SteeringBins(), calib.rule.cap, 0.1, draws=rule.draws)
     deployed = dataclasses.replace(spec, warnings=calib.rule).build(15.0)
     assert deployed.rule is calib.rule and deployed.tier is calib.rule.tier
-    assert (calib.delta1, calib.delta2, calib.tau) == (
+    assert (calib.certificate.delta1, calib.certificate.delta2, calib.certificate.tau) == (
         deployed.rule.config.delta1,
         deployed.rule.config.delta2,
         deployed.rule.config.tau,
@@ -310,28 +327,28 @@ def test_the_fresh_seed_check_declares_a_target_met_at_most_at_its_level_when_au
     for k, check in enumerate(checks):
         assert (check.runs, check.autonomous) == (runs, k)
         assert check.p_value == pytest.approx(binomial_upper_tail(k, runs, target), rel=1e-9, abs=1e-15)
-    met = np.array([c.met for c in checks])
+    met = np.array([c.target_met for c in checks])
     worst = 0.0
     for a in np.linspace(0, target, 401)[:-1]:  # H0: a < target
         pmf = np.array([math.comb(runs, k) * a**k * (1 - a) ** (runs - k) for k in range(runs + 1)])
         worst = max(worst, float(pmf[met].sum()))
     assert worst <= level
-    assert checks[-1].met == (target**runs <= level)
+    assert checks[-1].target_met == (target**runs <= level)
     if runs >= 36:
         assert worst > level / 5  # the test is not vacuous
 
 
 def test_the_fresh_seed_check_is_a_record_with_its_p_value():
     check = fresh_seed_check([False] * 14, 0.8, 0.05)
-    assert check.to_dict() == {
+    assert as_dict(check) == {
         "runs": 14,
         "autonomous": 14,
         "target": 0.8,
         "level": 0.05,
         "p_value": pytest.approx(0.8**14),
-        "met": True,
+        "target_met": True,
     }
-    assert not fresh_seed_check([False] * 13 + [True], 0.8, 0.05).met  # 13/14 = 0.93 ≥ 0.8, but p = 0.198
+    assert not fresh_seed_check([False] * 13 + [True], 0.8, 0.05).target_met  # 13/14 = 0.93 ≥ 0.8, but p = 0.198
     with pytest.raises(ValueError, match="one hand-over flag per run"):
         fresh_seed_check([], 0.8, 0.05)
 

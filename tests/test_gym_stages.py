@@ -299,7 +299,7 @@ def test_the_avoid_stage_runs_in_a_gym_world_whose_unknown_condition_is_the_worl
         assert on.terminations["handover"] > 0 and set(on.terminations) <= {"timeout", "collision", "handover"}
         assert all(a >= b for a, b in zip(on.outcomes, off.outcomes)), (on.outcomes, off.outcomes)
     saved = json.loads((tmp_path / "metrics/avoid/mcd-seed0.json").read_text())
-    assert saved["calibration"]["calibration_runs"] == {"known": 12, "risky": 12}
+    assert saved["calibration"]["certificate"]["calibration_runs"] == {"known": 12, "risky": 12}
     with np.load(tmp_path / "data/avoid/mcd-seed0/traces/mcd-seed0-risky-off.npz") as data:
         assert data["obstacle"].size == 0 and (np.diff(data["distance"][data["rollout"] == 0]) < 0).all()
     for name in ("trajectories", "warnings", "tradeoff"):

@@ -12,7 +12,16 @@ import pytest
 from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_comparisons
 from uqdrive.analysis.method_answers import summarise_avoid, summarise_methods
 from uqdrive.analysis.method_claims import method_claims
-from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
+from uqdrive.avoid.results import (
+    AvoidCell,
+    AvoidResult,
+    CalibrationSummary,
+    Certificate,
+    FreshSeedCheck,
+    FreshSeedRecord,
+    MixtureEstimate,
+    Mode,
+)
 from uqdrive.data.frames import encode_png
 from uqdrive.data.preprocess import Preprocessed
 from uqdrive.envelope.map_records import EnvelopeAxis, EnvelopeRegion, EnvelopeResult, EnvelopeSearch, GridCost
@@ -79,15 +88,18 @@ def avoid_cell(rng, mode) -> AvoidCell:
 def avoid_result(rng, method, seed) -> AvoidResult:
     cells = {c: {m: avoid_cell(rng, m) for m in Mode} for c in CONDITIONS}
     unknown = {m: MixtureEstimate(cells["fog"][m].eta1, 0.0, 1.0, 0.3, 0.05, N, 0.5, "hoeffding") for m in Mode}
-    calibration = CalibrationSummary(
+    certificate = Certificate(
         **dict(delta1=0.9, delta2=0.8, tau=0.45, feasible=True, certified=12, guarantee=f"{method} certified"),
         **dict(autonomy_target=0.8, max_certifiable_target=0.85, gamma=0.05, missed_limit=None, order="firing"),
         **dict(calibration_runs={"known": N, "fog": N}, learn_runs={"known": 0, "fog": 0}, candidates=729),
         replayed={"eta1_unknown": 0.6},
-        fresh_seed_check=FreshSeedRecord(N, N, 0.8, 0.05, 0.8**N, True, 1.0, 0.9, 0.5, 300000),
         rule={"delta1": 0.9, "delta2": 0.8, "tau": 0.45, "tier": {"scheme": "sequential", "wrong_tier_error": 0.02}},
         middle_guaranteed=False,
         refused={},
+    )
+    calibration = CalibrationSummary(
+        certificate=certificate,
+        fresh_seed_check=FreshSeedRecord(FreshSeedCheck(N, N, 0.8, 0.05, 0.8**N, True), 1.0, 0.9, 0.5, 300000),
         uncaught_variants=[
             {"condition": "fog", "eta1_off": 0.4, "min_eta2_median": 0.97, "max_mutual_information_median": 0.1}
         ]
@@ -330,10 +342,10 @@ def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp
     write_run(tmp_path / "again")
     path = tmp_path / "again/metrics/avoid/vi-seed1.json"
     stale = json.loads(path.read_text())
-    del stale["calibration"]["guarantee"]  # written by older code
+    del stale["calibration"]["certificate"]["guarantee"]  # written by older code
     path.write_text(json.dumps(stale))
     with pytest.raises(
-        ValueError, match=r"vi-seed1.json: calibration.guarantee is required; rerun dvc repro avoid@vi-1"
+        ValueError, match=r"vi-seed1.json: calibration.certificate.guarantee is required; rerun dvc repro avoid@vi-1"
     ):
         run_report(stage_config("report", f"paths.root={tmp_path}/again"))
     assert not (tmp_path / "reports").exists()

@@ -171,7 +171,7 @@ def summarise_avoid(results: list[AvoidResult], methods: list[str]) -> AvoidSumm
 
 
 def deployed_rule(result: AvoidResult) -> DeployedRule:
-    k = result.calibration
+    k, fresh = result.calibration.certificate, result.calibration.fresh_seed_check.check
     return DeployedRule(
         result.method,
         result.replicate,
@@ -179,7 +179,7 @@ def deployed_rule(result: AvoidResult) -> DeployedRule:
         k.guarantee,
         float(k.rule["tier"]["wrong_tier_error"]),
         k.middle_guaranteed,
-        k.fresh_seed_check.runs,
-        k.fresh_seed_check.p_value,
-        k.fresh_seed_check.target_met,
+        fresh.runs,
+        fresh.p_value,
+        fresh.target_met,
     )

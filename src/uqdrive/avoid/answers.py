@@ -8,76 +8,51 @@ from collections import Counter
 
 import numpy as np
 
-from uqdrive.avoid.calibration import Calibration, fresh_seed_check
-from uqdrive.avoid.cells import Cell, handed_over, handover_distances, levels
-from uqdrive.avoid.plan import AvoidSettings
+from uqdrive.avoid.calibration import Calibration
+from uqdrive.avoid.cells import AvoidRun, Cell, handed_over, handover_distances, levels
 from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
-from uqdrive.avoid.trace_replay import Traces, replay
 from uqdrive.policy.warnings import LEVELS
-from uqdrive.safety.failures import RolloutFailure, job_failures
 from uqdrive.sim import ScenarioGeometry
-from uqdrive.sim.condition import Mixture
+from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.uq.pooled import pooled
 
 
-def avoid_result(
-    settings: AvoidSettings,
-    cells: dict[tuple[str, Mode], Cell],
-    calib: Calibration,
-    traces: Traces,
-    geometries: dict[str, ScenarioGeometry | None],
-    seconds: float,
-) -> AvoidResult:
-    """metrics/avoid/<method>-<replicate>.json from the stage's finished cells and calibration: every cell's
-    metrics, the unknown conditions' mixture per mode, the calibration with its replay and fresh-seed checks."""
-    names = [c.name for c in settings.conditions]
-    unknown = names[1:]
-    fixed, family = settings.fixed_rollouts(), settings.family_size
+def avoid_result(run: AvoidRun) -> AvoidResult:
+    """metrics/avoid/<method>-<replicate>.json from the stage's run: every cell's metrics, the unknown conditions'
+    mixture per mode, the calibration with its replay and fresh-seed checks."""
+    settings, names, cells = run.settings, run.names, run.cells
+    fixed, family, cruise = settings.fixed_rollouts(), settings.family_size, settings.spec.speed
     table = {name: {} for name in names}
-    where = {c.name: c for c in settings.conditions}
     for (condition, mode), cell in cells.items():
-        failures = job_failures(settings.job(where[condition], None, cell.base_seed), cell.results)
-        table[condition][mode] = cell_metrics(cell, settings.spec.speed, geometries[condition], fixed, family, failures)
+        table[condition][mode] = cell_metrics(cell, cruise, run.geometries[condition], fixed, family)
     mixture = {
         mode: unknown_mixture(
-            [cells[name, mode] for name in unknown],
-            [table[name][mode] for name in unknown],
+            [cells[name, mode] for name in names[1:]],
+            [table[name][mode] for name in names[1:]],
             settings.estimator.gamma,
-            settings,
+            settings.unknown[0],
+            fixed,
         )
         for mode in Mode
     }
-    known = table[names[0]][Mode.CALIBRATED]
-    sizing = settings.calibration
-    handed = handed_over(cells[names[0], Mode.CALIBRATED])[: sizing.fresh_runs()]
-    test = fresh_seed_check(handed, sizing.fresh_check.target, sizing.fresh_level())
+    known, check = table[names[0]][Mode.CALIBRATED], run.fresh_check
     fresh = FreshSeedRecord(
-        test.runs,
-        test.autonomous,
-        test.target,
-        test.level,
-        test.p_value,
-        test.met,
-        test.autonomous / test.runs,
-        known.eta1,
-        mixture[Mode.CALIBRATED].eta1,
-        settings.validation_seed,
+        check, check.autonomous / check.runs, known.eta1, mixture[Mode.CALIBRATED].eta1, settings.validation_seed
     )
-    check = replay_check(cells, names, settings, traces)
-    calibration = calibration_summary(calib, uncaught_variants(calib, cells, unknown), check, fresh)
+    uncaught = uncaught_variants(run.calibration, cells, names[1:])
     return AvoidResult(
         method=settings.method,
         replicate=settings.seed,
         experiment=settings.stage.experiment.name,
         cells=table,
         unknown=mixture,
-        calibration=calibration,
+        calibration=CalibrationSummary(run.calibration.certificate, fresh, uncaught, run.replay_check),
         warning=settings.rule.to_dict(),
         samples_per_frame=settings.rule.cap,
         conditions=names,
         horizon_s=settings.horizon_s,
         speed=settings.spec.speed,
-        seconds=seconds,
+        seconds=run.seconds,
     )
 
 
@@ -87,11 +62,10 @@ def cell_metrics(
     geometry: ScenarioGeometry | None,
     fixed_rollouts: int,
     family_size: int,
-    failures: list[RolloutFailure] | None = None,
 ) -> AvoidCell:
     """η̂1 with its interval, autonomy, passed and timeout rates, hand-over distances, warning counts, each run's
     verdict in rollout order (``fixed_rollouts``: how many every cell runs whatever the outcomes) and its
-    ``failures`` (`uqdrive.safety.failures.job_failures`)."""
+    failures."""
     results, est = cell.results, cell.estimate
     per_run = [levels(cell, r) for r in results]
     handed = handed_over(cell)
@@ -136,19 +110,19 @@ def cell_metrics(
         thresholds={"delta1": cell.rule.config.delta1, "delta2": cell.rule.config.delta2, "tau": cell.rule.config.tau},
         base_seed=cell.base_seed,
         outcomes="".join("1" if r.safe else "0" for r in results),
-        failures=failures or [],
+        failures=cell.failures,
     )
 
 
 def unknown_mixture(
-    cells: list[Cell], metrics: list[AvoidCell], gamma: float, settings: AvoidSettings
+    cells: list[Cell], metrics: list[AvoidCell], gamma: float, mixture: Condition | Mixture, fixed_rollouts: int
 ) -> MixtureEstimate:
     """η̂1 of the unknown conditions as one uniform mixture: of their cells (Hoeffding interval, fixed n), or the
-    mixture cell's own estimate (its rollouts drew their variant) with each variant's share of its fixed sample."""
-    mixture = settings.unknown[0]
+    mixture cell's own estimate (its rollouts drew their variant: ``mixture``, the first unknown condition) with
+    each variant's share of its ``fixed_rollouts``."""
     if isinstance(mixture, Mixture):
         (cell,), est, variants = cells, cells[0].estimate, mixture.variants
-        first = cell.results[: settings.fixed_rollouts()]
+        first = cell.results[:fixed_rollouts]
         drawn = [mixture.variant(cell.base_seed + i) for i in range(len(first))]
         shares = {
             item.name: {"runs": drawn.count(v), "safe": sum(r.safe for r, d in zip(first, drawn) if d == v)}
@@ -185,58 +159,3 @@ def uncaught_variants(calib: Calibration, cells: dict[tuple[str, str], Cell], na
                 }
             )
     return out
-
-
-def replay_check(
-    cells: dict[tuple[str, str], Cell],
-    calib_groups: list[str],
-    settings: AvoidSettings,
-    traces: Traces,
-) -> dict:
-    """The replay at the configured thresholds against the warnings-on cells on the same seeds: how well
-    the approximation predicts closed loop, run by run."""
-    out = replay(traces, [settings.rule], **settings.replay_args())
-    check = {}
-    for g, name in enumerate(calib_groups):
-        replayed = out.safe[0, traces.group == g]
-        safe = np.array([r.safe for r in cells[name, Mode.ON].results[: len(replayed)]])
-        check[name] = {
-            "replayed_eta1": float(replayed.mean()),
-            "closed_loop_eta1": float(safe.mean()),
-            "agreement": float(np.mean(replayed == safe)),
-        }
-    return check
-
-
-def calibration_summary(
-    calib: Calibration, uncaught: list[dict], check: dict, fresh: FreshSeedRecord
-) -> CalibrationSummary:
-    """The chosen thresholds, what Learn-then-Test certified (and in what words), the replay at them, and the
-    closed-loop check on fresh seeds (``fresh``)."""
-    row = {
-        k: (v[calib.chosen].item() if hasattr(v[calib.chosen], "item") else v[calib.chosen])
-        for k, v in calib.table.items()
-    }
-    return CalibrationSummary(
-        delta1=calib.delta1,
-        delta2=calib.delta2,
-        tau=calib.tau,
-        feasible=calib.feasible,
-        certified=calib.certified,
-        guarantee=calib.guarantee,
-        autonomy_target=calib.target,
-        max_certifiable_target=calib.max_target,
-        gamma=calib.gamma,
-        missed_limit=calib.missed_limit,
-        order=calib.order,
-        calibration_runs=calib.calibration_runs,
-        learn_runs=calib.learn_runs,
-        candidates=len(calib.table["delta1"]),
-        replayed={k: v for k, v in row.items() if k not in ("delta1", "delta2", "tau")},
-        fresh_seed_check=fresh,
-        uncaught_variants=uncaught,
-        replay_check=check,
-        rule=calib.rule.to_dict(),
-        middle_guaranteed=calib.rule.tier.middle_guaranteed,
-        refused={f"{d1:g}/{d2:g}": why for (d1, d2), why in calib.refused.items()},
-    )

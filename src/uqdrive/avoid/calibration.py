@@ -29,10 +29,12 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from scipy import special
 
+from uqdrive.avoid.results import Certificate, FreshSeedCheck
 from uqdrive.avoid.trace_replay import Replay, Traces, replay
 from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.schema import ConfigError
@@ -44,12 +46,10 @@ from uqdrive.uq.ltt import fixed_sequence, interleaved_split, pareto_order, rate
 class Calibration:
     """The chosen rule, what Learn-then-Test certified, and every candidate's replayed outcome.
 
-    ``rule``: the chosen candidate, the `WarningRule` object the calibrated cells deploy (δ1, δ2, τ: its
-    thresholds). ``feasible``: it is certified (False: nothing was, and it is the never-firing one).
-    ``certified``: how many candidates are. ``calibration_runs``/``learn_runs``: runs per condition in each
-    split. ``max_target``: the highest autonomy target the known calibration runs could certify at level γ
-    (no hand-over in any). ``refused``: candidate (δ1, δ2) pairs left out, their tier rule refused (why).
-    ``guarantee``: the claim in words, or what could not be certified.
+    ``rule``: the chosen candidate, the `WarningRule` object the calibrated cells deploy; ``certificate``: what
+    Learn-then-Test certified for it, as the stage's record keeps it; ``configured_safe``: each run's replayed
+    outcome at the thresholds ``calibrate`` was given (the configured ones, which the closed-loop warnings-on
+    cells drive: `replay_check`), replayed with the candidates.
 
     ``table`` columns per candidate: delta1, delta2, tau; autonomy (known runs with no hand-over) and
     autonomy_low (its own exact lower bound at level 1 − γ: descriptive, it does not account for the
@@ -61,76 +61,50 @@ class Calibration:
     """
 
     rule: WarningRule
-    feasible: bool
-    target: float
-    gamma: float
     table: dict[str, np.ndarray]
     chosen: int
-    certified: int
-    calibration_runs: dict[str, int]
-    learn_runs: dict[str, int]
-    order: str
-    missed_limit: float | None
-    max_target: float
-    refused: dict[tuple[float, float], str] = dataclasses.field(default_factory=dict)
+    certificate: Certificate
+    configured_safe: np.ndarray  # [R]
 
-    @property
-    def delta1(self) -> float:
-        return self.rule.config.delta1
 
-    @property
-    def delta2(self) -> float:
-        return self.rule.config.delta2
-
-    @property
-    def tau(self) -> float:
-        return self.rule.config.tau
-
-    @property
-    def guarantee(self) -> str:
-        """The claim in words, naming the rule it holds for, or why there is none."""
-        runs = f"{next(iter(self.calibration_runs.values()))} known-condition calibration runs"
-        if not self.feasible:
-            first = self.table["p_value"][self.table["sequence"] == 0]
-            return (
-                f"Nothing certified at gamma={self.gamma:g}: the first candidate of the {self.order} order has "
-                f"p = {first[0] if first.size else 1.0:.3g}. {runs} can certify known-condition autonomy "
-                f"≥ {self.max_target:.3f} at most (no hand-over in any); fell back to the never-firing thresholds "
-                f"(no warnings): {self.rule.describe()}."
-            )
-        missed = (
-            ""
-            if self.missed_limit is None
-            else f" and a replayed missed-collision rate ≤ {self.missed_limit:g} in every unknown condition"
-        )
+def guarantee(
+    rule: WarningRule,
+    table: dict[str, np.ndarray],
+    known_runs: int,
+    certified: int,
+    *,
+    gamma: float,
+    order: str,
+    target: float,
+    max_target: float,
+    missed_limit: float | None,
+) -> str:
+    """The claim in words, naming the rule it holds for, or why there is none (``certified`` 0: nothing was, and
+    ``rule`` is the never-firing candidate; ``known_runs``: the known condition's calibration runs)."""
+    runs = f"{known_runs} known-condition calibration runs"
+    if not certified:
+        first = table["p_value"][table["sequence"] == 0]
         return (
-            f"With probability ≥ {1 - self.gamma:g}, each of the {self.certified} certified candidates, the chosen "
-            f"one among them, keeps the replayed known-condition autonomy ≥ {self.target:g}{missed} "
-            f"(Learn-then-Test: exact binomial p-values on {runs}, fixed-sequence testing along the {self.order} "
-            f"order). Chosen and deployed rule: {self.rule.describe()}. The replay reads each run's recorded η2 "
-            "draws as this rule's controller reads them, so it is exact up to a run's first warning action; after "
-            "a slow-down the closed-loop path departs from the recorded one, which the replay keeps (an "
-            "approximation). It assumes independent runs whose number was fixed before they ran. The closed-loop "
-            "claim is the fresh-seed check's."
+            f"Nothing certified at gamma={gamma:g}: the first candidate of the {order} order has "
+            f"p = {first[0] if first.size else 1.0:.3g}. {runs} can certify known-condition autonomy "
+            f"≥ {max_target:.3f} at most (no hand-over in any); fell back to the never-firing thresholds "
+            f"(no warnings): {rule.describe()}."
         )
-
-
-@dataclasses.dataclass(frozen=True)
-class FreshSeedCheck:
-    """The deployed rule's known-condition autonomy on fresh closed-loop runs, by one exact test fixed in advance:
-    H0 "autonomy < ``target``" (autonomy: the share of runs without a hand-over), one-sided exact binomial,
-    p = P(Bin(``runs``, target) ≥ ``autonomous``). ``met``: H0 rejected at ``level`` — a rule whose autonomy is
-    below the target is declared to meet it with probability ≤ level."""
-
-    runs: int
-    autonomous: int
-    target: float
-    level: float
-    p_value: float
-    met: bool
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+    missed = (
+        ""
+        if missed_limit is None
+        else (f" and a replayed missed-collision rate ≤ {missed_limit:g} in every unknown condition")
+    )
+    return (
+        f"With probability ≥ {1 - gamma:g}, each of the {certified} certified candidates, the chosen "
+        f"one among them, keeps the replayed known-condition autonomy ≥ {target:g}{missed} "
+        f"(Learn-then-Test: exact binomial p-values on {runs}, fixed-sequence testing along the {order} "
+        f"order). Chosen and deployed rule: {rule.describe()}. The replay reads each run's recorded η2 "
+        "draws as this rule's controller reads them, so it is exact up to a run's first warning action; after "
+        "a slow-down the closed-loop path departs from the recorded one, which the replay keeps (an "
+        "approximation). It assumes independent runs whose number was fixed before they ran. The closed-loop "
+        "claim is the fresh-seed check's."
+    )
 
 
 def fresh_seed_check(handed_over: Sequence[bool] | np.ndarray, target: float, level: float) -> FreshSeedCheck:
@@ -317,7 +291,8 @@ def calibrate(
     _check_calibration(traces, groups, order, calibration_fraction)
     rules, refused = candidate_rules(rule, deltas, taus)
     thresholds = tuple(np.array([getattr(r.config, k) for r in rules]) for k in ("delta1", "delta2", "tau"))
-    out = replay(traces, rules, **replay_args)
+    both = replay(traces, [*rules, rule], **replay_args)  # the configured rule beside, for the replay check
+    out = Replay(both.safe[:-1], both.handover[:-1], both.full_speed[:-1])
     index = run_index(traces.group)
     calibrating = interleaved_split(int(index.max()) + 1, calibration_fraction)[index]
     table = replayed_table(out, traces, groups, thresholds, gamma)
@@ -327,22 +302,59 @@ def calibrate(
         {name: int(np.sum(part & (traces.group == g))) for g, name in enumerate(groups)}
         for part in (calibrating, ~calibrating)
     )
-    known = split[groups[0]]
-    return Calibration(
-        rules[best],
-        bool(table["certified"][best]),
-        float(target),
-        float(gamma),
-        table,
-        best,
-        int(table["certified"].sum()),
-        split,
-        learn,
-        order,
-        missed_limit,
-        float(gamma ** (1 / known)) if known else 0.0,
-        refused,
+    claim = dict(target=float(target), gamma=float(gamma), order=order, missed_limit=missed_limit)
+    certificate = certificate_of(rules[best], table, best, split, learn, refused, **claim)
+    return Calibration(rules[best], table, best, certificate, both.safe[-1])
+
+
+def certificate_of(
+    chosen: WarningRule,
+    table: dict[str, np.ndarray],
+    best: int,
+    split: dict[str, int],
+    learn: dict[str, int],
+    refused: dict[tuple[float, float], str],
+    **claim: Any,
+) -> Certificate:
+    """The record of what `calibrate` certified for the ``chosen`` candidate (row ``best`` of ``table``; ``split``
+    and ``learn``: runs per condition, the known one first; ``claim``: target, gamma, order, missed_limit)."""
+    known = next(iter(split.values()))
+    certified = int(table["certified"].sum())
+    max_target = float(claim["gamma"] ** (1 / known)) if known else 0.0
+    return Certificate(
+        **{k: getattr(chosen.config, k) for k in ("delta1", "delta2", "tau")},
+        feasible=bool(table["certified"][best]),
+        certified=certified,
+        guarantee=guarantee(chosen, table, known, certified, max_target=max_target, **claim),
+        autonomy_target=claim["target"],
+        max_certifiable_target=max_target,
+        gamma=claim["gamma"],
+        missed_limit=claim["missed_limit"],
+        order=claim["order"],
+        calibration_runs=split,
+        learn_runs=learn,
+        candidates=len(table["delta1"]),
+        replayed={k: v[best].item() for k, v in table.items() if k not in ("delta1", "delta2", "tau")},
+        rule=chosen.to_dict(),
+        middle_guaranteed=chosen.tier.middle_guaranteed,
+        refused={f"{d1:g}/{d2:g}": why for (d1, d2), why in refused.items()},
     )
+
+
+def replay_check(calib: Calibration, group: np.ndarray, names: list[str], closed_loop: list[list[bool]]) -> dict:
+    """The replay at the configured thresholds (``calib.configured_safe``) against the warnings-on cells on the same
+    seeds (``closed_loop``: each condition's outcomes, in ``names``' order): how well the approximation predicts
+    closed loop, run by run."""
+    check = {}
+    for g, name in enumerate(names):
+        replayed = calib.configured_safe[group == g]
+        safe = np.array(closed_loop[g][: len(replayed)])
+        check[name] = {
+            "replayed_eta1": float(replayed.mean()),
+            "closed_loop_eta1": float(safe.mean()),
+            "agreement": float(np.mean(replayed == safe)),
+        }
+    return check
 
 
 def certify(

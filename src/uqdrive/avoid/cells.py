@@ -1,5 +1,6 @@
 """One collision-avoidance cell (condition × warnings mode): its rollouts, the warning levels and hand-over places
-read off them, distances along the obstacle road, the traces the threshold calibration replays, a figure panel.
+read off them, distances along the obstacle road, the traces the threshold calibration replays, a figure panel, the
+rows and arrays its files hold; and the stage's run of them all (`AvoidRun`).
 
 A Gymnasium world (geometry None) has no road of ours and no fixed hazard: progress is metres driven along the run's
 own path, a frame's distance is the metres left before the run ended (where an unsafe run crashed or left the
@@ -8,12 +9,16 @@ road), and no hand-over has a distance to an obstacle."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
-from uqdrive.avoid.results import Mode
+from uqdrive.avoid.calibration import Calibration
+from uqdrive.avoid.plan import AvoidSettings
+from uqdrive.avoid.results import FreshSeedCheck, Mode
 from uqdrive.avoid.trace_replay import Traces
 from uqdrive.policy.warnings import LEVELS, WarningRule
+from uqdrive.safety.failures import RolloutFailure
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.uq import Estimate
@@ -22,7 +27,8 @@ from uqdrive.uq import Estimate
 @dataclasses.dataclass
 class Cell:
     """A finished cell: its estimate, rollouts and the warning rule its warnings are raised or counted with.
-    ``reused``: every rollout came from an earlier run's log of the same cell."""
+    ``reused``: every rollout came from an earlier run's log of the same cell. ``failures``: its failing runs
+    (`uqdrive.safety.failures.job_failures`)."""
 
     name: str
     condition: str
@@ -33,6 +39,24 @@ class Cell:
     seconds: float
     reused: bool
     base_seed: int
+    failures: list[RolloutFailure]
+
+
+@dataclasses.dataclass(frozen=True)
+class AvoidRun:
+    """One avoid stage's work, each part computed once by its drive: the settings it ran, the condition names (the
+    known one first) and their road geometries, every cell by condition and mode, the calibration, the replay at the
+    configured thresholds against closed loop (`calibration.replay_check`) and the fresh-seed check of the deployed
+    rule. Its answers, figures, files and logging read it."""
+
+    settings: AvoidSettings
+    names: list[str]
+    geometries: dict[str, ScenarioGeometry | None]
+    cells: dict[tuple[str, Mode], Cell]
+    calibration: Calibration
+    replay_check: dict[str, dict[str, float]]
+    fresh_check: FreshSeedCheck
+    seconds: float
 
 
 def levels(cell: Cell, result: RolloutResult) -> np.ndarray:
@@ -130,3 +154,62 @@ def panel(cell: Cell, geometry: ScenarioGeometry | None) -> dict:
         "road": road_box(geometry),
         "title": f"η̂1 = {cell.estimate.value:.2f} [{cell.estimate.low:.2f}, {cell.estimate.high:.2f}]",
     }
+
+
+def rollout_rows(cell: Cell) -> list[dict]:
+    """Per-rollout rows of a cell's table: outcome, steps, time at full speed, min η2, max MI, frames per warning
+    level."""
+    rows = []
+    for r in cell.results:
+        lv = levels(cell, r)
+        rows.append(
+            {
+                **r.summary(),
+                "min_eta2": float(np.min(r.eta2)) if r.steps else math.nan,
+                "max_mutual_information": float(np.max(r.mutual_information)) if r.steps else math.nan,
+                **{f"warning{level}_frames": int(np.sum(lv == level)) for level in LEVELS},
+            }
+        )
+    return rows
+
+
+def cell_arrays(cell: Cell, geometry: ScenarioGeometry | None) -> dict[str, np.ndarray | float]:
+    """Per-frame traces of a cell for the summary figure: positions, distance (`distances`), η2, MI, level; each
+    run's termination and outcome, η̂1, the obstacle and road boxes (empty in a Gymnasium world)."""
+    frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
+    for i, r in enumerate(cell.results):
+        for key, value in (
+            ("rollout", np.full(r.steps, i)),
+            ("x", r.x[:-1]),
+            ("y", r.y[:-1]),
+            ("distance", distances(r, geometry)),
+            ("eta2", r.eta2),
+            ("mi", r.mutual_information),
+            ("level", levels(cell, r)),
+        ):
+            frames[key].append(value)
+    return {
+        **{k: np.concatenate(v) if v else np.zeros(0) for k, v in frames.items()},
+        "termination": np.array([r.termination for r in cell.results]),
+        "safe": np.array([r.safe for r in cell.results]),
+        "eta1": cell.estimate.value,
+        "obstacle": obstacle_box(geometry),
+        "road": road_box(geometry),
+    }
+
+
+def signal_rows(cells: list[Cell], geometries: dict[str, ScenarioGeometry | None]) -> list[dict]:
+    """η2 and MI per frame against the distance (`distances`): the rows of a DVC plot."""
+    return [
+        {
+            "condition": cell.condition,
+            "rollout": i,
+            "distance": f"{d:.3f}",
+            "eta2": f"{e:.4f}",
+            "mutual_information": f"{m:.4f}",
+            "outcome": r.termination,
+        }
+        for cell in cells
+        for i, r in enumerate(cell.results)
+        for d, e, m in zip(distances(r, geometries[cell.condition]), r.eta2, r.mutual_information)
+    ]

@@ -1,87 +1,27 @@
-"""The files an avoid stage writes per cell and for its calibration: per-rollout tables and the trade-off (CSV, DVC
-plot data), per-frame traces (npz, for the summary figure) and η2 / MI against the distance to the obstacle (in a
-Gymnasium world: the metres before the run ended, `uqdrive.avoid.cells.distances`)."""
+"""The files an avoid stage writes beside its record: per-frame traces of each cell (npz, for the summary figure;
+`uqdrive.avoid.cells.cell_arrays` computes them) and the calibration's trade-off (CSV, DVC plot data); and the
+summary's reading of the traces back. Writers only write: the rows and arrays are computed in `uqdrive.avoid.cells`
+and the stage's other tables go through `uqdrive.files.write_csv` as they are."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
-from uqdrive.avoid.calibration import Calibration
-from uqdrive.avoid.cells import Cell, distances, levels, obstacle_box, road_box
 from uqdrive.files import atomic_path, write_csv
-from uqdrive.policy.warnings import LEVELS
-from uqdrive.sim import ScenarioGeometry
 
 
-def write_cell_table(path: Path, cell: Cell) -> Path:
-    """Per-rollout rows: outcome, steps, time at full speed, min η2, max MI, frames per warning level."""
-    rows = []
-    for r in cell.results:
-        lv = levels(cell, r)
-        rows.append(
-            {
-                **r.summary(),
-                "min_eta2": float(np.min(r.eta2)) if r.steps else math.nan,
-                "max_mutual_information": float(np.max(r.mutual_information)) if r.steps else math.nan,
-                **{f"warning{level}_frames": int(np.sum(lv == level)) for level in LEVELS},
-            }
-        )
-    return write_csv(path, rows)
-
-
-def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry | None) -> Path:
-    """Per-frame traces of a cell (npz) for the summary figure: positions, distance (`distances`), η2, MI, level;
-    the obstacle and road boxes (empty in a Gymnasium world)."""
-    frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
-    for i, r in enumerate(cell.results):
-        for key, value in (
-            ("rollout", np.full(r.steps, i)),
-            ("x", r.x[:-1]),
-            ("y", r.y[:-1]),
-            ("distance", distances(r, geometry)),
-            ("eta2", r.eta2),
-            ("mi", r.mutual_information),
-            ("level", levels(cell, r)),
-        ):
-            frames[key].append(value)
+def write_cell_data(path: Path, arrays: dict[str, np.ndarray | float]) -> Path:
+    """A cell's per-frame traces (`uqdrive.avoid.cells.cell_arrays`) as npz, for the summary figure."""
     with atomic_path(path) as tmp, tmp.open("wb") as f:
-        np.savez_compressed(
-            f,
-            **{k: np.concatenate(v) if v else np.zeros(0) for k, v in frames.items()},
-            termination=np.array([r.termination for r in cell.results]),
-            safe=np.array([r.safe for r in cell.results]),
-            eta1=cell.estimate.value,
-            obstacle=obstacle_box(geometry),
-            road=road_box(geometry),
-        )
+        np.savez_compressed(f, **arrays)
     return path
 
 
-def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioGeometry | None]) -> Path:
-    """η2 and MI per frame against the distance (`distances`; a DVC plot)."""
-    return write_csv(
-        path,
-        [
-            {
-                "condition": cell.condition,
-                "rollout": i,
-                "distance": f"{d:.3f}",
-                "eta2": f"{e:.4f}",
-                "mutual_information": f"{m:.4f}",
-                "outcome": r.termination,
-            }
-            for cell in cells
-            for i, r in enumerate(cell.results)
-            for d, e, m in zip(distances(r, geometries[cell.condition]), r.eta2, r.mutual_information)
-        ],
-    )
-
-
-def write_tradeoff(path: Path, calib: Calibration) -> Path:
-    return write_csv(path, [{k: _fmt(v[i]) for k, v in calib.table.items()} for i in range(len(calib.table["delta1"]))])
+def write_tradeoff(path: Path, table: dict[str, np.ndarray]) -> Path:
+    """Every candidate's row of the calibration's table (`uqdrive.avoid.calibration.Calibration`)."""
+    return write_csv(path, [{k: _fmt(v[i]) for k, v in table.items()} for i in range(len(table["delta1"]))])
 
 
 def _fmt(value: object) -> str:

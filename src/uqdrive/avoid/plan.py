@@ -6,11 +6,15 @@ The world is uqdrive's obstacle road, or any Gymnasium world (``gym_world=<conf/
 condition is the world as configured, each unknown one the world with some of its own config changed
 (``avoid.unknown[i].world``: dotted keys under gym_world, e.g. the other vehicles' driver) or its frames noisier. A
 Gymnasium world has no fixed hazard: a run is judged by its ``safe_if``, distances are metres driven along its own
-path, and its rate and horizon are the world's."""
+path, and its rate and horizon are the world's.
+
+What drives is the experiment's trained controller, or a user's policy that gives draws (``avoid.policy``: its own
+n draws a frame, the warnings read at once by the paper's fixed tier rule, n = warning.samples)."""
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -23,9 +27,10 @@ from uqdrive.avoid.results import Mode
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.policy.draws import DrawSettings
 from uqdrive.policy.warnings import WarningConfig, WarningRule
-from uqdrive.resolvers import world_location
+from uqdrive.resolvers import driver, world_location
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
-from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.executors import ControllerSpec, PolicyRecipe, RolloutJob, job_world
+from uqdrive.safety.policy_files import UserPolicySpec, load_policy, probe_policy
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.schema import (
     Bool,
@@ -122,6 +127,7 @@ class AvoidSection(EstimatorSettings):
     the calibration."""
 
     model_path: Str
+    policy: Str | None = None  # a user's policy file or YAML (`load_policy`) that gives draws, driving in its place
     name: Str  # <method>-<replicate>: the stage's cells, files and runs
     horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked); a gym world's own
     speed: Positive  # cruise speed (m/s), at most vehicle.max_speed (a gym world: its car's own limits)
@@ -197,14 +203,15 @@ class AvoidStage(WorldChoice, SimConfig, ModelStage):
 @dataclasses.dataclass(frozen=True)
 class AvoidSettings:
     """Everything a stage run needs, validated (``stage``: the whole config, its paths among it); ``spec`` is the
-    warnings-off policy."""
+    warnings-off policy (uqdrive's trained controller or a user's policy), ``deploy`` it acting on a rule."""
 
     stage: AvoidStage
-    method: str
+    method: str  # the trained model's method, or a user's policy's name
     seed: int  # the replicate's training seed
     name: str  # <method>-<replicate>
-    spec: ControllerSpec
+    spec: PolicyRecipe
     rule: WarningRule  # the configured warnings, as the controller deploys them and the calibration replays them
+    deploy: Callable[[PolicyRecipe, WarningRule], PolicyRecipe]  # ``spec`` acting on a rule's warnings
     estimator: EstimatorSettings
     validation_seed: int
     known: Condition
@@ -229,7 +236,7 @@ class AvoidSettings:
 
     def job(self, where: Condition | Mixture, rule: WarningRule | None, base_seed: int) -> RolloutJob:
         """The rollouts of one cell: ``rule`` None drives without the warning system (on the same draws)."""
-        policy = dataclasses.replace(self.spec, warnings=rule)
+        policy = self.spec if rule is None else self.deploy(self.spec, rule)
         return RolloutJob(policy, where, base_seed, self.camera, self.vehicle, self.control_hz, self.horizon_s)
 
     def replay_args(self) -> dict[str, float]:
@@ -318,7 +325,6 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     estimator = dataclasses.replace(
         avoid.estimator, gamma=split_gamma(avoid.gamma, family_size), base_seed=stage.rollout_seeds(avoid.base_seed)
     )
-    method = posterior_from_config(stage.model).method
     world = stage.gym_world
     horizon = (
         avoid.horizon_s
@@ -337,12 +343,10 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         )
     if calibration.order == "learned" and calibration.calibration_fraction == 1:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
-    bins = stage.experiment.bins
-    model_path = Path(avoid.model_path)
-    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
-    cell_posterior("avoid.model_path", model_path, method, bins, trained_by)
-    rule = WarningRule(warning, avoid.draws)  # refused here, before any rollout, if its tier rule errs above γ
-    spec = ControllerSpec(avoid.speed, str(model_path), method, bins, warning.samples, avoid.eps, draws=avoid.draws)
+    if avoid.policy is not None:  # a user's policy drives in place of the trained model
+        method, spec, rule, deploy = _user_policy(stage, car, estimator.base_seed)
+    else:
+        method, spec, rule, deploy = _trained_model(stage, car, estimator.base_seed)
     return AvoidSettings(
         stage,
         method,
@@ -350,6 +354,7 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         avoid.name,
         spec,
         rule,
+        deploy,
         estimator,
         stage.rollout_seeds(avoid.validation_seed),
         stage.condition(KNOWN),
@@ -364,3 +369,51 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         family_size,
         avoid.min_rollouts,
     )
+
+
+Driver = tuple[str, PolicyRecipe, WarningRule, Callable[[PolicyRecipe, WarningRule], PolicyRecipe]]
+
+
+def _trained_model(stage: AvoidStage, car: dict[str, Any], base_seed: int) -> Driver:
+    """The trained model (its file checked here: a missing or mismatched one names the stage that trains it) as a
+    controller drawing as ``avoid.draws`` says, and the rule its warnings act by."""
+    avoid, warning, bins = stage.avoid, stage.warning, stage.experiment.bins
+    method = posterior_from_config(stage.model).method
+    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
+    cell_posterior("avoid.model_path", Path(avoid.model_path), method, bins, trained_by)
+    rule = WarningRule(warning, avoid.draws)  # refused here, before any rollout, if its tier rule errs above γ
+    path = str(Path(avoid.model_path))
+    spec = ControllerSpec(avoid.speed, path, method, bins, warning.samples, avoid.eps, draws=avoid.draws)
+    return method, spec, rule, _acting_by_rule
+
+
+def _acting_by_rule(spec: ControllerSpec, rule: WarningRule) -> ControllerSpec:
+    """uqdrive's warning controller: its draws and their tiers by the rule itself."""
+    return dataclasses.replace(spec, warnings=rule)
+
+
+def _user_policy(stage: AvoidStage, car: dict[str, Any], base_seed: int) -> Driver:
+    """A user's policy (``avoid.policy``), run on a first frame here: its own n draws a frame, read at once (the
+    paper's fixed tier rule at warning.theta, warning.gamma, with n = warning.samples). One line, before any rollout,
+    if it gives no draws (its warnings and their calibration read them) or another number of them."""
+    avoid, warning = stage.avoid, stage.warning
+    spec = load_policy(avoid.policy, speed=avoid.speed, eps=avoid.eps)
+    rule = WarningRule(warning, DrawSettings(scheme="fixed"))
+    command = probe_policy(RolloutJob(spec, stage.condition(KNOWN), base_seed, **car))
+    if not command.draws:
+        raise ConfigError(
+            f"avoid.policy={avoid.policy}: the avoid stage needs a policy that gives draws (Action.draws: its "
+            f"warnings and their calibration read them); {spec.name} gave none"
+        )
+    if command.draws != rule.cap:
+        raise ConfigError(
+            f"avoid.policy={avoid.policy}: {spec.name} gives {command.draws} draws a frame; the warning rule reads "
+            f"{rule.cap} (warning.samples: Chernoff's n for warning.theta, warning.gamma)"
+        )
+    return driver(avoid.policy, ""), spec, rule, _acting_on_thresholds
+
+
+def _acting_on_thresholds(spec: UserPolicySpec, rule: WarningRule) -> UserPolicySpec:
+    """A user's policy with the paper's warning system on its own draws (`uqdrive.policy.user_policy.UserWarnings`:
+    the levels ``rule`` gives on them, its fixed tier being η̂2's)."""
+    return dataclasses.replace(spec, warnings=rule.config)

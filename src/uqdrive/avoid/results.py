@@ -1,5 +1,6 @@
 """The avoid stage's records (metrics/avoid/<method>-<replicate>.json): every cell by condition and warnings mode,
-each cell's outcomes in rollout order so cells on the same seeds pair, the unknown mixtures and the calibration."""
+each cell's outcomes in rollout order so cells on the same seeds pair, the unknown mixtures and the calibration
+(what Learn-then-Test certified, `uqdrive.avoid.calibration`, and its closed-loop checks)."""
 
 from __future__ import annotations
 
@@ -99,29 +100,13 @@ class MixtureEstimate:
 
 
 @record
-class FreshSeedRecord:
-    """The calibrated rule in closed loop on fresh seeds: its known-condition autonomy tested by one exact test fixed
-    in advance (H0 "autonomy < ``target``" on the cell's ``runs`` fixed runs, one-sided exact binomial; ``target_met``:
-    rejected at ``level``), and its η̂1 known and in the unknown conditions (descriptive)."""
-
-    runs: int
-    autonomous: int
-    target: float
-    level: float
-    p_value: float
-    target_met: bool
-    known_autonomy: float
-    known_eta1: float
-    unknown_eta1: float
-    base_seed: int
-
-
-@record
-class CalibrationSummary:
-    """The thresholds Learn-then-Test chose, what it certified (``guarantee``, in words, naming the deployed rule),
-    the deployed rule itself (``rule``: thresholds, actions, draws, the tier rule with its exact wrong-tier error and
-    whether the middle tier is guaranteed), the candidates whose tier rule was refused, the replay at the chosen
-    thresholds and the closed-loop check on fresh seeds."""
+class Certificate:
+    """What Learn-then-Test certified, in the stage's record: the chosen thresholds and the deployed rule (``rule``:
+    thresholds, actions, draws, the tier rule with its exact wrong-tier error and whether the middle tier is
+    guaranteed), whether it is certified (``feasible``; False: nothing was, and it is the never-firing one), how many
+    candidates are, the claim in words (``guarantee``, naming the deployed rule, or why there is none), the runs per
+    condition in each split, the highest autonomy target the known calibration runs could certify at level γ (no
+    hand-over in any), the chosen candidate's replayed row and the candidates whose tier rule was refused."""
 
     delta1: float
     delta2: float
@@ -138,12 +123,47 @@ class CalibrationSummary:
     learn_runs: dict[str, int]
     candidates: int
     replayed: dict[str, Any]
-    fresh_seed_check: FreshSeedRecord
-    uncaught_variants: list[dict[str, Any]]
-    replay_check: dict[str, dict[str, float]]
     rule: dict[str, Any]
     middle_guaranteed: bool
     refused: dict[str, str]  # "delta1/delta2" → why its tier rule was refused
+
+
+@record
+class FreshSeedCheck:
+    """The deployed rule's known-condition autonomy on fresh closed-loop runs, by one exact test fixed in advance:
+    H0 "autonomy < ``target``" (autonomy: the share of runs without a hand-over), one-sided exact binomial,
+    p = P(Bin(``runs``, target) ≥ ``autonomous``). ``target_met``: H0 rejected at ``level`` — a rule whose autonomy
+    is below the target is declared to meet it with probability ≤ level."""
+
+    runs: int
+    autonomous: int
+    target: float
+    level: float
+    p_value: float
+    target_met: bool
+
+
+@record
+class FreshSeedRecord:
+    """The calibrated rule in closed loop on fresh seeds: its known-condition autonomy tested by one exact test fixed
+    in advance (``check``), and its η̂1 known and in the unknown conditions (descriptive)."""
+
+    check: FreshSeedCheck
+    known_autonomy: float
+    known_eta1: float
+    unknown_eta1: float
+    base_seed: int
+
+
+@record
+class CalibrationSummary:
+    """What Learn-then-Test certified (``certificate``), the closed-loop check on fresh seeds, the unknown
+    conditions no threshold catches and the replay at the configured thresholds against closed loop."""
+
+    certificate: Certificate
+    fresh_seed_check: FreshSeedRecord
+    uncaught_variants: list[dict[str, Any]]
+    replay_check: dict[str, dict[str, float]]
 
 
 @record

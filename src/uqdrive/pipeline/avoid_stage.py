@@ -1,12 +1,13 @@
 """The `avoid` stage: real-time collision avoidance with the three-tier warning system (the paper's section
 "Real-time Collision Avoidance"), for one controller of the `avoid` experiment (or of a Gymnasium world's:
-conf/gym_avoid.yaml).
+conf/gym_avoid.yaml), or a user's policy that gives draws (``avoid.policy``).
 
 On the obstacle road (or in the Gymnasium world), one cell per condition × warnings mode, every cell on the same
 seeds: the known condition (the training weather; the world as collected) and the unknown ones (a cell per variant,
 or one mixture cell), warnings off and on (the configured thresholds). Thresholds are then calibrated on the
 warnings-off rollouts and checked in closed loop on fresh seeds (off again and calibrated). A cell whose rollout log
-holds its identity is replayed, not rerun.
+holds its identity is replayed, not rerun. The drive computes all of it once (`uqdrive.avoid.cells.AvoidRun`); the
+answers, figures, files and MLflow runs read that.
 """
 
 from __future__ import annotations
@@ -21,24 +22,37 @@ import numpy as np
 from omegaconf import DictConfig
 
 from uqdrive.avoid.answers import avoid_result
-from uqdrive.avoid.calibration import Calibration, calibrate
-from uqdrive.avoid.cells import Cell, distance_label, distances, panel, traces_of
+from uqdrive.avoid.calibration import Calibration, calibrate, fresh_seed_check, replay_check
+from uqdrive.avoid.cells import (
+    AvoidRun,
+    Cell,
+    cell_arrays,
+    distance_label,
+    distances,
+    handed_over,
+    panel,
+    rollout_rows,
+    signal_rows,
+    traces_of,
+)
 from uqdrive.avoid.figure import (
     avoid_signals_figure,
     avoid_tradeoff_figure,
     avoid_trajectories,
     avoid_trajectories_figure,
 )
-from uqdrive.avoid.outputs import write_cell_data, write_cell_table, write_signals, write_tradeoff
+from uqdrive.avoid.outputs import write_cell_data, write_tradeoff
 from uqdrive.avoid.plan import AvoidSettings, build_settings
 from uqdrive.avoid.results import AvoidResult, Mode
-from uqdrive.avoid.trace_replay import Traces
 from uqdrive.figures import save_figure
-from uqdrive.policy.warnings import WarningRule
+from uqdrive.files import write_csv
+from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.records import as_dict, write_record
 from uqdrive.replay.video import worst_clips
+from uqdrive.safety.failures import job_failures
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.runner import CellRunner, estimate_key
+from uqdrive.sim import ScenarioGeometry
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_run
 
@@ -79,13 +93,17 @@ def run_cell(
         reuse=unchanged_by(rule, off) if off is not None else None,
         floor=max(settings.min_rollouts, floor),
     )
-    return Cell(name, where.name, mode, rule, run.outcome, run.results, run.seconds, run.reused, base_seed)
+    failures = job_failures(settings.job(where, None, base_seed), run.results)
+    return Cell(name, where.name, mode, rule, run.outcome, run.results, run.seconds, run.reused, base_seed, failures)
 
 
-def calibration_of(settings: AvoidSettings, cells: Cells) -> tuple[Calibration, Traces]:
-    """Learn-then-Test over the warnings-off cells' fixed sample of runs: the thresholds and their replay traces."""
-    c, names = settings.calibration, [k.name for k in settings.conditions]
-    traces = traces_of([cells[name, Mode.OFF] for name in names], settings.geometries(), settings.fixed_rollouts())
+def calibration_of(
+    settings: AvoidSettings, cells: Cells, names: list[str], geometries: dict[str, ScenarioGeometry | None]
+) -> tuple[Calibration, dict[str, dict[str, float]]]:
+    """Learn-then-Test over the warnings-off cells' fixed sample of runs, and the replay at the configured
+    thresholds (replayed with the candidates) against the warnings-on cells on the same seeds."""
+    c = settings.calibration
+    traces = traces_of([cells[name, Mode.OFF] for name in names], geometries, settings.fixed_rollouts())
     calib = calibrate(
         traces,
         names,
@@ -99,18 +117,20 @@ def calibration_of(settings: AvoidSettings, cells: Cells) -> tuple[Calibration, 
         order=c.order,
         **settings.replay_args(),
     )
-    return calib, traces
+    closed_loop = [[r.safe for r in cells[name, Mode.ON].results] for name in names]
+    return calib, replay_check(calib, traces.group, names, closed_loop)
 
 
-def drive(settings: AvoidSettings) -> tuple[Cells, Calibration, Traces]:
-    """Every cell: warnings off and on on the stage's seeds, then, with the calibrated thresholds, off and
-    calibrated on the fresh seeds."""
-    cells: Cells = {}
+def drive(settings: AvoidSettings) -> AvoidRun:
+    """Every cell: warnings off and on on the stage's seeds, the calibration, then, with the calibrated thresholds,
+    off and calibrated on the fresh seeds, and the fresh-seed check of the deployed rule."""
+    start, cells = time.perf_counter(), {}
+    names, geometries = [c.name for c in settings.conditions], settings.geometries()
     with CellRunner.of(settings.executor, settings.progress) as runner:
         for where in settings.conditions:
             off = cells[where.name, Mode.OFF] = run_cell(runner, settings, where, Mode.OFF, settings.rule)
             cells[where.name, Mode.ON] = run_cell(runner, settings, where, Mode.ON, settings.rule, off)
-        calib, traces = calibration_of(settings, cells)
+        calib, check = calibration_of(settings, cells, names, geometries)
         calibrated = calib.rule  # the rule certified is the rule deployed
         for where in settings.conditions:  # the known condition's fresh runs: as many as the fresh-seed check needs
             floor = settings.calibration.fresh_runs() if where is settings.known else 0
@@ -120,13 +140,16 @@ def drive(settings: AvoidSettings) -> tuple[Cells, Calibration, Traces]:
             cells[where.name, Mode.CALIBRATED] = run_cell(
                 runner, settings, where, Mode.CALIBRATED, calibrated, fresh, floor
             )
-    return cells, calib, traces
+    sizing = settings.calibration
+    handed = handed_over(cells[names[0], Mode.CALIBRATED])[: sizing.fresh_runs()]
+    fresh_check = fresh_seed_check(handed, sizing.fresh_check.target, sizing.fresh_level())
+    return AvoidRun(settings, names, geometries, cells, calib, check, fresh_check, time.perf_counter() - start)
 
 
-def plot(settings: AvoidSettings, cells: Cells, calib: Calibration) -> dict[str, plt.Figure]:
+def plot(run: AvoidRun) -> dict[str, plt.Figure]:
     """Per cell its paths coloured by mutual information; the grid of them; η2 and MI approaching the obstacle
     (warnings off); the calibration's trade-off front."""
-    geometries, names = settings.geometries(), [c.name for c in settings.conditions]
+    settings, cells, calib, geometries, names = run.settings, run.cells, run.calibration, run.geometries, run.names
     figures = {}
     for (condition, mode), cell in cells.items():
         fig, ax = plt.subplots(figsize=(8, 2.6))
@@ -150,39 +173,40 @@ def plot(settings: AvoidSettings, cells: Cells, calib: Calibration) -> dict[str,
         signals, settings.rule.config, calib.rule.config, title, distance_label(known)
     )
     title = f"{settings.name}: unknown-condition safety against known autonomy (replayed)"
+    target = calib.certificate.autonomy_target
     figures["tradeoff"] = avoid_tradeoff_figure(
-        calib.table, calib.chosen, configured_index(calib, settings), calib.target, title
+        calib.table, calib.chosen, configured_index(calib.table, settings.rule.config), target, title
     )
     return figures
 
 
-def configured_index(calib: Calibration, settings: AvoidSettings) -> int | None:
-    """Row of the configured thresholds among the candidates (None if they are off the grids)."""
-    t, w = calib.table, settings.rule.config
+def configured_index(t: dict[str, np.ndarray], w: WarningConfig) -> int | None:
+    """Row of the configured thresholds ``w`` among the candidates of table ``t`` (None if off the grids)."""
     hit = np.flatnonzero(
         np.isclose(t["delta1"], w.delta1) & np.isclose(t["delta2"], w.delta2) & np.isclose(t["tau"], w.tau)
     )
     return int(hit[0]) if hit.size else None
 
 
-def write_files(settings: AvoidSettings, cells: Cells, calib: Calibration, figures: dict[str, plt.Figure]) -> dict:
+def write_files(run: AvoidRun, figures: dict[str, plt.Figure]) -> dict:
     """Per-cell tables and traces, the signals and trade-off plot data, the figures; returns the paths by name."""
-    data_dir, plots_dir = Path(settings.stage.avoid.data_dir), Path(settings.stage.avoid.plots_dir)
-    geometries, names = settings.geometries(), [c.name for c in settings.conditions]
+    avoid = run.settings.stage.avoid
+    data_dir, plots_dir = Path(avoid.data_dir), Path(avoid.plots_dir)
     paths = {name: save_figure(fig, plots_dir / f"{name}.png") for name, fig in figures.items()}
-    for (condition, _), cell in cells.items():
-        paths[f"cells/{cell.name}.csv"] = write_cell_table(plots_dir / "cells" / f"{cell.name}.csv", cell)
-        write_cell_data(data_dir / "traces" / f"{cell.name}.npz", cell, geometries[condition])
-    paths["tradeoff.csv"] = write_tradeoff(plots_dir / "tradeoff.csv", calib)
-    paths["signals.csv"] = write_signals(plots_dir / "signals.csv", [cells[c, Mode.OFF] for c in names], geometries)
+    for (condition, _), cell in run.cells.items():
+        paths[f"cells/{cell.name}.csv"] = write_csv(plots_dir / "cells" / f"{cell.name}.csv", rollout_rows(cell))
+        write_cell_data(data_dir / "traces" / f"{cell.name}.npz", cell_arrays(cell, run.geometries[condition]))
+    paths["tradeoff.csv"] = write_tradeoff(plots_dir / "tradeoff.csv", run.calibration.table)
+    off = [run.cells[c, Mode.OFF] for c in run.names]
+    paths["signals.csv"] = write_csv(plots_dir / "signals.csv", signal_rows(off, run.geometries))
     return paths
 
 
-def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidResult, paths: dict) -> None:
+def log(cfg: DictConfig, run: AvoidRun, result: AvoidResult, paths: dict) -> None:
     """An MLflow run per cell (condition and warnings first, its thresholds and n; tagged ``reused`` when nothing
     was simulated) and one for the calibration with the stage's figures and plot data."""
-    root = settings.stage.paths.root
-    for (condition, mode), cell in cells.items():
+    settings, root = run.settings, run.settings.stage.paths.root
+    for (condition, mode), cell in run.cells.items():
         params = {
             "condition": condition,
             "warnings": str(mode),
@@ -203,7 +227,7 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
             log_artifact_as(paths[f"cells/{cell.name}.csv"], "rollouts.csv")
             for clip in paths.get(f"clips/{cell.name}", []):  # a failure's clip, by its cell and seed
                 mlflow.log_artifact(str(clip), artifact_path="failures")
-    k = result.calibration
+    k, fresh = result.calibration.certificate, result.calibration.fresh_seed_check.check
     with stage_run(root, "avoid", cfg, run_name=f"calibration · {settings.method} seed{settings.seed}"):
         mlflow.log_params(
             {
@@ -212,8 +236,8 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
                 "calibrated_tau": k.tau,
                 "autonomy_target": k.autonomy_target,
                 "calibration_certified": k.certified,
-                "fresh_seed_p_value": k.fresh_seed_check.p_value,
-                "fresh_seed_target_met": k.fresh_seed_check.target_met,
+                "fresh_seed_p_value": fresh.p_value,
+                "fresh_seed_target_met": fresh.target_met,
             }
         )
         mlflow.log_metrics({f"replayed_{key}": float(v) for key, v in k.replayed.items()})
@@ -224,22 +248,21 @@ def log(cfg: DictConfig, settings: AvoidSettings, cells: Cells, result: AvoidRes
 
 def run_avoid(cfg: DictConfig) -> AvoidResult:
     """All cells of one method, the calibration and its closed-loop check: drive, compute, plot, write, log."""
-    settings = build_settings(cfg)
-    start = time.perf_counter()
-    cells, calib, traces = drive(settings)
-    result = avoid_result(settings, cells, calib, traces, settings.geometries(), time.perf_counter() - start)
-    paths = write_files(settings, cells, calib, plot(settings, cells, calib))
-    write_record(settings.stage.avoid.out, result)
-    paths |= write_clips(settings, cells, result)
-    log(cfg, settings, cells, result, paths)
+    run = drive(build_settings(cfg))
+    result = avoid_result(run)
+    paths = write_files(run, plot(run))
+    write_record(run.settings.stage.avoid.out, result)
+    paths |= write_clips(run, result)
+    log(cfg, run, result, paths)
     return result
 
 
-def write_clips(settings: AvoidSettings, cells: Cells, result: AvoidResult) -> dict[str, list[Path]]:
+def write_clips(run: AvoidRun, result: AvoidResult) -> dict[str, list[Path]]:
     """Each cell's worst `avoid.clips` failures re-driven (with the cell's warnings) as clips: the MP4s by cell."""
+    settings = run.settings
     where, folder = {c.name: c for c in settings.conditions}, Path(settings.stage.avoid.data_dir) / "clips"
     clips = {}
-    for (condition, mode), cell in cells.items():
+    for (condition, mode), cell in run.cells.items():
         job = settings.job(where[condition], None if mode.warnings_off else cell.rule, cell.base_seed)
         failures = result.cell(condition, mode).failures
         title = f"{settings.method} seed{settings.seed} {condition} warnings {mode}"

@@ -109,6 +109,7 @@ def command_of(action: Action, centres: np.ndarray, eps: float, cruise: float) -
         draws=len(draws),
         mutual_information_se=se,
         eta2_counts=(int(within.sum()),),
+        mi_stages=((len(draws), mi, se),),  # one stage: the threshold calibration replays MI from it
     )
 
 

@@ -215,7 +215,7 @@ method's answer over its replicates, as in the offline-safety table. The paper's
 
 
 def _calibration_row(method: str, result: AvoidResult) -> list[str]:
-    cal, fresh = result.calibration, result.calibration.fresh_seed_check
+    cal, fresh = result.calibration.certificate, result.calibration.fresh_seed_check
     middle = "middle tier guaranteed" if cal.middle_guaranteed else "middle tier not guaranteed"
     return [
         method,
@@ -224,9 +224,9 @@ def _calibration_row(method: str, result: AvoidResult) -> list[str]:
         f"{cal.autonomy_target:g}",
         f"{cal.certified} of {cal.candidates}",
         fmt(cal.replayed["eta1_unknown"], 2),
-        f"{fmt(fresh.known_autonomy, 2)} ({fresh.runs})",
-        f"{fmt(fresh.p_value, 3)} for ≥ {fresh.target:g} at {fmt(fresh.level, 4)} "
-        f"({'met' if fresh.target_met else 'not met'})",
+        f"{fmt(fresh.known_autonomy, 2)} ({fresh.check.runs})",
+        f"{fmt(fresh.check.p_value, 3)} for ≥ {fresh.check.target:g} at {fmt(fresh.check.level, 4)} "
+        f"({'met' if fresh.check.target_met else 'not met'})",
         fmt(fresh.unknown_eta1, 2),
         f"{cal.rule['tier']['scheme']}, error {fmt(cal.rule['tier']['wrong_tier_error'], 4)}, {middle}",
     ]
@@ -237,14 +237,13 @@ def calibration_section(report: Report, run: Run, methods: list[str]) -> None:
     for method in methods:
         for result in [r for r in run.avoided if r.method == method]:
             rows.append(_calibration_row(method, result))
-            cal = result.calibration
             uncaught += [
                 f"- **{method} seed{result.replicate}, {v['condition']}**: η̂1 {fmt(v['eta1_off'], 2)} without "
                 f"warnings and no threshold on the grid saves any of its failures (median lowest η2 per run "
                 f"{fmt(v['min_eta2_median'], 2)}, median highest MI {fmt(v['max_mutual_information_median'], 2)} nats)"
-                for v in cal.uncaught_variants
+                for v in result.calibration.uncaught_variants
             ]
-    guarantees = {r.calibration.guarantee.split(" (Learn-then-Test")[0] for r in run.avoided}
+    guarantees = {r.calibration.certificate.guarantee.split(" (Learn-then-Test")[0] for r in run.avoided}
     report.add(
         "Calibration (beyond the paper), by Learn-then-Test: each candidate (δ1, δ2, τ) is tested, on the replayed "
         'warnings-off runs, against the null "its known-condition hand-over rate exceeds 1 − target" (exact binomial '

@@ -43,6 +43,7 @@ from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import source_digest
+from uqdrive.policy.controller import Command
 from uqdrive.policy.sb3_policy import SB3Policy
 from uqdrive.policy.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
 from uqdrive.policy.user_policy import PolicyFailure, UserPolicies, UserWarnings
@@ -210,9 +211,10 @@ def _common(config: PolicyConfig) -> dict[str, Any]:
     return {"speed": float(config.speed), "eps": float(config.eps), "bins": config.bins, "warnings": config.warnings}
 
 
-def probe_policy(job: Any) -> None:
+def probe_policy(job: Any) -> Command:
     """Build the job's policy here and decide rollout 0's first frame in the job's own kind of world, so that a
-    policy that cannot be made or answers in the wrong shape or range fails in one line before any rollout."""
+    policy that cannot be made or answers in the wrong shape or range fails in one line before any rollout; the
+    frame's command (what it gives: its draws, for one)."""
     from uqdrive.safety.executors import WorkerEnvs
 
     policy = job.policy.build(job.control_hz)
@@ -221,6 +223,7 @@ def probe_policy(job: Any) -> None:
         (env,) = envs.first(1)
         frame = env.reset(job.base_seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
         policy.reset(env, job.base_seed, 0)
-        policy.act_batch([0], [frame], [env.last_info])
+        (command,) = policy.act_batch([0], [frame], [env.last_info])
+        return command
     finally:
         envs.close()  # the env is left to the next job of this process (an in-process worker's)
