@@ -13,12 +13,12 @@ from gymnasium import spaces
 from uqdrive.network_input import preprocess_frame
 from uqdrive.policy.controller import Command, ConstantPolicy
 from uqdrive.safety.info_safe_set import InfoSafeSet
-from uqdrive.safety.rollout import run_rollouts, stopped_speed
+from uqdrive.safety.rollout import run_rollouts
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig
 from uqdrive.sim.condition import Condition
-from uqdrive.sim.config import find_conf
-from uqdrive.sim.gym_world import GymWorld, GymWorldConfig, world_identity, world_modules
+from uqdrive.sim.config import GymWorldConfig, find_conf
+from uqdrive.sim.gym_world import GymWorld, world_identity, world_modules
 from uqdrive.uq import clopper_pearson_interval
 
 CRASH_RATE = 0.3
@@ -248,7 +248,7 @@ def test_a_highway_car_braking_for_a_hand_over_stops_well_within_the_worlds_hori
             world.step(0.0, 0.0)
             steps += 1
     assert world.last_info["speed"] <= config.stopped_speed and steps <= config.horizon_steps / 2, steps
-    assert stopped_speed(world) == config.stopped_speed == 0.1
+    assert world.stopped_speed == config.stopped_speed == 0.1
 
 
 def test_highway_refuses_a_destination_its_road_lacks_and_a_bad_option_value_before_any_run(highway_config) -> None:

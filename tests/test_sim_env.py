@@ -11,7 +11,7 @@ import pytest
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.camera import _rain_cover
-from uqdrive.sim.world import World
+from uqdrive.sim.scene import Scene
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 WEATHERS = {
@@ -155,11 +155,11 @@ def test_noise_only_adds_noise_and_sigma_is_what_the_network_sees(env, size):
 def test_culling_hides_bodies_but_never_changes_the_image(env, scenario):
     config = ScenarioConfig.from_yaml(CONF / "scenario" / f"{scenario}.yaml")
     culled, _ = run(env, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
-    hidden = int((~env.world._shown).sum())
+    hidden = int((~env.scene._shown).sum())
     with DrivingEnv() as every_body:
         every_body.reset(2, config, render=False)  # builds the world
-        world = every_body.world
-        world.cull = lambda x, y, yaw, half_angle: World.cull(world, x, y, yaw, np.pi)  # a wedge hiding nothing
+        world = every_body.scene
+        world.cull = lambda x, y, yaw, half_angle: Scene.cull(world, x, y, yaw, np.pi)  # a wedge hiding nothing
         shown, _ = run(every_body, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
         assert world._shown.all()
     assert hidden > 0
@@ -177,11 +177,11 @@ def test_rain_covers_the_same_share_of_the_image_at_every_resolution():
 
 def test_world_is_cached_per_scenario(env):
     env.reset(0, OBSTACLE, render=False)
-    world = env.world
+    world = env.scene
     env.reset(1, ScenarioConfig(kind="obstacle", name="obstacle"), render=False)
-    assert env.world is world
+    assert env.scene is world
     env.reset(1, ScenarioConfig(kind="straight"), render=False)
-    assert env.world is not world
+    assert env.scene is not world
 
 
 def test_paved_area_and_route_geometry(env):

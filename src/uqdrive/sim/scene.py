@@ -5,7 +5,7 @@ car, scenery and the roundabout island have collision shapes. Nothing here is ev
 by the physics engine: the ego pose is set kinematically and collisions are queried.
 
 TinyRenderer transforms and clips every triangle of every visible body, in view or not; for
-the trees and buildings that is about half of a 64x48 render. `World.cull` hides (alpha 0,
+the trees and buildings that is about half of a 64x48 render. `Scene.cull` hides (alpha 0,
 which TinyRenderer skips) the bodies whose ground footprint lies outside the camera's view,
 so the image is unchanged and only what can be seen is rasterised.
 """
@@ -34,7 +34,7 @@ def _yaw_quat(yaw: float) -> list[float]:
     return [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)]
 
 
-class World:
+class Scene:
     """Static bodies of one scenario plus the ego car, in one pybullet client."""
 
     def __init__(self, client, geometry: ScenarioGeometry, vehicle: VehicleConfig):
@@ -189,7 +189,7 @@ class World:
         half = [[length / 2, width / 2, body_h / 2], [0.27 * length, 0.45 * width, cabin_h / 2]] + [[0, 0, 0]] * 4
         positions = [[0, 0, base_z + body_h / 2], [-0.08 * length, 0, base_z + body_h + cabin_h / 2]]
         positions += [[sx * wx, sy * wy, wheel_r] for sx in (1, -1) for sy in (1, -1)]
-        colors = [[*rgba[:3], 1.0 if visible else 0.0] for rgba in World.car_colors(color)]
+        colors = [[*rgba[:3], 1.0 if visible else 0.0] for rgba in Scene.car_colors(color)]
         wheel_q = p.getQuaternionFromEuler([math.pi / 2, 0, 0])
         vis = client.createVisualShapeArray(
             shapeTypes=shapes,
