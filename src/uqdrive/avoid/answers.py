@@ -9,13 +9,12 @@ from collections import Counter
 import numpy as np
 
 from uqdrive.avoid.calibration import Calibration, fresh_seed_check
-from uqdrive.avoid.cells import Cell, handed_over, handover_distances, levels
+from uqdrive.avoid.cells import Cell, Course, handed_over, handover_distances, levels
 from uqdrive.avoid.plan import AvoidSettings
 from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
 from uqdrive.avoid.trace_replay import Traces, replay
 from uqdrive.policy.warnings import LEVELS
 from uqdrive.safety.failures import RolloutFailure, job_failures
-from uqdrive.sim import ScenarioGeometry
 from uqdrive.sim.condition import Mixture
 from uqdrive.uq.pooled import pooled
 
@@ -25,7 +24,7 @@ def avoid_result(
     cells: dict[tuple[str, Mode], Cell],
     calib: Calibration,
     traces: Traces,
-    geometries: dict[str, ScenarioGeometry | None],
+    geometries: dict[str, Course],
     seconds: float,
 ) -> AvoidResult:
     """metrics/avoid/<method>-<replicate>.json from the stage's finished cells and calibration: every cell's
@@ -84,7 +83,7 @@ def avoid_result(
 def cell_metrics(
     cell: Cell,
     cruise: float,
-    geometry: ScenarioGeometry | None,
+    course: Course,
     fixed_rollouts: int,
     family_size: int,
     failures: list[RolloutFailure] | None = None,
@@ -97,7 +96,7 @@ def cell_metrics(
     handed = handed_over(cell)
     steps = sum(r.steps for r in results)
     full = sum(int(np.sum(r.command_speed >= cruise - 1e-9)) for r in results)
-    where = handover_distances(cell, geometry)
+    where = handover_distances(cell, course)
     metrics = {
         "eta1": est.value,
         "eta1_low": est.low,

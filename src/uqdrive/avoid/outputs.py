@@ -10,10 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from uqdrive.avoid.calibration import Calibration
-from uqdrive.avoid.cells import Cell, distances, levels, obstacle_box, road_box
+from uqdrive.avoid.cells import Cell, Course, distances, levels
 from uqdrive.files import atomic_path, write_csv
 from uqdrive.policy.warnings import LEVELS
-from uqdrive.sim import ScenarioGeometry
 
 
 def write_cell_table(path: Path, cell: Cell) -> Path:
@@ -32,7 +31,7 @@ def write_cell_table(path: Path, cell: Cell) -> Path:
     return write_csv(path, rows)
 
 
-def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry | None) -> Path:
+def write_cell_data(path: Path, cell: Cell, course: Course) -> Path:
     """Per-frame traces of a cell (npz) for the summary figure: positions, distance (`distances`), η2, MI, level;
     the obstacle and road boxes (empty in a Gymnasium world)."""
     frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
@@ -41,7 +40,7 @@ def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry | None) -
             ("rollout", np.full(r.steps, i)),
             ("x", r.x[:-1]),
             ("y", r.y[:-1]),
-            ("distance", distances(r, geometry)),
+            ("distance", distances(r, course)),
             ("eta2", r.eta2),
             ("mi", r.mutual_information),
             ("level", levels(cell, r)),
@@ -54,13 +53,13 @@ def write_cell_data(path: Path, cell: Cell, geometry: ScenarioGeometry | None) -
             termination=np.array([r.termination for r in cell.results]),
             safe=np.array([r.safe for r in cell.results]),
             eta1=cell.estimate.value,
-            obstacle=obstacle_box(geometry),
-            road=road_box(geometry),
+            obstacle=course.obstacle_box(),
+            road=course.road_box(),
         )
     return path
 
 
-def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioGeometry | None]) -> Path:
+def write_signals(path: Path, cells: list[Cell], courses: dict[str, Course]) -> Path:
     """η2 and MI per frame against the distance (`distances`; a DVC plot)."""
     return write_csv(
         path,
@@ -75,7 +74,7 @@ def write_signals(path: Path, cells: list[Cell], geometries: dict[str, ScenarioG
             }
             for cell in cells
             for i, r in enumerate(cell.results)
-            for d, e, m in zip(distances(r, geometries[cell.condition]), r.eta2, r.mutual_information)
+            for d, e, m in zip(distances(r, courses[cell.condition]), r.eta2, r.mutual_information)
         ],
     )
 

@@ -22,7 +22,7 @@ from omegaconf import DictConfig
 
 from uqdrive.avoid.answers import avoid_result
 from uqdrive.avoid.calibration import Calibration, calibrate
-from uqdrive.avoid.cells import Cell, distance_label, distances, panel, traces_of
+from uqdrive.avoid.cells import Cell, distances, panel, traces_of
 from uqdrive.avoid.figure import (
     avoid_signals_figure,
     avoid_tradeoff_figure,
@@ -146,9 +146,7 @@ def plot(settings: AvoidSettings, cells: Cells, calib: Calibration) -> dict[str,
     }
     known = geometries[names[0]]
     title = f"{settings.name}, warnings off: uncertainty approaching " + ("the obstacle" if known else "the run's end")
-    figures["warnings"] = avoid_signals_figure(
-        signals, settings.rule.config, calib.rule.config, title, distance_label(known)
-    )
+    figures["warnings"] = avoid_signals_figure(signals, settings.rule.config, calib.rule.config, title, known.label)
     title = f"{settings.name}: unknown-condition safety against known autonomy (replayed)"
     figures["tradeoff"] = avoid_tradeoff_figure(
         calib.table, calib.chosen, configured_index(calib, settings), calib.target, title
