@@ -124,6 +124,27 @@ def test_uqdrive_env_through_the_adapter_drives_the_paths_driving_env_drives() -
         assert a.safe == (b.termination == "timeout") and a.mean_abs_lateral_deviation == b.mean_abs_lateral_deviation
 
 
+def test_a_gymnasium_runs_lane_is_the_path_it_drove_with_what_the_env_reported() -> None:
+    """`DrivenPath` answers the `Lane` questions at the run's own points: metres driven and the env's lateral
+    deviation, on the lane where the env said on the road, the car's heading, a width the env does not give."""
+    config = GymWorldConfig(env_id="uqdrive/Roundabout-v0", env_kwargs={"speed_action": True}, horizon_steps=40)
+    with GymWorld(config) as world:
+        world.reset(3, render=False)
+        while not world.done:
+            world.step(0.3, 6.0)
+        log, lane, infos = world.trajectory, world.lane, world.lane.infos
+    points = np.stack([log["x"], log["y"]], axis=1)
+    driven, lateral = lane.local_coordinates(points)
+    assert driven[0] == 0.0 and np.all(np.diff(driven) >= 0)
+    np.testing.assert_array_equal(lateral, [info["lateral_deviation"] for info in infos])
+    np.testing.assert_allclose(lane.position(driven, np.zeros_like(driven)), points, atol=1e-9)
+    np.testing.assert_allclose(lane.heading_at(driven), np.unwrap(log["yaw"]), atol=1e-9)
+    assert np.isnan(lane.width_at(driven)).all()
+    assert lane.on_lane(points).tolist() == [not info["off_road"] for info in infos]
+    with pytest.raises(ValueError, match="points for an episode of"):
+        lane.local_coordinates(points[:-1])
+
+
 def test_frames_are_the_network_size_in_rgb_and_the_noise_is_the_seeds() -> None:
     with coin_world() as world:
         clean = world.reset(5)

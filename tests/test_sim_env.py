@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
-from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig, build_geometry
 from uqdrive.sim.camera import _rain_cover
 from uqdrive.sim.scene import Scene
 
@@ -200,3 +200,21 @@ def test_paved_area_and_route_geometry(env):
     assert np.isclose(start[2], np.pi / 2)
     end = geo.route.sample(geo.route.length)
     assert np.isclose(end[2], 0.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["roundabout", "obstacle"])
+def test_a_roads_lane_answers_in_lane_coordinates(name: str) -> None:
+    """`ScenarioGeometry` as a `Lane`: a point at (s, lateral) maps back to (s, lateral), the route is on the lane and
+    a point a lane width beside it is not, and the width is the lane's (the ring's on a roundabout's ring)."""
+    cfg = ScenarioConfig.from_yaml(CONF / "scenario" / f"{name}.yaml")
+    lane = build_geometry(cfg)
+    s = np.linspace(5.0, lane.route.length - 5.0, 40)
+    for lateral in (-0.5, 0.0, 0.8):
+        back_s, back_lateral = lane.local_coordinates(lane.position(s, np.full_like(s, lateral)))
+        np.testing.assert_allclose(back_s, s, atol=0.05)
+        np.testing.assert_allclose(back_lateral, lateral, atol=1e-3)  # a polyline: off a vertex, nearly exact
+    assert lane.on_lane(lane.position(s, np.zeros_like(s))).all()
+    assert not lane.on_lane(lane.position(s, np.full_like(s, cfg.lane_width + cfg.ring_width))).any()
+    np.testing.assert_allclose(lane.heading_at(s), lane.route.sample(s)[2])
+    widths = set(np.unique(lane.width_at(lane.route.s)))
+    assert widths == ({cfg.lane_width, cfg.ring_width} if cfg.kind == "roundabout" else {cfg.lane_width})
