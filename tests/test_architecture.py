@@ -241,3 +241,80 @@ def test_the_avoid_stages_config_enters_at_most_12_files_on_its_way_to_the_maths
     answers reading the run; the trained model and a user's policy each a driver of the plan)."""
     files, calls = config_path(CallGraph(), ("uqdrive.pipeline.avoid_stage", "run_avoid"), "cfg")
     assert len(files) <= 12, f"{len(files)} files, {calls} calls: {sorted(files)}"
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported_modules(path: Path, tree: ast.Module, known: set[str]) -> set[str]:
+    """Every uqdrive module ``tree`` imports, at any depth (inside functions and ``if TYPE_CHECKING`` too): ``from
+    uqdrive.x import name`` is the module ``uqdrive.x.name`` where that is one, else ``uqdrive.x``."""
+    here = module_name(path).split(".")
+    package = here if path.name == "__init__.py" else here[:-1]
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = (
+                ".".join(package[: len(package) - node.level + 1] + [node.module or ""]) if node.level else node.module
+            )
+            base = base.rstrip(".")
+            found |= {f"{base}.{a.name}" if f"{base}.{a.name}" in known else base for a in node.names}
+    return found & known
+
+
+def import_circles() -> list[list[str]]:
+    """The import circles among uqdrive's modules (each once, from its smallest module), depth-first."""
+    trees = modules()
+    known = {module_name(path) for path in trees}
+    graph = {module_name(path): sorted(imported_modules(path, tree, known)) for path, tree in trees.items()}
+    circles, done = set(), set()
+
+    def walk(node: str, stack: list[str]) -> None:
+        for nxt in graph[node]:
+            if nxt in stack:
+                circle = stack[stack.index(nxt) :]
+                first = circle.index(min(circle))
+                circles.add(tuple(circle[first:] + circle[:first]))
+            elif nxt not in done:
+                walk(nxt, [*stack, nxt])
+        done.add(node)
+
+    for start in sorted(graph):
+        if start not in done:
+            walk(start, [start])
+    return [list(c) for c in sorted(circles)]
+
+
+def test_no_import_circle_even_through_deferred_imports():
+    assert not import_circles(), "\n".join(" → ".join([*c, c[0]]) for c in import_circles())
+
+
+WORLD_TYPES = {  # the worlds (`uqdrive.sim.world.World`), their locations' configs and their lanes, and the bodies
+    "World",
+    "DrivingEnv",
+    "GymWorld",
+    "ScenarioConfig",
+    "GymWorldConfig",
+    "ScenarioGeometry",
+    "DrivenPath",
+    "Scene",
+}
+
+
+def test_no_code_outside_sim_asks_which_world_it_has():
+    asked = [
+        f"{path.relative_to(PACKAGE)}:{node.lineno} {ast.unparse(node)}"
+        for path, tree in modules().items()
+        if path.relative_to(PACKAGE).parts[0] != "sim"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id in ("isinstance", "issubclass")
+        and len(node.args) == 2
+        and {n.id if isinstance(n, ast.Name) else getattr(n, "attr", "") for n in ast.walk(node.args[1])} & WORLD_TYPES
+    ]
+    assert not asked, "\n".join(asked)

@@ -13,12 +13,12 @@ from gymnasium import spaces
 from uqdrive.network_input import preprocess_frame
 from uqdrive.policy.controller import Command, ConstantPolicy
 from uqdrive.safety.info_safe_set import InfoSafeSet
-from uqdrive.safety.rollout import run_rollouts, stopped_speed
+from uqdrive.safety.rollout import run_rollouts
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig
 from uqdrive.sim.condition import Condition
-from uqdrive.sim.config import find_conf
-from uqdrive.sim.gym_world import GymWorld, GymWorldConfig, world_identity, world_modules
+from uqdrive.sim.config import GymWorldConfig, find_conf
+from uqdrive.sim.gym_world import GymWorld, world_identity, world_modules
 from uqdrive.uq import clopper_pearson_interval
 
 CRASH_RATE = 0.3
@@ -122,6 +122,27 @@ def test_uqdrive_env_through_the_adapter_drives_the_paths_driving_env_drives() -
     for a, b in zip(through, direct):
         assert np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y) and a.termination == b.termination
         assert a.safe == (b.termination == "timeout") and a.mean_abs_lateral_deviation == b.mean_abs_lateral_deviation
+
+
+def test_a_gymnasium_runs_lane_is_the_path_it_drove_with_what_the_env_reported() -> None:
+    """`DrivenPath` answers the `Lane` questions at the run's own points: metres driven and the env's lateral
+    deviation, on the lane where the env said on the road, the car's heading, a width the env does not give."""
+    config = GymWorldConfig(env_id="uqdrive/Roundabout-v0", env_kwargs={"speed_action": True}, horizon_steps=40)
+    with GymWorld(config) as world:
+        world.reset(3, render=False)
+        while not world.done:
+            world.step(0.3, 6.0)
+        log, lane, infos = world.trajectory, world.lane, world.lane.infos
+    points = np.stack([log["x"], log["y"]], axis=1)
+    driven, lateral = lane.local_coordinates(points)
+    assert driven[0] == 0.0 and np.all(np.diff(driven) >= 0)
+    np.testing.assert_array_equal(lateral, [info["lateral_deviation"] for info in infos])
+    np.testing.assert_allclose(lane.position(driven, np.zeros_like(driven)), points, atol=1e-9)
+    np.testing.assert_allclose(lane.heading_at(driven), np.unwrap(log["yaw"]), atol=1e-9)
+    assert np.isnan(lane.width_at(driven)).all()
+    assert lane.on_lane(points).tolist() == [not info["off_road"] for info in infos]
+    with pytest.raises(ValueError, match="points for an episode of"):
+        lane.local_coordinates(points[:-1])
 
 
 def test_frames_are_the_network_size_in_rgb_and_the_noise_is_the_seeds() -> None:
@@ -248,7 +269,7 @@ def test_a_highway_car_braking_for_a_hand_over_stops_well_within_the_worlds_hori
             world.step(0.0, 0.0)
             steps += 1
     assert world.last_info["speed"] <= config.stopped_speed and steps <= config.horizon_steps / 2, steps
-    assert stopped_speed(world) == config.stopped_speed == 0.1
+    assert world.stopped_speed == config.stopped_speed == 0.1
 
 
 def test_highway_refuses_a_destination_its_road_lacks_and_a_bad_option_value_before_any_run(highway_config) -> None:

@@ -56,7 +56,7 @@ def test_obstacle_clearance(env):
     while not info["done"]:
         action = pilot.act(info)
         _, info = env.step(action.steer, action.speed)
-        clearance.append(env.world.clearance())
+        clearance.append(env.scene.clearance())
     assert min(clearance) > 1.2
 
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
-from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig, build_geometry
 from uqdrive.sim.camera import _rain_cover
-from uqdrive.sim.world import World
+from uqdrive.sim.scene import Scene
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 WEATHERS = {
@@ -155,11 +155,11 @@ def test_noise_only_adds_noise_and_sigma_is_what_the_network_sees(env, size):
 def test_culling_hides_bodies_but_never_changes_the_image(env, scenario):
     config = ScenarioConfig.from_yaml(CONF / "scenario" / f"{scenario}.yaml")
     culled, _ = run(env, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
-    hidden = int((~env.world._shown).sum())
+    hidden = int((~env.scene._shown).sum())
     with DrivingEnv() as every_body:
         every_body.reset(2, config, render=False)  # builds the world
-        world = every_body.world
-        world.cull = lambda x, y, yaw, half_angle: World.cull(world, x, y, yaw, np.pi)  # a wedge hiding nothing
+        world = every_body.scene
+        world.cull = lambda x, y, yaw, half_angle: Scene.cull(world, x, y, yaw, np.pi)  # a wedge hiding nothing
         shown, _ = run(every_body, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
         assert world._shown.all()
     assert hidden > 0
@@ -177,11 +177,11 @@ def test_rain_covers_the_same_share_of_the_image_at_every_resolution():
 
 def test_world_is_cached_per_scenario(env):
     env.reset(0, OBSTACLE, render=False)
-    world = env.world
+    world = env.scene
     env.reset(1, ScenarioConfig(kind="obstacle", name="obstacle"), render=False)
-    assert env.world is world
+    assert env.scene is world
     env.reset(1, ScenarioConfig(kind="straight"), render=False)
-    assert env.world is not world
+    assert env.scene is not world
 
 
 def test_paved_area_and_route_geometry(env):
@@ -200,3 +200,21 @@ def test_paved_area_and_route_geometry(env):
     assert np.isclose(start[2], np.pi / 2)
     end = geo.route.sample(geo.route.length)
     assert np.isclose(end[2], 0.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["roundabout", "obstacle"])
+def test_a_roads_lane_answers_in_lane_coordinates(name: str) -> None:
+    """`ScenarioGeometry` as a `Lane`: a point at (s, lateral) maps back to (s, lateral), the route is on the lane and
+    a point a lane width beside it is not, and the width is the lane's (the ring's on a roundabout's ring)."""
+    cfg = ScenarioConfig.from_yaml(CONF / "scenario" / f"{name}.yaml")
+    lane = build_geometry(cfg)
+    s = np.linspace(5.0, lane.route.length - 5.0, 40)
+    for lateral in (-0.5, 0.0, 0.8):
+        back_s, back_lateral = lane.local_coordinates(lane.position(s, np.full_like(s, lateral)))
+        np.testing.assert_allclose(back_s, s, atol=0.05)
+        np.testing.assert_allclose(back_lateral, lateral, atol=1e-3)  # a polyline: off a vertex, nearly exact
+    assert lane.on_lane(lane.position(s, np.zeros_like(s))).all()
+    assert not lane.on_lane(lane.position(s, np.full_like(s, cfg.lane_width + cfg.ring_width))).any()
+    np.testing.assert_allclose(lane.heading_at(s), lane.route.sample(s)[2])
+    widths = set(np.unique(lane.width_at(lane.route.s)))
+    assert widths == ({cfg.lane_width, cfg.ring_width} if cfg.kind == "roundabout" else {cfg.lane_width})

@@ -95,7 +95,7 @@ def test_covers_is_contains_all():
 def test_ego_is_placed_before_every_query_that_needs_it(kind):
     with DrivingEnv() as env:
         env.reset(0, ScenarioConfig.from_yaml(CONF / "scenario" / f"{kind}.yaml"), render=False)
-        world, client = env.world, env.client
+        world, client = env.scene, env.client
         rng = np.random.default_rng(3)
         hits = 0
         for k in range(300):

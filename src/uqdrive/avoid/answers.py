@@ -10,9 +10,9 @@ import numpy as np
 
 from uqdrive.avoid.calibration import Calibration
 from uqdrive.avoid.cells import AvoidRun, Cell, handed_over, handover_distances, levels
+from uqdrive.avoid.course import Course
 from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
 from uqdrive.policy.warnings import LEVELS
-from uqdrive.sim import ScenarioGeometry
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.uq.pooled import pooled
 
@@ -59,7 +59,7 @@ def avoid_result(run: AvoidRun) -> AvoidResult:
 def cell_metrics(
     cell: Cell,
     cruise: float,
-    geometry: ScenarioGeometry | None,
+    course: Course,
     fixed_rollouts: int,
     family_size: int,
 ) -> AvoidCell:
@@ -71,7 +71,7 @@ def cell_metrics(
     handed = handed_over(cell)
     steps = sum(r.steps for r in results)
     full = sum(int(np.sum(r.command_speed >= cruise - 1e-9)) for r in results)
-    where = handover_distances(cell, geometry)
+    where = handover_distances(cell, course)
     metrics = {
         "eta1": est.value,
         "eta1_low": est.low,

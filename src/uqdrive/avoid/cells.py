@@ -2,7 +2,7 @@
 read off them, distances along the obstacle road, the traces the threshold calibration replays, a figure panel, the
 rows and arrays its files hold; and the stage's run of them all (`AvoidRun`).
 
-A Gymnasium world (geometry None) has no road of ours and no fixed hazard: progress is metres driven along the run's
+A Gymnasium world (`OwnPath`) has no road of ours and no fixed hazard: progress is metres driven along the run's
 own path, a frame's distance is the metres left before the run ended (where an unsafe run crashed or left the
 road), and no hand-over has a distance to an obstacle."""
 
@@ -14,13 +14,13 @@ import math
 import numpy as np
 
 from uqdrive.avoid.calibration import Calibration
+from uqdrive.avoid.course import Course, distances, progress_along
 from uqdrive.avoid.plan import AvoidSettings
 from uqdrive.avoid.results import FreshSeedCheck, Mode
 from uqdrive.avoid.trace_replay import Traces
 from uqdrive.policy.warnings import LEVELS, WarningRule
 from uqdrive.safety.failures import RolloutFailure
 from uqdrive.safety.rollout import RolloutResult
-from uqdrive.sim import ScenarioGeometry
 from uqdrive.uq import Estimate
 
 
@@ -51,7 +51,7 @@ class AvoidRun:
 
     settings: AvoidSettings
     names: list[str]
-    geometries: dict[str, ScenarioGeometry | None]
+    geometries: dict[str, Course]
     cells: dict[tuple[str, Mode], Cell]
     calibration: Calibration
     replay_check: dict[str, dict[str, float]]
@@ -67,31 +67,6 @@ def levels(cell: Cell, result: RolloutResult) -> np.ndarray:
     return cell.rule.levels(result.eta2_counts, result.mi_stages)
 
 
-def progress_along(geometry: ScenarioGeometry | None, result: RolloutResult) -> tuple[np.ndarray, float]:
-    """Metres along the route (None: along the run's own path) at each decision frame, and where the run ended."""
-    if geometry is None:
-        s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(result.x), np.diff(result.y)))])
-    else:
-        s, _ = geometry.route.project(np.stack([result.x, result.y], axis=1))
-    return s[:-1], float(s[-1])
-
-
-def obstacle_progress(geometry: ScenarioGeometry) -> float:
-    s, _ = geometry.route.project(np.array([[geometry.obstacles[0].x, geometry.obstacles[0].y]]))
-    return float(s[0])
-
-
-def distances(result: RolloutResult, geometry: ScenarioGeometry | None) -> np.ndarray:
-    """Metres to the obstacle along the road at each decision frame (None: to where the run ended)."""
-    s, end = progress_along(geometry, result)
-    return (end if geometry is None else obstacle_progress(geometry)) - s
-
-
-def distance_label(geometry: ScenarioGeometry | None) -> str:
-    """What `distances` measures, for an axis."""
-    return "metres driven before the run ended" if geometry is None else "distance to the obstacle along the road (m)"
-
-
 def handed_over(cell: Cell) -> list[bool]:
     """Per run, whether the warnings handed control over (always False with warnings off)."""
     if cell.mode.warnings_off:
@@ -100,21 +75,21 @@ def handed_over(cell: Cell) -> list[bool]:
     return [bool(np.isin(r.warning, handover_levels).any()) for r in cell.results]
 
 
-def handover_distances(cell: Cell, geometry: ScenarioGeometry | None) -> list[float]:
+def handover_distances(cell: Cell, course: Course) -> list[float]:
     """Distance to the obstacle at the first hand-over frame of each run that handed over (warnings on; none in a
     Gymnasium world: it has no obstacle)."""
-    if cell.mode.warnings_off or geometry is None:
+    if cell.mode.warnings_off or not course.fixed_hazard:
         return []
     handover_levels = [lv for lv, a in zip(LEVELS, cell.rule.config.actions) if a.handover]
     out = []
     for r in cell.results:
         fired = np.flatnonzero(np.isin(r.warning, handover_levels))
         if fired.size:
-            out.append(float(distances(r, geometry)[fired[0]]))
+            out.append(float(distances(r, course)[fired[0]]))
     return out
 
 
-def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry | None], first: int) -> Traces:
+def traces_of(cells: list[Cell], geometries: dict[str, Course], first: int) -> Traces:
     """Rollouts 0 … ``first`` − 1 of the warnings-off ``cells`` as replay input (a number fixed in advance, so
     exact tests on them hold whatever a sequential scheme did next): each frame's recorded η2 counts at the rule's
     looks and MI stages; group g = the g-th cell's condition."""
@@ -126,32 +101,15 @@ def traces_of(cells: list[Cell], geometries: dict[str, ScenarioGeometry | None],
     return Traces.from_runs(runs, cells[0].rule.looks)
 
 
-def obstacle_box(geometry: ScenarioGeometry | None) -> np.ndarray:
-    """x, y, length, width of the obstacle (empty: a Gymnasium world has none of ours to draw)."""
-    if geometry is None:
-        return np.zeros(0)
-    ob = geometry.obstacles[0]
-    return np.array([ob.x, ob.y, ob.size[0], ob.size[1]])
-
-
-def road_box(geometry: ScenarioGeometry | None) -> np.ndarray:
-    """x range of the road and its lane edges (y), for drawing the straight obstacle road (empty: a Gymnasium
-    world's road is the env's)."""
-    if geometry is None:
-        return np.zeros(0)
-    cfg = geometry.config
-    return np.array([0.0, cfg.road_length, -cfg.lane_width, 0.0, cfg.lane_width * (cfg.num_lanes - 1)])
-
-
-def panel(cell: Cell, geometry: ScenarioGeometry | None) -> dict:
+def panel(cell: Cell, course: Course) -> dict:
     """One figure panel: the cell's paths coloured by mutual information on the road."""
     paths = [
         {"x": r.x[:-1], "y": r.y[:-1], "mi": r.mutual_information, "termination": r.termination} for r in cell.results
     ]
     return {
         "paths": paths,
-        "obstacle": obstacle_box(geometry),
-        "road": road_box(geometry),
+        "obstacle": course.obstacle_box(),
+        "road": course.road_box(),
         "title": f"η̂1 = {cell.estimate.value:.2f} [{cell.estimate.low:.2f}, {cell.estimate.high:.2f}]",
     }
 
@@ -173,7 +131,7 @@ def rollout_rows(cell: Cell) -> list[dict]:
     return rows
 
 
-def cell_arrays(cell: Cell, geometry: ScenarioGeometry | None) -> dict[str, np.ndarray | float]:
+def cell_arrays(cell: Cell, course: Course) -> dict[str, np.ndarray | float]:
     """Per-frame traces of a cell for the summary figure: positions, distance (`distances`), η2, MI, level; each
     run's termination and outcome, η̂1, the obstacle and road boxes (empty in a Gymnasium world)."""
     frames: dict[str, list[np.ndarray]] = {k: [] for k in ("rollout", "x", "y", "distance", "eta2", "mi", "level")}
@@ -182,7 +140,7 @@ def cell_arrays(cell: Cell, geometry: ScenarioGeometry | None) -> dict[str, np.n
             ("rollout", np.full(r.steps, i)),
             ("x", r.x[:-1]),
             ("y", r.y[:-1]),
-            ("distance", distances(r, geometry)),
+            ("distance", distances(r, course)),
             ("eta2", r.eta2),
             ("mi", r.mutual_information),
             ("level", levels(cell, r)),
@@ -193,12 +151,12 @@ def cell_arrays(cell: Cell, geometry: ScenarioGeometry | None) -> dict[str, np.n
         "termination": np.array([r.termination for r in cell.results]),
         "safe": np.array([r.safe for r in cell.results]),
         "eta1": cell.estimate.value,
-        "obstacle": obstacle_box(geometry),
-        "road": road_box(geometry),
+        "obstacle": course.obstacle_box(),
+        "road": course.road_box(),
     }
 
 
-def signal_rows(cells: list[Cell], geometries: dict[str, ScenarioGeometry | None]) -> list[dict]:
+def signal_rows(cells: list[Cell], courses: dict[str, Course]) -> list[dict]:
     """η2 and MI per frame against the distance (`distances`): the rows of a DVC plot."""
     return [
         {
@@ -211,5 +169,5 @@ def signal_rows(cells: list[Cell], geometries: dict[str, ScenarioGeometry | None
         }
         for cell in cells
         for i, r in enumerate(cell.results)
-        for d, e, m in zip(distances(r, geometries[cell.condition]), r.eta2, r.mutual_information)
+        for d, e, m in zip(distances(r, courses[cell.condition]), r.eta2, r.mutual_information)
     ]

@@ -23,6 +23,7 @@ from omegaconf import DictConfig
 from pydantic import Field
 
 from uqdrive.avoid.calibration import fresh_check_runs, min_calibration_runs
+from uqdrive.avoid.course import Course, CourseOf
 from uqdrive.avoid.results import Mode
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.policy.draws import DrawSettings
@@ -46,10 +47,9 @@ from uqdrive.schema import (
     schema,
     validate,
 )
-from uqdrive.sim import CameraConfig, ScenarioGeometry, VehicleConfig, build_geometry
+from uqdrive.sim import CameraConfig, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, Mixture, WorldChoice
-from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig, names_gym_world
-from uqdrive.sim.gym_world import GymWorldConfig
+from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WeatherConfig, names_gym_world
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
 from uqdrive.uq.multiplicity import split_gamma
 
@@ -242,8 +242,7 @@ class AvoidSettings:
     def replay_args(self) -> dict[str, float]:
         """The car and calibration settings the threshold replay needs (`uqdrive.avoid.calibration.replay`); a
         Gymnasium world's car is not ours: the replay brakes it within our car's limits, from cruise speed."""
-        known = self.known
-        start = self.spec.speed if known.gym_world is not None else known.scenario.start_speed
+        start = self.known.visit(CourseOf()).start_speed(self.spec.speed)
         return {
             "control_hz": self.control_hz,
             "cruise": self.spec.speed,
@@ -253,13 +252,13 @@ class AvoidSettings:
             "margin_m": self.calibration.margin_m,
         }
 
-    def geometries(self) -> dict[str, ScenarioGeometry | None]:
-        """Road geometry per condition name, for distances along the road (None: a Gymnasium world, whose road is
-        the env's own; distances are then along each run's path)."""
+    def geometries(self) -> dict[str, Course]:
+        """The course per condition name, for distances along the road (a Gymnasium world's road is the env's own:
+        distances are then along each run's path, `OwnPath`)."""
 
-        def geometry(where: Condition | Mixture) -> ScenarioGeometry | None:  # a mixture's road: the known one's
+        def geometry(where: Condition | Mixture) -> Course:  # a mixture's road: the known one's
             condition = where if isinstance(where, Condition) else self.known
-            return None if condition.gym_world is not None else build_geometry(condition.scenario)
+            return condition.visit(CourseOf())
 
         return {c.name: geometry(c) for c in self.conditions}
 

@@ -16,8 +16,8 @@ import math
 import statistics
 import time
 
-from uqdrive.sim.config import find_conf
-from uqdrive.sim.gym_world import GymWorld, GymWorldConfig
+from uqdrive.sim.config import GymWorldConfig, find_conf
+from uqdrive.sim.gym_world import GymWorld
 
 Commands = list[tuple[int, list[tuple[float, float]]]]  # (episode seed, its (steer, speed) commands)
 

@@ -62,7 +62,7 @@ def time_bare_renders(env: DrivingEnv, poses, weather: WeatherConfig, cull: bool
     ``cull``: of the scene the env renders (bodies out of view hidden, untimed); otherwise of
     every body, as the env rendered before it culled.
     """
-    cam, client, world = env.camera, env.client, env.world
+    cam, client, world = env.camera, env.client, env.scene
     cfg = cam.config
     light = np.asarray(weather.light_direction, float)
     light = (light / np.linalg.norm(light)).tolist()

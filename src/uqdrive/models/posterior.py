@@ -26,21 +26,40 @@ import re
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import torch
 from torch import nn
 from torch.nn.functional import unfold
 
 from uqdrive.data.binning import SteeringBins
+from uqdrive.data.datasets import FrameSet
 from uqdrive.models.pilotnet import INPUT_SHAPE, Architecture, Trunk
 from uqdrive.schema import METHOD_NAME as METHOD_NAME_PATTERN
 from uqdrive.schema import ConfigError, plain, validate
 
-if TYPE_CHECKING:
-    from uqdrive.models.training import TrainingData
-
 METHOD_NAME = re.compile(METHOD_NAME_PATTERN)
+
+
+class FitData(Protocol):
+    """What a method's `fit` reads: the train stage's `uqdrive.models.training.TrainingData`. Named here as a protocol
+    because that record loads its base model through `uqdrive.models.checkpoint`, which builds posteriors from this
+    module: the interface must not import it back."""
+
+    train: FrameSet
+    val: FrameSet
+    bins: SteeringBins
+    arch: Architecture
+    eval_samples: int
+
+    @property
+    def base(self) -> Posterior: ...
+
+    @property
+    def train_features(self) -> torch.Tensor: ...
+
+    @property
+    def val_features(self) -> torch.Tensor: ...
 
 
 @dataclass
@@ -68,14 +87,14 @@ class Posterior(nn.Module, ABC):
 
     @classmethod
     @abstractmethod
-    def fit(cls, settings: Any, data: TrainingData, generator: torch.Generator, progress: bool = False) -> Fitted:
+    def fit(cls, settings: Any, data: FitData, generator: torch.Generator, progress: bool = False) -> Fitted:
         """Fit the method on `data` (frames, or the base model's fixed trunk features)."""
 
     @classmethod
     def fit_replicates(
         cls,
         settings: Any,
-        data: Sequence[TrainingData],
+        data: Sequence[FitData],
         generators: Sequence[torch.Generator],
         progress: bool = False,
     ) -> list[Fitted]:

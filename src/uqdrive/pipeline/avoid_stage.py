@@ -27,14 +27,13 @@ from uqdrive.avoid.cells import (
     AvoidRun,
     Cell,
     cell_arrays,
-    distance_label,
-    distances,
     handed_over,
     panel,
     rollout_rows,
     signal_rows,
     traces_of,
 )
+from uqdrive.avoid.course import distances
 from uqdrive.avoid.figure import (
     avoid_signals_figure,
     avoid_tradeoff_figure,
@@ -168,10 +167,9 @@ def plot(run: AvoidRun) -> dict[str, plt.Figure]:
         for c in names
     }
     known = geometries[names[0]]
-    title = f"{settings.name}, warnings off: uncertainty approaching " + ("the obstacle" if known else "the run's end")
-    figures["warnings"] = avoid_signals_figure(
-        signals, settings.rule.config, calib.rule.config, title, distance_label(known)
-    )
+    approaching = "the obstacle" if known.fixed_hazard else "the run's end"
+    title = f"{settings.name}, warnings off: uncertainty approaching {approaching}"
+    figures["warnings"] = avoid_signals_figure(signals, settings.rule.config, calib.rule.config, title, known.label)
     title = f"{settings.name}: unknown-condition safety against known autonomy (replayed)"
     target = calib.certificate.autonomy_target
     figures["tradeoff"] = avoid_tradeoff_figure(

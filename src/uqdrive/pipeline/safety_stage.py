@@ -38,13 +38,10 @@ from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
 from uqdrive.safety.failures import job_failures
 from uqdrive.safety.figure import safety_hexbin, visits_colour_bar
 from uqdrive.safety.policy_files import load_policy, probe_policy
-from uqdrive.safety.positions import CellPositions, cell_positions, world_positions, write_positions
-from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.positions import CellPositions, job_positions, write_positions
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
-from uqdrive.safety.safe_sets import safe_set_for
 from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
-from uqdrive.sim import build_geometry
-from uqdrive.sim.condition import Condition, WorldChoice
+from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig, names_gym_world
 from uqdrive.stage import cell_overrides, grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
@@ -277,7 +274,7 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Seq
         return SafetyRun(previous, reused=True)
     with nullcontext(runner) if runner else CellRunner.of(plan.stage.executor, plan.stage.progress) as cells:
         run = cells.estimate(f"safety {section.cell}", plan.job, plan.stage.estimator, plan.key, section.rollout_log)
-    positions = positions_of(plan.job, run.results, run.outcome.value)
+    positions = job_positions(plan.job, run.results, run.outcome.value)
     cell = safety_cell(plan, run, overrides)
     figure = save_figure(cell_figure(plan, positions, run.outcome), Path(section.plots_dir) / f"{section.cell}.png")
     table = write_csv(Path(section.plots_dir) / f"{section.cell}.csv", [r.summary() for r in run.results])
@@ -288,16 +285,6 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Seq
     clips = worst_clips(plan.job, cell.failures, _clip_title(cell), section.clips_dir, cell.name, section.clips)
     log_cell(cfg, plan.stage, cell, [figure, table, *[c.mp4 for c in clips]], reused=run.reused)
     return SafetyRun(cell, run.reused)
-
-
-def positions_of(job: RolloutJob, results: Sequence[RolloutResult], eta1: float) -> CellPositions:
-    """Where the cell's rollouts went, on the road of its location (a Gymnasium world's road is the env's: none)."""
-    where: Condition = job.where
-    if where.gym_world is not None:
-        return world_positions(results, eta1)
-    geometry = build_geometry(where.scenario)
-    safe_set = safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width)
-    return cell_positions(results, geometry, safe_set, eta1)
 
 
 def sweep_cells(stage: SafetySweepStage) -> list[dict[str, Any]]:

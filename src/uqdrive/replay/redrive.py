@@ -20,8 +20,8 @@ from uqdrive.network_input import preprocess_frame
 from uqdrive.policy.controller import Command, Policy
 from uqdrive.safety.executors import RolloutJob, job_env
 from uqdrive.safety.failures import RolloutFailure, path_digest
-from uqdrive.safety.rollout import RolloutResult, World, run_rollouts
-from uqdrive.sim.gym_world import GymWorld
+from uqdrive.safety.rollout import RolloutResult, run_rollouts
+from uqdrive.sim.world import World
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,34 +55,17 @@ class _Watcher:
     ) -> list[Command]:
         frame = frames[0]
         self.frames.append(None if frame is None else preprocess_frame(frame))
-        self.views.append(_env_render(self.world))
+        self.views.append(self.world.view())
         commands = self.policy.act_batch(slots, frames, infos)
         self.steer.append(float(commands[0].steer))
         return commands
 
 
-def _env_render(world: World) -> np.ndarray | None:
-    """A Gymnasium env's own RGB picture of the current state (None: pybullet's world, or an env that draws none)."""
-    if not isinstance(world, GymWorld):
-        return None
-    env = world.env
-    if getattr(env, "render_mode", None) != "rgb_array":
-        return None
-    image = env.render()
-    return np.asarray(image) if isinstance(image, np.ndarray) and image.ndim == 3 else None
-
-
 def _world(job: RolloutJob, index: int) -> World:
-    """A fresh world for rollout ``index``; a Gymnasium env that can draw itself is asked to (rendering reads the
-    env's state and changes none of it: `check_against` proves the path unchanged)."""
-    world = job_env(job, job.condition(index).gym_world)
-    inner = world.env.unwrapped if isinstance(world, GymWorld) else None
-    if (
-        inner is not None
-        and getattr(inner, "render_mode", None) is None
-        and "rgb_array" in inner.metadata.get("render_modes", [])
-    ):
-        inner.render_mode = "rgb_array"
+    """A fresh world for rollout ``index``, drawing its own picture where it can (`World.watch`: `check_against`
+    proves the path unchanged)."""
+    world = job_env(job, index)
+    world.watch()
     return world
 
 

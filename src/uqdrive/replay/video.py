@@ -161,11 +161,8 @@ def _series(watched: Watched) -> list[tuple[np.ndarray, float, float]]:
 
 def _top_down_transform(x: np.ndarray, y: np.ndarray, placer: FailurePlacer):
     """World metres → pixels of the top-down panel, fitting the route and the path, north up."""
-    xs, ys = [np.asarray(x, float)], [np.asarray(y, float)]
-    if placer.geometry is not None:
-        xs.append(placer.geometry.route.x)
-        ys.append(placer.geometry.route.y)
-    all_x, all_y = np.concatenate(xs), np.concatenate(ys)
+    all_x = np.concatenate([np.asarray(x, float), placer.route[:, 0]])
+    all_y = np.concatenate([np.asarray(y, float), placer.route[:, 1]])
     left, top, w, h = TOP_DOWN
     span = max(float(np.ptp(all_x)), float(np.ptp(all_y)) * w / h, 1e-6) * 1.1
     scale = w / span
@@ -184,13 +181,11 @@ def _background(title: str, series, placer: FailurePlacer, to_pixel) -> np.ndarr
     x, y, w, h = TOP_DOWN
     cv2.rectangle(picture, (x, y), (x + w - 1, y + h - 1), GREY, 1)
     cv2.putText(picture, "top-down: path, safe set", (x + 4, y + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1)
-    if placer.geometry is not None:
-        route = placer.geometry.route
-        line = np.stack(to_pixel(route.x, route.y), axis=1).astype(np.int32)
+    if len(placer.route):
+        line = np.stack(to_pixel(placer.route[:, 0], placer.route[:, 1]), axis=1).astype(np.int32)
         cv2.polylines(picture, [line], False, GREY, 1, cv2.LINE_AA)
-        edges = placer.safe_set.boundaries() if placer.safe_set is not None else None
-        for edge in edges or ():
-            cv2.polylines(picture, [np.stack(to_pixel(edge[:, 0], edge[:, 1]), axis=1).astype(np.int32)], False, INK, 1)
+    for edge in placer.edges:
+        cv2.polylines(picture, [np.stack(to_pixel(edge[:, 0], edge[:, 1]), axis=1).astype(np.int32)], False, INK, 1)
     for i, (values, low, high) in enumerate(series):
         top = TITLE_H + VIEW_H + 8 + i * STRIP_H
         cv2.putText(picture, STRIP_LABELS[i], (8, top + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, INK, 1, cv2.LINE_AA)

@@ -2,10 +2,10 @@
 step the world's expert takes over with probability β instead — and every visited frame is labelled with the
 command the expert gives in that state, so the data shows how to come back from where the learner goes.
 
-The expert is the one that produced the training data: uqdrive's autopilot (unperturbed) in the pybullet world, a
-Gymnasium world's own (`GymWorld.expert_command`). Who drives a step is drawn from the episode's seed on a stream of
-its own, so an acquisition episode is a function of its seed, as every rollout is. Below: the records the `acquire`
-stage writes (per round, and per controller).
+The expert is the one that produced the training data (`uqdrive.sim.world.World.expert`): uqdrive's autopilot
+(unperturbed) in the pybullet world, a Gymnasium world's own. Who drives a step is drawn from the episode's seed on a
+stream of its own, so an acquisition episode is a function of its seed, as every rollout is. Below: the records the
+`acquire` stage writes (per round, and per controller).
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from uqdrive.policy.controller import Command, Policy
 from uqdrive.records import record
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.executors import PolicyRecipe, RolloutJob
-from uqdrive.safety.rollout import World, run_rollouts
-from uqdrive.sim import Autopilot, AutopilotConfig
+from uqdrive.safety.rollout import run_rollouts
+from uqdrive.sim import AutopilotConfig
 from uqdrive.sim.condition import Condition
-from uqdrive.sim.gym_world import GymWorld
+from uqdrive.sim.world import Expert, World
 from uqdrive.uq.paired import paired_table, paired_test
 
 MIX_STREAM = 0xDA66E  # who drives each step: a stream of the episode's seed apart from the episode's own draws
@@ -37,14 +37,10 @@ class ExpertPolicy:
 
     def __init__(self, config: AutopilotConfig | None = None):
         self.config = dataclasses.replace(config or AutopilotConfig(), perturb_prob=0.0)
-        self._experts: dict[int, Callable[[dict], tuple[float, float]]] = {}
+        self._experts: dict[int, Expert] = {}
 
     def reset(self, env: World, seed: int, slot: int = 0) -> None:
-        if isinstance(env, GymWorld):
-            self._experts[slot] = lambda info: env.expert_command()
-            return
-        autopilot = Autopilot(env.route, env.vehicle_config, self.config, env.control_hz, seed=seed)
-        self._experts[slot] = lambda info: _label_and_speed(autopilot, info)
+        self._experts[slot] = env.expert(self.config, seed)
 
     def command(self, slot: int, info: dict) -> tuple[float, float]:
         """(steering label, speed) the expert commands in the state of ``info``."""
@@ -52,11 +48,6 @@ class ExpertPolicy:
 
     def act_batch(self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]) -> list:
         return [Command(*self.command(slot, info)) for slot, info in zip(slots, infos)]
-
-
-def _label_and_speed(autopilot: Autopilot, info: dict) -> tuple[float, float]:
-    action = autopilot.act(info)
-    return action.label, action.speed
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """Run many rollouts in parallel: the project's process pool (`uqdrive.parallel`, default) or Ray actors
 (``executor=ray``), each worker stepping several rollouts in lockstep.
 
-Each worker owns up to ``lockstep`` worlds — `DrivingEnv`s (each its own pybullet client), or `GymWorld`s where the
-job's conditions name a Gymnasium world (judged by `InfoSafeSet`) — and one policy with a slot per world for its
+Each worker owns up to ``lockstep`` worlds (`uqdrive.sim.world.World`: the pybullet world, each its own client, or
+the Gymnasium world the job's conditions name, judged by `InfoSafeSet`) and one policy with a slot per world for its
 whole life. A request's indices are dealt to the workers in chunks of consecutive
 indices; a worker runs its chunk ``lockstep`` rollouts at a time, one batched network forward per control
 step (`run_rollouts`). A rollout is named only by its index i and uses seed ``base_seed + i``, its draws
@@ -28,13 +28,13 @@ from uqdrive.parallel import ProcessPool, report
 from uqdrive.policy.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
 from uqdrive.policy.draws import DrawSettings
 from uqdrive.policy.warnings import WarningController, WarningRule
-from uqdrive.safety.info_safe_set import InfoSafeSet
-from uqdrive.safety.rollout import RolloutResult, World, run_rollouts
-from uqdrive.safety.safe_sets import SafeSet, safe_set_for
+from uqdrive.safety.info_safe_set import AnySafeSet, SafeSetOf
+from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.schema import ConfigError
-from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, build_geometry
+from uqdrive.sim import AutopilotConfig, CameraConfig, ScenarioConfig, VehicleConfig
 from uqdrive.sim.condition import Condition, ConditionSource
-from uqdrive.sim.gym_world import GymWorld, GymWorldConfig
+from uqdrive.sim.config import GymWorldConfig
+from uqdrive.sim.world import World
 
 BACKENDS = ("process", "ray")
 RAY_CONNECT_TIMEOUT_S = 10.0  # a cluster's head answers a TCP connect at once; this long, and it is not there
@@ -188,34 +188,30 @@ client, or remakes the Gymnasium env). A stage of many cells so builds each env 
 cell (≈ 0.15 s each); only the last settings' envs are kept."""
 
 
-def job_env(job: Any, gym_world: GymWorldConfig | None) -> World:
-    """A new world for ``job``'s rollouts: the Gymnasium world ``gym_world`` where its conditions name one, else the
-    pybullet world with the job's camera, car, control rate and horizon."""
-    if gym_world is not None:
-        return GymWorld(gym_world)
-    return DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s)
+def job_env(job: Any, index: int = 0) -> World:
+    """A new world for ``job``'s rollout ``index``, with the job's camera, car, control rate and horizon (a
+    Gymnasium world's own: `Condition.make_world`)."""
+    return job.condition(index).make_world(job.camera, job.vehicle, job.control_hz, job.horizon_s)
 
 
 class WorkerEnvs:
     """A worker's envs for its whole life, at most ``width``: taken from the process's spares (`_spare_envs`), built
     as a chunk first needs them (a worker given 2 rollouts builds 2 worlds, not ``width``), left to the next job of
     the process at close. An env's state is set by each rollout's reset alone, so where it came from changes no
-    result. A job whose first rollout drives a Gymnasium world (`Condition.gym_world`) gets `GymWorld`s of it."""
+    result. A job's envs are the worlds its first rollout drives in (`Condition.make_world`)."""
 
     def __init__(self, job: Any, width: int):
         if width < 1:
             raise ValueError(f"lockstep width={width!r} must be >= 1")
         self.job, self.width = job, width
-        self.gym_world: GymWorldConfig | None = job.condition(0).gym_world
-        # envs of one key interchange
-        self.key = "gym" if self.gym_world else repr((job.camera, job.vehicle, job.control_hz, job.horizon_s))
+        self.key = job.condition(0).world_key(job.camera, job.vehicle, job.control_hz, job.horizon_s)
         self.envs: list[World] = _spare_envs.pop(self.key, [])
 
     def first(self, count: int) -> list[World]:
         """The first ``count`` envs (at most ``width``), built where missing."""
         count, job = min(count, self.width), self.job
         while len(self.envs) < count:
-            self.envs.append(job_env(job, self.gym_world))
+            self.envs.append(job_env(job))
         return self.envs[:count]
 
     def close(self) -> None:
@@ -238,17 +234,14 @@ class RolloutWorker:
         self.job = job
         self.policy = job.policy.build(job.control_hz)
         self._scenario: ScenarioConfig | GymWorldConfig | None = None
-        self._safe_set: SafeSet | InfoSafeSet | None = None
+        self._safe_set: AnySafeSet | None = None
 
-    def safe_set(self, scenario: ScenarioConfig | GymWorldConfig) -> SafeSet | InfoSafeSet:
-        if self._safe_set is None or scenario != self._scenario:
+    def safe_set(self, where: Condition) -> AnySafeSet:
+        """The safe set of ``where``'s location, for the job's car and corridor."""
+        if self._safe_set is None or where.scenario != self._scenario:
             vehicle = self.job.vehicle
-            if isinstance(scenario, GymWorldConfig):
-                self._safe_set = InfoSafeSet.of(scenario)
-            else:
-                geometry = build_geometry(scenario)
-                self._safe_set = safe_set_for(geometry, vehicle.width, vehicle.length, self.job.half_width)
-            self._scenario = scenario
+            self._safe_set = where.visit(SafeSetOf((vehicle.length, vehicle.width), self.job.half_width))
+            self._scenario = where.scenario
         return self._safe_set
 
     def run(self, indices: Sequence[int]) -> list[RolloutResult]:
@@ -263,7 +256,7 @@ class RolloutWorker:
             [job.base_seed + i for i in indices],
             conditions,
             job.half_width,
-            self.safe_set(first) if one_location else None,  # else judged on each rollout's own
+            self.safe_set(conditions[0]) if one_location else None,  # else judged on each rollout's own
             report,  # the bar moves per rollout, not per chunk
         )
 

@@ -9,6 +9,8 @@ warning fired before). The path's digest lets a replay prove it re-drove the ver
 
 from __future__ import annotations
 
+import abc
+import dataclasses
 import hashlib
 import math
 from collections.abc import Callable, Sequence
@@ -19,7 +21,8 @@ from uqdrive.records import record
 from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.safe_sets import SafeSet, obstacle_pass_progress, safe_set_for
-from uqdrive.sim import ScenarioGeometry, build_geometry
+from uqdrive.sim import ScenarioGeometry
+from uqdrive.sim.config import GymWorldConfig
 
 NO_PLACE = "episode"  # a Gymnasium world has no route: its failures are placed by time (early, middle, late)
 
@@ -70,31 +73,56 @@ def failure_cause(result: RolloutResult) -> str:
     return "short of the goal"
 
 
-class FailurePlacer:
-    """Places a failure on its route: the safe set's first lane exit, the segment it lies in. ``geometry`` None: a
-    Gymnasium world, placed by the step within ``horizon_steps``."""
+class FailurePlacer(abc.ABC):
+    """Places a failure in its run: the pose it failed at and the part of the run there. ``route``: the reference
+    route [N, 2] and ``edges``: the safe set's, that a picture of the failure draws (none in a Gymnasium world)."""
 
-    def __init__(self, geometry: ScenarioGeometry | None, safe_set: SafeSet | None, horizon_steps: int):
-        self.geometry, self.safe_set, self.horizon_steps = geometry, safe_set, max(1, horizon_steps)
-        self.segments = route_segments(geometry, safe_set) if geometry is not None else []
+    route: np.ndarray = np.zeros((0, 2))
+    edges: tuple[np.ndarray, ...] = ()
 
     def step(self, result: RolloutResult) -> int:
-        """The pose index of the failure: the body's first lane exit where it left its lane, else the last pose."""
-        if self.safe_set is not None and result.left_corridor and len(result.yaw) == len(result.x):
+        """The pose index of the failure: where the run ended."""
+        return max(len(result.x) - 1, 0)
+
+    @abc.abstractmethod
+    def place(self, result: RolloutResult, pose: int) -> tuple[float | None, str]:
+        """Metres along the route at ``pose`` (None off a route) and the segment there."""
+
+
+class RoadPlacer(FailurePlacer):
+    """Places a failure on its road: the safe set's first lane exit, the route segment it lies in."""
+
+    def __init__(self, geometry: ScenarioGeometry, safe_set: SafeSet):
+        self.geometry, self.safe_set = geometry, safe_set
+        self.segments = route_segments(geometry, safe_set)
+        self.route = geometry.route.points
+        self.edges = safe_set.boundaries() or ()
+
+    def step(self, result: RolloutResult) -> int:
+        """The body's first lane exit where it left its lane, else the last pose."""
+        if result.left_corridor and len(result.yaw) == len(result.x):
             exit_pose = self.safe_set.first_exit(self.geometry, result.x, result.y, result.yaw)
             if exit_pose is not None:
                 return exit_pose
-        return max(len(result.x) - 1, 0)
+        return super().step(result)
 
     def place(self, result: RolloutResult, pose: int) -> tuple[float | None, str]:
-        """Metres along the route at ``pose`` and the segment there (a Gymnasium world: a third of its horizon)."""
-        if self.geometry is None:
-            third = min(2, 3 * pose // self.horizon_steps)
-            return None, f"{('early', 'middle', 'late')[third]} in the {NO_PLACE}"
         s, _ = self.geometry.route.project(np.array([[result.x[pose], result.y[pose]]]))
         progress = float(s[0])
         name = next((name for name, start in reversed(self.segments) if progress >= start), self.segments[0][0])
         return round(progress, 3), name
+
+
+class EpisodePlacer(FailurePlacer):
+    """Places a failure of a Gymnasium world, which has no route of ours, by its step within ``horizon_steps``."""
+
+    def __init__(self, horizon_steps: int):
+        self.horizon_steps = max(1, horizon_steps)
+
+    def place(self, result: RolloutResult, pose: int) -> tuple[float | None, str]:
+        """No progress; a third of the horizon."""
+        third = min(2, 3 * pose // self.horizon_steps)
+        return None, f"{('early', 'middle', 'late')[third]} in the {NO_PLACE}"
 
 
 def route_segments(geometry: ScenarioGeometry, safe_set: SafeSet | None) -> list[tuple[str, float]]:
@@ -162,13 +190,24 @@ def _record(result: RolloutResult, index: int, condition: str, placer: FailurePl
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class _PlacerOf:
+    """The placer where a job's rollout drives (a `uqdrive.sim.world.WorldVisitor`): on its road, by the job's safe
+    set; in a Gymnasium world, by its horizon."""
+
+    job: RolloutJob
+
+    def road(self, geometry: ScenarioGeometry) -> FailurePlacer:
+        car, half_width = self.job.vehicle, self.job.half_width
+        return RoadPlacer(geometry, safe_set_for(geometry, car.width, car.length, half_width))
+
+    def gym(self, world: GymWorldConfig) -> FailurePlacer:
+        return EpisodePlacer(world.horizon_steps)
+
+
 def placer_for(job: RolloutJob, index: int = 0) -> FailurePlacer:
     """The placer of rollout ``index``'s failures, on the road and safe set it is judged by."""
-    world = job.condition(index).gym_world
-    if world is not None:
-        return FailurePlacer(None, None, world.horizon_steps)
-    geometry = build_geometry(job.condition(index).scenario)
-    return FailurePlacer(geometry, safe_set_for(geometry, job.vehicle.width, job.vehicle.length, job.half_width), 0)
+    return job.condition(index).visit(_PlacerOf(job))
 
 
 def job_failures(job: RolloutJob, results: Sequence[RolloutResult]) -> list[RolloutFailure]:

@@ -15,8 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from uqdrive.safety.safe_sets import PathVerdict
-from uqdrive.sim.gym_world import GymEpisode, GymWorldConfig
+from uqdrive.safety.safe_sets import PathVerdict, SafeSet, safe_set_for
+from uqdrive.sim.config import GymWorldConfig
+from uqdrive.sim.geometry import ScenarioGeometry
+from uqdrive.sim.gym_world import DrivenPath
 
 
 @dataclass(frozen=True)
@@ -30,13 +32,9 @@ class InfoSafeSet:
     def of(cls, config: GymWorldConfig) -> InfoSafeSet:
         return cls(dict(config.safe_if))
 
-    def judge(
-        self, geometry: GymEpisode, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, termination: str
-    ) -> PathVerdict:
-        """The verdict on the episode ``geometry`` records (the world's ``geometry``); the poses are not needed."""
-        if not isinstance(geometry, GymEpisode):
-            raise TypeError(f"InfoSafeSet judges a GymWorld's episodes, got a {type(geometry).__name__}")
-        infos = geometry.infos
+    def judge(self, lane: DrivenPath, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, termination: str) -> PathVerdict:
+        """The verdict on the episode ``lane`` records (a Gymnasium world's lane); the poses are not needed."""
+        infos = lane.infos
         held = all(bool(info[key]) == value for info in infos for key, value in self.safe_if.items())
         collision = termination == "collision" or any(info["collision"] for info in infos)
         off_road = termination == "off_road" or any(info["off_road"] for info in infos)
@@ -47,3 +45,22 @@ class InfoSafeSet:
     def boundaries(self) -> None:
         """No corridor to draw."""
         return None
+
+
+AnySafeSet = SafeSet | InfoSafeSet  # what judges a rollout: a road's lane rule, or a Gymnasium world's predicate
+
+
+@dataclass(frozen=True)
+class SafeSetOf:
+    """The safe set where a world drives (a `uqdrive.sim.world.WorldVisitor`): a road's, for a car of ``car_size``
+    (length, width) with ``half_width`` (m; None: the lane's), or a Gymnasium world's predicate."""
+
+    car_size: tuple[float, float]
+    half_width: float | None
+
+    def road(self, geometry: ScenarioGeometry) -> SafeSet:
+        length, width = self.car_size
+        return safe_set_for(geometry, width, length, self.half_width)
+
+    def gym(self, world: GymWorldConfig) -> InfoSafeSet:
+        return InfoSafeSet.of(world)

@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from uqdrive.files import atomic_path
+from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.rollout import RolloutResult
-from uqdrive.safety.safe_sets import SafeSet
+from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.sim import ScenarioGeometry
+from uqdrive.sim.config import GymWorldConfig
 
 EXTENT_MARGIN = 12.0  # metres around the reference route shown in the figures
 ROAD_CELL = 0.25  # metres: the road raster's resolution
@@ -76,6 +78,29 @@ def world_positions(results: Sequence[RolloutResult], eta1: float) -> CellPositi
     return CellPositions(
         rollout, x, y, none, none, none, np.array([lo[0], hi[0], lo[1], hi[1]]), np.zeros((0, 0), bool), eta1
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class _PositionsOf:
+    """A cell's positions where its rollouts drove (a `uqdrive.sim.world.WorldVisitor`)."""
+
+    job: RolloutJob
+    results: Sequence[RolloutResult]
+    eta1: float
+
+    def road(self, geometry: ScenarioGeometry) -> CellPositions:
+        car = self.job.vehicle
+        safe_set = safe_set_for(geometry, car.width, car.length, self.job.half_width)
+        return cell_positions(self.results, geometry, safe_set, self.eta1)
+
+    def gym(self, world: GymWorldConfig) -> CellPositions:
+        return world_positions(self.results, self.eta1)
+
+
+def job_positions(job: RolloutJob, results: Sequence[RolloutResult], eta1: float) -> CellPositions:
+    """Where a one-condition job's rollouts went, on the road of its location (a Gymnasium world's road is the
+    env's: none)."""
+    return job.condition(0).visit(_PositionsOf(job, results, eta1))
 
 
 def write_positions(path: str | Path, positions: CellPositions) -> Path:

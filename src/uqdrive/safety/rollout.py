@@ -14,20 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from uqdrive.policy.controller import Command, Policy
-from uqdrive.safety.info_safe_set import InfoSafeSet
-from uqdrive.safety.safe_sets import HANDOVER, SafeSet, safe_set_for
-from uqdrive.sim import DrivingEnv
+from uqdrive.safety.info_safe_set import AnySafeSet, SafeSetOf
+from uqdrive.safety.safe_sets import HANDOVER
 from uqdrive.sim.condition import Condition
-from uqdrive.sim.config import STOPPED_SPEED
-from uqdrive.sim.gym_world import GymWorld
-
-World = DrivingEnv | GymWorld  # a Gymnasium world drives as the pybullet one (`uqdrive.sim.gym_world`)
-
-
-def stopped_speed(env: World) -> float:
-    """The speed at or below which a car braking for a hand-over has stopped: ours tracks 0 exactly; a Gymnasium
-    world's car says its own (``GymWorldConfig.stopped_speed``)."""
-    return env.config.stopped_speed if isinstance(env, GymWorld) else STOPPED_SPEED
+from uqdrive.sim.world import World
 
 
 def _empty() -> np.ndarray:
@@ -80,7 +70,7 @@ def run_rollout(
     seed: int,
     condition: Condition,
     half_width: float | None = None,
-    safe_set: SafeSet | InfoSafeSet | None = None,
+    safe_set: AnySafeSet | None = None,
 ) -> RolloutResult:
     """Drive one episode until the env ends it (collision, off road, route complete or horizon T)
     or the policy has handed over and the car has stopped.
@@ -110,7 +100,7 @@ def run_rollouts(
     seeds: Sequence[int],
     conditions: Sequence[Condition],
     half_width: float | None = None,
-    safe_set: SafeSet | InfoSafeSet | None = None,
+    safe_set: AnySafeSet | None = None,
     on_done: Callable[[], None] | None = None,
 ) -> list[RolloutResult]:
     """The rollouts of ``seeds`` (in that order), each at its own of ``conditions``, ``len(envs)`` at a time in
@@ -150,7 +140,7 @@ def run_rollouts(
             episode.obs, episode.info = episode.env.step(command.steer, command.speed)
             episode.termination = episode.info["termination"]
             stopped = (
-                not episode.termination and command.handover and episode.info["speed"] <= stopped_speed(episode.env)
+                not episode.termination and command.handover and episode.info["speed"] <= episode.env.stopped_speed
             )
             if stopped:
                 episode.termination = HANDOVER
@@ -162,22 +152,16 @@ def run_rollouts(
     return results
 
 
-def _own_safe_set(env: World, half_width: float | None) -> SafeSet | InfoSafeSet:
-    """The safe set of the location ``env`` is at: its scenario's, or its Gymnasium world's predicate."""
-    if isinstance(env, GymWorld):
-        return InfoSafeSet.of(env.config)
-    return safe_set_for(env.geometry, env.vehicle_config.width, env.vehicle_config.length, half_width)
-
-
-def _result(episode: _Episode, safe_set: SafeSet | InfoSafeSet | None, half_width: float | None) -> RolloutResult:
-    """Judge a finished episode (before its env starts another)."""
+def _result(episode: _Episode, safe_set: AnySafeSet | None, half_width: float | None) -> RolloutResult:
+    """Judge a finished episode (before its env starts another): by ``safe_set``, else by the safe set of the
+    location its env is at."""
     env, commands = episode.env, episode.commands
-    safe_set = safe_set or _own_safe_set(env, half_width)
+    safe_set = safe_set or env.visit(SafeSetOf(env.car_size, half_width))
     eta2 = [c.eta2 for c in commands]
     mi = [c.mutual_information for c in commands]
     log = env.trajectory
-    verdict = safe_set.judge(env.geometry, log["x"], log["y"], log["yaw"], episode.termination)
-    lateral = env.geometry.lateral_deviation(np.stack([log["x"], log["y"]], axis=1))
+    verdict = safe_set.judge(env.lane, log["x"], log["y"], log["yaw"], episode.termination)
+    _, lateral = env.lane.local_coordinates(np.stack([log["x"], log["y"]], axis=1))
     return RolloutResult(
         seed=episode.seed,
         safe=verdict.safe,

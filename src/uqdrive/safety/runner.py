@@ -32,7 +32,6 @@ from uqdrive.safety.executors import LOCKSTEP, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.sim.condition import Condition, Mixture
-from uqdrive.sim.gym_world import GymWorldConfig, world_identity, world_modules
 from uqdrive.uq import Estimate
 
 T = TypeVar("T")
@@ -59,19 +58,20 @@ def _conditions(where: Any) -> tuple[Any, ...]:
     return (where,) if isinstance(where, Condition) else (getattr(where, "base", None),)
 
 
-def gym_worlds(where: Any) -> list[GymWorldConfig]:
-    """The Gymnasium worlds a job's rollouts drive (none: pybullet)."""
-    return [c.gym_world for c in _conditions(where) if isinstance(c, Condition) and c.gym_world is not None]
+def external(where: Any) -> list[Condition]:
+    """The conditions of a job's source whose world is more than uqdrive's code and config (`Condition.external`)."""
+    return [c for c in _conditions(where) if isinstance(c, Condition) and c.external]
 
 
 def where_identity(where: Any) -> Any:
-    """A condition source as its identity sees it: a Gymnasium world by `world_identity`; anything else as itself."""
+    """A condition source as its identity sees it: an external world by its identity (`Condition.external_identity`);
+    anything else as itself."""
     if isinstance(where, Mixture):
         return {"mixture": where.name, "variants": [where_identity(v) for v in where.variants]}
-    if isinstance(where, Condition) and where.gym_world is not None:
-        return {"gym_world": world_identity(where.gym_world), "noise": where.noise, "name": where.name}
-    if gym_worlds(where):  # an envelope's source over a Gymnasium world
-        return {"source": where, "gym_world": world_identity(where.base.gym_world)}
+    if isinstance(where, Condition) and where.external:
+        return {"gym_world": where.external_identity(), "noise": where.noise, "name": where.name}
+    if external(where):  # an envelope's source over an external world
+        return {"source": where, "gym_world": where.base.external_identity()}
     return where
 
 
@@ -85,7 +85,7 @@ def job_identity(job: Any) -> dict:
     if policy is not None and dataclasses.is_dataclass(policy):
         skip = {"model_path", *getattr(policy, "NOT_IDENTITY", ())}  # files by their bytes, not where they lie
         fields["policy"] = {k: v for k, v in policy.__dict__.items() if k not in skip}
-    if gym_worlds(fields.get("where")):
+    if external(fields.get("where")):
         fields["where"] = where_identity(fields["where"])
     return fields
 
@@ -93,7 +93,7 @@ def job_identity(job: Any) -> dict:
 def cell_key(job: Any, consumer: Mapping[str, Any], model_path: str | Path | None, stage_module: str) -> str:
     """The identity hash of a cell: model bytes, job, ``consumer`` (the estimator's or test's settings), code (the
     modules a Gymnasium world loads by name among it)."""
-    worlds = [module for world in gym_worlds(getattr(job, "where", None)) for module in world_modules(world)]
+    worlds = [module for where in external(getattr(job, "where", None)) for module in where.loaded_modules()]
     modules = [stage_module, *([model_module(model_path)] if model_path else []), *worlds]
     identity = {
         "model_sha256": file_digest(model_path) if model_path else None,

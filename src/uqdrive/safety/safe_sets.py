@@ -122,15 +122,6 @@ def body_corners(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: float, w
     return np.concatenate(out)
 
 
-def lane_half_width(geometry: ScenarioGeometry) -> np.ndarray:
-    """Half-width of the lane the route runs in, per route point: half the ring on the ring
-    (the route follows its centre line), half a lane on the arms (the route is the right lane's centre)."""
-    cfg = geometry.config
-    cx, cy, _ = geometry.island
-    r = np.hypot(geometry.route.x - cx, geometry.route.y - cy)
-    return np.where(r <= cfg.ring_radius + cfg.ring_width / 2, cfg.ring_width / 2, cfg.lane_width / 2)
-
-
 def obstacle_pass_progress(geometry: ScenarioGeometry, vehicle_length: float) -> float:
     """Metres along the route at which the car's centre is a full car length past the obstacle's centre."""
     obstacle = geometry.obstacles[0]
@@ -152,5 +143,5 @@ def safe_set_for(
     cx, cy, _ = geometry.island
     on_ring = np.flatnonzero(np.hypot(route.x - cx, route.y - cy) <= cfg.ring_radius + cfg.ring_width / 2)
     exit_progress = float(route.s[on_ring[-1]])  # where the route leaves the ring: the first exit
-    widths = lane_half_width(geometry) if half_width is None else np.full(len(route.s), half_width)
+    widths = geometry.width_at(route.s) / 2 if half_width is None else np.full(len(route.s), half_width)
     return SafeSet("roundabout", route.x, route.y, widths, exit_progress, car)

@@ -9,15 +9,27 @@ asks its source for rollout i's condition (`condition(index, seed)`); a `Conditi
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from pydantic import model_validator
 
 from uqdrive.resolvers import condition_label
 from uqdrive.schema import NonNegative, invalid, schema
-from uqdrive.sim.config import ScenarioConfig, WeatherConfig
-from uqdrive.sim.gym_world import GymWorldConfig, refuse_conditions
+from uqdrive.sim.config import (
+    CameraConfig,
+    GymWorldConfig,
+    ScenarioConfig,
+    VehicleConfig,
+    WeatherConfig,
+    refuse_conditions,
+)
+from uqdrive.sim.env import DrivingEnv
+from uqdrive.sim.geometry import build_geometry
+from uqdrive.sim.gym_world import GymWorld, world_identity, world_modules
+from uqdrive.sim.world import World, WorldVisitor
+
+R = TypeVar("R")
 
 VARIANT_STREAM = 0xA401D  # a mixture's variant draw: its own random stream of a rollout seed, apart from the episode's
 NO_WEATHER = "env"  # a Gymnasium world's weather in cell names and records: the env's own, none of ours
@@ -59,6 +71,39 @@ class Condition:
     def condition(self, index: int, seed: int) -> Condition:
         """Every rollout drives here."""
         return self
+
+    def visit(self, visitor: WorldVisitor[R]) -> R:
+        """``visitor``'s answer where this condition drives: on its scenario's road (built here), or in its
+        Gymnasium world."""
+        world = self.gym_world
+        return visitor.gym(world) if world is not None else visitor.road(build_geometry(self.scenario))
+
+    @property
+    def external(self) -> bool:
+        """Whether rollouts here run code and config beyond uqdrive's and this condition's fields (a Gymnasium
+        world's env and hooks), which a cell's identity then records (`external_identity`, `loaded_modules`)."""
+        return self.gym_world is not None
+
+    def external_identity(self) -> dict[str, Any] | None:
+        """The world's identity beyond uqdrive's code (`uqdrive.sim.gym_world.world_identity`); None: nothing."""
+        world = self.gym_world
+        return None if world is None else world_identity(world)
+
+    def loaded_modules(self) -> list[str]:
+        """uqdrive's modules rollouts here load by name, which no static import reaches (`world_modules`)."""
+        world = self.gym_world
+        return [] if world is None else world_modules(world)
+
+    def make_world(self, camera: CameraConfig, vehicle: VehicleConfig, control_hz: float, horizon_s: float) -> World:
+        """A new world to drive this condition in: its Gymnasium world, else the pybullet world with this camera,
+        car, control rate and horizon."""
+        world = self.gym_world
+        return GymWorld(world) if world is not None else DrivingEnv(camera, vehicle, control_hz, horizon_s)
+
+    def world_key(self, camera: CameraConfig, vehicle: VehicleConfig, control_hz: float, horizon_s: float) -> str:
+        """The worlds `make_world` makes with one key interchange (a reset sets everything else): every Gymnasium
+        world (a reset remakes its env for another config), the pybullet worlds of one camera, car, rate and horizon."""
+        return "gym" if self.gym_world is not None else repr((camera, vehicle, control_hz, horizon_s))
 
 
 class ConditionSource(Protocol):

@@ -6,9 +6,9 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Literal, TypeVar, get_args
+from typing import Annotated, Any, ClassVar, Literal, TypeVar, get_args
 
-from pydantic import Field
+from pydantic import Field, Strict
 
 from uqdrive.schema import (
     Bool,
@@ -28,6 +28,8 @@ from uqdrive.schema import (
     schema,
     validate,
 )
+
+from .gym_hooks import hooks_class
 
 ScenarioKind = Literal["straight", "obstacle", "roundabout"]
 SCENARIO_KINDS = get_args(ScenarioKind)
@@ -257,14 +259,90 @@ class SimConfig(Section):
     autopilot: AutopilotConfig = Field(default_factory=AutopilotConfig)
 
 
+@schema
+class GymWorldConfig(Section):
+    """A Gymnasium env as a world: ``gymnasium.make(env_id, **env_kwargs)``, read through ``hooks``.
+
+    ``name``: the location's name in cells, files and runs (a condition of the env, e.g. other env_kwargs, is
+    another location under another name).
+    ``safe_if``: info key → the value it must have at every step for the path to be safe (`InfoSafeSet`).
+    ``horizon_steps``: the episode ends by timeout after this many steps (T = horizon_steps / control_hz),
+    or earlier if the env truncates it. ``control_hz``: decisions per simulated second (the info's ``t``).
+    ``stopped_speed``: m/s at or below which a car braking for a hand-over has stopped: by default uqdrive's car's
+    (it tracks 0 exactly); an env's car may approach 0 only asymptotically (HighwayEnv's, tracking a speed of 0,
+    takes longer than its 15 s episode to reach 1e-6: conf/gym_world/highway_roundabout.yaml sets 0.1).
+    """
+
+    section: ClassVar[str] = "gym_world"
+
+    name: Annotated[str, Strict(), Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")] = "gym_world"  # a file name
+    env_id: Str = "uqdrive/Roundabout-v0"
+    env_kwargs: dict[str, Any] = Field(default_factory=dict)
+    hooks: Str = "info"  # info, highway or module:Class (`uqdrive.sim.gym_hooks`)
+    hooks_options: dict[str, Any] = Field(default_factory=dict)
+    safe_if: dict[str, Bool] = Field(default_factory=lambda: {"collision": False, "off_road": False})
+    horizon_steps: Count = 600
+    control_hz: Positive = 15.0
+    stopped_speed: NonNegative = STOPPED_SPEED
+
+    def __post_init__(self) -> None:
+        hooks_class(self.hooks, "hooks").check_options(self.hooks_options)  # before any work: the class and options
+
+    def changed(self, changes: Mapping[str, Any], name: str, key: str) -> GymWorldConfig:
+        """This world with each key of ``changes`` set (dotted, e.g. ``env_kwargs.config.other_vehicles_type``, or
+        nested), as the location ``name``: one of the env's own conditions (``key``: where ``changes`` came from)."""
+        data = self.to_dict()
+        for dotted, value in _leaves(changes):
+            node, last = self.condition_slot(data, dotted, f"{key}.{dotted}")
+            node[last] = value
+        return validate(GymWorldConfig, {**data, "name": name}, key)
+
+    def condition_value(self, dotted: str, key: str) -> Any:
+        """The value this world has at ``dotted``, a condition of its env (`condition_slot`)."""
+        node, last = self.condition_slot(self.to_dict(), dotted, key)
+        return node[last]
+
+    def condition_slot(self, data: dict[str, Any], dotted: str, key: str) -> tuple[dict[str, Any], str]:
+        """Where ``dotted`` sits in ``data`` (this world's config as a dict). A condition of a Gymnasium world is a
+        key of its env's kwargs that the world already sets: never its rate, horizon, safe set or expert (the rollouts
+        run to the world's), and never a new key (a misspelt one would be a condition identical to the known one)."""
+        parts = dotted.split(".")
+        if parts[0] != "env_kwargs" or len(parts) < 2:
+            raise ConfigError(f"{key}: a condition of {self.env_id} is a key of its env_kwargs (env_kwargs.<key>)")
+        node: Any = data
+        for part in parts[:-1]:
+            node = node.get(part) if isinstance(node, dict) else None
+        if not isinstance(node, dict) or parts[-1] not in node:
+            raise ConfigError(f"{key}: gym_world {self.name!r} sets no {dotted} (a condition changes a key it sets)")
+        return node, parts[-1]
+
+
+def _leaves(changes: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every leaf of ``changes`` (nested mappings flattened)."""
+    out = []
+    for k, v in changes.items():
+        if isinstance(v, Mapping) and v:
+            out += _leaves(v, f"{prefix}{k}.")
+        else:
+            out.append((f"{prefix}{k}", v))
+    return out
+
+
+def refuse_conditions(config: GymWorldConfig, scenario: Any, weather: Any) -> None:
+    """A scenario or weather of uqdrive's (anything not None) where ``config``'s env is the world: one line naming
+    the key (its value by name) and the env."""
+    for key, value in (("scenario", scenario), ("weather", weather)):
+        if value is not None:
+            name = getattr(value, "name", value)
+            raise ConfigError(f"{key}={name!r}: {config.env_id} has no {key} condition (the world is the env)")
+
+
 def register_schemas() -> None:
     """The world's defaults in Hydra's ConfigStore, which conf/scenario/, conf/weather/, conf/gym_world/ and
     conf/sim.yaml extend (`scenario_schema`, `weather_schema`, `gym_world_schema`, `sim_schema`): for the stages that
     compose them. Top-level nodes, not options of the groups they fill, so `weather=weather_schema` is no weather and
     `--help` lists none."""
     from hydra.core.config_store import ConfigStore
-
-    from .gym_world import GymWorldConfig  # here: it imports this module
 
     store = ConfigStore.instance()
     store.store(name="scenario_schema", node=defaults(ScenarioConfig))

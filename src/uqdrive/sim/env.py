@@ -9,19 +9,28 @@ import numpy as np
 
 from uqdrive.schema import ConfigError
 
+from .autopilot import Autopilot
 from .bullet import connect_direct
 from .camera import Camera
-from .config import CameraConfig, ScenarioConfig, VehicleConfig, WeatherConfig, check_noise
+from .config import (
+    STOPPED_SPEED,
+    AutopilotConfig,
+    CameraConfig,
+    ScenarioConfig,
+    VehicleConfig,
+    WeatherConfig,
+    check_noise,
+)
 from .geometry import ScenarioGeometry, build_geometry
 from .route import Route
+from .scene import Scene
 from .vehicle import KinematicBicycle, VehicleState
-from .world import World
+from .world import Expert, R, World, WorldVisitor
 
 TERMINATIONS = ("", "collision", "off_road", "route_complete", "timeout")
-_TRAJECTORY_KEYS = ("t", "x", "y", "yaw", "speed", "steering")
 
 
-class DrivingEnv:
+class DrivingEnv(World):
     """Kinematic car in a static pybullet world, seen through a front camera.
 
     Each env owns a DIRECT pybullet client, so envs in different workers never interfere.
@@ -41,6 +50,7 @@ class DrivingEnv:
             raise ConfigError(f"control_hz={control_hz!r} must be > 0")
         if not horizon_s > 0:
             raise ConfigError(f"horizon_s={horizon_s!r} must be > 0")
+        super().__init__()
         self.camera_config = camera or CameraConfig()
         self.vehicle_config = vehicle or VehicleConfig()
         self.control_hz = float(control_hz)
@@ -51,10 +61,8 @@ class DrivingEnv:
         self.model = KinematicBicycle(self.vehicle_config)
         self._scenario: ScenarioConfig | None = None
         self._geometry: ScenarioGeometry | None = None
-        self._world: World | None = None
+        self._scene: Scene | None = None
         self._state: VehicleState | None = None
-        self._done = True
-        self._log: dict[str, list[float]] = {k: [] for k in _TRAJECTORY_KEYS}
 
     # -- lifecycle ------------------------------------------------------------------------
     def reset(
@@ -76,7 +84,7 @@ class DrivingEnv:
         self.render_enabled = bool(render)
         if self._scenario != scenario:
             self._geometry = build_geometry(scenario)
-            self._world = World(self.client, self._geometry, self.vehicle_config)
+            self._scene = Scene(self.client, self._geometry, self.vehicle_config)
             self._scenario = dataclasses.replace(scenario)
         pose_rng, streak_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
         self._streak_rng, self._noise_rng = streak_rng, noise_rng
@@ -92,7 +100,7 @@ class DrivingEnv:
         self._t = 0.0
         self._applied = 0.0
         self._done = False
-        self._log = {k: [] for k in _TRAJECTORY_KEYS}
+        self._start_log()
         self.last_info = self._evaluate()
         return self._observe()
 
@@ -112,7 +120,7 @@ class DrivingEnv:
         return self._observe(), info
 
     def _evaluate(self) -> dict:
-        st, geo, world = self._state, self._geometry, self._world
+        st, geo, world = self._state, self._geometry, self._scene
         world.set_ego_pose(st.x, st.y, st.yaw)
         collision = world.in_collision(st.x, st.y)
         off_road = not geo.paved.covers(self.model.corners(st))
@@ -128,8 +136,7 @@ class DrivingEnv:
         else:
             termination = ""
         self._done = termination != ""
-        for key, value in zip(_TRAJECTORY_KEYS, (self._t, st.x, st.y, st.yaw, st.speed, self._applied)):
-            self._log[key].append(value)
+        self._log_step((self._t, st.x, st.y, st.yaw, st.speed, self._applied))
         return {
             "t": self._t,
             "x": st.x,
@@ -150,21 +157,12 @@ class DrivingEnv:
         if not self.render_enabled:
             return None
         st = self._state
-        self._world.cull(*self.camera.view_wedge(st.x, st.y, st.yaw))
+        self._scene.cull(*self.camera.view_wedge(st.x, st.y, st.yaw))
         return self.camera.render(
-            st.x, st.y, st.yaw, self.weather, self._world.road_lookup, self._streak_rng, self.noise, self._noise_rng
+            st.x, st.y, st.yaw, self.weather, self._scene.road_lookup, self._streak_rng, self.noise, self._noise_rng
         )
 
     # -- accessors ------------------------------------------------------------------------
-    @property
-    def done(self) -> bool:
-        return self._done
-
-    @property
-    def trajectory(self) -> dict[str, np.ndarray]:
-        """Per-step log (the paper's GPS log), including the start: t, x, y, yaw, speed, steering."""
-        return {k: np.asarray(v, float) for k, v in self._log.items()}
-
     @property
     def geometry(self) -> ScenarioGeometry:
         if self._geometry is None:
@@ -176,18 +174,38 @@ class DrivingEnv:
         return self.geometry.route
 
     @property
-    def world(self) -> World:
-        if self._world is None:
+    def scene(self) -> Scene:
+        if self._scene is None:
             raise RuntimeError("no scenario yet; call reset() first")
-        return self._world
+        return self._scene
+
+    @property
+    def lane(self) -> ScenarioGeometry:
+        """The road's lane: the scenario's route."""
+        return self.geometry
+
+    @property
+    def stopped_speed(self) -> float:
+        return STOPPED_SPEED
+
+    @property
+    def car_size(self) -> tuple[float, float]:
+        return self.vehicle_config.length, self.vehicle_config.width
+
+    def expert(self, autopilot: AutopilotConfig, seed: int) -> Expert:
+        """uqdrive's autopilot on this scenario's route, seeded by the episode: its label and speed."""
+        pilot = Autopilot(self.route, self.vehicle_config, autopilot, self.control_hz, seed=seed)
+
+        def command(info: dict) -> tuple[float, float]:
+            action = pilot.act(info)
+            return action.label, action.speed
+
+        return command
+
+    def visit(self, visitor: WorldVisitor[R]) -> R:
+        return visitor.road(self.geometry)
 
     def close(self) -> None:
         if self.client is not None:
             self.client.disconnect()
             self.client = None
-
-    def __enter__(self) -> DrivingEnv:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

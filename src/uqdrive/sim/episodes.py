@@ -91,8 +91,8 @@ class EpisodeWorker:
 
     def __init__(self, job: EpisodeJob):
         self.job = job
-        world, sim = job.where.gym_world, job.sim
-        self.env = GymWorld(world) if world else DrivingEnv(sim.camera, sim.vehicle, sim.control_hz, sim.horizon_s)
+        sim = job.sim
+        self.env = job.where.make_world(sim.camera, sim.vehicle, sim.control_hz, sim.horizon_s)
 
     def run(self, episode: int) -> tuple[int, dict[str, list], str, list[np.ndarray]]:
         """Episode ``episode``: its seed, rows, termination and the frames the mosaic shows."""

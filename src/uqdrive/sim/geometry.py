@@ -40,8 +40,31 @@ class ScenarioGeometry(Layout):
     def is_paved(self, points: np.ndarray) -> np.ndarray:
         return self.paved.contains(points)
 
-    def lateral_deviation(self, points: np.ndarray) -> np.ndarray:
-        return self.route.project(points)[1]
+    # the road's lane (`uqdrive.sim.world.Lane`): the route's, the one the car is to keep to
+    def position(self, longitudinal: np.ndarray, lateral: np.ndarray) -> np.ndarray:
+        x, y, heading = self.route.sample(longitudinal)
+        return np.stack([x - lateral * np.sin(heading), y + lateral * np.cos(heading)], axis=-1)
+
+    def local_coordinates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.route.project(points)
+
+    def heading_at(self, longitudinal: np.ndarray) -> np.ndarray:
+        return self.route.sample(longitudinal)[2]
+
+    def width_at(self, longitudinal: np.ndarray) -> np.ndarray:
+        """A lane's width on a straight or obstacle road and on a roundabout's arms, the ring's on its ring (the
+        route follows the ring's centre line)."""
+        cfg = self.config
+        if self.island is None:
+            return np.full(np.shape(longitudinal), cfg.lane_width)
+        x, y, _ = self.route.sample(longitudinal)
+        on_ring = np.hypot(x - self.island[0], y - self.island[1]) <= cfg.ring_radius + cfg.ring_width / 2
+        return np.where(on_ring, cfg.ring_width, cfg.lane_width)
+
+    def on_lane(self, points: np.ndarray) -> np.ndarray:
+        longitudinal, lateral = self.local_coordinates(points)
+        inside = (longitudinal >= 0) & (longitudinal <= self.route.length)
+        return inside & (np.abs(lateral) <= self.width_at(longitudinal) / 2)
 
 
 def _place_scenery(cfg: ScenarioConfig, paved: PavedArea, bounds, island) -> list[Scenery]:

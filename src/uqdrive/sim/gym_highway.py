@@ -32,8 +32,8 @@ from highway_env.vehicle.behavior import IDMVehicle
 
 from uqdrive.schema import ConfigError, invalid
 
+from .config import GymWorldConfig
 from .gym_hooks import WorldHooks
-from .gym_world import GymWorldConfig
 
 SPEED_TIME_CONSTANT_S = 1.0  # of the speed_range tracker: acceleration = (command − v) / this
 

@@ -1,8 +1,8 @@
 """Any registered Gymnasium env as a world the closed-loop rollouts drive.
 
-`GymWorld` has `DrivingEnv`'s interface (``reset(seed, scenario, weather, noise, render)`` → frame,
-``step(steer, speed)`` → frame, info; ``last_info``, ``done``, ``trajectory``), so `run_rollouts` drives it as it
-drives the pybullet world, judged by `uqdrive.safety.info_safe_set.InfoSafeSet` (a predicate over every step's info).
+`GymWorld` is a `uqdrive.sim.world.World`, as `DrivingEnv` is, so `run_rollouts` drives it as it drives the pybullet
+world; its lane is the path the run drove (`DrivenPath`), judged by `uqdrive.safety.info_safe_set.InfoSafeSet` (a
+predicate over every step's info).
 
 What differs between envs sits behind the world's hooks (``GymWorldConfig.hooks``, `uqdrive.sim.gym_hooks`): how
 the env's observation becomes the network's grey frame, where pose, speed, collision and off-road come from, how a
@@ -27,125 +27,77 @@ import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Annotated, Any, ClassVar, TypeVar
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
-from pydantic import Field, Strict
 
 from uqdrive.deps import user_sources
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
-from uqdrive.schema import Bool, ConfigError, Count, NonNegative, Positive, Str, schema, validate
+from uqdrive.schema import ConfigError
 
 from .camera import add_noise
-from .config import STOPPED_SPEED, Section, check_noise
+from .config import AutopilotConfig, GymWorldConfig, VehicleConfig, WeatherConfig, check_noise, refuse_conditions
 from .gym_hooks import HOOKS, WorldFailure, WorldHooks, hooks_class
+from .world import TRAJECTORY_KEYS, Expert, R, World, WorldVisitor
 
 T = TypeVar("T")
 
-_TRAJECTORY_KEYS = ("t", "x", "y", "yaw", "speed", "steering")
-
-
-@schema
-class GymWorldConfig(Section):
-    """A Gymnasium env as a world: ``gymnasium.make(env_id, **env_kwargs)``, read through ``hooks``.
-
-    ``name``: the location's name in cells, files and runs (a condition of the env, e.g. other env_kwargs, is
-    another location under another name).
-    ``safe_if``: info key → the value it must have at every step for the path to be safe (`InfoSafeSet`).
-    ``horizon_steps``: the episode ends by timeout after this many steps (T = horizon_steps / control_hz),
-    or earlier if the env truncates it. ``control_hz``: decisions per simulated second (the info's ``t``).
-    ``stopped_speed``: m/s at or below which a car braking for a hand-over has stopped: by default uqdrive's car's
-    (it tracks 0 exactly); an env's car may approach 0 only asymptotically (HighwayEnv's, tracking a speed of 0,
-    takes longer than its 15 s episode to reach 1e-6: conf/gym_world/highway_roundabout.yaml sets 0.1).
-    """
-
-    section: ClassVar[str] = "gym_world"
-
-    name: Annotated[str, Strict(), Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")] = "gym_world"  # a file name
-    env_id: Str = "uqdrive/Roundabout-v0"
-    env_kwargs: dict[str, Any] = Field(default_factory=dict)
-    hooks: Str = "info"  # info, highway or module:Class (`uqdrive.sim.gym_hooks`)
-    hooks_options: dict[str, Any] = Field(default_factory=dict)
-    safe_if: dict[str, Bool] = Field(default_factory=lambda: {"collision": False, "off_road": False})
-    horizon_steps: Count = 600
-    control_hz: Positive = 15.0
-    stopped_speed: NonNegative = STOPPED_SPEED
-
-    def __post_init__(self) -> None:
-        hooks_class(self.hooks, "hooks").check_options(self.hooks_options)  # before any work: the class and options
-
-    def changed(self, changes: Mapping[str, Any], name: str, key: str) -> GymWorldConfig:
-        """This world with each key of ``changes`` set (dotted, e.g. ``env_kwargs.config.other_vehicles_type``, or
-        nested), as the location ``name``: one of the env's own conditions (``key``: where ``changes`` came from)."""
-        data = self.to_dict()
-        for dotted, value in _leaves(changes):
-            node, last = self.condition_slot(data, dotted, f"{key}.{dotted}")
-            node[last] = value
-        return validate(GymWorldConfig, {**data, "name": name}, key)
-
-    def condition_value(self, dotted: str, key: str) -> Any:
-        """The value this world has at ``dotted``, a condition of its env (`condition_slot`)."""
-        node, last = self.condition_slot(self.to_dict(), dotted, key)
-        return node[last]
-
-    def condition_slot(self, data: dict[str, Any], dotted: str, key: str) -> tuple[dict[str, Any], str]:
-        """Where ``dotted`` sits in ``data`` (this world's config as a dict). A condition of a Gymnasium world is a
-        key of its env's kwargs that the world already sets: never its rate, horizon, safe set or expert (the rollouts
-        run to the world's), and never a new key (a misspelt one would be a condition identical to the known one)."""
-        parts = dotted.split(".")
-        if parts[0] != "env_kwargs" or len(parts) < 2:
-            raise ConfigError(f"{key}: a condition of {self.env_id} is a key of its env_kwargs (env_kwargs.<key>)")
-        node: Any = data
-        for part in parts[:-1]:
-            node = node.get(part) if isinstance(node, dict) else None
-        if not isinstance(node, dict) or parts[-1] not in node:
-            raise ConfigError(f"{key}: gym_world {self.name!r} sets no {dotted} (a condition changes a key it sets)")
-        return node, parts[-1]
-
-
-def _leaves(changes: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
-    """(dotted key, value) of every leaf of ``changes`` (nested mappings flattened)."""
-    out = []
-    for k, v in changes.items():
-        if isinstance(v, Mapping) and v:
-            out += _leaves(v, f"{prefix}{k}.")
-        else:
-            out.append((f"{prefix}{k}", v))
-    return out
-
 
 @dataclass
-class GymEpisode:
-    """The record of one episode: every step's info, the reset's first. `run_rollouts` hands a world's
-    ``geometry`` to the safe set and asks it for the path's lateral deviation; a Gymnasium world has no static
-    geometry, so this record stands in for it (`InfoSafeSet` judges it)."""
+class DrivenPath:
+    """The lane of a Gymnasium run (`uqdrive.sim.world.Lane`): uqdrive knows no road of the env, so the path the
+    car drove stands in for it, with what the env reported at every step (its info, the reset's first). It answers
+    at the path's own points, one per recorded step: lane coordinates are the metres driven and the env's lateral
+    deviation, on the lane is not off the road, the heading is the car's, the width the env does not say."""
 
     infos: list[dict[str, Any]] = field(default_factory=list)
 
-    def lateral_deviation(self, points: np.ndarray) -> np.ndarray:
-        """The recorded lateral deviation at the path's points (one per step, as the trajectory logs them)."""
+    def _driven(self) -> np.ndarray:
+        """Metres driven up to each recorded step."""
+        x, y = (np.array([info[k] for info in self.infos], dtype=float) for k in ("x", "y"))
+        return np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
+
+    def _per_step(self, points: np.ndarray, key: str) -> np.ndarray:
+        """The recorded ``key`` at the path's points (one per step, as the trajectory logs them)."""
         if len(points) != len(self.infos):
             raise ValueError(f"{len(points)} points for an episode of {len(self.infos)} recorded steps")
-        return np.array([info["lateral_deviation"] for info in self.infos], dtype=float)
+        return np.array([info[key] for info in self.infos], dtype=float)
+
+    def position(self, longitudinal: np.ndarray, lateral: np.ndarray) -> np.ndarray:
+        driven = self._driven()
+        x, y = (np.interp(longitudinal, driven, [info[k] for info in self.infos]) for k in ("x", "y"))
+        heading = self.heading_at(longitudinal)
+        return np.stack([x - lateral * np.sin(heading), y + lateral * np.cos(heading)], axis=-1)
+
+    def local_coordinates(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self._driven()[: len(points)], self._per_step(points, "lateral_deviation")
+
+    def heading_at(self, longitudinal: np.ndarray) -> np.ndarray:
+        yaw = np.unwrap([info["yaw"] for info in self.infos])
+        return np.interp(longitudinal, self._driven(), yaw)
+
+    def width_at(self, longitudinal: np.ndarray) -> np.ndarray:
+        return np.full(np.shape(longitudinal), np.nan)
+
+    def on_lane(self, points: np.ndarray) -> np.ndarray:
+        return self._per_step(points, "off_road") == 0
 
 
-class GymWorld:
+class GymWorld(World):
     """A Gymnasium env driven as uqdrive drives `DrivingEnv` (module docstring). Episode ends: ``collision`` and
     ``off_road`` (from the hooks' state, as `DrivingEnv` ends them), ``terminated`` (the env ended it otherwise),
     ``timeout`` (``horizon_steps``, or the env truncated it)."""
 
     def __init__(self, config: GymWorldConfig):
+        super().__init__()
         self._make(config)
         self.noise = 0.0
         self.render_enabled = True
         self._noise_rng = np.random.default_rng(0)
         self._steps = 0
         self._applied = 0.0
-        self._done = True
-        self._episode = GymEpisode()
-        self._log: dict[str, list[float]] = {k: [] for k in _TRAJECTORY_KEYS}
-        self.last_info: dict[str, Any] = {}
+        self._path = DrivenPath()
 
     def _make(self, config: GymWorldConfig) -> None:
         """The env of ``config`` and its hooks (the config's control rate and horizon with them)."""
@@ -166,7 +118,7 @@ class GymWorld:
         self,
         seed: int,
         scenario: GymWorldConfig | None = None,
-        weather: Any = None,
+        weather: WeatherConfig | None = None,
         noise: float = 0.0,
         render: bool = True,
     ) -> np.ndarray | None:
@@ -185,8 +137,8 @@ class GymWorld:
         obs, env_info = self._user("env_id", "reset", self.env.reset, seed=int(seed))
         self._noise_rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
         self._user("hooks", "begin", self.hooks.begin)
-        self._episode = GymEpisode()
-        self._log = {k: [] for k in _TRAJECTORY_KEYS}
+        self._path = DrivenPath()
+        self._start_log()
         self._record(env_info, terminated=False, truncated=False)
         return self._frame(obs)
 
@@ -241,9 +193,8 @@ class GymWorld:
                 f"gym_world.safe_if: {missing[0]!r} is not in the info of {self.config.env_id!r} "
                 f"(it has {sorted(info)})"
             )
-        for key in _TRAJECTORY_KEYS:
-            self._log[key].append(float(info[key]))
-        self._episode.infos.append(info)
+        self._log_step(tuple(float(info[key]) for key in TRAJECTORY_KEYS))
+        self._path.infos.append(info)
         self.last_info = info
         return info
 
@@ -260,36 +211,44 @@ class GymWorld:
         return add_noise(rgb, self.noise, self._noise_rng)
 
     @property
-    def done(self) -> bool:
-        return self._done
+    def lane(self) -> DrivenPath:
+        """The path the current episode drove, with every step's info: what its safe set judges."""
+        return self._path
 
     @property
-    def trajectory(self) -> dict[str, np.ndarray]:
-        """Per-step log, including the start: t, x, y, yaw, speed, steering (as `DrivingEnv.trajectory`)."""
-        return {k: np.asarray(v, float) for k, v in self._log.items()}
+    def stopped_speed(self) -> float:
+        """The env's car's own (``GymWorldConfig.stopped_speed``): it may approach 0 only asymptotically."""
+        return self.config.stopped_speed
 
     @property
-    def geometry(self) -> GymEpisode:
-        """The current episode's record: what `run_rollouts` hands the safe set in place of a road geometry."""
-        return self._episode
+    def car_size(self) -> tuple[float, float]:
+        """uqdrive's default car's: the env's car is the env's, and no lane rule of ours reads it."""
+        car = VehicleConfig()
+        return car.length, car.width
+
+    def expert(self, autopilot: AutopilotConfig, seed: int) -> Expert:
+        """The env's own expert (`expert_command`), whatever the step's info: it reads the env's state."""
+        return lambda info: self.expert_command()
+
+    def visit(self, visitor: WorldVisitor[R]) -> R:
+        return visitor.gym(self.config)
+
+    def watch(self) -> None:
+        """Ask an env that can draw itself (``rgb_array``) to: rendering reads the env's state and changes none of
+        it (a re-driven rollout's path is checked unchanged)."""
+        inner = self.env.unwrapped
+        if getattr(inner, "render_mode", None) is None and "rgb_array" in inner.metadata.get("render_modes", []):
+            inner.render_mode = "rgb_array"
+
+    def view(self) -> np.ndarray | None:
+        """The env's own RGB picture of the current state (None: an env that draws none)."""
+        if getattr(self.env, "render_mode", None) != "rgb_array":
+            return None
+        image = self.env.render()
+        return np.asarray(image) if isinstance(image, np.ndarray) and image.ndim == 3 else None
 
     def close(self) -> None:
         self.env.close()
-
-    def __enter__(self) -> GymWorld:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def refuse_conditions(config: GymWorldConfig, scenario: Any, weather: Any) -> None:
-    """A scenario or weather of uqdrive's (anything not None) where ``config``'s env is the world: one line naming
-    the key (its value by name) and the env."""
-    for key, value in (("scenario", scenario), ("weather", weather)):
-        if value is not None:
-            name = getattr(value, "name", value)
-            raise ConfigError(f"{key}={name!r}: {config.env_id} has no {key} condition (the world is the env)")
 
 
 def world_identity(config: GymWorldConfig) -> dict[str, Any]:

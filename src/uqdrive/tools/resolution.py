@@ -43,9 +43,9 @@ def render_at(
 ) -> np.ndarray:
     """Network input (grey 64x48) of ``env``'s camera at ``pose``; rain and noise drawn from ``seed``."""
     x, y, yaw = pose
-    env.world.cull(*env.camera.view_wedge(x, y, yaw))
+    env.scene.cull(*env.camera.view_wedge(x, y, yaw))
     streak_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    rgb = env.camera.render(x, y, yaw, weather, env.world.road_lookup, streak_rng, noise, noise_rng)
+    rgb = env.camera.render(x, y, yaw, weather, env.scene.road_lookup, streak_rng, noise, noise_rng)
     return preprocess_frame(rgb)
 
 
