@@ -20,8 +20,8 @@ from user_policy_kit import (
 )
 
 from uqdrive.pipeline.certify_stage import CertifyStage, compose_certify, parse, plan, run_certify
-from uqdrive.policy.user_policy import PolicyFailure
-from uqdrive.safety.policy_files import load_policy
+from uqdrive.policy.policy_files import load_policy
+from uqdrive.policy.slots import PolicyFailure
 from uqdrive.safety.rollout import run_rollouts
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.runner import cell_key
@@ -229,7 +229,7 @@ def test_a_policy_that_raises_mid_rollout_says_the_seed_and_step(tmp_path, monke
         ("steer", "expected steer in [-1, 1], got 2.0"),
         ("draws", "expected draws of [n] steering in [-1, 1] or [n, 21] class probabilities, got shape (4, 7), "
                   "range [0.143, 0.143]"),
-        ("type", "act() must return uqdrive.policy.user_policy.Action, got float"),
+        ("type", "act() must return uqdrive.policy.interface.Action, got float"),
     ],
 )  # fmt: skip
 def test_a_class_that_answers_out_of_shape_or_range_fails_before_any_rollout(tmp_path, monkeypatch, what, message):

@@ -22,10 +22,11 @@ from uqdrive.avoid.calibration import fresh_check_runs, min_calibration_runs
 from uqdrive.avoid.results import Mode
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.resolvers import world_location
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
-from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.schema import (
     Bool,
