@@ -20,7 +20,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -60,7 +60,6 @@ class Command(Action):
     mi_stages: tuple[tuple[int, float, float], ...] = ()  # (draws, MI, SE) at each stage of π(o)'s draws read
 
 
-@runtime_checkable
 class Policy(Protocol):
     """What drives. ``needs_camera`` (optional attribute, default True): False skips rendering. Optional lockstep
     fast path, used where present: ``act_batch(slots, frames, infos) -> list[Command]``, with ``reset(seed,
