@@ -318,3 +318,59 @@ def test_no_code_outside_sim_asks_which_world_it_has():
         and {n.id if isinstance(n, ast.Name) else getattr(n, "attr", "") for n in ast.walk(node.args[1])} & WORLD_TYPES
     ]
     assert not asked, "\n".join(asked)
+
+
+def policy_and_recipe_classes(trees: dict[Path, ast.Module]) -> tuple[dict[str, Path], dict[str, Path]]:
+    """The classes that drive (``reset`` with ``act`` or ``act_batch``, or a subclass of one), and the recipes (a
+    ``build(self, control_hz)``: what a job builds its policy from), by name, with the file each is defined in."""
+    policies, recipes, bases = {}, {}, {}
+    for path, tree in trees.items():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                methods = {f.name: f for f in node.body if isinstance(f, ast.FunctionDef)}
+                build = methods.get("build")
+                if "reset" in methods and {"act", "act_batch"} & set(methods):
+                    policies[node.name] = path
+                if build and [a.arg for a in build.args.args] == ["self", "control_hz"]:
+                    recipes[node.name] = path
+                bases[node.name] = (path, {b.id for b in node.bases if isinstance(b, ast.Name)})
+    while extra := {n: p for n, (p, b) in bases.items() if n not in policies and b & set(policies)}:
+        policies.update(extra)
+    return policies, recipes
+
+
+def isinstance_types(call: ast.Call) -> set[str]:
+    """The class names the second argument of an ``isinstance`` call names (a name, ``a.Name``, a tuple, a union)."""
+    names, stack = set(), [call.args[1]] if len(call.args) == 2 else []
+    while stack:
+        node = stack.pop()
+        if isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            names.add(node.attr)
+        elif isinstance(node, ast.Tuple):
+            stack.extend(node.elts)
+        elif isinstance(node, ast.BinOp):
+            stack.extend((node.left, node.right))
+    return names
+
+
+def test_only_the_policy_package_asks_what_a_policy_is():
+    """The engine drives any policy by the one interface (`uqdrive.policy.interface.Policy`) and builds any recipe:
+    outside `policy/` no ``isinstance`` names a policy or recipe class, and every recipe lives in `policy/` (so no
+    switch on what a recipe is, such as a user spec's ``kind``, can sit elsewhere)."""
+    trees = modules()
+    policies, recipes = policy_and_recipe_classes(trees)
+    assert {"Controller", "WarningController", "ConstantPolicy"} <= set(policies) and "ControllerSpec" in recipes
+    outside = [path for path in trees if path.relative_to(PACKAGE).parts[0] != "policy"]
+    asks = [
+        f"{path.relative_to(PACKAGE)}:{node.lineno} isinstance on {sorted(isinstance_types(node) & named)}"
+        for named in [set(policies) | set(recipes)]
+        for path in outside
+        for node in ast.walk(trees[path])
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "isinstance"
+        if isinstance_types(node) & named
+    ]
+    elsewhere = [f"{name} ({path.relative_to(PACKAGE)})" for name, path in recipes.items() if path in outside]
+    assert not asks, "\n".join(asks)
+    assert not elsewhere, "recipes outside policy/: " + ", ".join(elsewhere)

@@ -26,9 +26,9 @@ from uqdrive.avoid.calibration import (
 from uqdrive.avoid.trace_replay import Replay, Traces, replay
 from uqdrive.data.binning import SteeringBins
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.records import as_dict
-from uqdrive.safety.executors import ControllerSpec
 
 FAST = WarningConfig(theta=0.3)  # the paper's thresholds and actions, 21 draws per frame
 RULE = WarningRule(FAST, DrawSettings())  # the paper's fixed draws: η̂2 = k/21 at one look

@@ -11,7 +11,8 @@ import pytest
 from gymnasium import spaces
 
 from uqdrive.network_input import preprocess_frame
-from uqdrive.policy.controller import Command, ConstantPolicy
+from uqdrive.policy.interface import Command
+from uqdrive.policy.references import ConstantPolicy
 from uqdrive.safety.info_safe_set import InfoSafeSet
 from uqdrive.safety.rollout import run_rollouts
 from uqdrive.schema import ConfigError
@@ -207,8 +208,8 @@ class ExpertPolicy:
     def __init__(self):
         self.worlds: dict[int, GymWorld] = {}
 
-    def reset(self, env, seed, slot=0):
-        self.worlds[slot] = env
+    def reset(self, seed, slot=0, world=None):
+        self.worlds[slot] = world
 
     def act_batch(self, slots, frames, infos):
         assert all(frame.shape == (48, 64, 3) for frame in frames)

@@ -64,7 +64,7 @@ def readme_hooks() -> str:
 
 
 POLICIES = '''
-from uqdrive.policy.user_policy import Action
+from uqdrive.policy.interface import Action
 
 
 class Straight:

@@ -9,9 +9,10 @@ from conftest import CONF
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.parallel import ProcessPool, report
+from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.safety import executors, runner
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import ControllerSpec, RolloutJob
+from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.runner import CellRunner
 from uqdrive.sim import ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition

@@ -28,7 +28,7 @@ def test_command_is_the_predictive_mode_with_its_uncertainty(random_models, fram
     bins = SteeringBins()
     posterior = load_posterior(random_models["vi"], expected_method="vi", expected_classes=bins)
     controller = Controller(posterior, bins, 50, 0.1, 5.5)
-    controller.reset(None, 7)
+    controller.reset(7)
     command = controller.act(frame, {})
     assert command.speed == 5.5
     assert np.isclose(bins.centres, command.steer).any()
@@ -42,7 +42,7 @@ def test_command_is_the_predictive_mode_with_its_uncertainty(random_models, fram
     eta2 = decision_confidence(probs[50:], bins.centres, 0.1, expected.decision)
     assert command.eta2 == pytest.approx(float(eta2[0]))
     assert command.mutual_information == pytest.approx(float(expected.mutual_information[0]), abs=1e-6)
-    controller.reset(None, 7)
+    controller.reset(7)
     assert controller.act(frame, {}) == command
 
 

@@ -17,10 +17,11 @@ from test_uq_tier import tier_probabilities, wrong_tier_rate
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
 from uqdrive.models.posterior import Posterior
-from uqdrive.policy.controller import NO_WARNING, Controller
+from uqdrive.policy.controller import Controller
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.interface import NO_WARNING
+from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.policy.warnings import WarningConfig, WarningController, WarningRule, levels_of
-from uqdrive.safety.executors import ControllerSpec
 from uqdrive.safety.rollout import run_rollout
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
@@ -95,7 +96,7 @@ def decisions(controller: Controller, frame, frames: int) -> list:
     x = torch.from_numpy(frame).float()[None].flatten(1)
     out = []
     for seed in range(frames):
-        controller.reset(None, seed)
+        controller.reset(seed)
         out.append(controller.decide(controller.posterior.features_each(x.view(1, 1, -1)), [0])[0])
     return out
 
@@ -139,9 +140,9 @@ def test_frames_whose_draws_agree_settle_in_one_head_call_or_three(frame):
 def test_a_controller_that_acts_on_no_warning_and_skips_draws_no_eta2_set(frame):
     posterior, _ = POSTERIORS["confident"]
     controller = Controller(posterior, BINS, WARNING.samples, 0.1, 8.0, UNRECORDED)
-    controller.reset(None, 3)
+    controller.reset(3)
     command = controller.act(frame, {})
-    assert command.draws == 24 and math.isnan(command.eta2) and command.warning == NO_WARNING
+    assert command.draw_count == 24 and math.isnan(command.eta2) and command.warning == NO_WARNING
     assert command.steer == pytest.approx(BINS.centres[10])
 
 
@@ -192,7 +193,7 @@ def test_sequential_and_fixed_draws_agree_on_class_and_warning_level(frame, name
         controller = WarningController(posterior, BINS, WarningRule(WARNING, DrawSettings(scheme)), 0.1, 8.0, 15.0)
         commands = []
         for seed in range(30):
-            controller.reset(None, seed)
+            controller.reset(seed)
             commands.append(controller.act(frame, {}))
         levels[scheme] = [(c.steer, c.warning) for c in commands]
     agree = np.mean([a == b for a, b in zip(levels["fixed"], levels["sequential"])])

@@ -17,8 +17,9 @@ import pytest
 from conftest import ALL_TENTHS, CONF, cell_result
 
 from uqdrive.data.binning import SteeringBins
+from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import RAY_MISSING, ControllerSpec, RolloutJob, make_executor
+from uqdrive.safety.executors import RAY_MISSING, RolloutJob, make_executor
 from uqdrive.safety.runner import CellRunner
 from uqdrive.schema import ConfigError
 from uqdrive.sim import ScenarioConfig, WeatherConfig

@@ -15,9 +15,10 @@ from uqdrive.envelope.space import Axis, AxisSettings, ConditionSpace
 from uqdrive.models import load_posterior
 from uqdrive.policy.controller import Controller
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.policy.warnings import WarningConfig, WarningController, WarningRule
 from uqdrive.safety import executors
-from uqdrive.safety.executors import ControllerSpec, RolloutJob, RolloutWorker, lockstep_chunks, make_executor
+from uqdrive.safety.executors import RolloutJob, RolloutWorker, lockstep_chunks, make_executor
 from uqdrive.safety.rollout import run_rollout, run_rollouts
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from conftest import CONF
 
+from uqdrive.policy.recipes import ConstantSpec, ExpertSpec, PolicyRecipe
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import AutopilotSpec, ConstantSpec, PolicyRecipe, RolloutJob
+from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.runner import CellRunner
 from uqdrive.safety.safe_sets import obstacle_pass_progress, safe_set_for
 from uqdrive.sim import ScenarioConfig, WeatherConfig, build_geometry
@@ -30,7 +31,7 @@ def eta1(spec: PolicyRecipe, name: str, theta: float = 0.3, **job) -> tuple[floa
     return estimate.value, results
 
 
-AUTOPILOT = AutopilotSpec(6.0)  # unperturbed pure pursuit (AutopilotConfig defaults, as in conf/sim.yaml)
+AUTOPILOT = ExpertSpec()  # unperturbed pure pursuit (AutopilotConfig defaults, as in conf/sim.yaml)
 FULL_LEFT = ConstantSpec(1.0, 6.0)
 
 
@@ -56,7 +57,7 @@ def test_full_left_is_unsafe_at_the_roundabout():
 
 def test_a_lane_kept_but_an_exit_not_reached_has_the_exit_as_its_margin():
     """Slow enough to time out on the ring, in lane: unsafe, and the margin is the (negative) way left to the exit."""
-    value, results = eta1(AutopilotSpec(6.0), "roundabout", horizon_s=4.0)
+    value, results = eta1(ExpertSpec(), "roundabout", horizon_s=4.0)
     assert value == 0.0
     assert all(not r.reached_goal and not r.left_corridor and r.margin < 0 for r in results)
 

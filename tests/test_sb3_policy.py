@@ -16,9 +16,9 @@ import torch
 from omegaconf import DictConfig
 
 from uqdrive.pipeline.certify_stage import compose_certify, parse, run_certify
+from uqdrive.policy.policy_files import load_policy
 from uqdrive.policy.sb3_policy import SB3Policy, load_sb3
-from uqdrive.policy.user_policy import PolicyFailure
-from uqdrive.safety.policy_files import load_policy
+from uqdrive.policy.slots import PolicyFailure
 from uqdrive.safety.rollout_log import RolloutLog
 
 sb3 = pytest.importorskip("stable_baselines3", reason="stable-baselines3 is not installed (pip install 'uqdrive[sb3]')")
@@ -27,7 +27,7 @@ WRAPPER = '''
 from stable_baselines3 import PPO
 
 from uqdrive.network_input import preprocess_frame
-from uqdrive.policy.user_policy import Action
+from uqdrive.policy.interface import Action
 
 
 class ViaPredict:

@@ -20,8 +20,9 @@ from user_policy_kit import (
 )
 
 from uqdrive.pipeline.certify_stage import CertifyStage, compose_certify, parse, plan, run_certify
-from uqdrive.policy.user_policy import PolicyFailure
-from uqdrive.safety.policy_files import load_policy
+from uqdrive.policy.interface import Command
+from uqdrive.policy.policy_files import load_policy
+from uqdrive.policy.slots import PolicyFailure
 from uqdrive.safety.rollout import run_rollouts
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.safety.runner import cell_key
@@ -108,6 +109,39 @@ def test_a_bayesian_class_policy_gets_eta2_and_mutual_information_from_its_seede
     np.testing.assert_array_equal(result.eta2, again[0].eta2)  # the episode's seed fixes every draw
     np.testing.assert_array_equal(result.mutual_information, again[0].mutual_information)
     assert not np.array_equal(result.mutual_information, other[0].mutual_information[: result.steps])
+
+
+class MeasuresItself:
+    """A plain policy that measures its own decision, as uqdrive's controllers do: it returns a `Command`."""
+
+    needs_camera = False
+
+    def reset(self, seed):
+        pass
+
+    def act(self, frame, info):
+        return Command(0.0, 6.0, eta2=0.25, draw_count=3)
+
+
+def test_any_policy_instance_drives_rollouts_in_lockstep_as_it_drives_them_alone(tmp_path, monkeypatch):
+    """A policy with no lockstep path of its own goes to `run_rollouts` as it is: a copy per slot, each seeded by its
+    rollout, so two slots give what one does; a `Command` it returns keeps the measures it made."""
+    write_package(tmp_path / "site", monkeypatch)
+    from h50_user_policies.policies import BayesianKeeper
+
+    job, seeds = plan_job(None, 3.0), [3, 4, 5]
+    with (
+        DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s) as a,
+        DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s) as b,
+    ):
+        alone = run_rollouts([a], BayesianKeeper(), seeds, [job.where] * 3)
+        paired = run_rollouts([a, b], BayesianKeeper(), seeds, [job.where] * 3)
+        (measured,) = run_rollouts([a], MeasuresItself(), [3], [job.where])
+    assert all((r.draws == 16).all() for r in alone)
+    for one, two in zip(alone, paired):
+        np.testing.assert_array_equal(one.eta2, two.eta2)
+        np.testing.assert_array_equal(one.x, two.x)
+    assert (measured.eta2 == 0.25).all() and (measured.draws == 3).all()
 
 
 def test_mc_dropout_of_a_torchscript_module_gives_its_draws_reproducibly(tmp_path):
@@ -229,7 +263,7 @@ def test_a_policy_that_raises_mid_rollout_says_the_seed_and_step(tmp_path, monke
         ("steer", "expected steer in [-1, 1], got 2.0"),
         ("draws", "expected draws of [n] steering in [-1, 1] or [n, 21] class probabilities, got shape (4, 7), "
                   "range [0.143, 0.143]"),
-        ("type", "act() must return uqdrive.policy.user_policy.Action, got float"),
+        ("type", "act() must return uqdrive.policy.interface.Action, got float"),
     ],
 )  # fmt: skip
 def test_a_class_that_answers_out_of_shape_or_range_fails_before_any_rollout(tmp_path, monkeypatch, what, message):

@@ -10,7 +10,7 @@ from user_policy_kit import write_package, write_yaml
 
 from uqdrive.envelope.plan import build_envelope
 from uqdrive.pipeline.safety_stage import plan_cell, run_safety
-from uqdrive.safety.policy_files import UserPolicySpec, load_policy
+from uqdrive.policy.policy_files import UserPolicySpec, load_policy
 from uqdrive.safety.rollout import run_rollouts
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv

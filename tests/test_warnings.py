@@ -9,8 +9,9 @@ from conftest import CONF
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models import load_posterior
 from uqdrive.models.posterior import Posterior
-from uqdrive.policy.controller import NO_WARNING, Controller
+from uqdrive.policy.controller import Controller
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.interface import NO_WARNING
 from uqdrive.policy.warnings import (
     WarningAction,
     WarningActions,
@@ -92,13 +93,13 @@ def test_levels_follow_the_paper_thresholds():
 
 def test_confident_posterior_raises_no_warning_and_disagreeing_one_raises_warning_2(frame):
     calm = controller(CONFIDENT)
-    calm.reset(None, 0)
+    calm.reset(0)
     command = calm.act(frame)
     assert (command.eta2, command.warning, command.speed, command.handover) == (1.0, NO_WARNING, 8.0, False)
     assert command.mutual_information == pytest.approx(0.0, abs=1e-5)
 
     torn = controller(DISAGREEING)
-    torn.reset(None, 0)
+    torn.reset(0)
     command = torn.act(frame)
     assert command.eta2 == pytest.approx(11 / 21) and command.mutual_information > 0.6
     assert (command.warning, command.speed, command.alert, command.handover) == (2, 0.0, True, True)

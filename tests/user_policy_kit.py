@@ -14,11 +14,11 @@ import torch
 PACKAGE = "h50_user_policies"
 SOURCE = textwrap.dedent(
     '''
-    """Policies as a user writes them: only uqdrive.policy.user_policy.Action from uqdrive."""
+    """Policies as a user writes them: only uqdrive.policy.interface.Action from uqdrive."""
 
     import numpy as np
 
-    from uqdrive.policy.user_policy import Action
+    from uqdrive.policy.interface import Action
 
     CENTRES = np.round(np.linspace(-1.0, 1.0, 21), 1)
 

@@ -117,6 +117,15 @@ def stage_closure(script: Path, conf: Path, src: Path = SRC) -> set[Path]:
     return import_closure(script, config_targets(conf), src)
 
 
+def file_digest(path: str | Path) -> str:
+    """sha256 of a file's bytes: a retrained model is a new cell even at the same path."""
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def files_digest(paths: Iterable[Path], base: Path) -> str:
     """sha256 over the paths (relative to ``base``) and bytes of files: changes exactly when one of them does."""
     digest = hashlib.sha256()

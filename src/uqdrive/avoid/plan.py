@@ -27,11 +27,12 @@ from uqdrive.avoid.course import Course, CourseOf
 from uqdrive.avoid.results import Mode
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.policy_files import UserPolicySpec, load_policy
+from uqdrive.policy.recipes import ControllerSpec, PolicyRecipe
 from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.resolvers import driver, world_location
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior
-from uqdrive.safety.executors import ControllerSpec, PolicyRecipe, RolloutJob, job_world
-from uqdrive.safety.policy_files import UserPolicySpec, load_policy, probe_policy
+from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.schema import (
     Bool,
@@ -399,20 +400,20 @@ def _user_policy(stage: AvoidStage, car: dict[str, Any], base_seed: int) -> Driv
     spec = load_policy(avoid.policy, speed=avoid.speed, eps=avoid.eps)
     rule = WarningRule(warning, DrawSettings(scheme="fixed"))
     command = probe_policy(RolloutJob(spec, stage.condition(KNOWN), base_seed, **car))
-    if not command.draws:
+    if not command.draw_count:
         raise ConfigError(
             f"avoid.policy={avoid.policy}: the avoid stage needs a policy that gives draws (Action.draws: its "
             f"warnings and their calibration read them); {spec.name} gave none"
         )
-    if command.draws != rule.cap:
+    if command.draw_count != rule.cap:
         raise ConfigError(
-            f"avoid.policy={avoid.policy}: {spec.name} gives {command.draws} draws a frame; the warning rule reads "
-            f"{rule.cap} (warning.samples: Chernoff's n for warning.theta, warning.gamma)"
+            f"avoid.policy={avoid.policy}: {spec.name} gives {command.draw_count} draws a frame; the warning rule "
+            f"reads {rule.cap} (warning.samples: Chernoff's n for warning.theta, warning.gamma)"
         )
     return driver(avoid.policy, ""), spec, rule, _acting_on_thresholds
 
 
 def _acting_on_thresholds(spec: UserPolicySpec, rule: WarningRule) -> UserPolicySpec:
-    """A user's policy with the paper's warning system on its own draws (`uqdrive.policy.user_policy.UserWarnings`:
+    """A user's policy with the paper's warning system on its own draws (`uqdrive.policy.slots.UserWarnings`:
     the levels ``rule`` gives on them, its fixed tier being η̂2's)."""
     return dataclasses.replace(spec, warnings=rule.config)

@@ -20,8 +20,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from uqdrive.policy.controller import NO_WARNING
 from uqdrive.policy.draws import refined_mutual_information
+from uqdrive.policy.interface import NO_WARNING
 from uqdrive.policy.warnings import WarningActions, WarningRule, levels_of
 
 

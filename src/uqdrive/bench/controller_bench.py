@@ -47,18 +47,18 @@ def controller_for(scheme: str, posterior, bins, config: WarningConfig) -> Contr
 def frame_costs(controller: Controller, frames: list, seed: int, lockstep: int) -> tuple[np.ndarray, np.ndarray]:
     """ms and posterior draws of each frame (a fresh seed each; one warm-up frame first), ``lockstep`` frames per
     call in as many slots (a worker's batch: ms is the call's time over its frames)."""
-    controller.reset(None, seed)
+    controller.reset(seed)
     controller.act(*frames[0])
     ms, draws = np.empty(len(frames)), np.empty(len(frames))
     for start in range(0, len(frames), lockstep):
         batch = frames[start : start + lockstep]
         slots = list(range(len(batch)))
         for slot in slots:
-            controller.reset(None, seed + start + slot, slot)
+            controller.reset(seed + start + slot, slot)
         began = time.perf_counter()
         commands = controller.act_batch(slots, [frame for frame, _ in batch], [info for _, info in batch])
         ms[start : start + len(batch)] = (time.perf_counter() - began) * 1e3 / len(batch)
-        draws[start : start + len(batch)] = [command.draws for command in commands]
+        draws[start : start + len(batch)] = [command.draw_count for command in commands]
     return ms, draws
 
 

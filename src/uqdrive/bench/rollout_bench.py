@@ -36,10 +36,12 @@ from uqdrive.bench import gym_step_bench
 from uqdrive.bench.posterior_bench import random_posteriors
 from uqdrive.models.checkpoint import load_posterior, save_posterior
 from uqdrive.parallel import ProcessPool
-from uqdrive.policy.controller import AutopilotPolicy, Policy
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.interface import LockstepPolicy
+from uqdrive.policy.recipes import ControllerSpec
+from uqdrive.policy.references import ExpertPolicy
 from uqdrive.policy.warnings import WarningConfig, WarningController, WarningRule
-from uqdrive.safety.executors import ControllerSpec, RolloutJob
+from uqdrive.safety.executors import RolloutJob
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import SimConfig
@@ -64,7 +66,7 @@ class Driven:
     draws: int  # posterior draws over all steps
 
 
-def drive(envs: Sequence[DrivingEnv], policy: Policy, job: RolloutJob, steps: int, seed: int) -> Driven:
+def drive(envs: Sequence[DrivingEnv], policy: LockstepPolicy, job: RolloutJob, steps: int, seed: int) -> Driven:
     """``steps`` control steps, ``len(envs)`` episodes at a time in lockstep (every env renders its camera),
     episodes restarted with seeds seed, seed + 1, … as they end."""
     start = time.process_time()
@@ -76,7 +78,7 @@ def drive(envs: Sequence[DrivingEnv], policy: Policy, job: RolloutJob, steps: in
         episode = next(seeds)
         where = job.condition(0)
         frames[slot] = envs[slot].reset(episode, where.scenario, where.weather, where.noise)
-        policy.reset(envs[slot], episode, slot)
+        policy.reset(episode, slot, envs[slot])
         infos[slot] = envs[slot].last_info
 
     for slot in range(len(envs)):
@@ -86,7 +88,7 @@ def drive(envs: Sequence[DrivingEnv], policy: Policy, job: RolloutJob, steps: in
         slots = list(range(min(len(envs), steps - done)))
         for slot, command in zip(slots, policy.act_batch(slots, [frames[s] for s in slots], [infos[s] for s in slots])):
             frames[slot], infos[slot] = envs[slot].step(command.steer, command.speed)
-            draws += command.draws
+            draws += command.draw_count
             if envs[slot].done:
                 begin(slot)
         done += len(slots)
@@ -142,14 +144,14 @@ def recorded_frames(scenario: ScenarioConfig, camera: CameraConfig, per_conditio
             weather = WeatherConfig.from_yaml(CONF / "weather" / f"{weather_name}.yaml")
             count, episode = 0, 0
             while count < per_condition:
-                frame, pilot = env.reset(episode, scenario, weather, noise), AutopilotPolicy()
-                pilot.reset(env, episode)
+                frame, pilot = env.reset(episode, scenario, weather, noise), ExpertPolicy()
+                pilot.reset(episode, world=env)
                 info, step = env.last_info, 0
                 while not env.done and count < per_condition:
                     if step % every == 0:
                         kept.append((frame, info))
                         count += 1
-                    command = pilot.act_batch([0], [frame], [info])[0]
+                    command = pilot.act(frame, info)
                     frame, info = env.step(command.steer, command.speed)
                     step += 1
                 episode += 1
@@ -167,12 +169,12 @@ def agreement(posterior, bins, draws: DrawSettings, frames: list) -> tuple[float
     for i, (frame, info) in enumerate(frames):
         commands = []
         for controller, seed in ((fixed, i), (chosen, i + 10**6), (fixed, i + 2 * 10**6)):
-            controller.reset(None, seed)
+            controller.reset(seed)
             commands.append(controller.act(frame, info))
         reference, mine, again = ((c.steer, c.warning) for c in commands)
         same += reference == mine
         floor += reference == again
-        used += commands[1].draws
+        used += commands[1].draw_count
     return same / len(frames), floor / len(frames), used / len(frames)
 
 
@@ -232,7 +234,7 @@ def time_cameras(args: argparse.Namespace, spec: ControllerSpec, job: RolloutJob
         policy = spec.build(job.control_hz)
         drive(envs, policy, job, 20, 0)  # warm-up
         for _ in range(args.repeats):
-            timings[size]["env"].append(drive(envs, AutopilotPolicy(), job, args.steps, 0).seconds)
+            timings[size]["env"].append(drive(envs, ExpertPolicy(), job, args.steps, 0).seconds)
             loop = drive(envs, policy, job, args.steps, 0)
             timings[size]["loop"].append(loop.seconds)
             if size == "chosen":

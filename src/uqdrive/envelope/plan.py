@@ -18,10 +18,11 @@ from uqdrive.envelope.sources import Listed, UniformIn
 from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, ConditionSpace
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.policy_files import load_policy
+from uqdrive.policy.recipes import ControllerSpec, PolicyRecipe
 from uqdrive.resolvers import driver
 from uqdrive.safety.cells import cell_posterior
-from uqdrive.safety.executors import ControllerSpec, PolicyRecipe, RolloutJob, job_world
-from uqdrive.safety.policy_files import load_policy, probe_policy
+from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
 from uqdrive.schema import ConfigError, Count, Positive, Seed, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig, WeatherConfig, names_gym_world

@@ -28,16 +28,17 @@ from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import encode_png
 from uqdrive.data.preprocess import Split, preprocess_raw
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, read_table, write_table_batches
+from uqdrive.deps import file_digest
 from uqdrive.models.checkpoint import read_checkpoint, save_posterior
 from uqdrive.pipeline.safety_stage import SafetyStage, WorldAxis, plan_cell, reusable_result, safety_cell
 from uqdrive.pipeline.train_stage import TrainStage, fit
+from uqdrive.policy.references import ExpertPolicy
 from uqdrive.records import read_record, write_record
 from uqdrive.resolvers import condition_label, world_location
 from uqdrive.safety.acquisition import (
     AcquiredAt,
     Acquisition,
     AcquisitionCheck,
-    ExpertPolicy,
     RoundRecord,
     RoundSummary,
     acquire_episodes,
@@ -46,7 +47,6 @@ from uqdrive.safety.acquisition import (
     flagged_cells,
 )
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.cells import file_digest
 from uqdrive.safety.executors import WorkerEnvs
 from uqdrive.safety.runner import CellRunner, code_digest, estimate_key
 from uqdrive.schema import ConfigError, Count, NonNegative, Seed, Str, Unit, invalid, schema, validate

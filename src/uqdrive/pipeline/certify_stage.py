@@ -23,10 +23,10 @@ from typing import Literal
 import mlflow
 from omegaconf import DictConfig
 
+from uqdrive.policy.policy_files import UserPolicySpec, load_policy
 from uqdrive.records import write_record
 from uqdrive.safety.cells import rates
-from uqdrive.safety.executors import RolloutJob, job_world
-from uqdrive.safety.policy_files import UserPolicySpec, load_policy, probe_policy
+from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
 from uqdrive.safety.runner import CellRunner, cell_key
 from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, Str, Unit, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice

@@ -29,15 +29,16 @@ from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.policy.draws import DrawSettings
+from uqdrive.policy.policy_files import load_policy
+from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.records import as_dict, read_record, write_record
 from uqdrive.replay.video import worst_clips
 from uqdrive.resolvers import driver, world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
-from uqdrive.safety.executors import ControllerSpec, RolloutJob, job_world
+from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
 from uqdrive.safety.failures import job_failures
 from uqdrive.safety.figure import safety_hexbin, visits_colour_bar
-from uqdrive.safety.policy_files import load_policy, probe_policy
 from uqdrive.safety.positions import CellPositions, job_positions, write_positions
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
 from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate

@@ -1,2 +1,3 @@
-"""What drives: one `Policy` interface that uqdrive's trained controllers, the autopilot and a user's policy
-implement; draws of a decision and the warning rules that read them."""
+"""What drives: the one `Policy` interface (`interface.py`) that uqdrive's trained controllers, its reference policies
+and a user's policy implement, their picklable recipes and a user's policy files; draws of a decision and the warning
+rules that read them."""

@@ -1,17 +1,15 @@
-"""Closed-loop controllers: camera frame (or state) → steering and speed, one control period at a time.
+"""uqdrive's Bayesian controller: camera frame → steering and speed, one control period at a time.
 
 `Controller` is the paper's Bayesian end-to-end controller: the frame goes through the same
 preprocessing the training data went through, then n posterior draws give π(o), η2 and the
-mutual information. `AutopilotPolicy` and `ConstantPolicy` use the same interface so the safe
-sets can be checked against controllers whose safety is known (η1 ≈ 1 and ≈ 0).
+mutual information. It implements `uqdrive.policy.interface.Policy` with the lockstep fast path (one trunk pass
+for every slot's frame); the reference policies of known safety are in `uqdrive.policy.references`.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Protocol
+from typing import Any
 
 import numpy as np
 import torch
@@ -34,49 +32,9 @@ from uqdrive.policy.draws import (
     sequential_frame,
     settle_mode,
 )
-from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv
+from uqdrive.policy.interface import Command, LockstepPolicy
 from uqdrive.uq import draw_measures
 from uqdrive.uq.tier import CONFIDENT, TierRule
-
-NO_WARNING = -1
-"""Warning level of a frame that raised none (levels 0, 1, 2: see `uqdrive.policy.warnings`)."""
-
-
-@dataclass(frozen=True)
-class Command:
-    """One control decision; the uncertainty fields are NaN for controllers without a posterior.
-
-    ``warning``, ``alert``, ``handover``: set by a controller with the warning system; with
-    ``handover`` the car brakes to a stop and the rollout ends there (control goes to the operator).
-    """
-
-    steer: float
-    speed: float
-    eta2: float = math.nan
-    mutual_information: float = math.nan
-    entropy: float = math.nan
-    warning: int = NO_WARNING
-    alert: bool = False
-    handover: bool = False
-    draws: int = 0  # posterior draws the frame took
-    mutual_information_se: float = math.nan  # jackknife standard error of the MI at those draws
-    eta2_counts: tuple[int, ...] = ()  # successes at each look of the frame's η2 stream read (`FrameDecision`)
-    mi_stages: tuple[tuple[int, float, float], ...] = ()  # (draws, MI, SE) at each stage of π(o)'s draws read
-
-
-class Policy(Protocol):
-    """What rollouts drive with, one or several in lockstep: each rollout has a ``slot``, and `act_batch` decides
-    the current frame of every slot in ``slots`` at once. ``needs_camera``: False lets the rollout skip rendering."""
-
-    needs_camera: bool
-
-    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
-        """Start the episode in ``slot`` (env already reset); every random draw of the episode comes from ``seed``."""
-
-    def act_batch(
-        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
-    ) -> list[Command]:
-        """Commands for the current frame and state of each of ``slots``."""
 
 
 class SlotDraws:
@@ -95,7 +53,7 @@ class SlotDraws:
         return frame_generator(self.seed, self.frame, stream)
 
 
-class Controller:
+class Controller(LockstepPolicy):
     """Bayesian end-to-end controller: steer = π(o), the class centre of the predictive's mode.
 
     Each frame draws weight samples for π(o), the mutual information and the entropy, and separate ones for η2
@@ -136,12 +94,8 @@ class Controller:
         self.looks = self.draws.looks(n_samples)
         self.slots = {0: SlotDraws(0)}
 
-    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
+    def reset(self, seed: int, slot: int = 0, world: Any = None) -> None:
         self.slots[slot] = SlotDraws(seed)
-
-    def act(self, obs: np.ndarray | None, info: dict | None = None) -> Command:
-        """The command for one frame, in slot 0."""
-        return self.act_batch([0], [obs], [info or {}])[0]
 
     @torch.inference_mode()  # no autograd bookkeeping on the frame's ~100 small tensor ops
     def act_batch(
@@ -254,49 +208,13 @@ class Controller:
             Command(
                 f.decision,
                 self.speed,
-                f.eta2,
-                f.mutual_information,
-                f.entropy,
-                draws=f.draws,
+                eta2=f.eta2,
+                mutual_information=f.mutual_information,
+                entropy=f.entropy,
+                draw_count=f.draws,
                 mutual_information_se=f.mutual_information_se,
                 eta2_counts=f.eta2_counts,
                 mi_stages=f.mi_stages,
             )
             for f in frames
         ]
-
-
-class AutopilotPolicy:
-    """The pure-pursuit autopilot that produced the training data (unperturbed: a reference of η1 ≈ 1)."""
-
-    needs_camera = False
-
-    def __init__(self, config: AutopilotConfig | None = None):
-        self.config = config or AutopilotConfig()
-        self._autopilots: dict[int, Autopilot] = {}
-
-    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
-        self._autopilots[slot] = Autopilot(env.route, env.vehicle_config, self.config, env.control_hz, seed=seed)
-
-    def act_batch(
-        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
-    ) -> list[Command]:
-        actions = [self._autopilots[slot].act(info) for slot, info in zip(slots, infos)]
-        return [Command(action.steer, action.speed) for action in actions]
-
-
-class ConstantPolicy:
-    """Fixed steering and speed (full left = +1: a reference of η1 ≈ 0)."""
-
-    needs_camera = False
-
-    def __init__(self, steer: float, speed: float):
-        self.steer, self.speed = float(steer), float(speed)
-
-    def reset(self, env: DrivingEnv, seed: int, slot: int = 0) -> None:
-        """Nothing random to seed."""
-
-    def act_batch(
-        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
-    ) -> list[Command]:
-        return [Command(self.steer, self.speed) for _ in slots]

@@ -1,4 +1,4 @@
-"""A stable-baselines3 agent file (``model.save(path)``: a ``.zip``) as a `DrivingPolicy` (`pip install
+"""A stable-baselines3 agent file (``model.save(path)``: a ``.zip``) as a `Policy` (`pip install
 'uqdrive[sb3]'`): its policy network rebuilt from the file alone (no algorithm, no env), asked for its deterministic
 action every frame.
 
@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
+from uqdrive.policy.interface import Action
+from uqdrive.policy.slots import PolicyFailure
 from uqdrive.policy.tensor_policies import first_line
-from uqdrive.policy.user_policy import Action, PolicyFailure
 
 SB3_MISSING = "a stable-baselines3 agent needs stable-baselines3, which is not installed: pip install 'uqdrive[sb3]'"
 GREY = {(INPUT_HEIGHT, INPUT_WIDTH): (), (1, INPUT_HEIGHT, INPUT_WIDTH): (0,), (INPUT_HEIGHT, INPUT_WIDTH, 1): (2,)}

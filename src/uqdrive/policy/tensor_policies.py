@@ -1,4 +1,4 @@
-"""A network file as a `DrivingPolicy`: a TorchScript module (``torch.jit.save``) or an ONNX model, from frames to
+"""A network file as a `Policy`: a TorchScript module (``torch.jit.save``) or an ONNX model, from frames to
 class logits [B, C] (over the configured steering classes) or steering [B, 1] in [-1, 1].
 
 The frame reaches the network as uqdrive's own networks see it (``input: gray``: [B, 1, 48, 64] float in [0, 1],
@@ -22,7 +22,8 @@ import torch
 
 from uqdrive.data.datasets import to_inputs
 from uqdrive.network_input import preprocess_frame
-from uqdrive.policy.user_policy import Action, PolicyFailure
+from uqdrive.policy.interface import Action
+from uqdrive.policy.slots import PolicyFailure
 
 Output = Literal["auto", "logits", "steering"]
 FrameInput = Literal["gray", "rgb"]

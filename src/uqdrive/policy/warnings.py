@@ -21,8 +21,9 @@ import numpy as np
 
 from uqdrive.data.binning import SteeringBins
 from uqdrive.models.posterior import Posterior
-from uqdrive.policy.controller import NO_WARNING, Command, Controller
+from uqdrive.policy.controller import Controller
 from uqdrive.policy.draws import DrawSettings, FrameDecision, first_draws, refined_mutual_information
+from uqdrive.policy.interface import NO_WARNING, Command
 from uqdrive.schema import Bool, ConfigError, NonNegative, OpenUnit, Unit, defaults, invalid, schema, validate
 from uqdrive.uq import chernoff_n
 from uqdrive.uq.tier import DOUBTFUL, UNSURE, TierRule, tier_rule
@@ -261,8 +262,8 @@ class WarningController(Controller):
         self.actions = {0: WarningActions(rule.config.actions, self.hold_frames)}
         self.held_steer: dict[int, float | None] = {0: None}
 
-    def reset(self, env, seed: int, slot: int = 0) -> None:
-        super().reset(env, seed, slot)
+    def reset(self, seed: int, slot: int = 0, world: Any = None) -> None:
+        super().reset(seed, slot, world)
         self.actions[slot] = WarningActions(self.rule.config.actions, self.hold_frames)
         self.held_steer[slot] = None
 

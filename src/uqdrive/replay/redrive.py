@@ -17,7 +17,8 @@ import numpy as np
 import torch
 
 from uqdrive.network_input import preprocess_frame
-from uqdrive.policy.controller import Command, Policy
+from uqdrive.policy.interface import Command, LockstepPolicy
+from uqdrive.policy.slots import in_lockstep
 from uqdrive.safety.executors import RolloutJob, job_env
 from uqdrive.safety.failures import RolloutFailure, path_digest
 from uqdrive.safety.rollout import RolloutResult, run_rollouts
@@ -37,18 +38,18 @@ class Watched:
     steer: np.ndarray
 
 
-class _Watcher:
+class _Watcher(LockstepPolicy):
     """A `Policy` that passes every decision to ``policy`` and keeps what it was shown and what it commanded."""
 
-    def __init__(self, policy: Policy, world: World):
+    def __init__(self, policy: LockstepPolicy, world: World):
         self.policy, self.world = policy, world
         self.needs_camera = policy.needs_camera
         self.frames: list[np.ndarray | None] = []
         self.views: list[np.ndarray | None] = []
         self.steer: list[float] = []
 
-    def reset(self, env: World, seed: int, slot: int = 0) -> None:
-        self.policy.reset(env, seed, slot)
+    def reset(self, seed: int, slot: int = 0, world: World | None = None) -> None:
+        self.policy.reset(seed, slot, world)
 
     def act_batch(
         self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
@@ -77,7 +78,7 @@ class Redriver:
         self.job, self.world = job, None
         self.threads = torch.get_num_threads()
         torch.set_num_threads(1)
-        self.policy = job.policy.build(job.control_hz)
+        self.policy: LockstepPolicy = in_lockstep(job.policy.build(job.control_hz))
 
     def drive(self, index: int) -> Watched:
         """Rollout ``index`` (seed base_seed + index), watched."""

@@ -15,65 +15,37 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from uqdrive.policy.controller import Command, Policy
+from uqdrive.policy.interface import Command, LockstepPolicy, Policy
+from uqdrive.policy.recipes import ExpertSpec, PolicyRecipe
+from uqdrive.policy.references import ExpertPolicy
+from uqdrive.policy.slots import in_lockstep
 from uqdrive.records import record
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.executors import PolicyRecipe, RolloutJob
+from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.rollout import run_rollouts
 from uqdrive.sim import AutopilotConfig
 from uqdrive.sim.condition import Condition
-from uqdrive.sim.world import Expert, World
+from uqdrive.sim.world import World
 from uqdrive.uq.paired import paired_table, paired_test
 
 MIX_STREAM = 0xDA66E  # who drives each step: a stream of the episode's seed apart from the episode's own draws
 RECORDED = ("t", "x", "y", "yaw", "speed", "lateral_deviation")  # info keys kept with each frame (as a collection)
 
 
-class ExpertPolicy:
-    """The world's expert as a `Policy`: the autopilot with ``config`` (its perturbations off) in the pybullet world,
-    the env's own expert in a Gymnasium world. Its η̂1 is the reference line of an acquisition's check cells."""
-
-    needs_camera = False
-
-    def __init__(self, config: AutopilotConfig | None = None):
-        self.config = dataclasses.replace(config or AutopilotConfig(), perturb_prob=0.0)
-        self._experts: dict[int, Expert] = {}
-
-    def reset(self, env: World, seed: int, slot: int = 0) -> None:
-        self._experts[slot] = env.expert(self.config, seed)
-
-    def command(self, slot: int, info: dict) -> tuple[float, float]:
-        """(steering label, speed) the expert commands in the state of ``info``."""
-        return self._experts[slot](info)
-
-    def act_batch(self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]) -> list:
-        return [Command(*self.command(slot, info)) for slot, info in zip(slots, infos)]
-
-
-@dataclasses.dataclass(frozen=True)
-class ExpertSpec:
-    """A picklable recipe of `ExpertPolicy` for a `RolloutJob` (the expert's own η̂1 in a cell)."""
-
-    autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
-
-    def build(self, control_hz: float) -> Policy:
-        return ExpertPolicy(self.autopilot)
-
-
-class LabellingPolicy:
+class LabellingPolicy(LockstepPolicy):
     """The learner, or with probability ``beta`` per step the expert, drives; each step's frame, state and the
     expert's label are kept in ``rows`` (one column dict per rollout seed), encoded by ``encode``."""
 
     def __init__(self, learner: Policy, expert: ExpertPolicy, beta: float, encode: Callable[[np.ndarray], object]):
-        self.learner, self.expert, self.beta, self.encode = learner, expert, float(beta), encode
+        self.learner, self.expert, self.beta, self.encode = in_lockstep(learner), expert, float(beta), encode
         self.needs_camera = True
         self.rows: dict[int, dict[str, list]] = {}
         self._seeds: dict[int, int] = {}
         self._coins: dict[int, np.random.Generator] = {}
 
-    def reset(self, env: World, seed: int, slot: int = 0) -> None:
-        self.learner.reset(env, seed, slot)
-        self.expert.reset(env, seed, slot)
+    def reset(self, seed: int, slot: int = 0, world: World | None = None) -> None:
+        self.learner.reset(seed, slot, world)
+        self.expert.reset(seed, slot, world)
         self._seeds[slot] = seed
         self._coins[slot] = np.random.default_rng([MIX_STREAM, seed])
         self.rows[seed] = {key: [] for key in (*RECORDED, "step", "steering", "applied_steering", "image")}

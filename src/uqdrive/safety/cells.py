@@ -4,7 +4,6 @@ The cell's identity, log and executor are the runner's (`uqdrive.safety.runner`)
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -139,15 +138,6 @@ def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins, traine
         raise ConfigError(f"{key}={path} does not exist; train it first: dvc repro {trained_by}") from None
     except ValueError as err:
         raise ConfigError(f"{key}={path}: {str(err).removeprefix(f'{path} ')}; dvc repro {trained_by}") from None
-
-
-def file_digest(path: str | Path) -> str:
-    """sha256 of a file's bytes: a retrained model is a new cell even at the same path."""
-    digest = hashlib.sha256()
-    with Path(path).open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def rates(results: Sequence[RolloutResult]) -> dict[str, float | None]:

@@ -17,21 +17,18 @@ import dataclasses
 import math
 import socket
 from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
 from typing import Any, Protocol
 
 import torch
 
-from uqdrive.data.binning import SteeringBins
-from uqdrive.models.checkpoint import load_posterior
 from uqdrive.parallel import ProcessPool, report
-from uqdrive.policy.controller import AutopilotPolicy, ConstantPolicy, Controller, Policy
-from uqdrive.policy.draws import DrawSettings
-from uqdrive.policy.warnings import WarningController, WarningRule
+from uqdrive.policy.interface import Command
+from uqdrive.policy.recipes import PolicyRecipe
+from uqdrive.policy.slots import in_lockstep
 from uqdrive.safety.info_safe_set import AnySafeSet, SafeSetOf
 from uqdrive.safety.rollout import RolloutResult, run_rollouts
 from uqdrive.schema import ConfigError
-from uqdrive.sim import AutopilotConfig, CameraConfig, ScenarioConfig, VehicleConfig
+from uqdrive.sim import CameraConfig, ScenarioConfig, VehicleConfig
 from uqdrive.sim.condition import Condition, ConditionSource
 from uqdrive.sim.config import GymWorldConfig
 from uqdrive.sim.world import World
@@ -45,69 +42,6 @@ alone (`uqdrive bench rollout --lockstep`), and 8 envs per worker stay small (py
 CHUNK_WIDTHS = 4
 """A worker's chunk holds at most this many lockstep widths: enough rollouts that slots freed by short
 rollouts refill, few enough that results come back (and are logged) every few seconds."""
-
-
-@dataclasses.dataclass(frozen=True)
-class ControllerSpec:
-    """A picklable recipe for uqdrive's Bayesian controller (`Controller`), built once in each worker: the posterior
-    from ``model_path``; ``warnings``: with the warning system (`WarningController`), deployed by this `WarningRule`
-    (its cap must be ``samples`` and its draw settings ``draws``: warnings on and off differ only by the warnings).
-    ``draws``: how many posterior draws a frame takes (`DrawSettings`: the paper's fixed ``samples`` + ``samples``,
-    or sequential with ``samples`` as the cap)."""
-
-    speed: float
-    model_path: str
-    method: str
-    bins: SteeringBins = dataclasses.field(default_factory=SteeringBins)
-    samples: int = 1
-    eps: float = 0.1
-    warnings: WarningRule | None = None
-    draws: DrawSettings = dataclasses.field(default_factory=DrawSettings)
-
-    def __post_init__(self) -> None:
-        w = self.warnings
-        if w is not None and (self.samples != w.cap or w.draws != self.draws):
-            raise ValueError(
-                f"a controller with warnings must have samples={w.cap} (chernoff_n of warning.theta, warning.gamma) "
-                f"and the rule's draws {w.draws}, got samples={self.samples}, draws {self.draws}"
-            )
-
-    def build(self, control_hz: float) -> Policy:
-        posterior = load_posterior(Path(self.model_path), expected_method=self.method, expected_classes=self.bins)
-        if self.warnings is not None:
-            return WarningController(posterior, self.bins, self.warnings, self.eps, self.speed, control_hz)
-        return Controller(posterior, self.bins, self.samples, self.eps, self.speed, self.draws)
-
-
-@dataclasses.dataclass(frozen=True)
-class AutopilotSpec:
-    """The pure-pursuit autopilot that produced the training data (a reference of η1 ≈ 1)."""
-
-    speed: float
-    autopilot: AutopilotConfig = dataclasses.field(default_factory=AutopilotConfig)
-
-    def build(self, control_hz: float) -> Policy:
-        return AutopilotPolicy(self.autopilot)
-
-
-@dataclasses.dataclass(frozen=True)
-class ConstantSpec:
-    """Fixed steering and speed (full left, steer = +1: a reference of η1 ≈ 0)."""
-
-    steer: float
-    speed: float
-
-    def build(self, control_hz: float) -> Policy:
-        return ConstantPolicy(self.steer, self.speed)
-
-
-class PolicyRecipe(Protocol):
-    """What a job drives with: a picklable recipe each worker builds its `Policy` from, once (`ControllerSpec`,
-    `AutopilotSpec`, `ConstantSpec`: uqdrive's; `uqdrive.safety.policy_files.UserPolicySpec`: a user's). The engine
-    asks nothing else of it: no policy's kind."""
-
-    def build(self, control_hz: float) -> Policy:
-        """The policy, with a slot per lockstep world."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -232,7 +166,7 @@ class RolloutWorker:
         self.slots = WorkerEnvs(job, width)
         torch.set_num_threads(1)
         self.job = job
-        self.policy = job.policy.build(job.control_hz)
+        self.policy = in_lockstep(job.policy.build(job.control_hz))  # its slots kept from chunk to chunk
         self._scenario: ScenarioConfig | GymWorldConfig | None = None
         self._safe_set: AnySafeSet | None = None
 
@@ -262,6 +196,21 @@ class RolloutWorker:
 
     def close(self) -> None:
         self.slots.close()
+
+
+def probe_policy(job: RolloutJob) -> Command:
+    """Build the job's policy here and decide rollout 0's first frame in the job's own kind of world, so that a
+    policy that cannot be made or answers in the wrong shape or range fails in one line before any rollout; the
+    frame's command (what it gives: its draws, for one)."""
+    policy = in_lockstep(job.policy.build(job.control_hz))
+    where, envs = job.condition(0), WorkerEnvs(job, 1)
+    try:
+        (env,) = envs.first(1)
+        frame = env.reset(job.base_seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
+        policy.reset(job.base_seed, slot=0, world=env)
+        return policy.act(frame, env.last_info)
+    finally:
+        envs.close()  # the env is left to the next job of this process (an in-process worker's)
 
 
 def lockstep_chunks(indices: Sequence[int], workers: int, width: int) -> list[tuple[int, ...]]:

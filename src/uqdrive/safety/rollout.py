@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from uqdrive.policy.controller import Command, Policy
+from uqdrive.policy.interface import Command, Policy
+from uqdrive.policy.slots import in_lockstep
 from uqdrive.safety.info_safe_set import AnySafeSet, SafeSetOf
 from uqdrive.safety.safe_sets import HANDOVER
 from uqdrive.sim.condition import Condition
@@ -109,8 +110,10 @@ def run_rollouts(
     rollout is judged on its own). ``on_done()`` as each rollout ends (a progress bar's tick).
 
     Each rollout is what `run_rollout` gives it alone: its env is reset with its own seed and the policy's slot
-    draws from it only (`Controller`: the frames' features and draws do not depend on the other slots).
+    draws from it only (`Controller`: the frames' features and draws do not depend on the other slots). Any
+    `Policy` drives: through its lockstep fast path, or an instance per slot (`in_lockstep`).
     """
+    policy = in_lockstep(policy)
     results: list[RolloutResult | None] = [None] * len(seeds)
     queue = iter(enumerate(seeds))
     running: dict[int, _Episode] = {}
@@ -121,7 +124,7 @@ def run_rollouts(
         for index, seed in queue:
             where = conditions[index]
             obs = env.reset(seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
-            policy.reset(env, seed, slot)
+            policy.reset(seed, slot=slot, world=env)
             episode = _Episode(index, seed, env, obs, env.last_info, env.last_info["termination"])
             if not env.done:
                 running[slot] = episode
@@ -183,7 +186,7 @@ def _result(episode: _Episode, safe_set: AnySafeSet | None, half_width: float | 
         mutual_information=np.array(mi, dtype=float),
         warning=np.array([c.warning for c in commands], dtype=np.int8),
         command_speed=np.array([c.speed for c in commands], dtype=float),
-        draws=np.array([c.draws for c in commands], dtype=np.int32),
+        draws=np.array([c.draw_count for c in commands], dtype=np.int32),
         mutual_information_se=np.array([c.mutual_information_se for c in commands], dtype=float),
         eta2_counts=_padded([c.eta2_counts for c in commands], -1, np.int32),
         mi_stages=_padded([c.mi_stages for c in commands], np.nan, float),

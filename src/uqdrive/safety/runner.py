@@ -24,10 +24,10 @@ from typing import Any, Generic, TypeVar
 
 from tqdm import tqdm
 
-from uqdrive.deps import SRC, files_digest, import_closure
+from uqdrive.deps import SRC, file_digest, files_digest, import_closure
 from uqdrive.models.checkpoint import read_checkpoint
 from uqdrive.parallel import ProcessPool
-from uqdrive.safety.cells import EstimatorSettings, OutcomeStream, file_digest
+from uqdrive.safety.cells import EstimatorSettings, OutcomeStream
 from uqdrive.safety.executors import LOCKSTEP, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog

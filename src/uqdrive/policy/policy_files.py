@@ -1,11 +1,11 @@
 """A user's policy by config: a policy YAML (a class of the user's package by ``_target_``, or a network file) or a
 network file itself (``.pt``/``.ts``: TorchScript, ``.onnx``: ONNX, ``.zip``: a stable-baselines3 agent,
 `uqdrive.policy.sb3_policy`), as a picklable `UserPolicySpec` that every
-worker builds its policy from.
+worker builds its policy from. Which loader makes the policy is looked up by what the file is (`LOADERS`).
 
 The policy YAML::
 
-    policy:                     # a class implementing uqdrive.policy.user_policy.DrivingPolicy, by Hydra's
+    policy:                     # a class implementing uqdrive.policy.interface.Policy, by Hydra's
       _target_: mypkg.LaneKeeper  # instantiate, with its settings as keyword arguments
       gain: 3.0
     # or, in place of `policy`, a network file (relative to this YAML):
@@ -34,27 +34,23 @@ import importlib
 import inspect
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 import numpy as np
 import yaml
 from pydantic import Field
 
 from uqdrive.data.binning import SteeringBins
-from uqdrive.deps import source_digest
-from uqdrive.policy.controller import Command
+from uqdrive.deps import file_digest, source_digest
+from uqdrive.policy.interface import Policy
 from uqdrive.policy.sb3_policy import SB3Policy
+from uqdrive.policy.slots import PolicyFailure, PolicySlots, UserWarnings
 from uqdrive.policy.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
-from uqdrive.policy.user_policy import PolicyFailure, UserPolicies, UserWarnings
 from uqdrive.policy.warnings import WarningConfig
-from uqdrive.safety.cells import file_digest
 from uqdrive.schema import ConfigError, Positive, Str, schema, validate
 
-TORCHSCRIPT = (".pt", ".ts", ".pth", ".jit")
-ONNX = (".onnx",)
-SB3 = (".zip",)
-NETWORKS = TORCHSCRIPT + ONNX + SB3
 YAML = (".yaml", ".yml")
 KINDS = "a TorchScript (.pt, .ts), ONNX (.onnx), stable-baselines3 (.zip) or policy YAML (.yaml) file"
 
@@ -82,13 +78,13 @@ class PolicyConfig:
 
 @dataclasses.dataclass(frozen=True)
 class UserPolicySpec:
-    """A picklable recipe of a user's policy (`build` in each worker). ``kind``: class, torchscript or onnx;
+    """A picklable recipe of a user's policy (`build` in each worker). ``kind``: what it is, a key of `LOADERS`;
     ``target``: the class's ``_target_`` mapping as JSON (a class); ``path``: the network file (not identity: its
     bytes are, as ``digest``); ``name``: what its errors call it."""
 
     NOT_IDENTITY = ("path", "name", "search_path")
 
-    kind: Literal["class", "torchscript", "onnx", "sb3"]
+    kind: str
     digest: str
     name: str
     path: str = ""
@@ -102,19 +98,50 @@ class UserPolicySpec:
     search_path: str = ""  # a class's YAML's folder: its package may lie beside it, uninstalled
     warnings: WarningConfig | None = None
 
-    def build(self, control_hz: float) -> UserPolicies:
-        """The rollout engine's policy: one instance per slot."""
+    def build(self, control_hz: float) -> PolicySlots:
+        """The policy, one instance per lockstep slot, made by the loader of its kind (`LOADERS`)."""
         centres = np.asarray(self.bins.centres)
-        if self.kind == "class":
-            _search(self.search_path)
-            make = _class_factory(self.name, json.loads(self.target))
-        elif self.kind == "sb3":
-            make = SB3Policy.loader(self.path, centres)
-        else:
-            network = TorchScriptPolicy if self.kind == "torchscript" else OnnxPolicy
-            make = network.loader(self.path, centres, self.output, self.frame_input, self.mc_draws)
+        make = LOADERS[self.kind].factory(self, centres)
         warnings = UserWarnings(self.warnings, control_hz) if self.warnings is not None else None
-        return UserPolicies(self.name, make, centres, self.eps, self.speed, warnings)
+        return PolicySlots(self.name, make, centres, self.eps, self.speed, warnings)
+
+
+LoaderFactory = Callable[[UserPolicySpec, np.ndarray], Callable[[], Policy]]
+"""A kind's loader: a spec and its steering classes → what makes an instance per slot."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Loader:
+    """How one kind of policy becomes instances: ``factory(spec, centres)`` makes them; ``suffixes``: the network
+    files of this kind (none: a class by its YAML); ``draws``: whether ``mc_draws`` applies (a stable-baselines3
+    agent acts deterministically)."""
+
+    factory: LoaderFactory
+    suffixes: tuple[str, ...] = ()
+    draws: bool = True
+
+
+def _class_loader(spec: UserPolicySpec, centres: np.ndarray) -> Callable[[], Policy]:
+    _search(spec.search_path)
+    return _class_factory(spec.name, json.loads(spec.target))
+
+
+def _network_loader(network: type[TorchScriptPolicy | OnnxPolicy]) -> LoaderFactory:
+    def factory(spec: UserPolicySpec, centres: np.ndarray) -> Callable[[], Policy]:
+        return network.loader(spec.path, centres, spec.output, spec.frame_input, spec.mc_draws)
+
+    return factory
+
+
+LOADERS: dict[str, Loader] = {
+    "class": Loader(_class_loader),
+    "torchscript": Loader(_network_loader(TorchScriptPolicy), (".pt", ".ts", ".pth", ".jit")),
+    "onnx": Loader(_network_loader(OnnxPolicy), (".onnx",)),
+    "sb3": Loader(lambda spec, centres: SB3Policy.loader(spec.path, centres), (".zip",), draws=False),
+}
+"""Each kind of policy a spec may be (its ``kind``, recorded with a certificate) and how it is loaded."""
+NETWORK_KINDS = {suffix: kind for kind, loader in LOADERS.items() for suffix in loader.suffixes}
+"""The kind of a network file, by its suffix."""
 
 
 def _search(folder: str) -> None:
@@ -153,7 +180,7 @@ def load_policy(source: str | Path, **settings: Any) -> UserPolicySpec:
         if config.file is not None:
             return _network_spec(path.parent / config.file, config)
         return _class_spec(config, path.parent.resolve())
-    if suffix in NETWORKS:
+    if suffix in NETWORK_KINDS:
         return _network_spec(path, _validated(path, {**settings, "file": str(path)}))
     raise PolicyFailure(f"{path}: expected {KINDS}, got a {suffix or 'suffix-less'} file")
 
@@ -169,10 +196,10 @@ def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
     if not path.is_file():
         raise PolicyFailure(f"{path}: no such file; expected {KINDS}")
     suffix = path.suffix.lower()
-    if suffix not in NETWORKS:
+    if suffix not in NETWORK_KINDS:
         raise PolicyFailure(f"{path}: expected a TorchScript (.pt, .ts), ONNX (.onnx) or SB3 (.zip) file, got {suffix}")
-    kind = "onnx" if suffix in ONNX else "sb3" if suffix in SB3 else "torchscript"
-    if kind == "sb3" and config.mc_draws:
+    kind = NETWORK_KINDS[suffix]
+    if not LOADERS[kind].draws and config.mc_draws:
         raise PolicyFailure(f"{path}: mc_draws={config.mc_draws}: a stable-baselines3 agent acts deterministically")
     settings = {"output": config.output, "frame_input": config.input, "mc_draws": config.mc_draws}
     return UserPolicySpec(kind, file_digest(path), str(path), path=str(path), **_common(config), **settings)
@@ -209,21 +236,3 @@ def _named_files(value: Any) -> set[str]:
 
 def _common(config: PolicyConfig) -> dict[str, Any]:
     return {"speed": float(config.speed), "eps": float(config.eps), "bins": config.bins, "warnings": config.warnings}
-
-
-def probe_policy(job: Any) -> Command:
-    """Build the job's policy here and decide rollout 0's first frame in the job's own kind of world, so that a
-    policy that cannot be made or answers in the wrong shape or range fails in one line before any rollout; the
-    frame's command (what it gives: its draws, for one)."""
-    from uqdrive.safety.executors import WorkerEnvs
-
-    policy = job.policy.build(job.control_hz)
-    where, envs = job.condition(0), WorkerEnvs(job, 1)
-    try:
-        (env,) = envs.first(1)
-        frame = env.reset(job.base_seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
-        policy.reset(env, job.base_seed, 0)
-        (command,) = policy.act_batch([0], [frame], [env.last_info])
-        return command
-    finally:
-        envs.close()  # the env is left to the next job of this process (an in-process worker's)

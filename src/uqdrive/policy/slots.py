@@ -1,60 +1,32 @@
-"""The one interface a user implements to have a controller certified: `DrivingPolicy`.
+"""Running a policy that decides one frame at a time in lockstep slots: `PolicySlots`, one instance per slot.
 
-A policy drives one episode at a time. Each control step it receives the frame as the world renders it (RGB uint8
-[H, W, 3], the camera's size) and the world's ``info`` (pose, speed, lateral deviation, progress, …: see
-`uqdrive.sim.DrivingEnv.step`), and returns an `Action`: a steering command, optionally a speed, and optionally
-``draws`` — n draws of its decision, class probabilities [n, C] or steering values [n] — from which η2, mutual
-information and entropy are computed as for uqdrive's own Bayesian controllers. ``reset(seed)`` starts an episode:
-every random number the policy draws in it must come from a generator seeded by ``seed`` (e.g.
-``np.random.default_rng(seed)``), so rollout i gives the same path in any process, worker or order.
-
-`UserPolicies` runs one instance per lockstep slot behind the rollout engine's `Policy` (slots, batched steps), so a
-user's policy plugs into every executor and cell runner with no branch of its own. It checks every action (shape,
-range, finiteness) and turns an exception into a `PolicyFailure` naming the policy, the seed and the step.
-uqdrive's own controllers (`Controller`, `WarningController`, `AutopilotPolicy`, `ConstantPolicy`) implement that
-engine `Policy` directly — batched over the slots (one trunk pass per step), and the autopilot reads the route —
-and a `RolloutJob` takes either kind through its recipe (`PolicyRecipe.build`): the engine asks no policy its kind.
+`PolicySlots` is the lockstep fast path (`uqdrive.policy.interface`) of a policy without one of its own — a user's,
+or uqdrive's `ConstantPolicy` — so such a policy plugs into every executor and cell runner with no branch of its own.
+It checks every action (shape, range, finiteness), reads its draws into η2, mutual information and entropy
+(`command_of`), acts on the warning system where configured (`UserWarnings`), and turns an exception into a
+`PolicyFailure` naming the policy, the seed and the step. `in_lockstep` gives the engine any policy in lockstep: the
+policy itself where it steps slots at once, else `PolicySlots` of copies of it.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
-from uqdrive.policy.controller import Command
+from uqdrive.data.binning import SteeringBins
+from uqdrive.policy.interface import Action, Command, LockstepPolicy, Policy
 from uqdrive.policy.warnings import WarningActions, WarningConfig, classify
 from uqdrive.schema import ConfigError
 from uqdrive.uq import draw_measures
 
 PROB_TOL = 1e-4  # rows of class-probability draws must sum to 1 within this (float32 softmax)
-
-
-@dataclass(frozen=True)
-class Action:
-    """One decision: ``steer`` in [-1, 1] (+1 full left); ``speed`` in m/s (None: the configured cruise speed);
-    ``draws``: n draws of the decision (class probabilities [n, C] over the configured steering classes, or steering
-    values [n]) for η2 (the share of draws within ε of ``steer``) and, from probabilities, mutual information. For
-    η̂2 to be an exact binomial mean given ``steer``, draw them apart from those that chose ``steer``."""
-
-    steer: float
-    speed: float | None = None
-    draws: np.ndarray | None = None
-
-
-@runtime_checkable
-class DrivingPolicy(Protocol):
-    """What a user implements. ``needs_camera`` (optional attribute, default True): False skips rendering."""
-
-    def reset(self, seed: int) -> None:
-        """Start an episode; seed every random draw of it from ``seed``."""
-
-    def act(self, frame: np.ndarray | None, info: dict) -> Action:
-        """The decision for this step's ``frame`` (RGB uint8 [H, W, 3]; None without a camera) and ``info``."""
+CRUISE_SPEED = 6.0  # m/s of an action that gives none, unless its policy's settings say otherwise
+EPS = 0.1  # η2's ball (steering units), unless its policy's settings say otherwise
 
 
 class PolicyFailure(ConfigError):
@@ -65,7 +37,7 @@ class PolicyFailure(ConfigError):
 def check_action(name: str, action: Any, classes: int) -> Action:
     """``action`` as an `Action`, or a `PolicyFailure` naming ``name``, what was expected and what came back."""
     if not isinstance(action, Action):
-        raise PolicyFailure(f"{name}: act() must return uqdrive.policy.user_policy.Action, got {type(action).__name__}")
+        raise PolicyFailure(f"{name}: act() must return uqdrive.policy.interface.Action, got {type(action).__name__}")
     steer = action.steer
     if isinstance(steer, bool) or not isinstance(steer, (int, float, np.floating, np.integer)):
         raise PolicyFailure(f"{name}: expected a float steer in [-1, 1], got {type(steer).__name__} {steer!r}")
@@ -92,7 +64,10 @@ def _check_draws(name: str, draws: np.ndarray, classes: int) -> None:
 
 
 def command_of(action: Action, centres: np.ndarray, eps: float, cruise: float) -> Command:
-    """The rollout engine's command for a checked action: η2, MI and entropy from its draws (NaN without)."""
+    """The rollout engine's command for a checked action: η2, MI and entropy from its draws (NaN without); a
+    `Command` (measured by its policy) as it is."""
+    if isinstance(action, Command):
+        return action
     speed = cruise if action.speed is None else float(action.speed)
     if action.draws is None:
         return Command(float(action.steer), speed)
@@ -106,7 +81,7 @@ def command_of(action: Action, centres: np.ndarray, eps: float, cruise: float) -
         eta2=float(within.mean()),
         mutual_information=mi,
         entropy=entropy,
-        draws=len(draws),
+        draw_count=len(draws),
         mutual_information_se=se,
         eta2_counts=(int(within.sum()),),
         mi_stages=((len(draws), mi, se),),  # one stage: the threshold calibration replays MI from it
@@ -141,29 +116,30 @@ class UserWarnings:
         )
 
 
-class UserPolicies:
-    """The rollout engine's `Policy` over a user's `DrivingPolicy`: one instance per slot (made by ``make``), each
-    reset with its rollout's seed, stepped one frame at a time; ``centres``: the steering classes its probability
-    draws are over; ``eps``: η2's ball; ``speed``: the cruise speed of an action without one; ``warnings``: acted
-    on where given (every action must then carry draws)."""
+class PolicySlots(LockstepPolicy):
+    """A policy without a lockstep fast path, in lockstep: one instance per slot (made by ``make``), each reset with
+    its rollout's seed, stepped one frame at a time; ``name``: what its errors call it; ``centres``: the steering
+    classes its probability draws are over; ``eps``: η2's ball; ``speed``: the cruise speed of an action without
+    one; ``warnings``: acted on where given (every action must then carry draws)."""
 
     def __init__(
         self,
         name: str,
-        make: Callable[[], DrivingPolicy],
-        centres: np.ndarray,
-        eps: float,
-        speed: float,
+        make: Callable[[], Policy],
+        centres: np.ndarray | None = None,
+        eps: float = EPS,
+        speed: float = CRUISE_SPEED,
         warnings: UserWarnings | None = None,
     ):
+        centres = SteeringBins().centres if centres is None else centres
         self.name, self.make, self.centres = name, make, np.asarray(centres, dtype=np.float64)
         self.eps, self.speed, self.warnings = float(eps), float(speed), warnings
-        self.instances: dict[int, DrivingPolicy] = {}
+        self.instances: dict[int, Policy] = {}
         self.episodes: dict[int, list[int]] = {}  # slot → [seed, step]
         self.needs_camera = True
         self.instance(0)  # made here: a policy that cannot be made fails at build, and says if it renders
 
-    def instance(self, slot: int) -> DrivingPolicy:
+    def instance(self, slot: int) -> Policy:
         if slot not in self.instances:
             policy = self.make()
             if not callable(getattr(policy, "act", None)) or not callable(getattr(policy, "reset", None)):
@@ -174,13 +150,15 @@ class UserPolicies:
             self.needs_camera = bool(getattr(policy, "needs_camera", True))
         return self.instances[slot]
 
-    def reset(self, env: Any, seed: int, slot: int = 0) -> None:
+    def reset(self, seed: int, slot: int = 0, world: Any = None) -> None:
         self.episodes[slot] = [int(seed), 0]
         if self.warnings is not None:
             self.warnings.reset(slot)
         self._call(slot, "reset", lambda: self.instance(slot).reset(int(seed)))
 
-    def act_batch(self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]) -> list:
+    def act_batch(
+        self, slots: Sequence[int], frames: Sequence[np.ndarray | None], infos: Sequence[dict]
+    ) -> list[Command]:
         commands = []
         for slot, frame, info in zip(slots, frames, infos):
             action = self._call(slot, "act", lambda: self.instance(slot).act(frame, dict(info)))  # noqa: B023
@@ -207,3 +185,12 @@ class UserPolicies:
                 f"{self.name} raised {type(err).__name__} in {what}() at seed {seed}, step {step}"
                 + (f": {reason}" if reason else "")
             ) from None
+
+
+def in_lockstep(policy: Policy) -> LockstepPolicy:
+    """``policy`` as the engine drives it: itself where it has the lockstep fast path (``act_batch``), else
+    `PolicySlots` of copies of it as given (each slot's reset seeds its copy's episode)."""
+    if callable(getattr(policy, "act_batch", None)):
+        return policy
+    template = copy.deepcopy(policy)
+    return PolicySlots(type(policy).__name__, lambda: copy.deepcopy(template))
