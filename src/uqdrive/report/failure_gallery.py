@@ -36,8 +36,8 @@ def failures_section(
     modes = failure_modes(cells, "method_weather")
     report.add(
         "## Failures: modes and a gallery\n\n"
-        "Every failing rollout of every cell is recorded (`metrics/safety/<cell>.json`, `failures`, worst margin first) "
-        "and grouped into modes by how it ended, where on the route and whether a warning fired first."
+        "Every failing rollout of every cell is recorded (`metrics/safety/<cell>.json`, `failures`, worst margin "
+        "first) and grouped into modes by how it ended, where on the route and whether a warning fired first."
     )
     if not modes:
         report.add("No cell of this run has a failing rollout.")

@@ -41,7 +41,7 @@ from .camera import add_noise
 from .config import STOPPED_SPEED, Section, check_noise
 from .gym_hooks import HOOKS, WorldFailure, WorldHooks, hooks_class
 
-T = TypeVar("T")
+Returned = TypeVar("Returned")
 
 _TRAJECTORY_KEYS = ("t", "x", "y", "yaw", "speed", "steering")
 
@@ -205,7 +205,7 @@ class GymWorld:
         """(steer, speed) the env's own expert would command in the current state (a collect stage's label)."""
         return self._user("hooks", "expert", self.hooks.expert)
 
-    def _user(self, key: str, what: str, call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+    def _user(self, key: str, what: str, call: Callable[..., Returned], *args: Any, **kwargs: Any) -> Returned:
         """``call(*args, **kwargs)`` of the env's or the hooks' code (``key``: which config key names it); any
         exception but a config error as one `WorldFailure` line with the seed and step it was raised at."""
         try:
