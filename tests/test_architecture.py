@@ -160,3 +160,26 @@ def test_pipeline_holds_one_stage_module_per_stage_and_each_run_returns_a_datacl
                 if returns.startswith(("dict", "list", "None")) or not returns:
                     plain.append(f"{path.name}:{node.name} -> {returns or '?'}")
     assert not plain, plain
+
+
+def is_record(node: ast.ClassDef) -> bool:
+    """Decorated ``@record`` or ``@record(...)`` (`uqdrive.records.record`): a file's typed record."""
+    return any(_names(d.func if isinstance(d, ast.Call) else d) & {"record"} for d in node.decorator_list)
+
+
+def test_no_record_field_is_typed_dict_of_any():
+    loose = [
+        f"{path.relative_to(PACKAGE)}: {node.name}.{field.target.id}: {ast.unparse(field.annotation)}"
+        for path, tree in modules().items()
+        for node in ast.walk(tree)
+        if isinstance(node, ast.ClassDef) and is_record(node)
+        for field in node.body
+        if isinstance(field, ast.AnnAssign) and isinstance(field.target, ast.Name)
+        if any(
+            isinstance(part, ast.Subscript)
+            and _names(part.value) & {"dict", "Dict", "Mapping"}
+            and any(_names(n) & {"Any"} for n in ast.walk(part.slice))
+            for part in ast.walk(field.annotation)
+        )
+    ]
+    assert not loose, "\n".join(loose)

@@ -228,7 +228,7 @@ def _calibration_row(method: str, result: AvoidResult) -> list[str]:
         f"{fmt(fresh.p_value, 3)} for ≥ {fresh.target:g} at {fmt(fresh.level, 4)} "
         f"({'met' if fresh.target_met else 'not met'})",
         fmt(fresh.unknown_eta1, 2),
-        f"{cal.rule['tier']['scheme']}, error {fmt(cal.rule['tier']['wrong_tier_error'], 4)}, {middle}",
+        f"{cal.rule.tier.scheme}, error {fmt(cal.rule.tier.wrong_tier_error, 4)}, {middle}",
     ]
 
 
@@ -239,9 +239,9 @@ def calibration_section(report: Report, run: Run, methods: list[str]) -> None:
             rows.append(_calibration_row(method, result))
             cal = result.calibration
             uncaught += [
-                f"- **{method} seed{result.replicate}, {v['condition']}**: η̂1 {fmt(v['eta1_off'], 2)} without "
+                f"- **{method} seed{result.replicate}, {v.condition}**: η̂1 {fmt(v.eta1_off, 2)} without "
                 f"warnings and no threshold on the grid saves any of its failures (median lowest η2 per run "
-                f"{fmt(v['min_eta2_median'], 2)}, median highest MI {fmt(v['max_mutual_information_median'], 2)} nats)"
+                f"{fmt(v.min_eta2_median, 2)}, median highest MI {fmt(v.max_mutual_information_median, 2)} nats)"
                 for v in cal.uncaught_variants
             ]
     guarantees = {r.calibration.guarantee.split(" (Learn-then-Test")[0] for r in run.avoided}
