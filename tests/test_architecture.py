@@ -1,8 +1,12 @@
-"""The shape docs/architecture.md describes: each package imports only the packages below it, no module or class
-name is defined twice, no function runs past 60 lines, and `pipeline/` holds stage functions only."""
+"""The shape docs/architecture.md describes: each package imports only the packages below it, no module name and no
+class or type-alias name is defined twice, no function runs past 60 lines, and `pipeline/` holds stage functions
+only."""
 
 import ast
+import builtins
 import collections
+import collections.abc
+import typing
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "uqdrive"
@@ -22,6 +26,13 @@ LAYERS = {  # package → the project packages it may import (root modules are o
 }
 WING_PARTS = {"plan", "cells", "figure"}  # a wing's standard parts share names: envelope/plan.py, avoid/plan.py
 TOOLS = {"bench", "tools"}  # commands and benchmarks: use any part; nothing imports them
+TYPE_FACTORIES = {"TypeVar", "NewType", "ParamSpec", "TypeVarTuple"}
+TYPE_STATEMENT = getattr(ast, "TypeAlias", ())  # `type X = ...` (Python ≥ 3.12; the 3.11 parser has none)
+GENERICS = (
+    set(typing.__all__)
+    | set(collections.abc.__all__)
+    | {n for n in dir(builtins) if isinstance(getattr(builtins, n), type)}
+)
 
 
 def modules() -> dict[Path, ast.Module]:
@@ -52,18 +63,80 @@ def test_packages_import_only_the_packages_below_them():
     assert not upward, "\n".join(upward)
 
 
-def test_no_module_or_class_name_is_defined_twice():
-    names, classes = collections.defaultdict(list), collections.defaultdict(list)
-    for path, tree in modules().items():
+def _names(node: ast.expr) -> set[str]:
+    """The identifier a name or dotted name ends in (``Literal``, ``typing.Literal`` → Literal)."""
+    return {node.id} if isinstance(node, ast.Name) else {node.attr} if isinstance(node, ast.Attribute) else set()
+
+
+def is_type_expression(value: ast.expr, classes: set[str]) -> bool:
+    """Whether a module-level assignment's value is a type: a typing factory's call (``TypeVar(...)``,
+    ``NewType(...)``), a generic subscripted (``Literal[...]``, ``tuple[...]``, ``Mapping[...]``), a ``|`` of
+    types (a class, a typing or builtin type, ``None``), or a project class under another name."""
+    if isinstance(value, ast.Call):
+        return bool(_names(value.func) & TYPE_FACTORIES)
+    if isinstance(value, ast.Subscript):
+        return bool(_names(value.value) & GENERICS)
+    if isinstance(value, ast.BinOp) and isinstance(value.op, ast.BitOr):
+        sides = (value.left, value.right)
+        return all(
+            (isinstance(s, ast.Constant) and s.value is None)
+            or bool(_names(s) & (classes | GENERICS))
+            or is_type_expression(s, classes)
+            for s in sides
+        )
+    return bool(_names(value) & classes)
+
+
+def type_aliases(tree: ast.Module, classes: set[str]) -> list[str]:
+    """The module-level type aliases a module defines: ``type X = ...``, ``X: TypeAlias = ...`` and ``X = <a
+    type expression>`` (`is_type_expression`)."""
+    found = []
+    for node in tree.body:
+        if isinstance(node, TYPE_STATEMENT):
+            found.append(node.name.id)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            if "TypeAlias" in _names(node.annotation):
+                found.append(node.target.id)
+        elif isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            if is_type_expression(node.value, classes):
+                found.append(node.targets[0].id)
+    return found
+
+
+def test_no_module_class_or_type_alias_name_is_defined_twice():
+    trees = modules()
+    names, types = collections.defaultdict(list), collections.defaultdict(list)
+    classes = {node.name for tree in trees.values() for node in ast.walk(tree) if isinstance(node, ast.ClassDef)}
+    for path, tree in trees.items():
         rel = path.relative_to(PACKAGE)
         if path.name != "__init__.py" and path.stem not in WING_PARTS:
             names[path.stem].append(str(rel))
         for node in ast.walk(tree):
             if isinstance(node, ast.ClassDef):
-                classes[node.name].append(str(rel))
+                types[node.name].append(f"{rel} (class)")
+        for alias in type_aliases(tree, classes):
+            types[alias].append(f"{rel} (alias)")
     names.update({p.name: [*names[p.name], f"{p.name}/"] for p in PACKAGE.iterdir() if p.is_dir()})
     assert not {k: v for k, v in names.items() if len(v) > 1}
-    assert not {k: v for k, v in classes.items() if len(v) > 1}
+    assert not {k: v for k, v in types.items() if len(v) > 1}
+
+
+def test_type_aliases_are_found():
+    source = """
+import typing
+from typing import Literal, TypeAlias, TypeVar
+A = Literal["a", "b"]
+B = int | None
+C: TypeAlias = "dict[str, int]"
+E = TypeVar("E")
+F = typing.NewType("F", int)
+G = Known
+LIMIT = 3
+TABLE = {"a": 1}
+FIRST = TABLE["a"]
+FLAGS = LIMIT | 4
+"""
+    assert type_aliases(ast.parse(source), {"Known"}) == ["A", "B", "C", "E", "F", "G"]
 
 
 def test_no_function_runs_past_60_lines():
@@ -374,3 +447,33 @@ def test_only_the_policy_package_asks_what_a_policy_is():
     elsewhere = [f"{name} ({path.relative_to(PACKAGE)})" for name, path in recipes.items() if path in outside]
     assert not asks, "\n".join(asks)
     assert not elsewhere, "recipes outside policy/: " + ", ".join(elsewhere)
+
+
+def is_record(node: ast.ClassDef) -> bool:
+    """Decorated ``@record`` or ``@record(...)`` (`uqdrive.records.record`): a file's typed record."""
+    return any(_names(d.func if isinstance(d, ast.Call) else d) & {"record"} for d in node.decorator_list)
+
+
+def test_no_record_field_is_typed_dict_of_any():
+    loose = [
+        f"{path.relative_to(PACKAGE)}: {node.name}.{field.target.id}: {ast.unparse(field.annotation)}"
+        for path, tree in modules().items()
+        for node in ast.walk(tree)
+        if isinstance(node, ast.ClassDef) and is_record(node)
+        for field in node.body
+        if isinstance(field, ast.AnnAssign) and isinstance(field.target, ast.Name)
+        if any(
+            isinstance(part, ast.Subscript)
+            and _names(part.value) & {"dict", "Dict", "Mapping"}
+            and any(_names(n) & {"Any"} for n in ast.walk(part.slice))
+            for part in ast.walk(field.annotation)
+        )
+    ]
+    assert not loose, "\n".join(loose)
+
+
+def test_safety_keeps_the_closed_loop_engine_only():
+    """`safety/` is the engine (rollouts, cells, runner, safe sets, records of a cell); policies, collision
+    avoidance and failure replay live in their own wings. Its size says whether they crept back."""
+    lines = sum(len(p.read_text().splitlines()) for p in (PACKAGE / "safety").glob("*.py"))
+    assert lines <= 2_500, lines

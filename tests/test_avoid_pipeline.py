@@ -128,7 +128,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
     second = json.loads((tmp_path / "metrics/avoid/mcd-seed1.json").read_text())
     assert on.replicates == [0, 1] and on.estimates == [saved["unknown"]["on"]["eta1"], second["unknown"]["on"]["eta1"]]
     assert on.low <= on.value <= on.high and on.value == pytest.approx(sum(on.estimates) / 2)
-    assert summary.paper["avoid"]["unknown_on"] == 0.9
+    assert summary.paper.avoid.unknown_on == 0.9
     assert (tmp_path / "plots/avoid/summary/coll_avoid_main.png").stat().st_size > 5000
     with pytest.raises(FileNotFoundError, match="vi-seed0.json is missing; .* dvc repro avoid@vi-0"):
         run_avoid_summary(stage_config("avoid_summary", "methods=[vi]", "replicates=[0]"))

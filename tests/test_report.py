@@ -13,6 +13,7 @@ from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_compa
 from uqdrive.analysis.method_answers import summarise_avoid, summarise_methods
 from uqdrive.analysis.method_claims import method_claims
 from uqdrive.avoid.results import (
+    ActionRecord,
     AvoidCell,
     AvoidResult,
     CalibrationSummary,
@@ -21,6 +22,8 @@ from uqdrive.avoid.results import (
     FreshSeedRecord,
     MixtureEstimate,
     Mode,
+    RuleRecord,
+    TierRecord,
 )
 from uqdrive.data.frames import encode_png
 from uqdrive.data.preprocess import Preprocessed
@@ -28,6 +31,7 @@ from uqdrive.envelope.map_records import EnvelopeAxis, EnvelopeRegion, EnvelopeR
 from uqdrive.models.heldout_eval import HeldoutCell, HeldoutTable
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.pipeline.report_stage import run_report
+from uqdrive.policy.draws import DrawSettings
 from uqdrive.records import write_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import claims_markdown, findings_markdown
@@ -37,6 +41,12 @@ from uqdrive.uq.verdict import Verdict
 METHODS, WEATHERS, NOISES, SEEDS = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05), (0, 1)
 EXPERIMENTS, LOCATIONS, CONDITIONS = ("avoid", "offline"), ("roundabout", "roundabout_large"), ("known", "fog")
 N = 19
+RULE = RuleRecord(
+    **dict(delta1=0.9, delta2=0.8, tau=0.45, theta=0.05, gamma=0.05, hold_s=1.0, samples=738),
+    actions={f"warning{level}": ActionRecord(1.0 - level / 2, level == 2, level == 2) for level in range(3)},
+    draws=DrawSettings(scheme="sequential"),
+    tier=TierRecord("sequential", 0.9, 0.8, 0.05, 0.05, [8, 16, 32], 0.02, False),
+)
 
 
 def markdown_rows(text: str, first_header: str) -> list[dict[str, str]]:
@@ -93,7 +103,7 @@ def avoid_result(rng, method, seed) -> AvoidResult:
         **dict(autonomy_target=0.8, max_certifiable_target=0.85, gamma=0.05, missed_limit=None, order="firing"),
         **dict(calibration_runs={"known": N, "fog": N}, learn_runs={"known": 0, "fog": 0}, candidates=729),
         replayed={"eta1_unknown": 0.6},
-        rule={"delta1": 0.9, "delta2": 0.8, "tau": 0.45, "tier": {"scheme": "sequential", "wrong_tier_error": 0.02}},
+        rule=RULE,
         middle_guaranteed=False,
         refused={},
     )
@@ -111,7 +121,9 @@ def avoid_result(rng, method, seed) -> AvoidResult:
         **dict(
             method=method, replicate=seed, experiment="avoid", cells=cells, unknown=unknown, calibration=calibration
         ),
-        **dict(warning={}, samples_per_frame=738, conditions=list(CONDITIONS), horizon_s=14.0, speed=8.0, seconds=1.0),
+        **dict(
+            warning=RULE, samples_per_frame=738, conditions=list(CONDITIONS), horizon_s=14.0, speed=8.0, seconds=1.0
+        ),
     )
 
 

@@ -4,6 +4,8 @@ report both read them, so a number is never quoted twice with two values.
 Every η̂1 the paper reports carries ± THETA, its Chernoff precision at γ = 0.05 (738 runs).
 """
 
+from uqdrive.records import record
+
 THETA = 0.05
 GAMMA = 0.05
 DROPOUT_RATES = (0.1, 0.08, 0.08)  # MCD's concrete-dropout rates of the three head layers
@@ -22,23 +24,45 @@ AVOID_KNOWN_AUTONOMY = 1.0  # ... and "full autonomy (i.e. never stops to ask fo
 WARNING_THRESHOLDS = {"delta1": 0.7, "delta2": 0.6, "tau": 0.45}
 
 
-def to_dict() -> dict:
-    """Everything above as one JSON-able mapping (metrics/avoid.json carries it beside our numbers)."""
-    return {
-        "theta": THETA,
-        "gamma": GAMMA,
-        "dropout_rates": list(DROPOUT_RATES),
-        "offline": {
-            "all_weathers": OFFLINE_ALL_WEATHERS,
-            "without_rain": OFFLINE_WITHOUT_RAIN,
-            "training_weather": OFFLINE_TRAINING_WEATHER,
-        },
-        "avoid": {
-            "method": AVOID_METHOD,
-            "unknown_off": AVOID_UNKNOWN_OFF,
-            "unknown_on": AVOID_UNKNOWN_ON,
-            "known_on": AVOID_KNOWN_ON,
-            "known_autonomy": AVOID_KNOWN_AUTONOMY,
-            "thresholds": WARNING_THRESHOLDS,
-        },
-    }
+@record
+class OfflineNumbers:
+    """The offline-safety η1 the paper reports, by method."""
+
+    all_weathers: dict[str, float]
+    without_rain: dict[str, float]
+    training_weather: dict[str, float]
+
+
+@record
+class AvoidNumbers:
+    """Collision avoidance as the paper reports it (for ``method`` only), with the warning thresholds it used."""
+
+    method: str
+    unknown_off: float
+    unknown_on: float
+    known_on: float
+    known_autonomy: float
+    thresholds: dict[str, float]
+
+
+@record
+class PaperNumbers:
+    """Everything above as one record (metrics/avoid.json carries it beside our numbers)."""
+
+    theta: float
+    gamma: float
+    dropout_rates: list[float]
+    offline: OfflineNumbers
+    avoid: AvoidNumbers
+
+
+def numbers() -> PaperNumbers:
+    return PaperNumbers(
+        THETA,
+        GAMMA,
+        list(DROPOUT_RATES),
+        OfflineNumbers(OFFLINE_ALL_WEATHERS, OFFLINE_WITHOUT_RAIN, OFFLINE_TRAINING_WEATHER),
+        AvoidNumbers(
+            AVOID_METHOD, AVOID_UNKNOWN_OFF, AVOID_UNKNOWN_ON, AVOID_KNOWN_ON, AVOID_KNOWN_AUTONOMY, WARNING_THRESHOLDS
+        ),
+    )

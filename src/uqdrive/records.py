@@ -21,15 +21,15 @@ from pydantic.dataclasses import dataclass as _pydantic_dataclass
 from uqdrive.files import write_json
 from uqdrive.schema import ConfigError, describe
 
-R = TypeVar("R")
+RecordType = TypeVar("RecordType")
 _RECORD = ConfigDict(extra="forbid")  # NaN is a value (a mean over no frames; null in a file)
 _OPEN_RECORD = ConfigDict(extra="allow")  # method-specific keys beside the declared ones
 
 
-def record(cls: type[R] | None = None, *, open_keys: bool = False):
+def record(cls: type[RecordType] | None = None, *, open_keys: bool = False):
     """A result file's record: frozen, every key declared (``open_keys``: others allowed and kept)."""
 
-    def wrap(c: type[R]) -> type[R]:
+    def wrap(c: type[RecordType]) -> type[RecordType]:
         return _pydantic_dataclass(c, config=_OPEN_RECORD if open_keys else _RECORD, frozen=True)
 
     return wrap if cls is None else wrap(cls)
@@ -53,7 +53,7 @@ def extra_keys(value: Any) -> dict:
     return {k: v for k, v in vars(value).items() if k not in declared and not k.startswith("__")}
 
 
-def read_record(cls: type[R], path: str | Path, stage: str) -> R:
+def read_record(cls: type[RecordType], path: str | Path, stage: str) -> RecordType:
     """The record in ``path``; a missing file names the ``stage`` that writes it, a stale one the key."""
     path = Path(path)
     if not path.exists():

@@ -23,7 +23,7 @@ from typing import Annotated, Any, TypeVar
 from pydantic import ConfigDict, Field, Strict, TypeAdapter, ValidationError
 from pydantic.dataclasses import dataclass as _pydantic_dataclass
 
-T = TypeVar("T")
+SchemaType = TypeVar("SchemaType")
 
 # Scalars as a config means them: no silent casts ("3" is not a number, true is not 1, 1.5 is not an int).
 Float = Annotated[float, Strict()]
@@ -48,12 +48,12 @@ class ConfigError(ValueError):
     """A bad config value; the message names the full key path, the value and what is allowed."""
 
 
-def schema(cls: type[T] | None = None, *, root: bool = False, frozen: bool = False, kw_only: bool = False):
+def schema(cls: type[SchemaType] | None = None, *, root: bool = False, frozen: bool = False, kw_only: bool = False):
     """A config section's schema: unknown keys are errors. ``root=True`` for a stage's whole config, whose
     top level also holds keys of other stages (the profile sets them all) and so ignores what it does not name.
     ``kw_only``: fields without defaults may follow an inherited schema's fields with defaults (root: always)."""
 
-    def wrap(c: type[T]) -> type[T]:
+    def wrap(c: type[SchemaType]) -> type[SchemaType]:
         config = _ROOT if root else _SECTION
         return _pydantic_dataclass(c, config=config, frozen=frozen, kw_only=root or kw_only)
 
@@ -82,7 +82,7 @@ def plain(value: Any) -> Any:
     return value
 
 
-def validate(cls: type[T], data: Any, path: str = "") -> T:
+def validate(cls: type[SchemaType], data: Any, path: str = "") -> SchemaType:
     """``data`` (a dict or DictConfig) as a ``cls``, or one `ConfigError` line naming the full key path."""
     try:
         return TypeAdapter(cls).validate_python(plain(data))

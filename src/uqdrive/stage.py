@@ -33,10 +33,10 @@ from tqdm import tqdm
 from uqdrive.resolvers import register_resolvers
 from uqdrive.schema import ConfigError, config_error, validate
 
-R = TypeVar("R")
+StageResult = TypeVar("StageResult")
 
 
-def stage_main(main: Callable[..., R]) -> Callable[..., R]:
+def stage_main(main: Callable[..., StageResult]) -> Callable[..., StageResult]:
     """Wrap a stage's Hydra task function; put it under ``@hydra.main`` (Hydra unwraps it to find the config).
 
     - Registers the config resolvers for each job: Hydra's joblib launcher hands every job in a worker
@@ -48,7 +48,7 @@ def stage_main(main: Callable[..., R]) -> Callable[..., R]:
     """
 
     @functools.wraps(main)
-    def run(*args, **kwargs) -> R:
+    def run(*args, **kwargs) -> StageResult:
         global _task_started
         _task_started = True
         register_resolvers()
@@ -126,7 +126,7 @@ def one_line(err: BaseException) -> str:
     return "; ".join(dict.fromkeys(parts))
 
 
-Cell = Mapping[str, object]
+GridCell = Mapping[str, object]
 
 
 class Shared(Protocol):
@@ -144,7 +144,7 @@ def grid(**axes: Sequence[object]) -> list[dict[str, object]]:
     return [dict(zip(axes, values)) for values in itertools.product(*axes.values())]
 
 
-def cell_overrides(overrides: Sequence[str], cell: Cell) -> list[str]:
+def cell_overrides(overrides: Sequence[str], cell: GridCell) -> list[str]:
     """A cell's overrides: the sweep's own (but those of the cell's keys and `sweep.*`), then the cell's."""
 
     def key(override: str) -> str:
@@ -154,7 +154,7 @@ def cell_overrides(overrides: Sequence[str], cell: Cell) -> list[str]:
     return [*kept, *(f"{key}={value}" for key, value in cell.items())]
 
 
-def compose_cell(config_name: str, overrides: Sequence[str], cell: Cell) -> DictConfig:
+def compose_cell(config_name: str, overrides: Sequence[str], cell: GridCell) -> DictConfig:
     try:
         return compose(config_name, cell_overrides(overrides, cell))
     except HydraException as err:  # e.g. a weather params.yaml names that conf/weather/ lacks
@@ -165,14 +165,14 @@ def compose_cell(config_name: str, overrides: Sequence[str], cell: Cell) -> Dict
 def run_cells(
     config_name: str,
     overrides: Sequence[str],
-    cells: Sequence[Cell],
+    cells: Sequence[GridCell],
     schema: type,
-    run: Callable[[DictConfig, S], R],
+    run: Callable[[DictConfig, S], StageResult],
     shared: S,
     progress: bool,
     around: Callable[[], AbstractContextManager[object]] = nullcontext,
     check: Callable[[Any], object] | None = None,
-) -> Iterator[tuple[DictConfig, R]]:
+) -> Iterator[tuple[DictConfig, StageResult]]:
     """``run(config, shared)`` for each cell's config of ``config_name``; yields each config and result as the cell
     finishes. ``overrides``: the stage's command-line overrides, passed on to every cell. Every config is
     composed and checked against ``schema`` (and, as validated, by ``check``: e.g. that its model file loads)

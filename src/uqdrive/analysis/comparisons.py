@@ -28,7 +28,7 @@ from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.family import ESTIMAND, Comparison, decide_findings
 from uqdrive.uq.verdict import Reason, Verdict
 
-Cell = SafetyCell | AvoidCell
+ComparedCell = SafetyCell | AvoidCell
 
 
 @record
@@ -74,7 +74,7 @@ class Findings:
     claims: list[ClaimRecord] = dataclasses.field(default_factory=list)
 
 
-def _outcomes(a: Cell, b: Cell) -> tuple[np.ndarray, np.ndarray]:
+def _outcomes(a: ComparedCell, b: ComparedCell) -> tuple[np.ndarray, np.ndarray]:
     """The two cells' outcomes paired by seed, the first k of each (k fixed in advance: `fixed_rollouts`)."""
     k = min(a.fixed_rollouts, b.fixed_rollouts)
     if a.base_seed != b.base_seed:
@@ -82,7 +82,7 @@ def _outcomes(a: Cell, b: Cell) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(a.safe[:k], bool), np.asarray(b.safe[:k], bool)
 
 
-def _comparison(name: str, pairs: dict[int, tuple[Cell, Cell]]) -> Comparison:
+def _comparison(name: str, pairs: dict[int, tuple[ComparedCell, ComparedCell]]) -> Comparison:
     return Comparison(name, {r: _outcomes(a, b) for r, (a, b) in pairs.items()})
 
 

@@ -13,12 +13,12 @@ each are both in it; with few replicates it is wide, and that is how much the tr
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import Any
 
 import numpy as np
 
 from uqdrive import paper
-from uqdrive.avoid.results import AvoidResult, Mode
+from uqdrive.avoid.results import AvoidResult, Mode, RuleRecord
+from uqdrive.paper import PaperNumbers
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import SafetyCell
@@ -119,7 +119,7 @@ class DeployedRule:
 
     method: str
     replicate: int
-    rule: dict[str, Any]
+    rule: RuleRecord
     guarantee: str
     tier_error: float
     middle_guaranteed: bool
@@ -137,7 +137,7 @@ class AvoidSummary:
     answers: list[MethodAnswer]
     family_size: int
     deployed: list[DeployedRule]
-    paper: dict[str, Any]
+    paper: PaperNumbers
 
     def answer(self, method: str, condition: str, mode: Mode) -> MethodAnswer:
         return next(a for a in self.answers if (a.method, a.condition) == (method, f"{condition}/{mode}"))
@@ -167,7 +167,7 @@ def summarise_avoid(results: list[AvoidResult], methods: list[str]) -> AvoidSumm
             ]
             answers.append(method_answer(method, f"{UNKNOWN}/{mode}", mixtures, gamma))
     family = first.cells[first.conditions[0]][Mode.OFF].family_size
-    return AvoidSummary(answers, family, [deployed_rule(r) for r in results], paper.to_dict())
+    return AvoidSummary(answers, family, [deployed_rule(r) for r in results], paper.numbers())
 
 
 def deployed_rule(result: AvoidResult) -> DeployedRule:
@@ -177,7 +177,7 @@ def deployed_rule(result: AvoidResult) -> DeployedRule:
         result.replicate,
         k.rule,
         k.guarantee,
-        float(k.rule["tier"]["wrong_tier_error"]),
+        float(k.rule.tier.wrong_tier_error),
         k.middle_guaranteed,
         fresh.runs,
         fresh.p_value,

@@ -7,10 +7,10 @@ from __future__ import annotations
 import dataclasses
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from uqdrive.policy.draws import DrawSettings
 from uqdrive.records import read_record, record
 from uqdrive.safety.failures import RolloutFailure
 
@@ -35,6 +35,57 @@ class Mode(StrEnum):
 
 
 PAIRS = ((Mode.ON, Mode.OFF), (Mode.CALIBRATED, Mode.FRESH_OFF))  # (warnings, the same seeds without)
+
+
+@record
+class ActionRecord:
+    """One warning level's action as deployed (`uqdrive.policy.warnings.WarningAction`)."""
+
+    speed: float
+    alert: bool
+    handover: bool
+
+
+@record
+class TierRecord:
+    """The tier rule as deployed (`uqdrive.uq.tier`'s ``settings()``): its exact wrong-tier error included."""
+
+    scheme: str
+    delta1: float
+    delta2: float
+    theta: float
+    gamma: float
+    looks: list[int]
+    wrong_tier_error: float
+    middle_guaranteed: bool
+
+
+@record
+class RuleRecord:
+    """A warning rule as a record keeps it (`uqdrive.policy.warnings.WarningRule.to_dict`): thresholds, actions
+    by level (warning0/1/2), draw settings, tier rule."""
+
+    delta1: float
+    delta2: float
+    tau: float
+    theta: float
+    gamma: float
+    hold_s: float
+    samples: int
+    actions: dict[str, ActionRecord]
+    draws: DrawSettings
+    tier: TierRecord
+
+
+@record
+class UncaughtVariant:
+    """An unknown condition whose unsafe warnings-off runs no candidate's replay saves: η̂1 without warnings and
+    the medians over its runs of each run's lowest η2 and highest MI (nats)."""
+
+    condition: str
+    eta1_off: float
+    min_eta2_median: float
+    max_mutual_information_median: float
 
 
 @record
@@ -122,8 +173,8 @@ class Certificate:
     calibration_runs: dict[str, int]
     learn_runs: dict[str, int]
     candidates: int
-    replayed: dict[str, Any]
-    rule: dict[str, Any]
+    replayed: dict[str, float | int | bool]  # the chosen row of the replayed table, thresholds left out
+    rule: RuleRecord
     middle_guaranteed: bool
     refused: dict[str, str]  # "delta1/delta2" → why its tier rule was refused
 
@@ -162,7 +213,7 @@ class CalibrationSummary:
 
     certificate: Certificate
     fresh_seed_check: FreshSeedRecord
-    uncaught_variants: list[dict[str, Any]]
+    uncaught_variants: list[UncaughtVariant]
     replay_check: dict[str, dict[str, float]]
 
 
@@ -177,7 +228,7 @@ class AvoidResult:
     cells: dict[str, dict[Mode, AvoidCell]]  # condition → mode → cell
     unknown: dict[Mode, MixtureEstimate]
     calibration: CalibrationSummary
-    warning: dict[str, Any]
+    warning: RuleRecord
     samples_per_frame: int
     conditions: list[str]
     horizon_s: float

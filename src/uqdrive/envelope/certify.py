@@ -20,6 +20,7 @@ from uqdrive.envelope.partition import Region
 from uqdrive.envelope.search import BoundaryModel
 from uqdrive.schema import Count, OpenUnit, Unit, invalid, schema
 from uqdrive.uq import clopper_pearson_n
+from uqdrive.uq.estimators import Draw
 from uqdrive.uq.multiplicity import split_gamma
 from uqdrive.uq.threshold import ThresholdTest
 
@@ -32,7 +33,6 @@ class RegionVerdict(StrEnum):
     UNDECIDED = "undecided"
 
 
-Draw = Callable[[int], np.ndarray]
 _VERDICTS: dict[str | None, RegionVerdict] = {
     "above": RegionVerdict.SAFE,
     "below": RegionVerdict.UNSAFE,

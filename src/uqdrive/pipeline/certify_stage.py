@@ -35,7 +35,7 @@ from uqdrive.stage_schemas import ExecutorSettings, Stage
 from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq import ThresholdTest, clopper_pearson_interval
 
-Verdict = Literal["certified", "refuted", "undecided"]
+CertifyVerdict = Literal["certified", "refuted", "undecided"]
 EXIT = {"certified": 0, "refuted": 1, "undecided": 3}
 BAD_INPUT = 2
 DESCRIPTION = (
@@ -44,7 +44,7 @@ DESCRIPTION = (
     "1 refuted, 3 undecided within the budget, 2 for a bad policy file or flag (one line)."
 )
 SUMMARIES = ("collision_rate", "off_road_rate", "left_corridor_rate", "mean_eta2", "mean_mutual_information")
-VERDICTS: dict[str | None, Verdict] = {"above": "certified", "below": "refuted", None: "undecided"}
+VERDICTS: dict[str | None, CertifyVerdict] = {"above": "certified", "below": "refuted", None: "undecided"}
 
 
 @schema(frozen=True)
@@ -87,7 +87,7 @@ class CertifyStage(WorldChoice, SimConfig, Stage):
 class CertifyRecord:
     """The verdict with what it rests on (written as JSON, logged to MLflow)."""
 
-    verdict: Verdict
+    verdict: CertifyVerdict
     policy: str
     policy_kind: str
     policy_digest: str

@@ -64,7 +64,7 @@ class EvaluateStage(Stage):
     evaluate: EvaluateSection
 
 
-Cell = tuple[str, str, float]  # method, weather, noise
+MethodCondition = tuple[str, str, float]  # method, weather, noise
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,7 +72,7 @@ class Evaluation:
     """The held-out table and each cell's reliability bins (for the plots)."""
 
     table: HeldoutTable
-    reliability: dict[Cell, dict[str, torch.Tensor]]
+    reliability: dict[MethodCondition, dict[str, torch.Tensor]]
 
 
 def check_inputs(stage: EvaluateStage) -> dict[str, Path]:

@@ -73,7 +73,7 @@ def write_learning_curves(root: Path, plots: Path, scope: Scope) -> Path:
     rows = []
     for experiment in scope.experiments:
         for method in scope.posteriors:
-            for replicate in scope.replicates:
+            for replicate in scope.grid.replicates:
                 path = root / "plots" / experiment / "train" / method / f"seed{replicate}_curve.csv"
                 if not path.exists():
                     stage = training_stage(experiment, method)
@@ -111,19 +111,15 @@ def run_report(cfg: DictConfig) -> ReportFiles:
         tuple(stage.experiments),
         stage.train_weather,
         tuple(stage.posteriors),
-        tuple(stage.methods),
-        tuple(stage.replicates),
-        tuple(stage.weathers),
-        tuple(stage.noises),
-        tuple(stage.locations),
+        stage,
     )
     records = read_records(Path(stage.paths.metrics), scope)
     out_dir = Path(stage.report.out_dir)
     headline = headline_metrics(scope, records.run, records.findings)
     root, plots = Path(stage.paths.root), Path(stage.paths.plots) / "report"
-    chart = write_eta1_chart(plots, records.run.safety, list(scope.methods))
+    chart = write_eta1_chart(plots, records.run.safety, list(scope.grid.methods))
     write_learning_curves(root, plots, scope)
-    copy_envelope_maps(root, plots, scope.methods, scope.replicates[0])
+    copy_envelope_maps(root, plots, scope.grid.methods, scope.grid.replicates[0])
     report = build_report(root, out_dir, scope, records, headline, chart)
     md_path, html_path = out_dir / "report.md", out_dir / "report.html"
     with atomic_path(md_path) as tmp:

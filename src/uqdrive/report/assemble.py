@@ -47,7 +47,7 @@ class Records:
 
 
 def read_records(metrics_dir: Path, scope: Scope) -> Records:
-    seeds = list(scope.replicates)
+    seeds = list(scope.grid.replicates)
     classes = {
         e: read_record(Preprocessed, metrics_dir / e / "preprocess.json", f"preprocess@{e}").num_classes
         for e in scope.experiments
@@ -55,42 +55,46 @@ def read_records(metrics_dir: Path, scope: Scope) -> Records:
     run = Run(
         trained=read_train_metrics(metrics_dir, list(scope.experiments), list(scope.posteriors), seeds),
         classes=classes,
-        cells=read_safety_cells(metrics_dir / "safety", scope),
+        cells=read_safety_cells(metrics_dir / "safety", scope.grid),
         safety=read_record(SafetySummary, metrics_dir / "safety.json", "safety_summary"),
-        avoided=read_avoid_results(metrics_dir / "avoid", list(scope.methods), seeds),
+        avoided=read_avoid_results(metrics_dir / "avoid", list(scope.grid.methods), seeds),
         avoid=read_record(AvoidSummary, metrics_dir / "avoid.json", "avoid_summary"),
     )
     return Records(
         run,
         read_record(Findings, metrics_dir / "findings.json", "findings"),
         read_record(HeldoutTable, metrics_dir / "evaluate.json", "evaluate"),
-        read_envelopes(metrics_dir, list(scope.methods), seeds[0]),
+        read_envelopes(metrics_dir, list(scope.grid.methods), seeds[0]),
     )
 
 
 def build_report(root: Path, out_dir: Path, scope: Scope, records: Records, headline: Headline, chart: Path) -> Report:
     """The answer first (generated), the contents, the paper's claims and the findings, the paper's numbers beside
     ours, every experiment's tables and figures, what was run; learning curves last. ``chart``: η̂1 per condition."""
-    run, methods, training = records.run, list(scope.methods), (scope.locations[0], scope.train_weather, 0.0)
+    grid = scope.grid
+    run, methods, training = records.run, list(grid.methods), (grid.locations[0], scope.train_weather, 0.0)
     report = Report(root, out_dir)
     title_section(report)
     report.add(
         "## The answer\n\n"
         + answer_markdown(headline, run.safety, records.findings, methods, condition_label(*training))
     )
-    report.add(headline_table(headline, dataclasses.asdict(scope)))
+    sweep = dict(
+        locations=grid.locations, train_weather=scope.train_weather, weathers=grid.weathers, noises=grid.noises
+    )
+    report.add(headline_table(headline, sweep))
     report.figure(chart, "η̂1 per condition, each method's mean over its replicates with the interval for the method")
     report.add_contents()
     report.add("## The paper's claims and what the run found\n\n" + findings_markdown(records.findings))
-    fidelity_section(report, run, methods, list(scope.weathers), scope.locations[0])
-    conditions = conditions_of(scope.locations, scope.weathers, scope.noises)
+    fidelity_section(report, run, methods, list(grid.weathers), grid.locations[0])
+    conditions = conditions_of(grid.locations, grid.weathers, grid.noises)
     safety_section(report, run, methods, conditions)
     failures_section(report, run.cells, root / "data" / "safety" / "clips", root / "metrics" / "safety", conditions)
     avoid_section(report, run, methods)
     envelope_section(report, records.envelopes)
-    heldout_section(report, records.evaluated, scope.posteriors, scope.weathers, scope.noises, scope.replicates[0])
-    training_section(report, run, list(scope.experiments), list(scope.posteriors), list(scope.replicates))
+    heldout_section(report, records.evaluated, scope.posteriors, grid.weathers, grid.noises, grid.replicates[0])
+    training_section(report, run, list(scope.experiments), list(scope.posteriors), list(grid.replicates))
     run_section(report, scope, run.cells)
     sample_counts_section(report, run.cells)
-    learning_curves_section(report, list(scope.experiments), list(scope.posteriors), list(scope.replicates))
+    learning_curves_section(report, list(scope.experiments), list(scope.posteriors), list(grid.replicates))
     return report

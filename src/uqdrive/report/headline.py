@@ -63,7 +63,7 @@ def eta1_text(value: Eta1 | None) -> str:
 def headline_metrics(scope, run, findings: Findings) -> Headline:
     """``scope``, ``run``: the report's `Scope` and `Run`; the training condition is the findings' (the first
     location, the training weather, noise 0)."""
-    seeds, methods, location = scope.replicates, scope.methods, scope.locations[0]
+    seeds, methods, location = scope.grid.replicates, scope.grid.methods, scope.grid.locations[0]
     guarantees = [(c.theta, c.gamma) for c in run.cells] + [
         (cell.theta, cell.gamma) for result in run.avoided for modes in result.cells.values() for cell in modes.values()
     ]
@@ -72,7 +72,10 @@ def headline_metrics(scope, run, findings: Findings) -> Headline:
         return _eta1(pooled_answer(method, where, answers))
 
     swept = {
-        (loc, w, x): condition_label(loc, w, x) for loc in scope.locations for w in scope.weathers for x in scope.noises
+        (loc, w, x): condition_label(loc, w, x)
+        for loc in scope.grid.locations
+        for w in scope.grid.weathers
+        for x in scope.grid.noises
     }
     training = swept.get((location, scope.train_weather, 0.0))  # None: not in this sweep
 

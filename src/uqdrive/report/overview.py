@@ -12,6 +12,7 @@ from pathlib import Path
 
 from uqdrive.report.document import Report, fmt, table
 from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.stage_schemas import SafetyGrid
 from uqdrive.uq import chernoff_n, clopper_pearson_n, sequential_scheme
 
 PACKAGES = (
@@ -30,17 +31,13 @@ PACKAGES = (
 
 @dataclasses.dataclass(frozen=True)
 class Scope:
-    """What the run covered (params.yaml's knobs, as the report stage validated them)."""
+    """What the run covered (params.yaml's knobs, as the report stage validated them; ``grid``: its safety grid)."""
 
     profile: str
     experiments: tuple[str, ...]
     train_weather: str
     posteriors: tuple[str, ...]  # trained and evaluated
-    methods: tuple[str, ...]  # driven in closed loop
-    replicates: tuple[int, ...]
-    weathers: tuple[str, ...]
-    noises: tuple[float, ...]
-    locations: tuple[str, ...]
+    grid: SafetyGrid  # the offline-safety sweep: methods driven in closed loop × replicates × conditions
 
 
 def _git_commit(root: Path) -> str:
@@ -76,8 +73,8 @@ def run_section(report: Report, scope: Scope, cells: list[SafetyCell]) -> None:
     schemes = sorted({(c.scheme, c.theta, c.gamma, c.n) for c in cells})
     estimation = "; ".join(f"{s} θ = {t:g}, γ = {g:g} → n = {n} rollouts per cell" for s, t, g, n in schemes)
     built = f"{datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}, commit {_git_commit(report.root)}"
-    noises = ", ".join(f"{x:g}" for x in scope.noises)
-    sweep = f"methods {', '.join(scope.methods)} × weathers {', '.join(scope.weathers)} × noise {noises}"
+    noises = ", ".join(f"{x:g}" for x in scope.grid.noises)
+    sweep = f"methods {', '.join(scope.grid.methods)} × weathers {', '.join(scope.grid.weathers)} × noise {noises}"
     base_seeds = ", ".join(sorted({str(c.base_seed) for c in cells}))
     report.add(f"""
 ## What was run
@@ -91,8 +88,8 @@ Built by `dvc repro` from this run's metrics files; every number in this report 
 | versions | {_versions()} |
 | experiments | {", ".join(scope.experiments)}: one controller per experiment × method × replicate, trained on its own \
 scenario(s) collected in `{scope.train_weather}` |
-| training replicates | seeds {", ".join(map(str, scope.replicates))} (each its own MCD trunk and heads) |
-| safety sweep | {sweep} × locations {", ".join(scope.locations)}, every replicate |
+| training replicates | seeds {", ".join(map(str, scope.grid.replicates))} (each its own MCD trunk and heads) |
+| safety sweep | {sweep} × locations {", ".join(scope.grid.locations)}, every replicate |
 | η1 estimation | {estimation or "–"} |
 | rollout seeds | {base_seeds} + i for rollout i of a cell: the same in every cell (paired) |
 """)

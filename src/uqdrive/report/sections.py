@@ -228,7 +228,7 @@ def _calibration_row(method: str, result: AvoidResult) -> list[str]:
         f"{fmt(fresh.check.p_value, 3)} for ≥ {fresh.check.target:g} at {fmt(fresh.check.level, 4)} "
         f"({'met' if fresh.check.target_met else 'not met'})",
         fmt(fresh.unknown_eta1, 2),
-        f"{cal.rule['tier']['scheme']}, error {fmt(cal.rule['tier']['wrong_tier_error'], 4)}, {middle}",
+        f"{cal.rule.tier.scheme}, error {fmt(cal.rule.tier.wrong_tier_error, 4)}, {middle}",
     ]
 
 
@@ -238,9 +238,9 @@ def calibration_section(report: Report, run: Run, methods: list[str]) -> None:
         for result in [r for r in run.avoided if r.method == method]:
             rows.append(_calibration_row(method, result))
             uncaught += [
-                f"- **{method} seed{result.replicate}, {v['condition']}**: η̂1 {fmt(v['eta1_off'], 2)} without "
+                f"- **{method} seed{result.replicate}, {v.condition}**: η̂1 {fmt(v.eta1_off, 2)} without "
                 f"warnings and no threshold on the grid saves any of its failures (median lowest η2 per run "
-                f"{fmt(v['min_eta2_median'], 2)}, median highest MI {fmt(v['max_mutual_information_median'], 2)} nats)"
+                f"{fmt(v.min_eta2_median, 2)}, median highest MI {fmt(v.max_mutual_information_median, 2)} nats)"
                 for v in result.calibration.uncaught_variants
             ]
     guarantees = {r.calibration.certificate.guarantee.split(" (Learn-then-Test")[0] for r in run.avoided}

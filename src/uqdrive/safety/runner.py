@@ -34,7 +34,7 @@ from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.uq import Estimate
 
-T = TypeVar("T")
+Outcome = TypeVar("Outcome")
 RUNNER = Path(__file__).resolve().relative_to(SRC)  # this module, inside the package folder
 
 
@@ -110,14 +110,14 @@ def estimate_key(job: RolloutJob, settings: EstimatorSettings, stage_module: str
 
 
 @dataclasses.dataclass(frozen=True)
-class CellRun(Generic[T]):
+class CellRun(Generic[Outcome]):
     """A finished cell: what its consumer concluded, the rollouts it read in index order, wall time, identity.
     ``reused``: every rollout was replayed from the cell's log (nothing simulated); ``unread``: rollouts run ahead
     of the consumer that it never asked for (`OutcomeStream`)."""
 
     name: str
     key: str
-    outcome: T
+    outcome: Outcome
     results: list[RolloutResult]
     seconds: float
     reused: bool
@@ -149,12 +149,12 @@ class CellRunner:
         key: str,
         log_path: str | Path,
         base_seed: int,
-        consume: Callable[[OutcomeStream], T],
+        consume: Callable[[OutcomeStream], Outcome],
         total: int,
         reuse: Mapping[int, RolloutResult] | None = None,
         ahead: int = 0,
         floor: int = 0,
-    ) -> CellRun[T]:
+    ) -> CellRun[Outcome]:
         """``consume(draw)`` over the cell's rollouts (``draw(count)``: the next count outcomes, 0/1, in index
         order); ``total``: the most rollouts it may ask for (the progress bar's length, and the most run);
         ``ahead``: after the consumer's first look, run batches doubling up to that many (`OutcomeStream`); ``floor``:

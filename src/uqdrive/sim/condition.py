@@ -9,7 +9,7 @@ asks its source for rollout i's condition (`condition(index, seed)`); a `Conditi
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol
 
 import numpy as np
 from pydantic import model_validator
@@ -27,9 +27,7 @@ from uqdrive.sim.config import (
 from uqdrive.sim.env import DrivingEnv
 from uqdrive.sim.geometry import build_geometry
 from uqdrive.sim.gym_world import GymWorld, world_identity, world_modules
-from uqdrive.sim.world import World, WorldVisitor
-
-R = TypeVar("R")
+from uqdrive.sim.world import R, World, WorldVisitor
 
 VARIANT_STREAM = 0xA401D  # a mixture's variant draw: its own random stream of a rollout seed, apart from the episode's
 NO_WEATHER = "env"  # a Gymnasium world's weather in cell names and records: the env's own, none of ours

@@ -34,7 +34,7 @@ from .gym_hooks import hooks_class
 ScenarioKind = Literal["straight", "obstacle", "roundabout"]
 SCENARIO_KINDS = get_args(ScenarioKind)
 
-T = TypeVar("T", bound="Section")
+SectionType = TypeVar("SectionType", bound="Section")
 
 
 class Section:
@@ -43,12 +43,12 @@ class Section:
     section: ClassVar[str] = ""
 
     @classmethod
-    def from_config(cls: type[T], mapping: Mapping[str, Any] | None = None, **overrides: Any) -> T:
+    def from_config(cls: type[SectionType], mapping: Mapping[str, Any] | None = None, **overrides: Any) -> SectionType:
         """From a dict or DictConfig (the missing keys take their defaults); errors name ``<section>.<key>``."""
         return validate(cls, {**(plain(mapping) or {}), **overrides}, cls.section)
 
     @classmethod
-    def from_yaml(cls: type[T], path) -> T:
+    def from_yaml(cls: type[SectionType], path) -> SectionType:
         """From a config-group file, honouring its Hydra ``defaults`` list as ``hydra.compose`` would: sibling
         files (a location that inherits the roundabout) and ``schema``, these defaults."""
         return cls.from_config(_load_group_file(Path(path)))

@@ -41,7 +41,7 @@ from .config import AutopilotConfig, GymWorldConfig, VehicleConfig, WeatherConfi
 from .gym_hooks import HOOKS, WorldFailure, WorldHooks, hooks_class
 from .world import TRAJECTORY_KEYS, Expert, R, World, WorldVisitor
 
-T = TypeVar("T")
+Returned = TypeVar("Returned")
 
 
 @dataclass
@@ -157,7 +157,7 @@ class GymWorld(World):
         """(steer, speed) the env's own expert would command in the current state (a collect stage's label)."""
         return self._user("hooks", "expert", self.hooks.expert)
 
-    def _user(self, key: str, what: str, call: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+    def _user(self, key: str, what: str, call: Callable[..., Returned], *args: Any, **kwargs: Any) -> Returned:
         """``call(*args, **kwargs)`` of the env's or the hooks' code (``key``: which config key names it); any
         exception but a config error as one `WorldFailure` line with the seed and step it was raised at."""
         try:

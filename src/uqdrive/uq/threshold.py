@@ -37,10 +37,10 @@ import numpy as np
 from scipy import stats
 
 from uqdrive.uq.bounds import check_unit
+from uqdrive.uq.estimators import Draw
 from uqdrive.uq.stopping import StopPoints, stop_points
 
-Decision = Literal["above", "below"]
-Draw = Callable[[int], np.ndarray]
+Side = Literal["above", "below"]
 """``draw(m)`` returns m independent 0/1 outcomes; it may run them in parallel."""
 
 _ABOVE, _BELOW = 1, -1  # decision codes in the stop points' labels (0: undecided)
@@ -53,7 +53,7 @@ _RAISE_STEPS = 8  # bisection steps raising one level within [common, 2 common]:
 class ThresholdDecision:
     """The outcome of one run: ``decision`` (None: undecided at the cap), after ``n`` draws with ``k`` successes."""
 
-    decision: Decision | None
+    decision: Side | None
     n: int
     k: int
 
@@ -215,7 +215,7 @@ class ThresholdTest:
         """Calibrated level of the "below" boundary's tail P(Bin(n, δ + θ) ≤ k)."""
         return self._bounds.below_level
 
-    def decide(self, k: int, n: int) -> Decision | None:
+    def decide(self, k: int, n: int) -> Side | None:
         """The decision after n draws (a look) with k successes; None: draw on (or, at the cap of an
         unforced test, undecided)."""
         j = self._index.get(n)
