@@ -272,7 +272,7 @@ def test_a_users_bayesian_policy_runs_the_stage_with_warnings_off_on_and_calibra
     assert sum(result.cell(c, Mode.OFF).warning2_runs for c in result.conditions) > 0  # counted on its draws
     certificate = result.calibration.certificate
     assert certificate.calibration_runs == {KNOWN: 4, "fog": 4} and certificate.candidates > 100
-    assert certificate.rule["tier"]["scheme"] == "fixed" and certificate.rule["tier"]["looks"] == [21]
+    assert certificate.rule.tier.scheme == "fixed" and certificate.rule.tier.looks == [21]
     calibrated = result.cell(KNOWN, Mode.CALIBRATED).thresholds
     assert calibrated == {k: getattr(certificate, k) for k in ("delta1", "delta2", "tau")}
     assert set(result.calibration.replay_check) == {KNOWN, "fog"}
