@@ -226,7 +226,8 @@ def failure_lower_bound(observations: np.ndarray, gamma: float, grid: np.ndarray
 @dataclass(frozen=True)
 class FailureEstimate:
     """The importance-sampled estimate p̂ = mean of X_i over a run's rollouts, with two two-sided betting intervals
-    at level 1 − γ (`uqdrive.uq.betting`, valid at the run's data-dependent stopping time): ``interval`` on
+    at level 1 − γ (`uqdrive.uq.betting`; by Ville's inequality valid at the run's data-dependent stopping time,
+    tested by simulation at a fixed number of rollouts): ``interval`` on
     X ∈ [0, 1/λ], valid without assumption and wide; ``if_dominant`` on X ∈ [0, 1], valid only if every round's
     mixture dominates the nominal density where the car fails (then every failure's weight is ≤ 1) — None where a
     failure's weight above 1 shows that it did not. Neither is a certification: that is `certify`'s."""
