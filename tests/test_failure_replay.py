@@ -5,6 +5,7 @@ and its clip has one decodable picture per step; bad input is refused in one lin
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -71,6 +72,23 @@ def test_the_cell_logs_its_worst_failures_clip_to_its_mlflow_run(pybullet_cell):
     client = MlflowClient(store_uris(root)[0])
     (run,) = client.search_runs([client.get_experiment_by_name("uqdrive/safety").experiment_id])
     assert [a.path for a in client.list_artifacts(run.info.run_id, "failures")] == [f"failures/{clip.name}"]
+
+
+def test_a_reused_cell_draws_the_clips_a_larger_count_asks_for_and_logs_their_seconds(
+    pybullet_cell, random_models, tmp_path
+):
+    source, _, cell = pybullet_cell
+    assert len(cell.failures) >= 2
+    root = tmp_path / "project"
+    shutil.copytree(source, root)
+    _, again = run_cell(root, random_models["mcd"], "model=mcd", "weather=rain", "safety.clips=2")
+    assert again == cell  # reused: nothing simulated again
+    drawn = sorted(p.name for p in (root / "data/safety/clips").glob("*.mp4"))
+    assert drawn == sorted(f"{cell.name}-seed{f.seed}.mp4" for f in cell.failures[:2])
+    client = MlflowClient(store_uris(root)[0])
+    runs = client.search_runs([client.get_experiment_by_name("uqdrive/safety").experiment_id])
+    reused = [r for r in runs if r.data.tags["reused"] == "true"]
+    assert len(reused) == 1 and reused[0].data.metrics["clip_seconds"] > 0
 
 
 def test_replay_re_drives_the_logged_rollout_exactly_and_writes_one_picture_per_step(

@@ -200,9 +200,10 @@ def write_files(run: AvoidRun, figures: dict[str, plt.Figure]) -> dict:
     return paths
 
 
-def log(cfg: DictConfig, run: AvoidRun, result: AvoidResult, paths: dict) -> None:
+def log(cfg: DictConfig, run: AvoidRun, result: AvoidResult, paths: dict, clip_seconds: float) -> None:
     """An MLflow run per cell (condition and warnings first, its thresholds and n; tagged ``reused`` when nothing
-    was simulated) and one for the calibration with the stage's figures and plot data."""
+    was simulated) and one for the calibration with the stage's figures and plot data and the seconds its clips
+    took."""
     settings, root = run.settings, run.settings.stage.paths.root
     for (condition, mode), cell in run.cells.items():
         params = {
@@ -240,6 +241,7 @@ def log(cfg: DictConfig, run: AvoidRun, result: AvoidResult, paths: dict) -> Non
         )
         mlflow.log_metrics({f"replayed_{key}": float(v) for key, v in k.replayed.items()})
         mlflow.log_metrics({f"unknown_{mode}_eta1": m.eta1 for mode, m in result.unknown.items()})
+        mlflow.log_metric("clip_seconds", clip_seconds)
         for key in ("trajectories", "warnings", "tradeoff", "tradeoff.csv", "signals.csv"):
             mlflow.log_artifact(str(paths[key]))
 
@@ -250,8 +252,9 @@ def run_avoid(cfg: DictConfig) -> AvoidResult:
     result = avoid_result(run)
     paths = write_files(run, plot(run))
     write_record(run.settings.stage.avoid.out, result)
+    started = time.perf_counter()
     paths |= write_clips(run, result)
-    log(cfg, run, result, paths)
+    log(cfg, run, result, paths, clip_seconds=time.perf_counter() - started)
     return result
 
 

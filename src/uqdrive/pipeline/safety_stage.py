@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
 from functools import partial
@@ -271,7 +272,8 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Seq
     section = plan.stage.safety
     previous = reusable_result(section.out, plan.key)
     if previous is not None:
-        log_cell(cfg, plan.stage, previous, _cell_files(section, previous), reused=True)
+        seconds = draw_clips(plan, previous, only_missing=True)
+        log_cell(cfg, plan.stage, previous, _cell_files(section, previous), reused=True, clip_seconds=seconds)
         return SafetyRun(previous, reused=True)
     with nullcontext(runner) if runner else CellRunner.of(plan.stage.executor, plan.stage.progress) as cells:
         run = cells.estimate(f"safety {section.cell}", plan.job, plan.stage.estimator, plan.key, section.rollout_log)
@@ -283,9 +285,22 @@ def run_safety(cfg: DictConfig, runner: CellRunner | None = None, overrides: Seq
     write_record(
         section.out, cell
     )  # before logging: a tracking failure never loses the cell; its presence marks it done
-    clips = worst_clips(plan.job, cell.failures, _clip_title(cell), section.clips_dir, cell.name, section.clips)
-    log_cell(cfg, plan.stage, cell, [figure, table, *[c.mp4 for c in clips]], reused=run.reused)
+    seconds = draw_clips(plan, cell, only_missing=False)
+    log_cell(cfg, plan.stage, cell, [figure, table, *_clips_of(section, cell)], run.reused, seconds)
     return SafetyRun(cell, run.reused)
+
+
+def draw_clips(plan: CellPlan, cell: SafetyCell, only_missing: bool) -> float:
+    """Re-drives the cell's worst `safety.clips` failures as clips (a reused cell only those it has no clip of yet,
+    so a larger `safety.clips` draws the new ones); returns the seconds it took, logged with the cell so that the
+    clips' share of a run is measured, not estimated."""
+    section, started = plan.stage.safety, time.perf_counter()
+    failures = cell.failures[: section.clips]
+    if only_missing:
+        drawn = set(_clips_of(section, cell))
+        failures = [f for f in failures if _clip_path(section, cell, f.seed) not in drawn]
+    worst_clips(plan.job, failures, _clip_title(cell), section.clips_dir, cell.name, len(failures))
+    return time.perf_counter() - started
 
 
 def sweep_cells(stage: SafetySweepStage) -> list[dict[str, Any]]:
@@ -347,18 +362,32 @@ CELL_ARTEFACTS = {".png": "paths.png", ".csv": "rollouts.csv"}  # one name in ev
 
 def _cell_files(section: SafetySection, cell: SafetyCell) -> list[Path]:
     """The files a finished cell left: its figure, table and clips."""
-    plots, clips = Path(section.plots_dir), Path(section.clips_dir)
-    worst = [clips / f"{cell.name}-seed{f.seed}.mp4" for f in cell.failures[: section.clips]]
-    return [p for p in [*(plots / f"{section.cell}{suffix}" for suffix in CELL_ARTEFACTS), *worst] if p.exists()]
+    plots = Path(section.plots_dir)
+    return [p for p in (plots / f"{section.cell}{suffix}" for suffix in CELL_ARTEFACTS) if p.exists()] + _clips_of(
+        section, cell
+    )
+
+
+def _clip_path(section: SafetySection, cell: SafetyCell, seed: int) -> Path:
+    return Path(section.clips_dir) / f"{cell.name}-seed{seed}.mp4"
+
+
+def _clips_of(section: SafetySection, cell: SafetyCell) -> list[Path]:
+    """The clips on disk of the cell's worst `safety.clips` failures."""
+    worst = (_clip_path(section, cell, f.seed) for f in cell.failures[: section.clips])
+    return [p for p in worst if p.exists()]
 
 
 def _clip_title(cell: SafetyCell) -> str:
     return f"{cell.method} seed{cell.replicate} {cell.location} {cell.weather} noise {cell.noise:g}"
 
 
-def log_cell(cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: list[Path], reused: bool) -> None:
+def log_cell(
+    cfg: DictConfig, stage: SafetyStage, cell: SafetyCell, artifacts: list[Path], reused: bool, clip_seconds: float
+) -> None:
     """One MLflow run per cell, a reused one too (tagged ``reused``), so a sweep's runs list every cell."""
     metrics = numeric_metrics({k: v for k, v in as_dict(cell).items() if k not in CELL_PARAMS})
+    metrics["clip_seconds"] = clip_seconds
     name = f"{cell.weather} σ{cell.noise:g} {cell.location} · {cell.method} seed{cell.replicate}"  # siblings differ
     tags = {"reused": str(reused).lower(), "config_hash": cell.config_hash, "cell": stage.safety.cell}
     with stage_run(stage.paths.root, "safety", cfg, run_name=name, tags=tags):
