@@ -12,6 +12,7 @@ from uqdrive.uq.paired import (
     PairedTable,
     difference_interval,
     mcnemar_p,
+    non_inferior,
     paired_table,
     paired_test,
 )
@@ -77,6 +78,37 @@ def exact_miss(n: int, p_a_only: float, p_b_only: float, gamma: float) -> float:
 )
 def test_difference_interval_covers_with_probability_at_least_its_level_exactly(n, p_a_only, p_b_only):
     assert exact_miss(n, p_a_only, p_b_only, 0.05) <= 0.05
+
+
+def exact_false_non_inferiority(n: int, p_a_only: float, p_b_only: float, margin: float, gamma: float) -> float:
+    """P(A declared non-inferior), summing the trinomial probability of every (a_only, b_only) it is declared at."""
+    p_same, declared = 1 - p_a_only - p_b_only, 0.0
+    for a_only in range(n + 1):
+        for b_only in range(n + 1 - a_only):
+            if non_inferior(PairedTable(n, a_only, b_only), margin, gamma):
+                ways = math.comb(n, a_only) * math.comb(n - a_only, b_only)
+                declared += ways * p_a_only**a_only * p_b_only**b_only * p_same ** (n - a_only - b_only)
+    return declared
+
+
+@pytest.mark.parametrize("n", [14, 40, 120])
+@pytest.mark.parametrize("margin", [0.05, 0.1, 0.2])
+def test_non_inferiority_is_wrongly_declared_with_probability_at_most_gamma_at_every_boundary_law(n, margin):
+    """At Δ = −margin (A worse by exactly the margin), over every joint law: the share of discordant pairs swept
+    from the least it can be (only B safe) to all of them."""
+    worst = 0.0
+    for p_b_only in np.linspace(margin, 1.0, 19):
+        p_a_only = p_b_only - margin
+        if p_a_only + p_b_only <= 1:
+            worst = max(worst, exact_false_non_inferiority(n, p_a_only, p_b_only, margin, 0.05))
+    assert worst <= 0.05
+
+
+def test_non_inferiority_is_declared_when_the_pairs_show_it_and_refuses_a_bad_margin():
+    assert non_inferior(PairedTable(400, 0, 0), 0.05, 0.05)  # 400 concordant pairs: Δ ≥ −0.01 or so
+    assert not non_inferior(PairedTable(14, 0, 0), 0.1, 0.05)  # 14 pairs cannot bound Δ above −0.1
+    with pytest.raises(ValueError, match="margin"):
+        non_inferior(PairedTable(14, 0, 0), 0.0, 0.05)
 
 
 def test_paired_test_reports_effect_interval_and_p_and_refuses_bad_input():

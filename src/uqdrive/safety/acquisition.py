@@ -26,7 +26,7 @@ from uqdrive.safety.rollout import run_rollouts
 from uqdrive.sim import AutopilotConfig
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.world import World
-from uqdrive.uq.paired import paired_table, paired_test
+from uqdrive.uq.paired import non_inferior, paired_table, paired_test
 
 MIX_STREAM = 0xDA66E  # who drives each step: a stream of the episode's seed apart from the episode's own draws
 RECORDED = ("t", "x", "y", "yaw", "speed", "lateral_deviation")  # info keys kept with each frame (as a collection)
@@ -143,6 +143,22 @@ class BeforeAfter:
 
 
 @record
+class NotWorse:
+    """Round ``round``'s controller against the behaviour-cloned one at the training condition ``cell``, paired by
+    seed: non-inferior when the lower end ``low`` of the gain's interval (coverage ≥ 1 − ``level`` for any joint
+    law) lies above −``margin`` (`uqdrive.uq.paired.non_inferior`), else undecided — acquisition must not buy the
+    flagged conditions with the one the controller was trained for."""
+
+    round: int
+    cell: str
+    gain: float
+    low: float
+    margin: float
+    level: float
+    verdict: str  # non-inferior | undecided
+
+
+@record
 class RoundSummary:
     """One round: its β, the frames it added (per condition in ``acquired``), the training set it retrained on and
     the retrained controller's validation accuracy (round 0: the behaviour-cloned controller's)."""
@@ -177,18 +193,26 @@ class Acquisition:
     rounds: list[RoundSummary]
     checks: list[AcquisitionCheck]
     before_after: list[BeforeAfter] = dataclasses.field(default_factory=list)
+    training: str = ""  # the training condition's cell, checked for non-inferiority every round
+    not_worse: list[NotWorse] = dataclasses.field(default_factory=list)
 
 
-def before_after(checks: Sequence[AcquisitionCheck], alpha: float = 0.05) -> list[BeforeAfter]:
+def before_after(
+    checks: Sequence[AcquisitionCheck], training: str, margin: float, alpha: float = 0.05
+) -> tuple[list[BeforeAfter], list[NotWorse]]:
     """Every later round against round 0 at each cell both checked (exact paired tests on the cells' shared seeds),
-    family-wise at ``alpha`` over all of them; these trained controllers only, one replicate."""
+    and at the ``training`` cell whether it stayed within ``margin`` (non-inferiority), family-wise at ``alpha``
+    over all of these (Bonferroni); these trained controllers only, one replicate."""
     first = {c.cell: c for c in checks if c.round == 0 and c.outcomes}
     later = [c for c in checks if c.round > 0 and c.cell in first and len(c.outcomes) == len(first[c.cell].outcomes)]
-    level = alpha / max(len(later), 1)
-    compared = []
+    level = alpha / max(len(later) + sum(c.cell == training for c in later), 1)
+    compared, not_worse = [], []
     for c in later:
         table = paired_table([o == "1" for o in c.outcomes], [o == "1" for o in first[c.cell].outcomes])
         test = paired_test(table, level)
         verdict = "undecided" if test.p_value > level else "safer" if test.effect > 0 else "less safe"
         compared.append(BeforeAfter(c.round, c.cell, test.effect, test.low, test.high, test.p_value, level, verdict))
-    return compared
+        if c.cell == training:
+            held = "non-inferior" if non_inferior(table, margin, level) else "undecided"
+            not_worse.append(NotWorse(c.round, c.cell, test.effect, test.low, margin, level, held))
+    return compared, not_worse

@@ -107,6 +107,16 @@ def difference_interval(table: PairedTable, gamma: float) -> tuple[float, float]
     return min(corners), max(corners)
 
 
+def non_inferior(table: PairedTable, margin: float, gamma: float) -> bool:
+    """Is A worse than B by less than ``margin`` (Δ = η_A − η_B > −margin)? Declared when the lower end of
+    `difference_interval` at level 1 − ``gamma`` lies above −margin. Wrongly declared (Δ ≤ −margin) only where the
+    interval misses Δ, so with probability ≤ ``gamma`` for every joint law of the pairs; tests/test_uq_paired.py
+    sums that error over every table at the boundary Δ = −margin."""
+    if not 0 < margin <= 1:
+        raise ValueError(f"margin must lie in (0, 1], got {margin}")
+    return difference_interval(table, gamma)[0] > -margin
+
+
 @dataclasses.dataclass(frozen=True)
 class PairedTest:
     """One paired comparison: Δ̂ = η̂_A − η̂_B, its interval at level 1 − ``gamma``, the exact McNemar p-value."""
