@@ -4,6 +4,7 @@ targeted sampler acquires only where the sweep flagged the controller plus the t
 
 import dataclasses
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from uqdrive.pipeline.acquire_stage import (
     AcquireStage,
     Where,
     aggregate,
+    as_swept,
     placed,
     retrain,
     run_acquire,
@@ -117,7 +119,10 @@ def test_the_stage_acquires_where_the_sweep_flagged_this_controller(one_round):
 def test_each_round_is_compared_with_behaviour_cloning_on_the_shared_seeds(one_round):
     first = {c.cell: c.outcomes for c in one_round.checks if c.round == 0}
     compared = {b.cell: b for b in one_round.before_after}
-    assert set(compared) == set(first) and all(b.round == 1 and b.level == 0.05 / 2 for b in compared.values())
+    assert set(compared) == set(first) and all(b.round == 1 and b.level == 0.05 / 3 for b in compared.values())
+    (held,) = one_round.not_worse  # the training cell, one round: counted in the family of 2 + 1
+    assert (held.round, held.cell, held.margin, held.level) == (1, TRAINING.label, 0.1, 0.05 / 3)
+    assert held.verdict == "undecided" and held.low == compared[TRAINING.label].low  # 4 pairs bound nothing
     for c in (c for c in one_round.checks if c.round == 1):
         assert len(c.outcomes) == c.n == len(first[c.cell])
         gain = (c.outcomes.count("1") - first[c.cell].count("1")) / c.n
@@ -135,8 +140,9 @@ def test_before_after_is_the_exact_mcnemar_test_at_the_bonferroni_level():
     direction is the gain's; its false-verdict rate, summed exactly over every null table of 14 pairs, ≤ the level."""
     checks = [check_row(0, "a", "0" * 14), check_row(1, "a", "1" * 14)]
     checks += [check_row(0, "b", "1" * 6 + "0" * 8), check_row(1, "b", "0" * 14)]
-    (a, b) = before_after(checks)
+    (a, b), not_worse = before_after(checks, training="elsewhere", margin=0.1)
     assert (a.verdict, b.verdict) == ("safer", "undecided") and a.p_value == pytest.approx(2 * 0.5**14)
+    assert not_worse == []
     assert b.p_value == pytest.approx(2 * 0.5**6) and a.level == 0.025
     for concordant in range(15):  # under H0 the discordant pairs split as fair coins, whatever the concordant ones
         m = 14 - concordant
@@ -144,9 +150,20 @@ def test_before_after_is_the_exact_mcnemar_test_at_the_bonferroni_level():
         for k in range(m + 1):
             after = "1" * k + "0" * (m - k) + "1" * concordant
             before = "0" * k + "1" * (m - k) + "1" * concordant
-            verdict = before_after([check_row(0, "c", before), check_row(1, "c", after)], alpha=0.05)[0].verdict
+            pair = [check_row(0, "c", before), check_row(1, "c", after)]
+            verdict = before_after(pair, training="elsewhere", margin=0.1, alpha=0.05)[0][0].verdict
             error += math.comb(m, k) * 0.5**m * (verdict != "undecided")
         assert error <= 0.05
+
+
+def test_the_training_cell_is_non_inferior_only_where_its_pairs_bound_the_loss_within_the_margin():
+    """400 pairs at the training cell, 2 lost and 1 gained: the gain's lower end lies above −0.05, declared
+    non-inferior (counted in the family: level α/2); the same shares on 14 pairs are undecided."""
+    before, after = "1" * 398 + "10", "1" * 398 + "01"
+    _, (held,) = before_after([check_row(0, "t", before), check_row(1, "t", after)], training="t", margin=0.05)
+    assert held.verdict == "non-inferior" and held.level == 0.025 and -0.05 < held.low <= held.gain == 0.0
+    _, (short,) = before_after([check_row(0, "t", "1" * 14), check_row(1, "t", "1" * 14)], "t", 0.05)
+    assert short.verdict == "undecided"
 
 
 def test_round_zero_reads_the_sweeps_own_cell_where_it_is_the_same_cell(project, one_round):
@@ -255,6 +272,15 @@ def test_a_gymnasium_worlds_flagged_location_is_placed_by_its_axis(tmp_path):
         "gym_world.name": "highway_roundabout-aggressive",
         "noise": 0.1,
     }
+    shutil.copy(CONF.parent / "params.yaml", tmp_path / "params.yaml")  # gym_axis: idm first, as collected
+    world = ("gym_world=highway_roundabout", "experiment=highway_roundabout")
+    collected = validate(AcquireStage, compose_in(tmp_path, "gym_acquire", *world))
+    assert collected.acquire.cells_dir == f"{tmp_path}/metrics/highway_roundabout/safety"
+    swept = as_swept(collected, collected.acquire.training)  # the world as collected: the axis' first location
+    assert (swept.location, swept.weather, swept.noise) == ("highway_roundabout-idm", "env", 0.0)
+    assert (
+        as_swept(stage, Where("highway_roundabout-aggressive", "env", 0.0)).location == "highway_roundabout-aggressive"
+    )
     wrong = "acquire.training={location: highway_roundabout-defensive, weather: env, noise: 0.0}"
     with pytest.raises(ConfigError, match=r"^acquire.training.location='highway_roundabout-defensive' must be"):
         validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, wrong))

@@ -106,7 +106,18 @@ GYM = pytest.mark.parametrize("gym", [False, True], ids=["default", "gym_worlds"
 def test_the_gymnasium_proofs_stages_exist_only_when_params_name_a_world():
     assert not [s for s in stages() if s.name.startswith("gym_")]
     assert {s.name.split("@")[0] for s in stages(gym=True) if s.name.startswith("gym_")} == {
-        f"gym_{name}" for name in ("collect", "preprocess", "train_mcd", "train", "safety", "avoid", "findings")
+        f"gym_{name}"
+        for name in (
+            "collect",
+            "preprocess",
+            "train_mcd",
+            "train",
+            "safety",
+            "avoid",
+            "acquire",
+            "acquire_summary",
+            "findings",
+        )
     }
 
 

@@ -13,6 +13,7 @@ from conftest import dvc
 from rendered_plots import chromium, problems, render
 from test_report import markdown_rows
 
+from uqdrive.analysis.acquisition_summary import AcquisitionSummary
 from uqdrive.analysis.method_answers import AvoidSummary, SafetySummary
 from uqdrive.models.heldout_eval import HeldoutTable
 from uqdrive.pipeline.findings_stage import Findings
@@ -102,6 +103,10 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert findings.comparisons == len(findings.findings) > 0 and {
         f.replicates == [0, 1] for f in findings.findings
     } == {True}
+    acquired = read_record(AcquisitionSummary, project / "metrics/acquisition.json", "acquire_summary")
+    assert [(a.method, a.replicate) for a in acquired.controllers] == [("mcd", 0), ("mcd", 1)]
+    assert {(c.round, c.cell) for c in acquired.checks} >= {(0, "roundabout-clear_noon-noise0.0")}
+    assert acquired.methods == []  # acquire_rounds: 0, the behaviour-cloned controllers checked only
     for method in ("mcd",):  # each driven method's certified map of its first replicate
         envelope = json.loads((project / f"metrics/envelope/{method}-seed0.json").read_text())
         assert envelope["method"] == method and envelope["regions"]
@@ -116,6 +121,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         assert row["accuracy"] == fmt(evaluated.cell(row["method"], row["weather"], 0.0).accuracy)
     for row in markdown_rows(report, "method | condition"):
         assert row["η̂1"] == fmt(avoided.answer(row["method"], row["condition"], row["warnings"]).value, 2)
+    assert "No round was run (`acquire_rounds: 0`)" in report
     assert 'src="data:image/png;base64,' in (project / "reports/report.html").read_text()
 
     assert "Data and pipelines are up to date" in dvc(project, "status")
@@ -157,6 +163,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert ran == [
         "acquire@mcd-0",  # the controllers' flagged cells are the sweep's: read again
         "acquire@mcd-1",
+        "acquire_summary",
         "evaluate",
         "findings",
         "heldout",  # one stage each, over every condition (safety replays the cells it has seen from its rollout log)

@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from uqdrive.analysis.acquisition_summary import summarise_acquisition
 from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_comparisons
 from uqdrive.analysis.method_answers import summarise_avoid, summarise_methods
 from uqdrive.analysis.method_claims import method_claims
@@ -35,6 +36,7 @@ from uqdrive.policy.draws import DrawSettings
 from uqdrive.records import write_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import claims_markdown, findings_markdown
+from uqdrive.safety.acquisition import AcquiredAt, Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.verdict import Verdict
 
@@ -154,6 +156,20 @@ def envelope_result(rng, method) -> EnvelopeResult:
     )
 
 
+def acquisition(rng, method, seed) -> Acquisition:
+    """One controller's round 0 and 1 at the training cell and one flagged cell, 14 check seeds each."""
+    cells, checks = ("roundabout-clear_noon-noise0.0", "roundabout_large-rain-noise0.0"), []
+    for k in (0, 1):
+        for cell in cells:
+            safe = outcomes(rng, 0.3 + 0.5 * k)
+            eta1 = safe.count("1") / len(safe)
+            checks.append(AcquisitionCheck(method, seed, k, cell, eta1, eta1 / 2, 1.0, len(safe), 0.9, 0.7, 1.0, safe))
+    rounds = [RoundSummary(0, 1.0, 0, 100, 0.8, [])]
+    rounds.append(RoundSummary(1, 0.5, 60, 160, 0.82, [AcquiredAt(1, cell, 4, 30) for cell in cells]))
+    compared, not_worse = before_after(checks, cells[0], 0.1)
+    return Acquisition(method, seed, "offline", 0.9, [cells[1]], rounds, checks, compared, cells[0], not_worse)
+
+
 def write_run(root):
     """Metrics and figures shaped like a finished pipeline's (random values, fixed seed), written as records."""
     rng = np.random.default_rng(0)
@@ -230,11 +246,13 @@ def write_run(root):
     (root / "plots/envelope/vi-seed0/map.png").write_bytes(png)  # mcd's map is missing
     (root / "plots/safety/summary").mkdir(parents=True)
     (root / "plots/safety/summary/hexbin_roundabout_noise0.0.png").write_bytes(png)  # the noise-0.05 one is missing
-    return trained, safety, avoid, findings, evaluated, envelopes
+    acquired = summarise_acquisition("offline", [acquisition(rng, m, r) for m in METHODS for r in SEEDS], 0.05, 0.1)
+    write_record(root / "metrics/acquisition.json", acquired)
+    return trained, safety, avoid, findings, evaluated, envelopes, acquired
 
 
 def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
-    trained, safety, avoid, findings, evaluated, envelopes = write_run(tmp_path)
+    trained, safety, avoid, findings, evaluated, envelopes, acquired = write_run(tmp_path)
     result = run_report(stage_config("report"))
     text = (tmp_path / "reports/report.md").read_text()
 
@@ -307,6 +325,16 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         assert row["seconds"] == fmt(envelope.seconds, 0)
     assert "weather.blend (clear_noon → rain) ∈ [0, 1]" in text
     assert "Figure missing: `plots/envelope/mcd-seed0/map.png`" in text
+    method_rows = markdown_rows(text, "method | check cell | round")
+    assert len(method_rows) == len(acquired.methods) == len(METHODS) * 2
+    for row, gain in zip(method_rows, acquired.methods):
+        assert (row["method"], row["check cell"], row["round"]) == (gain.method, gain.cell, "1")
+        assert row["behaviour cloning"] == fmt(gain.behaviour_cloned) and row["acquired"] == fmt(gain.acquired)
+        assert row["acquired safer?"].startswith(str(gain.claim.verdict))
+        assert row["training cell within 0.1"] == ("undecided" if "clear_noon" in gain.cell else "—")
+    controller_rows = markdown_rows(text, "controller | check cell | behaviour cloning")
+    assert len(controller_rows) == len(METHODS) * len(SEEDS) * 2
+    assert sum("(training)" in r["check cell"] for r in controller_rows) == len(METHODS) * len(SEEDS)
 
     headline = json.loads((tmp_path / "metrics/summary.json").read_text())
     first = ["eta1_training_condition", "eta1_training_location", "eta1_all_sweep_cells"]
@@ -384,7 +412,7 @@ def test_an_undecided_claim_shows_both_estimands_and_the_runs_that_would_decide_
 def test_the_report_opens_with_the_answer_then_its_contents_and_ends_with_the_learning_curves(stage_config, tmp_path):
     """The first screen: the short answer (generated: its numbers are the records'), a contents list whose every
     link is a heading's anchor in the HTML, then the paper's claims; the learning curves last."""
-    _, safety, _, findings, _, _ = write_run(tmp_path)
+    _, safety, _, findings, *_ = write_run(tmp_path)
     run_report(stage_config("report"))
     text = (tmp_path / "reports/report.md").read_text()
     headings = [line for line in text.splitlines() if line.startswith("## ")]

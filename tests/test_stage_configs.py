@@ -8,6 +8,7 @@ import pytest
 from conftest import ALL_TENTHS
 
 from uqdrive.pipeline.acquire_stage import run_acquire
+from uqdrive.pipeline.acquire_summary_stage import run_acquire_summary
 from uqdrive.pipeline.avoid_stage import run_avoid
 from uqdrive.pipeline.avoid_summary_stage import run_avoid_summary
 from uqdrive.pipeline.certify_stage import run_certify
@@ -54,6 +55,7 @@ STAGES = {
     "rare": run_rare,
     "certify": run_certify,
     "acquire": lambda cfg: run_acquire(cfg, []),
+    "acquire_summary": run_acquire_summary,
 }
 
 # stage: (a typo'd key, a wrong type, a value out of range), each an override and the start of its one line
@@ -160,6 +162,11 @@ BAD = {
         ("+acquire.round=1", "acquire.round: unknown key; did you mean 'rounds'?"),
         ("acquire.beta=often", "acquire.beta='often': input should be a valid number"),
         ("acquire.rounds=-1", "acquire.rounds=-1: input should be greater than or equal to 0"),
+    ],
+    "acquire_summary": [
+        ("+summary.alhpa=0.1", "summary.alhpa: unknown key; did you mean 'alpha'?"),
+        ("summary.margin=wide", "summary.margin='wide': input should be a valid number"),
+        ("summary.alpha=0", "summary.alpha=0: input should be greater than 0"),
     ],
 }
 

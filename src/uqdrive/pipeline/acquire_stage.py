@@ -49,7 +49,7 @@ from uqdrive.safety.acquisition import (
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.executors import WorkerEnvs
 from uqdrive.safety.runner import CellRunner, code_digest, estimate_key
-from uqdrive.schema import ConfigError, Count, NonNegative, Seed, Str, Unit, invalid, schema, validate
+from uqdrive.schema import ConfigError, Count, NonNegative, OpenUnit, Seed, Str, Unit, invalid, schema, validate
 from uqdrive.sim.condition import NO_WEATHER
 from uqdrive.stage import compose_cell
 from uqdrive.tracking import stage_run
@@ -83,6 +83,7 @@ class AcquireSection:
     beta_decay: Unit  # β of round k: beta · beta_decay^(k−1)
     base_seed: Seed  # acquisition rollouts: seeds base_seed + replicate·1,000,000 + i, apart from the sweep's
     target: Unit  # a swept condition is flagged when the upper end of η1's interval is below it
+    margin: OpenUnit  # the training condition is non-inferior when its paired loss is bounded below this
     cells_dir: Str  # the previous offline-safety sweep's cells (metrics/safety/<method>-seed<r>-<condition>.json)
     training: Where  # the condition the training data was collected at: acquired at and checked every round
     checks: tuple[Where, ...]  # further check cells, never acquired at (e.g. an untouched location)
@@ -123,6 +124,15 @@ def placed(stage: AcquireStage, where: Where, key: str = "acquire") -> dict[str,
         if world_location(world.name, label) == where.location:
             return {f"++gym_world.{axis.key}": value, "gym_world.name": where.location, "noise": where.noise}
     raise invalid(f"{key}.location", where.location, f"must be {world.name!r} or a location of acquire.world_axis")
+
+
+def as_swept(stage: AcquireStage, where: Where) -> Where:
+    """``where`` as the sweep named it: a Gymnasium world as collected is its axis' first location (the convention
+    of `params.yaml`'s gym_axis), so the training cell pairs with the sweep's own cell there."""
+    world, axis = stage.gym_world, stage.acquire.world_axis
+    if world is None or axis is None or where.location != world.name:
+        return where
+    return Where(world_location(world.name, next(iter(axis.values))), where.weather, where.noise)
 
 
 def targeted_conditions(training: Where, flagged: Sequence[SafetyCell]) -> list[Where]:
@@ -322,8 +332,8 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
     with the same settings; writes and returns every round's summary and check rows."""
     stage = validate(AcquireStage, cfg)
     section, model = stage.acquire, Path(stage.safety.model_path)
-    flagged = flagged_cells(sweep_cells(stage), section.target)
-    conditions = targeted_conditions(section.training, flagged)
+    flagged, training = flagged_cells(sweep_cells(stage), section.target), as_swept(stage, section.training)
+    conditions = targeted_conditions(training, flagged)
     checks = list({w.label: w for w in [*conditions, *section.checks]}.values())
     own = [o for o in overrides if not o.lstrip("+~").startswith("acquire.")]
     ctx = Rounds(
@@ -344,6 +354,7 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
             previous = Path(history[-1].model)
             history.append(reused_round(ctx, k) or run_round(ctx, k, previous))
     rows = [c for r in history for c in r.checks]
+    compared, not_worse = before_after(rows, training.label, section.margin)
     acquisition = Acquisition(
         stage.model["name"],
         stage.seed,
@@ -352,7 +363,9 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
         [w.label for w in conditions[1:]],
         [r.summary for r in history],
         rows,
-        before_after(rows),
+        compared,
+        training.label,
+        not_worse,
     )
     write_record(section.out, acquisition)
     for done in history:
@@ -371,6 +384,9 @@ def describe(a: Acquisition) -> str:
         )
         lines.append(f"acquire {a.method} seed{a.replicate} round {s.round}: +{s.frames_added} frames -> {checks}")
     decided = [f"{b.cell} {b.verdict} ({b.gain:+.2f}, p={b.p_value:.2g})" for b in a.before_after if b.round == s.round]
+    decided += [
+        f"{n.cell} {n.verdict} within {n.margin:g} (loss >= {n.low:+.2f})" for n in a.not_worse if n.round == s.round
+    ]
     if decided:
         lines.append(f"  against behaviour cloning (each at {a.before_after[0].level:.2g}): " + ", ".join(decided))
     return "\n".join(lines)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from uqdrive.analysis.acquisition_summary import AcquisitionSummary
 from uqdrive.analysis.comparisons import Findings
 from uqdrive.analysis.method_answers import AvoidSummary, SafetySummary
 from uqdrive.avoid.results import read_avoid_results
@@ -13,6 +14,7 @@ from uqdrive.data.preprocess import Preprocessed
 from uqdrive.envelope.map_records import EnvelopeResult
 from uqdrive.models.heldout_eval import HeldoutTable
 from uqdrive.records import read_record
+from uqdrive.report.acquisition_section import acquisition_section
 from uqdrive.report.answer import answer_markdown
 from uqdrive.report.document import Report
 from uqdrive.report.envelope_section import envelope_section, read_envelopes
@@ -38,12 +40,13 @@ from uqdrive.safety.cell_records import read_safety_cells
 @dataclasses.dataclass(frozen=True)
 class Records:
     """Everything the report reads: the run's closed-loop and training records, the findings, the held-out table,
-    the envelopes."""
+    the envelopes, the acquisition."""
 
     run: Run
     findings: Findings
     evaluated: HeldoutTable
     envelopes: list[EnvelopeResult]
+    acquisition: AcquisitionSummary
 
 
 def read_records(metrics_dir: Path, scope: Scope) -> Records:
@@ -65,6 +68,7 @@ def read_records(metrics_dir: Path, scope: Scope) -> Records:
         read_record(Findings, metrics_dir / "findings.json", "findings"),
         read_record(HeldoutTable, metrics_dir / "evaluate.json", "evaluate"),
         read_envelopes(metrics_dir, list(scope.grid.methods), seeds[0]),
+        read_record(AcquisitionSummary, metrics_dir / "acquisition.json", "acquire_summary"),
     )
 
 
@@ -90,6 +94,7 @@ def build_report(root: Path, out_dir: Path, scope: Scope, records: Records, head
     conditions = conditions_of(grid.locations, grid.weathers, grid.noises)
     safety_section(report, run, methods, conditions)
     failures_section(report, run.cells, root / "data" / "safety" / "clips", root / "metrics" / "safety", conditions)
+    acquisition_section(report, records.acquisition)
     avoid_section(report, run, methods)
     envelope_section(report, records.envelopes)
     heldout_section(report, records.evaluated, scope.posteriors, grid.weathers, grid.noises, grid.replicates[0])

@@ -1,0 +1,48 @@
+"""The `acquire_summary` stage: every controller's acquisition record of one experiment, summed up per method
+(`uqdrive.analysis.acquisition_summary`), written to metrics/acquisition.json."""
+
+from __future__ import annotations
+
+from omegaconf import DictConfig
+
+from uqdrive.analysis.acquisition_summary import AcquisitionSummary, read_acquisitions, summarise_acquisition
+from uqdrive.records import write_record
+from uqdrive.schema import OpenUnit, Str, schema, validate
+from uqdrive.stage_schemas import NonEmptyNames, NonEmptySeeds, Stage
+
+
+@schema
+class AcquireSummarySection:
+    alpha: OpenUnit  # family-wise error of the method-level claims
+    margin: OpenUnit  # the training cell's non-inferiority margin
+    acquire_dir: Str
+    out: Str
+
+
+@schema(root=True)
+class AcquireSummaryStage(Stage):
+    methods: NonEmptyNames
+    replicates: NonEmptySeeds
+    experiment: Str
+    summary: AcquireSummarySection
+
+
+def run_acquire_summary(cfg: DictConfig) -> AcquisitionSummary:
+    stage = validate(AcquireSummaryStage, cfg)
+    s = stage.summary
+    controllers = read_acquisitions(s.acquire_dir, list(stage.methods), list(stage.replicates))
+    summary = summarise_acquisition(stage.experiment, controllers, s.alpha, s.margin)
+    write_record(s.out, summary)
+    return summary
+
+
+def describe(summary: AcquisitionSummary, out: str) -> str:
+    """One line per method and check cell, then where the file went."""
+    lines = [
+        f"acquire {g.method} round {g.round} at {g.cell}: {g.behaviour_cloned:.2f} -> {g.acquired:.2f} "
+        f"(expert {g.expert:.2f}), {g.claim.verdict}{f', {g.non_inferior}' if g.non_inferior else ''}"
+        for g in summary.methods
+    ]
+    rounds = max((s.round for a in summary.controllers for s in a.rounds), default=0)
+    lines.append(f"acquisition: {len(summary.controllers)} controllers, up to round {rounds} -> {out}")
+    return "\n".join(lines)
