@@ -100,7 +100,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     avoided = read_record(AvoidSummary, project / "metrics/avoid.json", "avoid_summary")
     findings = read_record(Findings, project / "metrics/findings.json", "findings")
     assert findings.comparisons == len(findings.findings) > 0 and {
-        f.replicates == [0, 1] for f in findings.findings
+        f.finding.replicates == (0, 1) for f in findings.findings
     } == {True}
     for method in ("mcd",):  # each driven method's certified map of its first replicate
         envelope = json.loads((project / f"metrics/envelope/{method}-seed0.json").read_text())
