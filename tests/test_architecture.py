@@ -486,6 +486,10 @@ KEPT_TWINS = {  # pairs that share that much and stay, each with why
     "gamma, but its own `method` (mcd, vi) and `replicates` (their seeds) are other things under the same names, "
     "and metrics/safety.json holds both sets of keys flat, so an embedded flattened interval would collide",
 }
+# Not counted, since their types differ, and kept: stage_schemas.Sweep (a grid stage's `sweep:` section, whose lists
+# may be empty: heldout's names weathers and noises only) and stage_schemas.SafetyGrid (the same five lists at the root
+# of the findings, report and safety-summary configs, none empty). One embedding the other would move the keys users
+# override (`methods=[mcd]` against `sweep.methods=[mcd]`) or let those stages accept an empty grid.
 
 
 def dataclass_fields(trees: dict[Path, ast.Module]) -> dict[str, dict[str, str]]:
