@@ -14,7 +14,7 @@ def main(cfg: DictConfig) -> None:
     from uqdrive.pipeline.findings_stage import run_findings
 
     findings = run_findings(cfg)
-    for f in findings.findings:
+    for f in (record.finding for record in findings.findings):
         if f.supported:
             interval = f"[{f.low:+.2f}, {f.high:+.2f}]"
             print(f"supported: {f.name}: {f.effect:+.2f} {interval}, p {f.p_value:.2g} at level {f.level:.2g}")

@@ -6,6 +6,7 @@ import ast
 import builtins
 import collections
 import collections.abc
+import itertools
 import typing
 from pathlib import Path
 
@@ -477,3 +478,82 @@ def test_safety_keeps_the_closed_loop_engine_only():
     avoidance and failure replay live in their own wings. Its size says whether they crept back."""
     lines = sum(len(p.read_text().splitlines()) for p in (PACKAGE / "safety").glob("*.py"))
     assert lines <= 2_500, lines
+
+
+TWIN_FIELDS, TWIN_SHARE = 5, 0.8  # a class repeats another when it shares this many fields, this share of the smaller's
+KEPT_TWINS = {  # pairs that share that much and stay, each with why
+    frozenset({"MethodAnswer", "ReplicateInterval"}): "a method's answer copies the interval's value, low, high and "
+    "gamma, but its own `method` (mcd, vi) and `replicates` (their seeds) are other things under the same names, "
+    "and metrics/safety.json holds both sets of keys flat, so an embedded flattened interval would collide",
+}
+# Not counted, since their types differ, and kept: stage_schemas.Sweep (a grid stage's `sweep:` section, whose lists
+# may be empty: heldout's names weathers and noises only) and stage_schemas.SafetyGrid (the same five lists at the root
+# of the findings, report and safety-summary configs, none empty). One embedding the other would move the keys users
+# override (`methods=[mcd]` against `sweep.methods=[mcd]`) or let those stages accept an empty grid.
+
+
+def dataclass_fields(trees: dict[Path, ast.Module]) -> dict[str, dict[str, str]]:
+    """Each dataclass-like class (``@dataclass``, ``@record``, ``@schema``) → its own fields' annotations, by name."""
+    found = {}
+    for tree in trees.values():
+        for node in (n for n in ast.walk(tree) if isinstance(n, ast.ClassDef)):
+            decorators = {n for d in node.decorator_list for n in _names(d.func if isinstance(d, ast.Call) else d)}
+            if decorators & {"dataclass", "record", "schema"}:
+                found[node.name] = {
+                    f.target.id: ast.unparse(f.annotation)
+                    for f in node.body
+                    if isinstance(f, ast.AnnAssign) and isinstance(f.target, ast.Name)
+                    if "ClassVar" not in ast.unparse(f.annotation)
+                }
+    return found
+
+
+def twins(classes: dict[str, dict[str, str]]) -> dict[frozenset, list[str]]:
+    """The pairs of classes that share at least `TWIN_FIELDS` fields (same name, same annotation) making up at least
+    `TWIN_SHARE` of the smaller's fields, with those fields."""
+    found = {}
+    for (a, fa), (b, fb) in itertools.combinations(classes.items(), 2):
+        shared = sorted(k for k in fa.keys() & fb.keys() if fa[k] == fb[k])
+        if len(shared) >= TWIN_FIELDS and len(shared) >= TWIN_SHARE * min(len(fa), len(fb)):
+            found[frozenset({a, b})] = shared
+    return found
+
+
+def test_twins_are_found():
+    source = """
+@dataclass(frozen=True)
+class Result:
+    name: str
+    low: float
+    high: float
+    p_value: float
+    level: float
+    verdict: str
+
+@record
+class Repeats:
+    family: str
+    name: str
+    low: float
+    high: float
+    p_value: float
+    level: float
+
+@record
+class Embeds:
+    family: str
+    result: Result = flattened()
+"""
+    assert twins(dataclass_fields({Path("m.py"): ast.parse(source)})) == {
+        frozenset({"Result", "Repeats"}): ["high", "level", "low", "name", "p_value"]
+    }
+
+
+def test_no_record_repeats_another():
+    """One record per idea: a record that carries a result computed elsewhere embeds it (a `flattened` field of
+    `uqdrive.records` keeps the file's keys) rather than repeating its fields; a pair that stays is in `KEPT_TWINS`
+    with why, and an entry there that no longer applies goes."""
+    found = twins(dataclass_fields(modules()))
+    repeated = [f"{' ~ '.join(sorted(pair))}: {fields}" for pair, fields in found.items() if pair not in KEPT_TWINS]
+    assert not repeated, "\n".join(repeated)
+    assert set(KEPT_TWINS) <= set(found), "no longer twins: " + str(set(KEPT_TWINS) - set(found))

@@ -101,7 +101,7 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     avoided = read_record(AvoidSummary, project / "metrics/avoid.json", "avoid_summary")
     findings = read_record(Findings, project / "metrics/findings.json", "findings")
     assert findings.comparisons == len(findings.findings) > 0 and {
-        f.replicates == [0, 1] for f in findings.findings
+        f.finding.replicates == (0, 1) for f in findings.findings
     } == {True}
     acquired = read_record(AcquisitionSummary, project / "metrics/acquisition.json", "acquire_summary")
     assert [(a.method, a.replicate) for a in acquired.controllers] == [("mcd", 0), ("mcd", 1)]

@@ -99,11 +99,11 @@ def test_replay_re_drives_the_logged_rollout_exactly_and_writes_one_picture_per_
     plan = plan_cell(cfg)
     logged = RolloutLog(cfg.safety.rollout_log, plan.key, cell.base_seed).load()[worst.index]
     again = redrive(plan.job, worst.index).result
-    assert (again.termination, again.steps, again.safe, again.margin) == (
+    assert (again.termination, again.steps, again.verdict.safe, again.verdict.margin) == (
         logged.termination,
         logged.steps,
-        logged.safe,
-        logged.margin,
+        logged.verdict.safe,
+        logged.verdict.margin,
     )
     assert np.array_equal(again.x, logged.x) and np.array_equal(again.y, logged.y)
 

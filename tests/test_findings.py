@@ -28,7 +28,7 @@ def cells_where(rain: dict[int, tuple[str, str]]) -> list:
 
 
 def named(findings, name: str):
-    return next(f for f in findings.findings if f.name == name)
+    return next(f.finding for f in findings.findings if f.finding.name == name)
 
 
 def test_an_average_gain_over_the_controllers_is_supported_and_one_that_cancels_is_not():
@@ -37,7 +37,7 @@ def test_an_average_gain_over_the_controllers_is_supported_and_one_that_cancels_
     findings = decide(list(safety_comparisons(agree, list(METHODS), TRAINING)), 0.05)
     rain = named(findings, "mcd vs vi at roundabout-rain-noise0.0")
     assert rain.supported and rain.effect == pytest.approx(12 / N) and rain.low > 0 and rain.runs == N
-    assert rain.a_only == {0: 12, 1: 12, 2: 12} and rain.b_only == {0: 0, 1: 0, 2: 0} and rain.replicates == [0, 1, 2]
+    assert rain.a_only == {0: 12, 1: 12, 2: 12} and rain.b_only == {0: 0, 1: 0, 2: 0} and rain.replicates == (0, 1, 2)
     assert rain.level == pytest.approx(0.05 / findings.comparisons) and rain.p_value <= rain.level
     assert named(findings, "vi: roundabout-rain-noise0.0 vs the training condition").supported
     assert not named(findings, "mcd: roundabout-rain-noise0.0 vs the training condition").supported  # both safe
@@ -86,7 +86,7 @@ def test_redecide_gives_the_stages_claims_exactly_and_its_findings_from_the_coun
     again = redecide(json.loads(path.read_text()))
     assert [dataclasses.asdict(c) for c in again.claims] == [dataclasses.asdict(c) for c in findings.claims]
     assert again.comparisons == findings.comparisons and again.alpha == findings.alpha
-    for old, new in zip(findings.findings, again.findings):
+    for old, new in ((o.finding, n.finding) for o, n in zip(findings.findings, again.findings)):
         assert (new.name, new.a_only, new.b_only, new.runs) == (old.name, old.a_only, old.b_only, old.runs)
         assert new.effect == pytest.approx(old.effect) and abs(new.low - old.low) < 0.2
     assert main([str(path), "--out", str(tmp_path / "again.json")]) == 0 and (tmp_path / "again.json").exists()

@@ -149,7 +149,7 @@ def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and
     cells_dir = f"findings.cells_dir={tmp_path}/metrics/safety"
     grid = ("world=coin", "locations=[coin-calm,coin-wild]", "methods=[mcd,vi]", "replicates=[0]", "noises=[0.0]")
     findings = run_findings(stage_config("gym_findings", *grid, cells_dir))
-    names = [f.name for f in findings.findings]
+    names = [f.finding.name for f in findings.findings]
     assert names[:4] == ["mcd vs vi at coin-calm-env-noise0.0", "mcd vs vi at coin-wild-env-noise0.0"] + [
         f"{m}: coin-wild-env-noise0.0 vs the training condition" for m in ("mcd", "vi")
     ]

@@ -93,10 +93,10 @@ def test_stub_crash_rate_is_covered_by_the_exact_interval_of_the_rollouts_outcom
     safe_set = InfoSafeSet()
     worlds = [coin_world() for _ in range(3)]
     results = run_rollouts(worlds, ConstantPolicy(0.0, 1.0), seeds, conditions(seeds, 0.0), safe_set=safe_set)
-    assert [r.collision for r in results] == [coin_crash_step(s, CRASH_RATE) is not None for s in seeds]
-    assert [r.safe for r in results] == [not r.collision for r in results]
+    assert [r.verdict.collision for r in results] == [coin_crash_step(s, CRASH_RATE) is not None for s in seeds]
+    assert [r.verdict.safe for r in results] == [not r.verdict.collision for r in results]
     assert all(r.termination in ("collision", "timeout") for r in results)
-    crashes = sum(r.collision for r in results)
+    crashes = sum(r.verdict.collision for r in results)
     low, high = clopper_pearson_interval(crashes, len(seeds), 0.05)
     assert low <= CRASH_RATE <= high, (crashes, low, high)
     alone = run_rollouts(
@@ -122,7 +122,10 @@ def test_uqdrive_env_through_the_adapter_drives_the_paths_driving_env_drives() -
         direct = run_rollouts([env], policy, seeds, [Condition(scenario, None, 0.0)] * len(seeds))
     for a, b in zip(through, direct):
         assert np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y) and a.termination == b.termination
-        assert a.safe == (b.termination == "timeout") and a.mean_abs_lateral_deviation == b.mean_abs_lateral_deviation
+        assert (
+            a.verdict.safe == (b.termination == "timeout")
+            and a.mean_abs_lateral_deviation == b.mean_abs_lateral_deviation
+        )
 
 
 def test_a_gymnasium_runs_lane_is_the_path_it_drove_with_what_the_env_reported() -> None:
@@ -222,7 +225,7 @@ def test_highway_roundabout_runs_end_to_end_through_run_rollouts(highway_config:
     results = run_rollouts(worlds, ExpertPolicy(), seeds, conditions(seeds, 0.05), safe_set=safe_set)
     again = run_rollouts(worlds[:1], ExpertPolicy(), seeds, conditions(seeds, 0.05), safe_set=safe_set)
     assert _same(results, again)
-    assert [r.termination for r in results] == ["timeout"] * 3 and all(r.safe for r in results)
+    assert [r.termination for r in results] == ["timeout"] * 3 and all(r.verdict.safe for r in results)
     info = worlds[0].last_info
     assert {"crashed", "on_road", "x", "y", "yaw", "speed", "lateral_deviation"} <= set(info)
     assert abs(info["speed"] - 8.0) < 0.5 and info["t"] == pytest.approx(20 / 15)

@@ -261,7 +261,7 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert text.index("**The paper's claims, for the method**") < text.index("**For these trained controllers**")
     assert text.index("**For these trained controllers**") < text.index("## Controllers")
     claims = {r["claim (A safer than B)"]: r for r in markdown_rows(text, "claim (A safer than B)")}
-    paper = [c for c in findings.claims if c.family == "paper"]
+    paper = [c.result for c in findings.claims if c.family == "paper"]
     assert set(claims) == {c.name for c in paper} and {c.name for c in paper} >= {
         "vi safer than mcd offline",
         "mcd safer without rain than in rain",
@@ -394,12 +394,12 @@ def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp
 def test_an_undecided_claim_shows_both_estimands_and_the_runs_that_would_decide_it():
     """Every replicate at 1.00 on both sides: no run differs, the mean's betting interval is wide, and the report
     says what would decide it (differing runs for the sign test, runs for ±δ whatever the spread)."""
-    claim = SimpleNamespace(
-        family="paper", name="hmc safer than mcd offline", paper=None, a_rates=[1.0] * 3, b_rates=[1.0] * 3,
-        estimate=0.0, low=-0.9, high=0.9, ahead=0, behind=0, verdict=Verdict.UNDECIDED, margin=0.1,
-        differing_runs_needed=19, equivalence_runs_needed=3145, replicates=[0, 1, 2], pairs=14, level=0.005,
-        assumption="none beyond i.i.d. training runs",
+    result = SimpleNamespace(
+        name="hmc safer than mcd offline", estimate=0.0, low=-0.9, high=0.9, ahead=0, behind=0,
+        verdict=Verdict.UNDECIDED, margin=0.1, differing_runs_needed=19, equivalence_runs_needed=3145,
+        replicates=[0, 1, 2], level=0.005, assumption="none beyond i.i.d. training runs",
     )  # fmt: skip
+    claim = SimpleNamespace(family="paper", paper=None, a_rates=[1.0] * 3, b_rates=[1.0] * 3, pairs=14, result=result)
     row = markdown_rows(
         claims_markdown(SimpleNamespace(claims=[claim], margin=0.1, alpha=0.05)), "claim (A safer than B)"
     )[0]
@@ -438,7 +438,8 @@ def test_a_group_of_findings_names_each_method_once_and_a_range_with_equal_ends_
     from uqdrive.report.findings_text import _group_row, span
 
     base = dict(low=0.2, high=1.0, p_value=1e-3, effect=0.8)
-    members = [SimpleNamespace(a=f"{m} known off", b=f"{m} fog off", **base) for m in ("mcd", "vi", "hmc")]
+    finding = SimpleNamespace(**base)
+    members = [SimpleNamespace(a=f"{m} known off", b=f"{m} fog off", finding=finding) for m in ("mcd", "vi", "hmc")]
     what, gain, _ = _group_row(members)
     assert what == "**known off** safer than fog off, for mcd, vi, hmc (3 findings)" and "more" not in what
     assert gain.startswith("+0.80 ") and span(0.999, 1.0) == "1.00" and span(0.5, 0.75) == "0.50–0.75"

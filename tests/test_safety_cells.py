@@ -13,6 +13,7 @@ from uqdrive.safety import runner as runner_module
 from uqdrive.safety.cells import EstimatorSettings, OutcomeStream
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
+from uqdrive.safety.safe_sets import PathVerdict
 from uqdrive.schema import ConfigError, validate
 
 BASE_SEED = 1000
@@ -25,14 +26,16 @@ def fake_rollout(seed: int) -> RolloutResult:
     safe = bool(rng.random() < 0.93)
     return RolloutResult(
         seed=seed,
-        safe=safe,
         termination="" if safe else "collision",
-        collision=not safe,
-        off_road=False,
-        left_corridor=not safe,
-        reached_goal=safe,
-        corridor_use=float(rng.random()) * (2 if not safe else 1),
-        margin=float(rng.random()) * (1 if safe else -1),
+        verdict=PathVerdict(
+            safe=safe,
+            collision=not safe,
+            off_road=False,
+            left_corridor=not safe,
+            reached_goal=safe,
+            corridor_use=float(rng.random()) * (2 if not safe else 1),
+            margin=float(rng.random()) * (1 if safe else -1),
+        ),
         mean_abs_lateral_deviation=float(rng.random()),
         mean_eta2=float(rng.random()),
         mean_mutual_information=float("nan"),

@@ -42,43 +42,49 @@ LOCATIONS = ["roundabout", "roundabout_large", "roundabout_town"]  # the offline
 def test_autopilot_drives_every_location_safely(location):
     value, results = eta1(AUTOPILOT, location)
     assert value == 1.0
-    assert all(r.termination == "route_complete" and r.reached_goal and not r.left_corridor for r in results)
-    assert max(r.corridor_use for r in results) < 0.95  # the body stays in its lane with a margin (measured 0.89)
+    assert all(
+        r.termination == "route_complete" and r.verdict.reached_goal and not r.verdict.left_corridor for r in results
+    )
+    assert (
+        max(r.verdict.corridor_use for r in results) < 0.95
+    )  # the body stays in its lane with a margin (measured 0.89)
     assert max(r.mean_abs_lateral_deviation for r in results) < 0.5
-    assert all(0 < r.margin == pytest.approx(1 - r.corridor_use) for r in results)  # the lane binds, not the exit
+    assert all(
+        0 < r.verdict.margin == pytest.approx(1 - r.verdict.corridor_use) for r in results
+    )  # the lane binds, not the exit
 
 
 def test_full_left_is_unsafe_at_the_roundabout():
     value, results = eta1(FULL_LEFT, "roundabout")
     assert value == 0.0
-    assert all(r.left_corridor and not r.reached_goal and r.corridor_use > 1 for r in results)
-    assert all(r.margin <= 1 - r.corridor_use < 0 for r in results)  # its worst moment, signed
+    assert all(r.verdict.left_corridor and not r.verdict.reached_goal and r.verdict.corridor_use > 1 for r in results)
+    assert all(r.verdict.margin <= 1 - r.verdict.corridor_use < 0 for r in results)  # its worst moment, signed
 
 
 def test_a_lane_kept_but_an_exit_not_reached_has_the_exit_as_its_margin():
     """Slow enough to time out on the ring, in lane: unsafe, and the margin is the (negative) way left to the exit."""
     value, results = eta1(ExpertSpec(), "roundabout", horizon_s=4.0)
     assert value == 0.0
-    assert all(not r.reached_goal and not r.left_corridor and r.margin < 0 for r in results)
+    assert all(not r.verdict.reached_goal and not r.verdict.left_corridor and r.verdict.margin < 0 for r in results)
 
 
 @pytest.mark.parametrize("name", ["straight", "obstacle"])
 def test_road_safe_sets_need_no_collision_and_no_off_road(name):
     assert eta1(AUTOPILOT, name, theta=0.5)[0] == 1.0
     value, results = eta1(FULL_LEFT, name, theta=0.5)
-    assert value == 0.0 and all(r.off_road or r.collision for r in results)
+    assert value == 0.0 and all(r.verdict.off_road or r.verdict.collision for r in results)
 
 
 def test_a_timeout_before_the_obstacle_is_not_safe():
     """A car too slow to reach the obstacle within the horizon has answered nothing: unsafe, goal not reached."""
     value, results = eta1(ConstantSpec(0.0, 1.0), "obstacle", theta=0.5, horizon_s=5.0)
     assert value == 0.0
-    assert all(r.termination == "timeout" and not r.reached_goal and not r.collision for r in results)
+    assert all(r.termination == "timeout" and not r.verdict.reached_goal and not r.verdict.collision for r in results)
 
 
 def test_passing_the_obstacle_is_the_obstacle_roads_goal():
     value, results = eta1(AUTOPILOT, "obstacle", theta=0.5)
-    assert value == 1.0 and all(r.reached_goal for r in results)
+    assert value == 1.0 and all(r.verdict.reached_goal for r in results)
     geometry = build_geometry(scenario("obstacle"))
     safe = safe_set_for(geometry, 1.8, 4.5)
     assert safe.half_width is None
@@ -107,7 +113,7 @@ def test_the_body_not_its_centre_must_stay_in_the_lane():
 def test_corridor_half_width_is_configurable():
     """A corridor narrower than the autopilot's tracking error makes the same paths unsafe."""
     value, results = eta1(AUTOPILOT, "roundabout", theta=0.5, half_width=0.05)
-    assert value == 0.0 and all(r.left_corridor and r.termination == "route_complete" for r in results)
+    assert value == 0.0 and all(r.verdict.left_corridor and r.termination == "route_complete" for r in results)
 
 
 def test_default_corridor_is_the_lane_and_ends_at_the_first_exit():

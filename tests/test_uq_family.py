@@ -12,7 +12,7 @@ import pytest
 from scipy import stats
 
 from uqdrive.uq.family import Comparison, decide_finding, decide_findings
-from uqdrive.uq.paired import PairedTable, share_interval
+from uqdrive.uq.paired import share_interval
 from uqdrive.uq.verdict import Reason, Verdict
 
 REPS = 10_000
@@ -116,7 +116,8 @@ def test_a_family_splits_alpha_and_reads_each_controllers_table():
     nothing = np.stack([np.array([1.0, -1.0] * 4 + [0.0] * 32)] * 2, -1)
     first, second = decide_findings([comparison(x), comparison(nothing)], 0.05)
     assert first.level == pytest.approx(0.025) and first.supported and first.low > 0 and first.runs == 40
-    assert first.effect == pytest.approx(0.5) and first.tables == {0: PairedTable(40, 20, 0), 1: PairedTable(40, 20, 0)}
+    assert first.effect == pytest.approx(0.5) and first.replicates == (0, 1)
+    assert first.a_only == {0: 20, 1: 20} and first.b_only == {0: 0, 1: 0}  # each controller's table of 40 runs
     assert not second.supported and second.reason is Reason.NOT_SIGNIFICANT and second.low <= 0 <= second.high
     unlike = np.stack([np.array([1.0] * 24 + [0.0] * 16), np.array([-1.0] * 24 + [0.0] * 16)], -1)
     assert not decide_findings([comparison(unlike)], 0.05)[0].supported  # one gains what the other loses

@@ -36,7 +36,7 @@ def test_a_safety_cell_drives_a_users_policy_as_it_drives_on_its_own(stage_confi
     seeds = [job.base_seed + i for i in range(cell.n)]
     with DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s) as env:
         alone = run_rollouts([env], spec.build(job.control_hz), seeds, [job.where] * len(seeds))
-    assert "".join("1" if r.safe else "0" for r in alone) == cell.outcomes
+    assert "".join("1" if r.verdict.safe else "0" for r in alone) == cell.outcomes
     assert [r.steps for r in alone] == [int(s) for s in _steps(tmp_path, cfg)]
 
 

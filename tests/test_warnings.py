@@ -124,7 +124,7 @@ def test_warning_2_brakes_the_car_to_a_stop_and_hands_over(obstacle):
     with DrivingEnv(control_hz=15.0, horizon_s=8.0) as env:
         result = run_rollout(env, controller(DISAGREEING), 5, Condition(*obstacle, 0.0))
         speed = env.trajectory["speed"]
-    assert result.termination == HANDOVER and result.safe and not result.collision
+    assert result.termination == HANDOVER and result.verdict.safe and not result.verdict.collision
     assert speed[-1] == 0.0 and np.all(np.diff(speed) <= 0)
     assert result.steps == int(np.ceil(8.0 / (6.0 / 15.0)))  # 8 m/s at the 6 m/s² brake limit
     assert set(result.warning.tolist()) == {2} and not result.command_speed.any()
@@ -134,7 +134,7 @@ def test_confident_controller_drives_at_full_speed_to_the_horizon(obstacle):
     with DrivingEnv(control_hz=15.0, horizon_s=1.0) as env:
         result = run_rollout(env, controller(CONFIDENT), 5, Condition(*obstacle, 0.0))
     # a 1 s horizon ends long before the obstacle: the run answered nothing, so it is not safe
-    assert result.termination == "timeout" and not result.reached_goal and not result.safe
+    assert result.termination == "timeout" and not result.verdict.reached_goal and not result.verdict.safe
     assert set(result.warning.tolist()) == {NO_WARNING} and np.all(result.command_speed == 8.0)
 
 

@@ -5,17 +5,22 @@ metrics, the findings, the report's headline), each a frozen dataclass declared 
 against it (a key missing or unknown, a value of the wrong type) and failing in one line naming the file and the
 key. So a file format is written down once, in its record, and the summaries, findings and the report read
 attributes, not string keys.
+
+A record that carries a result computed elsewhere (a decided finding, a decided claim) embeds it in a `flattened`
+field rather than repeating its fields: the file keeps the result's keys beside the record's own, one flat object,
+and `read_record` gathers them back into the embedded result.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
 from pathlib import Path
 from typing import Any, TypeVar
 
-from pydantic import ConfigDict, TypeAdapter, ValidationError
+from pydantic import ConfigDict, TypeAdapter, ValidationError, model_validator
 from pydantic.dataclasses import dataclass as _pydantic_dataclass
 
 from uqdrive.files import write_json
@@ -24,15 +29,34 @@ from uqdrive.schema import ConfigError, describe
 RecordType = TypeVar("RecordType")
 _RECORD = ConfigDict(extra="forbid")  # NaN is a value (a mean over no frames; null in a file)
 _OPEN_RECORD = ConfigDict(extra="allow")  # method-specific keys beside the declared ones
+_FLATTEN = "flatten"
 
 
 def record(cls: type[RecordType] | None = None, *, open_keys: bool = False):
     """A result file's record: frozen, every key declared (``open_keys``: others allowed and kept)."""
 
     def wrap(c: type[RecordType]) -> type[RecordType]:
+        if any(isinstance(v, dataclasses.Field) and v.metadata.get(_FLATTEN) for v in vars(c).values()):
+            c._gather_flattened = model_validator(mode="before")(classmethod(_gather_flattened))  # type: ignore[attr-defined]
         return _pydantic_dataclass(c, config=_OPEN_RECORD if open_keys else _RECORD, frozen=True)
 
     return wrap if cls is None else wrap(cls)
+
+
+def flattened() -> Any:
+    """A record field holding an embedded result (a dataclass) whose keys the file holds beside the record's own."""
+    return dataclasses.field(metadata={_FLATTEN: True})
+
+
+def _gather_flattened(cls: type, data: Any) -> Any:
+    """A file's flat object with each `flattened` field's keys moved under the field's name, in place: so an error
+    names the key where `read_record`'s NaN repair finds it."""
+    if isinstance(data, dict):
+        for f in dataclasses.fields(cls):
+            if f.metadata.get(_FLATTEN) and f.name not in data:
+                embedded = cls.__pydantic_fields__[f.name].annotation  # type: ignore[attr-defined]
+                data[f.name] = {g.name: data.pop(g.name) for g in dataclasses.fields(embedded) if g.name in data}
+    return data
 
 
 def write_record(path: str | Path, value: Any, sort_keys: bool = True) -> Path:
@@ -44,7 +68,27 @@ def write_record(path: str | Path, value: Any, sort_keys: bool = True) -> Path:
 
 def as_dict(value: Any) -> dict:
     """A record as plain JSON-able data, the keys an open record kept included."""
-    return {**dataclasses.asdict(value), **extra_keys(value)}
+    return {**_plain(value), **extra_keys(value)}
+
+
+def _plain(value: Any) -> Any:
+    """`dataclasses.asdict`, with each `flattened` field's keys spread among its record's own."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        out: dict = {}
+        for f in dataclasses.fields(value):
+            inner = _plain(getattr(value, f.name))
+            if not f.metadata.get(_FLATTEN):
+                out[f.name] = inner
+            elif clash := set(inner) & {g.name for g in dataclasses.fields(value)}:
+                raise ValueError(f"{type(value).__name__}.{f.name} repeats the record's keys {sorted(clash)}")
+            else:
+                out.update(inner)
+        return out
+    if isinstance(value, (list, tuple)):
+        return type(value)(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return {_plain(k): _plain(v) for k, v in value.items()}
+    return copy.deepcopy(value)
 
 
 def extra_keys(value: Any) -> dict:

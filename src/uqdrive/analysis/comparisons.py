@@ -22,11 +22,10 @@ import numpy as np
 
 from uqdrive.analysis.method_claims import ClaimRecord
 from uqdrive.avoid.results import PAIRS, AvoidCell, AvoidResult, Mode
-from uqdrive.records import record
+from uqdrive.records import flattened, record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.uq.family import ESTIMAND, Comparison, decide_findings
-from uqdrive.uq.verdict import Reason, Verdict
+from uqdrive.uq.family import Comparison, Finding, decide_findings
 
 ComparedCell = SafetyCell | AvoidCell
 
@@ -34,30 +33,15 @@ ComparedCell = SafetyCell | AvoidCell
 @record
 class FindingRecord:
     """One comparison of the controller-level family ("for these trained controllers"): "A vs B" (``a``, ``b``: the
-    two cells' labels). ``effect``: the average over the controllers of η̂_A − η̂_B on their first ``runs`` runs
-    each; ``low``/``high``: its betting interval at level 1 − ``level`` (α over the family's comparisons);
-    ``supported`` ⇔ the interval excludes 0 ⇔ ``p_value`` ≤ ``level``; per replicate the discordant counts."""
+    two cells' labels), decided (``finding``: its average gain over the controllers, the betting interval at level
+    1 − ``level`` with α over the family's comparisons, the verdict and each replicate's discordant counts)."""
 
-    name: str
     experiment: str
     kind: str
     topic: str  # what the comparison is about beside the controller (a condition, a method pair): the report's rows
     a: str
     b: str
-    effect: float
-    low: float
-    high: float
-    runs: int
-    p_value: float
-    level: float
-    supported: bool
-    verdict: Verdict
-    reason: Reason
-    alpha: float
-    replicates: list[int]
-    a_only: dict[int, int]
-    b_only: dict[int, int]
-    estimand: str = ESTIMAND
+    finding: Finding = flattened()
 
 
 @record
@@ -151,28 +135,5 @@ def avoid_comparisons(results: list[AvoidResult], methods: list[str]) -> Iterato
 
 def decide(family: list[tuple], alpha: float) -> Findings:
     decided = decide_findings([c for *_, c in family], alpha)
-    records = [
-        FindingRecord(
-            name=f.name,
-            experiment=experiment,
-            kind=kind,
-            topic=topic,
-            a=a,
-            b=b,
-            effect=f.effect,
-            low=f.low,
-            high=f.high,
-            runs=f.runs,
-            p_value=f.p_value,
-            level=f.level,
-            supported=f.supported,
-            verdict=f.verdict,
-            reason=f.reason,
-            alpha=f.alpha,
-            replicates=list(f.tables),
-            a_only={r: t.a_only for r, t in f.tables.items()},
-            b_only={r: t.b_only for r, t in f.tables.items()},
-        )
-        for (experiment, kind, topic, a, b, _), f in zip(family, decided)
-    ]
-    return Findings(alpha, len(records), sum(r.supported for r in records), records)
+    records = [FindingRecord(*labels, finding=f) for (*labels, _), f in zip(family, decided)]
+    return Findings(alpha, len(records), sum(r.finding.supported for r in records), records)

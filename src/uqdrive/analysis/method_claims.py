@@ -27,12 +27,11 @@ import numpy as np
 
 from uqdrive import paper
 from uqdrive.avoid.results import PAIRS, AvoidCell, AvoidResult, Mode
-from uqdrive.records import record
+from uqdrive.records import flattened, record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.claims import ClaimResult, MethodClaim, ScoreClaim, decide_claims
 from uqdrive.uq.paired import paired_table
-from uqdrive.uq.verdict import Reason, Verdict  # noqa: F401  (record field types)
 
 PAPER_OFFLINE = (("vi", "hmc"), ("vi", "mcd"), ("hmc", "mcd"))  # the paper's ranking: VI 0.91 > HMC 0.766 > MCD 0.58
 RAIN = "rain"
@@ -40,41 +39,22 @@ RAIN = "rain"
 
 @record
 class ClaimRecord:
-    """One claim "``a`` is safer than ``b``" (``family``: paper, exploratory or margin) decided over the replicates
-    (`uq.claims.ClaimResult`, whose fields it carries): the sign test's ``ahead``/``behind`` runs and its interval
-    for the share of differing runs A wins, the mean difference ``estimate`` and its betting interval
-    ``low``/``high`` (None: an unbounded score), the verdict and, if undecided, the reason and the runs that would
-    decide it; ``per_replicate``: each replicate's difference (``unit``), ``a_rates``, ``b_rates`` its two sides;
-    ``paper``: the paper's numbers."""
+    """One claim "``a`` is safer than ``b``" (``family``: paper, exploratory or margin) and how it was decided over the
+    replicates (``result``: the sign test's runs and interval, the mean difference and its betting interval, the
+    verdict and, if undecided, the reason and the runs that would decide it); ``per_replicate``: each replicate's
+    difference (``unit``), ``a_rates``, ``b_rates`` its two sides; ``paper``: the paper's numbers."""
 
     family: str
-    name: str
     experiment: str
     a: str
     b: str
     paper: str | None
     unit: str
-    estimate: float
-    low: float | None
-    high: float | None
-    ahead: int
-    behind: int
-    share_low: float
-    share_high: float
-    p_value: float
-    differing_runs_needed: int | None
-    equivalence_runs_needed: int | None
-    level: float
-    margin: float
-    replicates: list[int]
+    result: ClaimResult = flattened()
     per_replicate: list[float]
     a_rates: list[float]
     b_rates: list[float]
     pairs: int
-    verdict: Verdict
-    reason: Reason
-    estimand: str
-    assumption: str
 
 
 class _Claim:
@@ -189,7 +169,8 @@ def _decide(
     for claim in claims:
         _check_paired(claim.sides)
     if on_margins:
-        decided = decide_claims([ScoreClaim(c.name, {r: c.margins(r) for r in c.sides}, margin) for c in claims], alpha)
+        scores = [ScoreClaim(_margin_name(c.name), {r: c.margins(r) for r in c.sides}, margin) for c in claims]
+        decided = decide_claims(scores, alpha)
     else:
         tables = [{r: paired_table(*c.outcomes(r)) for r in c.sides} for c in claims]
         decided = decide_claims([MethodClaim(c.name, t, margin) for c, t in zip(claims, tables)], alpha)
@@ -199,51 +180,34 @@ def _decide(
 def _record(family: str, claim: _Claim, decided: ClaimResult, on_margins: bool) -> ClaimRecord:
     sides = [claim.outcomes(r) if not on_margins else _margin_sides(claim, r) for r in claim.sides]
     rates = [float(np.mean(a)) for a, _ in sides], [float(np.mean(b)) for _, b in sides]
-    what = (claim.name, claim.experiment, claim.a, claim.b, None if on_margins else claim.paper)
+    what = (claim.experiment, claim.a, claim.b, None if on_margins else claim.paper)
     return claim_record(family, what, decided, rates, len(sides[0][0]), on_margins)
 
 
 def claim_record(
     family: str,
-    what: tuple[str, str, str, str, str | None],
+    what: tuple[str, str, str, str | None],
     decided: ClaimResult,
     rates: tuple[list[float], list[float]],
     pairs: int,
     on_margins: bool,
 ) -> ClaimRecord:
-    """The record of a decided claim: ``what`` is (name, experiment, a, b, the paper's numbers); ``rates`` each
+    """The record of a decided claim: ``what`` is (experiment, a, b, the paper's numbers); ``rates`` each
     replicate's A and B (η̂1, or mean margin); ``pairs``: paired runs per replicate."""
-    name, experiment, a, b, paper_text = what
+    experiment, a, b, paper_text = what
     a_rates, b_rates = rates
     return ClaimRecord(
         family=family,
-        name=_margin_name(name) if on_margins else name,
         experiment=experiment,
         a=a,
         b=b,
         paper=paper_text,
         unit="lane half-widths" if on_margins else "η1",
-        estimate=decided.estimate,
-        low=decided.low,
-        high=decided.high,
-        ahead=decided.ahead,
-        behind=decided.behind,
-        share_low=decided.share_low,
-        share_high=decided.share_high,
-        p_value=decided.p_value,
-        differing_runs_needed=decided.differing_runs_needed,
-        equivalence_runs_needed=decided.equivalence_runs_needed,
-        level=decided.level,
-        margin=decided.margin,
-        replicates=list(decided.replicates),
+        result=decided,
         per_replicate=[x - y for x, y in zip(a_rates, b_rates)],
         a_rates=a_rates,
         b_rates=b_rates,
         pairs=pairs,
-        verdict=decided.verdict,
-        reason=decided.reason,
-        estimand=decided.estimand,
-        assumption=decided.assumption,
     )
 
 

@@ -54,7 +54,7 @@ def _claims(raw: list[dict], alpha: float, margin: float) -> list[ClaimRecord]:
         on_margins = family == MARGIN_FAMILY
         claims = [_claim(c, margin, on_margins) for c in members]
         for c, decided in zip(members, decide_claims(claims, alpha)):
-            what = (c["name"], c["experiment"], c["a"], c["b"], c["paper"])
+            what = (c["experiment"], c["a"], c["b"], c["paper"])
             records.append(claim_record(family, what, decided, (c["a_rates"], c["b_rates"]), c["pairs"], on_margins))
     return records
 
@@ -89,6 +89,6 @@ def main(argv: list[str] | None = None) -> int:
     write_record(args.out or args.path, findings)
     print(
         f"{findings.supported} of {findings.comparisons} comparisons supported; claims decided: "
-        f"{sum(c.verdict != 'undecided' for c in findings.claims)} of {len(findings.claims)}"
+        f"{sum(c.result.verdict != 'undecided' for c in findings.claims)} of {len(findings.claims)}"
     )
     return 0

@@ -80,13 +80,13 @@ def cell_metrics(
         "handover_rate": float(np.mean(handed)),
         "autonomy": 1 - float(np.mean(handed)),
         "full_speed_fraction": full / max(steps, 1),
-        "collision_rate": float(np.mean([r.collision for r in results])),
-        "off_road_rate": float(np.mean([r.off_road for r in results])),
-        "passed_rate": float(np.mean([r.reached_goal for r in results])),
+        "collision_rate": float(np.mean([r.verdict.collision for r in results])),
+        "off_road_rate": float(np.mean([r.verdict.off_road for r in results])),
+        "passed_rate": float(np.mean([r.verdict.reached_goal for r in results])),
         # ran out of time before passing the obstacle without having stopped: no answer, never safe (a Gymnasium
         # world has no goal beyond its horizon: a timeout there is unsafe only if its safe_if failed)
         "timeout_before_obstacle_rate": float(
-            np.mean([r.termination == "timeout" and not r.reached_goal for r in results])
+            np.mean([r.termination == "timeout" and not r.verdict.reached_goal for r in results])
         ),
         "handover_distance_min": min(where, default=None),  # None (JSON null): no hand-over
         "handover_distance_median": float(np.median(where)) if where else None,
@@ -109,7 +109,7 @@ def cell_metrics(
         fixed_rollouts=fixed_rollouts,
         thresholds={"delta1": cell.rule.config.delta1, "delta2": cell.rule.config.delta2, "tau": cell.rule.config.tau},
         base_seed=cell.base_seed,
-        outcomes="".join("1" if r.safe else "0" for r in results),
+        outcomes="".join("1" if r.verdict.safe else "0" for r in results),
         failures=cell.failures,
     )
 
@@ -125,14 +125,14 @@ def unknown_mixture(
         first = cell.results[:fixed_rollouts]
         drawn = [mixture.variant(cell.base_seed + i) for i in range(len(first))]
         shares = {
-            item.name: {"runs": drawn.count(v), "safe": sum(r.safe for r, d in zip(first, drawn) if d == v)}
+            item.name: {"runs": drawn.count(v), "safe": sum(r.verdict.safe for r, d in zip(first, drawn) if d == v)}
             for v, item in enumerate(variants)
         }
         interval = f"{est.scheme} (one cell, each rollout's variant drawn from its seed)"
         return MixtureEstimate(
             est.value, est.low, est.high, est.theta, est.gamma, est.n, metrics[0].autonomy, interval, shares
         )
-    p = pooled([sum(r.safe for r in c.results) for c in cells], [len(c.results) for c in cells], gamma)
+    p = pooled([sum(r.verdict.safe for r in c.results) for c in cells], [len(c.results) for c in cells], gamma)
     autonomy = float(np.mean([m.autonomy for m in metrics]))
     return MixtureEstimate(
         p.value, p.low, p.high, p.theta, gamma, p.n, autonomy, "hoeffding (uniform mixture of the cells)"
@@ -145,7 +145,7 @@ def uncaught_variants(calib: Calibration, cells: dict[tuple[str, str], Cell], na
     out = []
     for name in names:
         off = cells[name, Mode.OFF]
-        observed = float(np.mean([r.safe for r in off.results]))
+        observed = float(np.mean([r.verdict.safe for r in off.results]))
         best = float(np.max(calib.table[f"eta1_{name}"]))
         if observed < 1.0 and best <= observed:
             out.append(

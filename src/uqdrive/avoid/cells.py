@@ -97,7 +97,7 @@ def traces_of(cells: list[Cell], geometries: dict[str, Course], first: int) -> T
     for g, cell in enumerate(cells):
         for r in cell.results[:first]:
             s, end = progress_along(geometries[cell.condition], r)
-            runs.append((r.eta2_counts, r.mi_stages, s, end, r.safe, g))
+            runs.append((r.eta2_counts, r.mi_stages, s, end, r.verdict.safe, g))
     return Traces.from_runs(runs, cells[0].rule.looks)
 
 
@@ -149,7 +149,7 @@ def cell_arrays(cell: Cell, course: Course) -> dict[str, np.ndarray | float]:
     return {
         **{k: np.concatenate(v) if v else np.zeros(0) for k, v in frames.items()},
         "termination": np.array([r.termination for r in cell.results]),
-        "safe": np.array([r.safe for r in cell.results]),
+        "safe": np.array([r.verdict.safe for r in cell.results]),
         "eta1": cell.estimate.value,
         "obstacle": course.obstacle_box(),
         "road": course.road_box(),

@@ -116,7 +116,7 @@ def calibration_of(
         order=c.order,
         **settings.replay_args(),
     )
-    closed_loop = [[r.safe for r in cells[name, Mode.ON].results] for name in names]
+    closed_loop = [[r.verdict.safe for r in cells[name, Mode.ON].results] for name in names]
     return calib, replay_check(calib, traces.group, names, closed_loop)
 
 

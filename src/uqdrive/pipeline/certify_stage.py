@@ -145,7 +145,7 @@ def run_certify(cfg: DictConfig) -> CertifyRecord:
         VERDICTS[decision.decision], spec.name, spec.kind, spec.digest, where.location, where.weather_name,
         where.noise, section.eta, section.theta, section.gamma, decision.n, decision.k,
         decision.k / decision.n, float(low), float(high), interval_gamma, section.budget, section.base_seed,
-        key, run.reused, run.seconds, "".join("1" if r.safe else "0" for r in read),
+        key, run.reused, run.seconds, "".join("1" if r.verdict.safe else "0" for r in read),
         **{k: v for k, v in rates(read).items() if k in SUMMARIES}, warning_share=_warning_share(spec, read),
     )  # fmt: skip
     write_record(section.out, record)  # before logging: a tracking failure never loses the verdict

@@ -67,7 +67,7 @@ def _cell(envelope: Envelope, section: RareSection, runner: CellRunner, cells: l
     count = len(listed.points)
     cells.append(runner.run(f"rare {envelope.method} {name}", job, key, log, base, lambda d: d(count), count))
     safe = np.asarray(cells[-1].outcome, int)
-    margins = np.array([r.margin for r in cells[-1].results], float)
+    margins = np.array([r.verdict.margin for r in cells[-1].results], float)
     margins = np.where(np.isnan(margins), np.where(safe == 1, 1.0, -1.0), margins)  # no lane rule: the outcome
     return safe, np.where(safe == 1, np.maximum(margins, 0.0), np.minimum(margins, 0.0))
 

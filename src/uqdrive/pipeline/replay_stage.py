@@ -109,7 +109,7 @@ def replay(path: str | Path, seed: int | None, out: str | Path) -> tuple[str, bo
     differences = check_against(watched, bool(cell.safe[index]), cell.margins[index], failure)
     r = watched.result
     summary = (
-        f"seed {r.seed} (rollout {index} of {cell.name}): {'safe' if r.safe else 'unsafe'}, "
+        f"seed {r.seed} (rollout {index} of {cell.name}): {'safe' if r.verdict.safe else 'unsafe'}, "
         f"{r.termination or 'running'} after {r.steps} steps"
         + (f", {failure.cause} at step {failure.step} ({failure.segment})" if failure else "")
     )

@@ -240,10 +240,10 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate], overrides: Sequence[str]
         seconds=run.seconds,
         **rates(results),
         guaranteed=estimate.guaranteed,
-        outcomes="".join("1" if r.safe else "0" for r in results),  # by rollout index: paired across cells
+        outcomes="".join("1" if r.verdict.safe else "0" for r in results),  # by rollout index: paired across cells
         config_hash=plan.key,
         unread=run.unread,
-        margins=[None if math.isnan(r.margin) else round(r.margin, 6) for r in results],
+        margins=[None if math.isnan(r.verdict.margin) else round(r.verdict.margin, 6) for r in results],
         failures=job_failures(plan.job, results),
         overrides=list(overrides),
     )

@@ -110,9 +110,11 @@ def check_against(watched: Watched, safe: bool, margin: float | None, failure: R
     """How the re-driven rollout differs from what the cell recorded for it (empty: it is the same): its outcome
     and margin, and where it failed, the termination, step count and path digest."""
     result, differences = watched.result, []
-    if result.safe != safe:
-        differences.append(f"outcome {'safe' if result.safe else 'unsafe'}, recorded {'safe' if safe else 'unsafe'}")
-    replayed_margin = None if math.isnan(result.margin) else round(float(result.margin), 6)
+    if result.verdict.safe != safe:
+        differences.append(
+            f"outcome {'safe' if result.verdict.safe else 'unsafe'}, recorded {'safe' if safe else 'unsafe'}"
+        )
+    replayed_margin = None if math.isnan(result.verdict.margin) else round(float(result.verdict.margin), 6)
     if replayed_margin != margin:
         differences.append(f"margin {replayed_margin}, recorded {margin}")
     if failure is not None:

@@ -58,11 +58,11 @@ def _unsafe(value: float) -> bool:
 
 
 def _held(findings: Findings) -> list[str]:
-    paper = [c for c in findings.claims if c.family == "paper"]
+    paper = [c.result for c in findings.claims if c.family == "paper"]
     decided = [c for c in paper if c.verdict is not Verdict.UNDECIDED]
     kinds = {}
     for f in findings.findings:
-        if f.supported:
+        if f.finding.supported:
             kinds[f.experiment, f.kind] = kinds.get((f.experiment, f.kind), 0) + 1
     listed = "; ".join(f"{KINDS.get(k, ' '.join(k)).lower()}: {n}" for k, n in kinds.items())
     lines = (

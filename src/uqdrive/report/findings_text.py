@@ -14,6 +14,7 @@ from pathlib import Path
 
 from uqdrive.records import read_record
 from uqdrive.report.document import fmt, table
+from uqdrive.uq.claims import ClaimResult
 from uqdrive.uq.verdict import Verdict
 
 KINDS = {
@@ -35,14 +36,14 @@ def _interval(low: float | None, high: float | None) -> str:
     return "[no bounded range]" if low is None or high is None else f"[{low:+.2f}, {high:+.2f}]"
 
 
-def _estimate(claim) -> str:
+def _estimate(claim: ClaimResult) -> str:
     """The two estimands: the runs each side won (the sign test's) and the mean difference with its betting
     interval — the one that decided equivalence, or would have."""
     runs = f"A higher in {claim.ahead}, B in {claim.behind} of {len(claim.replicates)} runs"
     return f"{runs}; mean {claim.estimate:+.2f} {_interval(claim.low, claim.high)}"
 
 
-def _needed(claim) -> str:
+def _needed(claim: ClaimResult) -> str:
     """What would decide an undecided claim, whatever the spread of training runs."""
     if claim.verdict is not Verdict.UNDECIDED:
         return "–"
@@ -59,20 +60,20 @@ def claims_markdown(findings) -> str:
         return ""
     rows = [
         [
-            c.name,
+            c.result.name,
             c.paper or "–",
             f"{sum(c.a_rates) / len(c.a_rates):.2f} vs {sum(c.b_rates) / len(c.b_rates):.2f}",
-            _estimate(c),
-            WORDS[c.verdict],
-            _needed(c),
+            _estimate(c.result),
+            WORDS[c.result.verdict],
+            _needed(c.result),
         ]
         for c in paper
     ]
-    decided = sum(c.verdict is not Verdict.UNDECIDED for c in paper)
-    first = paper[0]
+    decided = sum(c.result.verdict is not Verdict.UNDECIDED for c in paper)
+    first, pairs = paper[0].result, paper[0].pairs
     text = [
         f"**The paper's claims, for the method** (each posterior family over its training runs: "
-        f"{len(first.replicates)} replicates, {first.pairs} paired runs each). Supported or refuted: the exact sign "
+        f"{len(first.replicates)} replicates, {pairs} paired runs each). Supported or refuted: the exact sign "
         "test of P(A's run scores higher than its paired B's, among runs that differ) = ½; equivalent within "
         f"±{findings.margin:g}: the betting interval for the mean difference, valid for every spread of training runs "
         f"on [−1, 1]. Each claim at {fmt(first.level, 4)} (Bonferroni over the {len(paper)} claims: family-wise "
@@ -90,7 +91,7 @@ def claims_markdown(findings) -> str:
         ),
     ]
     for family, title in (("exploratory", "Exploratory"), ("margin", "Margins (lane half-widths, not η1)")):
-        members = [c for c in findings.claims if c.family == family]
+        members = [c.result for c in findings.claims if c.family == family]
         if members:
             counts = {v: sum(c.verdict is v for c in members) for v in Verdict}
             listed = "; ".join(
@@ -110,12 +111,13 @@ def span(low: float, high: float, digits: int = 2) -> str:
     return a if a == b else f"{a}–{b}"
 
 
-def _safer(f) -> tuple[str, str, str]:
+def _safer(record) -> tuple[str, str, str]:
     """The finding read as "X safer than Y": the safer cell's label, the other's, and the average gain in η̂1 with
     its interval in that direction."""
+    f = record.finding
     if f.low > 0 or (f.high >= 0 and f.effect > 0):
-        return f.a, f.b, f"+{f.effect:.2f} {_interval(f.low, f.high)}"
-    return f.b, f.a, f"+{-f.effect:.2f} {_interval(-f.high, -f.low)}"
+        return record.a, record.b, f"+{f.effect:.2f} {_interval(f.low, f.high)}"
+    return record.b, record.a, f"+{-f.effect:.2f} {_interval(-f.high, -f.low)}"
 
 
 def _without_method(label: str) -> str:
@@ -125,7 +127,7 @@ def _without_method(label: str) -> str:
 def _group_row(members: list) -> list[str]:
     """One row for findings that say one thing of many cells: the safer and the other conditions (without the
     method), the methods it holds for, how many findings, the range of their gains and the largest p."""
-    largest = max(f.p_value for f in members)
+    largest = max(f.finding.p_value for f in members)
     p = fmt(largest, 4) if largest >= 1e-4 else f"{largest:.1e}"
     if len(members) == 1:
         safer, other, gain = _safer(members[0])
@@ -134,7 +136,7 @@ def _group_row(members: list) -> list[str]:
     safer = ", ".join(dict.fromkeys(_without_method(s) for s, _, _ in read))
     other = ", ".join(dict.fromkeys(_without_method(o) for _, o, _ in read))
     methods = ", ".join(dict.fromkeys(f.a.split()[0] for f in members))
-    gains = [abs(f.effect) for f in members]
+    gains = [abs(f.finding.effect) for f in members]
     what = f"**{safer}** safer than {other}, for {methods} ({len(members)} findings)"
     return [what, f"+{span(min(gains), max(gains))} (each excludes 0)", p]
 
@@ -142,8 +144,8 @@ def _group_row(members: list) -> list[str]:
 def controller_markdown(findings) -> str:
     """Supported controller-level findings, grouped by kind; within a kind, those that say one thing of many cells
     (e.g. every method is less safe at one location in every weather) are one row."""
-    supported = [f for f in findings.findings if f.supported]
-    first = findings.findings[0] if findings.findings else None
+    supported = [f for f in findings.findings if f.finding.supported]
+    first = findings.findings[0].finding if findings.findings else None
     design = f"{len(first.replicates)} controllers, {first.runs} runs each" if first else "no comparisons"
     lines = [
         f"**For these trained controllers** ({design}): {findings.comparisons} comparisons, each on paired rollouts "
@@ -155,9 +157,9 @@ def controller_markdown(findings) -> str:
     for (experiment, kind), title in KINDS.items():
         group = [f for f in supported if (f.experiment, f.kind) == (experiment, kind)]
         rows = []
-        key = lambda f: (f.topic, f.effect > 0)  # noqa: E731  (one fact of many cells: one row)
+        key = lambda f: (f.topic, f.finding.effect > 0)  # noqa: E731  (one fact of many cells: one row)
         for _, members in itertools.groupby(sorted(group, key=key), key=key):
-            rows.append(_group_row(sorted(members, key=lambda f: -abs(f.effect))))
+            rows.append(_group_row(sorted(members, key=lambda f: -abs(f.finding.effect))))
         if rows:
             header = ["finding", "average η̂1 gained [interval]", "p (largest)"]
             lines.append(f"**{title}**\n\n" + table(header, rows))

@@ -126,7 +126,7 @@ class OutcomeStream:
         if len(self.kept) < start + count:
             self.run_to(self._end(start + count))
         self.results.extend(self.kept[start : start + count])
-        return np.array([r.safe for r in self.results[start:]], dtype=np.int64)
+        return np.array([r.verdict.safe for r in self.results[start:]], dtype=np.int64)
 
 
 def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins, trained_by: str) -> Posterior:
@@ -149,12 +149,14 @@ def rates(results: Sequence[RolloutResult]) -> dict[str, float | None]:
         return float(np.mean(finite)) if finite else None
 
     return {
-        "collision_rate": mean([r.collision for r in results]),
-        "off_road_rate": mean([r.off_road for r in results]),
-        "left_corridor_rate": mean([r.left_corridor for r in results]),
-        "reached_goal_rate": mean([r.reached_goal for r in results]),
-        "max_corridor_use": max([r.corridor_use for r in results if not math.isnan(r.corridor_use)], default=math.nan),
-        "mean_corridor_use": mean([r.corridor_use for r in results]),
+        "collision_rate": mean([r.verdict.collision for r in results]),
+        "off_road_rate": mean([r.verdict.off_road for r in results]),
+        "left_corridor_rate": mean([r.verdict.left_corridor for r in results]),
+        "reached_goal_rate": mean([r.verdict.reached_goal for r in results]),
+        "max_corridor_use": max(
+            [r.verdict.corridor_use for r in results if not math.isnan(r.verdict.corridor_use)], default=math.nan
+        ),
+        "mean_corridor_use": mean([r.verdict.corridor_use for r in results]),
         "mean_lateral_deviation": mean([r.mean_abs_lateral_deviation for r in results]),
         "mean_eta2": mean([r.mean_eta2 for r in results]),
         "mean_mutual_information": mean([r.mean_mutual_information for r in results]),

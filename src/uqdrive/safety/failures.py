@@ -62,12 +62,12 @@ def path_digest(x: np.ndarray, y: np.ndarray) -> str:
 
 def failure_cause(result: RolloutResult) -> str:
     """The safe-set rule a failing rollout broke, the most severe first."""
-    if result.collision:
+    if result.verdict.collision:
         return "collision"
-    if result.off_road:
+    if result.verdict.off_road:
         return "off road"
-    if result.left_corridor:
-        return "left lane" if not math.isnan(result.corridor_use) else "unsafe"
+    if result.verdict.left_corridor:
+        return "left lane" if not math.isnan(result.verdict.corridor_use) else "unsafe"
     if result.termination == "handover":
         return "handed over"
     return "short of the goal"
@@ -100,7 +100,7 @@ class RoadPlacer(FailurePlacer):
 
     def step(self, result: RolloutResult) -> int:
         """The body's first lane exit where it left its lane, else the last pose."""
-        if result.left_corridor and len(result.yaw) == len(result.x):
+        if result.verdict.left_corridor and len(result.yaw) == len(result.x):
             exit_pose = self.safe_set.first_exit(self.geometry, result.x, result.y, result.yaw)
             if exit_pose is not None:
                 return exit_pose
@@ -153,7 +153,7 @@ def failure_records(
     those with one, by index)."""
     records = []
     for r in results:
-        if not r.safe:
+        if not r.verdict.safe:
             index = r.seed - base_seed
             records.append(_record(r, index, condition(index), placer(index)))
     return sorted(records, key=lambda f: (f.margin is None, f.margin if f.margin is not None else 0.0, f.index))
@@ -181,7 +181,7 @@ def _record(result: RolloutResult, index: int, condition: str, placer: FailurePl
         y=round(float(result.y[pose]), 4) if len(result.y) else math.nan,
         progress=progress,
         segment=segment,
-        margin=None if math.isnan(result.margin) else round(float(result.margin), 6),
+        margin=None if math.isnan(result.verdict.margin) else round(float(result.verdict.margin), 6),
         warning=int(warnings[command]) if 0 <= command < len(warnings) else -1,
         warned=bool((warnings[: command + 1] >= 0).any()) if command >= 0 else False,
         eta2=at(result.eta2),

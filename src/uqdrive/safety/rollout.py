@@ -9,14 +9,14 @@ to the operator (``Command.handover``) brakes to a stop; the rollout then ends w
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from uqdrive.policy.interface import Command, Policy
 from uqdrive.policy.slots import in_lockstep
 from uqdrive.safety.info_safe_set import AnySafeSet, SafeSetOf
-from uqdrive.safety.safe_sets import HANDOVER
+from uqdrive.safety.safe_sets import HANDOVER, PathVerdict
 from uqdrive.sim.condition import Condition
 from uqdrive.sim.world import World
 
@@ -27,7 +27,8 @@ def _empty() -> np.ndarray:
 
 @dataclass(frozen=True)
 class RolloutResult:
-    """Outcome of one episode; ``x``, ``y``, ``yaw`` are the body-centre poses at every control step
+    """Outcome of one episode: how it ended (``termination``) and the safe set's ``verdict`` on its path; ``x``,
+    ``y``, ``yaw`` are the body-centre poses at every control step
     (and the last pose). Per-decision traces (one value per step): ``eta2``, ``mutual_information``,
     ``warning`` (level, -1 for none), ``command_speed``, ``draws`` (posterior draws the step took),
     ``mutual_information_se`` (how precise the MI is at those draws: its jackknife standard error) and
@@ -36,14 +37,8 @@ class RolloutResult:
     warning rule reads (`uqdrive.policy.warnings.WarningRule.levels`)."""
 
     seed: int
-    safe: bool
     termination: str
-    collision: bool
-    off_road: bool
-    left_corridor: bool
-    reached_goal: bool
-    corridor_use: float
-    margin: float  # the path's worst signed distance inside the safe set (`PathVerdict.margin`; NaN: no lane rule)
+    verdict: PathVerdict
     mean_abs_lateral_deviation: float
     mean_eta2: float
     mean_mutual_information: float
@@ -61,8 +56,11 @@ class RolloutResult:
     mi_stages: np.ndarray = field(default_factory=_empty)
 
     def summary(self) -> dict:
-        """The scalar fields (one row of the per-rollout table)."""
-        return {k: v for k, v in self.__dict__.items() if not isinstance(v, np.ndarray)}
+        """The scalar fields, the verdict's among them (one row of the per-rollout table: seed, outcome and
+        termination first, then why)."""
+        row = {"seed": self.seed, "safe": self.verdict.safe, "termination": self.termination, **asdict(self.verdict)}
+        rest = {k: v for k, v in self.__dict__.items() if k not in row and not isinstance(v, np.ndarray | PathVerdict)}
+        return row | rest
 
 
 def run_rollout(
@@ -167,14 +165,8 @@ def _result(episode: _Episode, safe_set: AnySafeSet | None, half_width: float | 
     _, lateral = env.lane.local_coordinates(np.stack([log["x"], log["y"]], axis=1))
     return RolloutResult(
         seed=episode.seed,
-        safe=verdict.safe,
         termination=episode.termination,
-        collision=verdict.collision,
-        off_road=verdict.off_road,
-        left_corridor=verdict.left_corridor,
-        reached_goal=verdict.reached_goal,
-        corridor_use=verdict.corridor_use,
-        margin=verdict.margin,
+        verdict=verdict,
         mean_abs_lateral_deviation=float(np.mean(np.abs(lateral))),
         mean_eta2=float(np.mean(eta2)) if eta2 else float("nan"),
         mean_mutual_information=float(np.mean(mi)) if mi else float("nan"),

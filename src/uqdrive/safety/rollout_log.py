@@ -18,16 +18,21 @@ import numpy as np
 
 from uqdrive.files import atomic_path
 from uqdrive.safety.rollout import RolloutResult
+from uqdrive.safety.safe_sets import PathVerdict
 
 _ARRAY = "__ndarray__"
 
 
+def _plain(value: object) -> object:
+    if isinstance(value, PathVerdict):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, np.ndarray):
+        return {_ARRAY: value.dtype.str, "data": value.tolist()}
+    return value.item() if isinstance(value, np.generic) else value
+
+
 def _encode(result: RolloutResult) -> str:
-    row = {}
-    for f in dataclasses.fields(result):
-        value = getattr(result, f.name)
-        value = value.item() if isinstance(value, np.generic) else value
-        row[f.name] = {_ARRAY: value.dtype.str, "data": value.tolist()} if isinstance(value, np.ndarray) else value
+    row = {f.name: _plain(getattr(result, f.name)) for f in dataclasses.fields(result)}
     return json.dumps(row)  # floats as repr: they read back bit for bit
 
 
@@ -37,7 +42,9 @@ def _decode(line: str) -> RolloutResult:
         **{
             k: np.array(v["data"], dtype=v[_ARRAY]) if isinstance(v, dict) and _ARRAY in v else v
             for k, v in row.items()
-        }
+            if k != "verdict"
+        },
+        verdict=PathVerdict(**row["verdict"]),
     )
 
 

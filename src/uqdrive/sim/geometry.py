@@ -13,20 +13,8 @@ import math
 import numpy as np
 
 from .config import ScenarioConfig
-from .layouts import LAYOUTS, Layout
+from .layouts import LAYOUTS, Layout, Prop
 from .paving import PavedArea
-
-
-@dataclasses.dataclass(frozen=True)
-class Scenery:
-    """Off-road props. kind is 'tree' (size = trunk radius, crown radius, height) or 'building'."""
-
-    kind: str
-    x: float
-    y: float
-    yaw: float
-    size: tuple[float, float, float]
-    color: tuple[float, float, float]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,7 +22,7 @@ class ScenarioGeometry(Layout):
     """Everything the world and the safety checks need to know about one scenario: its layout, and around it."""
 
     config: ScenarioConfig
-    scenery: list[Scenery]
+    scenery: list[Prop]  # trees and buildings off the road
     bounds: tuple[float, float, float, float]  # xmin, ymin, xmax, ymax of the paved area
 
     def is_paved(self, points: np.ndarray) -> np.ndarray:
@@ -67,12 +55,12 @@ class ScenarioGeometry(Layout):
         return inside & (np.abs(lateral) <= self.width_at(longitudinal) / 2)
 
 
-def _place_scenery(cfg: ScenarioConfig, paved: PavedArea, bounds, island) -> list[Scenery]:
+def _place_scenery(cfg: ScenarioConfig, paved: PavedArea, bounds, island) -> list[Prop]:
     rng = np.random.default_rng(cfg.scenery_seed)
     xmin, ymin, xmax, ymax = bounds
     ext = cfg.scenery_extent
     distance = paved.distance_field(ext + 1.0)
-    items: list[Scenery] = []
+    items: list[Prop] = []
     tries = 0
     while len(items) < cfg.scenery_count and tries < 200 * max(cfg.scenery_count, 1):
         tries += 1
@@ -99,7 +87,7 @@ def _place_scenery(cfg: ScenarioConfig, paved: PavedArea, bounds, island) -> lis
             for o in items
         ):
             continue
-        items.append(Scenery("tree" if tree else "building", x, y, yaw, size, color))
+        items.append(Prop("tree" if tree else "building", x, y, yaw, size, color))
     return items
 
 

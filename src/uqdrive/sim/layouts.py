@@ -18,9 +18,12 @@ from .route import STEP, Route, arc, join, line, rotate
 
 
 @dataclasses.dataclass(frozen=True)
-class Obstacle:
-    """A stationary car: centre (x, y), heading and size (length, width, height)."""
+class Prop:
+    """A stationary body of the scene: an obstacle's car (``kind`` 'car', size = length, width, height) or the
+    scenery around the road ('tree', size = trunk radius, crown radius, height; or 'building'); centre (x, y),
+    heading, size and colour."""
 
+    kind: str
     x: float
     y: float
     yaw: float
@@ -37,7 +40,7 @@ class Layout:
     paved: PavedArea
     asphalt: list[np.ndarray]  # triangles [n, 3, 2] per patch
     markings: np.ndarray  # triangles [n, 3, 2]
-    obstacles: list[Obstacle]
+    obstacles: list[Prop]  # cars
     island: tuple[float, float, float] | None  # centre x, y and radius of a roundabout island
 
 
@@ -61,7 +64,7 @@ def straight(cfg: ScenarioConfig) -> Layout:
     obstacles = []
     if cfg.kind == "obstacle":
         ox = cfg.start_distance + cfg.obstacle_distance
-        obstacles.append(Obstacle(ox, right, 0.0, cfg.obstacle_size, cfg.obstacle_color))
+        obstacles.append(Prop("car", ox, right, 0.0, cfg.obstacle_size, cfg.obstacle_color))
         half_len = cfg.obstacle_size[0] / 2
         x0 = ox - half_len - cfg.lane_change_gap - cfg.lane_change_length
         x1 = ox + half_len + cfg.lane_change_gap

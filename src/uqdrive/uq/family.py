@@ -60,7 +60,8 @@ class Comparison:
 class Finding:
     """One comparison's outcome for these trained controllers: ``effect``, the average of the controllers'
     η̂_A − η̂_B over their first ``runs`` runs each; ``low``/``high``: its interval at level 1 − ``level``;
-    ``p_value``: the betting test of "no gain on average" — supported ⇔ p ≤ level ⇔ the interval excludes 0."""
+    ``p_value``: the betting test of "no gain on average" — supported ⇔ p ≤ level ⇔ the interval excludes 0;
+    ``a_only``/``b_only``: per replicate, the runs where only A's, only B's was safe (its paired table of ``runs``)."""
 
     name: str
     effect: float
@@ -73,13 +74,17 @@ class Finding:
     reason: Reason
     alpha: float
     runs: int
-    tables: dict[int, PairedTable]
+    replicates: tuple[int, ...]
+    a_only: dict[int, int]
+    b_only: dict[int, int]
+    estimand: str = ESTIMAND
 
 
 def decide_finding(comparison: Comparison, level: float, alpha: float) -> Finding:
     """One comparison decided at ``level`` (its share α/m of the family's α)."""
     interval = mean_interval(comparison.blocks(), -1.0, 1.0, level, block=len(comparison.outcomes))
     supported = bool(interval.p_value <= level)
+    tables = comparison.tables()
     return Finding(
         comparison.name,
         float(interval.estimate),
@@ -92,7 +97,9 @@ def decide_finding(comparison: Comparison, level: float, alpha: float) -> Findin
         Reason.DECIDED if supported else Reason.NOT_SIGNIFICANT,
         float(alpha),
         comparison.runs(),
-        comparison.tables(),
+        tuple(tables),
+        {r: t.a_only for r, t in tables.items()},
+        {r: t.b_only for r, t in tables.items()},
     )
 
 
