@@ -120,9 +120,11 @@ def test_each_round_is_compared_with_behaviour_cloning_on_the_shared_seeds(one_r
     first = {c.cell: c.outcomes for c in one_round.checks if c.round == 0}
     compared = {b.cell: b for b in one_round.before_after}
     assert set(compared) == set(first) and all(b.round == 1 and b.level == 0.05 / 3 for b in compared.values())
-    (held,) = one_round.not_worse  # the training cell, one round: counted in the family of 2 + 1
-    assert (held.round, held.cell, held.margin, held.level) == (1, TRAINING.label, 0.1, 0.05 / 3)
-    assert held.verdict == "undecided" and held.low == compared[TRAINING.label].low  # 4 pairs bound nothing
+    # the training cell's non-inferiority, one round: counted in the family of 2 + 1; 4 pairs bound nothing
+    assert one_round.training == TRAINING.label and one_round.margin == 0.1
+    assert {b.cell: b.non_inferior for b in compared.values()} == {
+        cell: "undecided" if cell == TRAINING.label else "" for cell in first
+    }
     for c in (c for c in one_round.checks if c.round == 1):
         assert len(c.outcomes) == c.n == len(first[c.cell])
         gain = (c.outcomes.count("1") - first[c.cell].count("1")) / c.n
@@ -140,9 +142,9 @@ def test_before_after_is_the_exact_mcnemar_test_at_the_bonferroni_level():
     direction is the gain's; its false-verdict rate, summed exactly over every null table of 14 pairs, ≤ the level."""
     checks = [check_row(0, "a", "0" * 14), check_row(1, "a", "1" * 14)]
     checks += [check_row(0, "b", "1" * 6 + "0" * 8), check_row(1, "b", "0" * 14)]
-    (a, b), not_worse = before_after(checks, training="elsewhere", margin=0.1)
+    (a, b) = before_after(checks, training="elsewhere", margin=0.1)
     assert (a.verdict, b.verdict) == ("safer", "undecided") and a.p_value == pytest.approx(2 * 0.5**14)
-    assert not_worse == []
+    assert a.non_inferior == b.non_inferior == ""
     assert b.p_value == pytest.approx(2 * 0.5**6) and a.level == 0.025
     for concordant in range(15):  # under H0 the discordant pairs split as fair coins, whatever the concordant ones
         m = 14 - concordant
@@ -151,7 +153,7 @@ def test_before_after_is_the_exact_mcnemar_test_at_the_bonferroni_level():
             after = "1" * k + "0" * (m - k) + "1" * concordant
             before = "0" * k + "1" * (m - k) + "1" * concordant
             pair = [check_row(0, "c", before), check_row(1, "c", after)]
-            verdict = before_after(pair, training="elsewhere", margin=0.1, alpha=0.05)[0][0].verdict
+            verdict = before_after(pair, training="elsewhere", margin=0.1, alpha=0.05)[0].verdict
             error += math.comb(m, k) * 0.5**m * (verdict != "undecided")
         assert error <= 0.05
 
@@ -160,10 +162,10 @@ def test_the_training_cell_is_non_inferior_only_where_its_pairs_bound_the_loss_w
     """400 pairs at the training cell, 2 lost and 1 gained: the gain's lower end lies above −0.05, declared
     non-inferior (counted in the family: level α/2); the same shares on 14 pairs are undecided."""
     before, after = "1" * 398 + "10", "1" * 398 + "01"
-    _, (held,) = before_after([check_row(0, "t", before), check_row(1, "t", after)], training="t", margin=0.05)
-    assert held.verdict == "non-inferior" and held.level == 0.025 and -0.05 < held.low <= held.gain == 0.0
-    _, (short,) = before_after([check_row(0, "t", "1" * 14), check_row(1, "t", "1" * 14)], "t", 0.05)
-    assert short.verdict == "undecided"
+    (held,) = before_after([check_row(0, "t", before), check_row(1, "t", after)], training="t", margin=0.05)
+    assert held.non_inferior == "non-inferior" and held.level == 0.025 and -0.05 < held.low <= held.gain == 0.0
+    (short,) = before_after([check_row(0, "t", "1" * 14), check_row(1, "t", "1" * 14)], "t", 0.05)
+    assert short.non_inferior == "undecided"
 
 
 def test_round_zero_reads_the_sweeps_own_cell_where_it_is_the_same_cell(project, one_round):

@@ -19,8 +19,8 @@ def controller(seed: int, before: dict[str, str], after: dict[str, str], method:
         for cell, s in outcomes.items()
     ]
     rounds = [RoundSummary(0, 1.0, 0, 100, 0.8, []), RoundSummary(1, 0.5, 60, 160, 0.82, [])]
-    compared, not_worse = before_after(checks, TRAINING, 0.1)
-    return Acquisition(method, seed, "offline", 0.9, [FLAGGED], rounds, checks, compared, TRAINING, not_worse)
+    compared = before_after(checks, TRAINING, 0.1)
+    return Acquisition(method, seed, "offline", 0.9, [FLAGGED], rounds, checks, compared, TRAINING, 0.1)
 
 
 def test_ten_runs_that_all_gain_at_the_flagged_cell_support_the_method_and_the_training_cell_holds():

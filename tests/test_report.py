@@ -166,8 +166,8 @@ def acquisition(rng, method, seed) -> Acquisition:
             checks.append(AcquisitionCheck(method, seed, k, cell, eta1, eta1 / 2, 1.0, len(safe), 0.9, 0.7, 1.0, safe))
     rounds = [RoundSummary(0, 1.0, 0, 100, 0.8, [])]
     rounds.append(RoundSummary(1, 0.5, 60, 160, 0.82, [AcquiredAt(1, cell, 4, 30) for cell in cells]))
-    compared, not_worse = before_after(checks, cells[0], 0.1)
-    return Acquisition(method, seed, "offline", 0.9, [cells[1]], rounds, checks, compared, cells[0], not_worse)
+    compared = before_after(checks, cells[0], 0.1)
+    return Acquisition(method, seed, "offline", 0.9, [cells[1]], rounds, checks, compared, cells[0], 0.1)
 
 
 def write_run(root):

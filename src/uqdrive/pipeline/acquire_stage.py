@@ -354,7 +354,7 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
             previous = Path(history[-1].model)
             history.append(reused_round(ctx, k) or run_round(ctx, k, previous))
     rows = [c for r in history for c in r.checks]
-    compared, not_worse = before_after(rows, training.label, section.margin)
+    compared = before_after(rows, training.label, section.margin)
     acquisition = Acquisition(
         stage.model["name"],
         stage.seed,
@@ -365,7 +365,7 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
         rows,
         compared,
         training.label,
-        not_worse,
+        section.margin,
     )
     write_record(section.out, acquisition)
     for done in history:
@@ -383,9 +383,11 @@ def describe(a: Acquisition) -> str:
             if c.round == s.round
         )
         lines.append(f"acquire {a.method} seed{a.replicate} round {s.round}: +{s.frames_added} frames -> {checks}")
-    decided = [f"{b.cell} {b.verdict} ({b.gain:+.2f}, p={b.p_value:.2g})" for b in a.before_after if b.round == s.round]
-    decided += [
-        f"{n.cell} {n.verdict} within {n.margin:g} (loss >= {n.low:+.2f})" for n in a.not_worse if n.round == s.round
+    decided = [
+        f"{b.cell} {b.verdict} ({b.gain:+.2f}, p={b.p_value:.2g})"
+        + (f", {b.non_inferior} within {a.margin:g} (loss >= {b.low:+.2f})" if b.non_inferior else "")
+        for b in a.before_after
+        if b.round == s.round
     ]
     if decided:
         lines.append(f"  against behaviour cloning (each at {a.before_after[0].level:.2g}): " + ", ".join(decided))

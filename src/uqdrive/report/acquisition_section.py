@@ -38,12 +38,12 @@ def _controllers_table(controllers: list[Acquisition]) -> str:
         last = max(s.round for s in a.rounds)
         by = {(c.round, c.cell): c for c in a.checks}
         compared = {b.cell: b for b in a.before_after if b.round == last}
-        held = {n.cell: n.verdict for n in a.not_worse if n.round == last}
         for (k, cell), before in by.items():
             if k != 0:
                 continue
             after, b = by[last, cell], compared.get(cell)
             verdict = "—" if b is None else f"{b.verdict} ({b.gain:+.2f}, p {b.p_value:.2g})"
+            held = f"; {b.non_inferior} within {a.margin:g}" if b is not None and b.non_inferior else ""
             rows.append(
                 [
                     f"{a.method} seed{a.replicate}",
@@ -51,7 +51,7 @@ def _controllers_table(controllers: list[Acquisition]) -> str:
                     _interval(before.eta1, before.low, before.high),
                     _interval(after.eta1, after.low, after.high) if last else "—",
                     _interval(before.expert, before.expert_low, before.expert_high),
-                    verdict + (f"; {held[cell]}" if cell in held else ""),
+                    verdict + held,
                 ]
             )
     headers = ["controller", "check cell", "behaviour cloning", "last round", "expert", "paired test"]

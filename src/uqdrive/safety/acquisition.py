@@ -130,7 +130,10 @@ class AcquisitionCheck:
 class BeforeAfter:
     """Round ``round``'s controller against the behaviour-cloned one (round 0) at ``cell``, paired by seed: the gain
     in η̂1, its interval (coverage ≥ 1 − ``level`` for any joint law of the pairs), the exact McNemar p-value and
-    the verdict at ``level`` (the family's α split over every round × cell compared: Bonferroni)."""
+    the verdict at ``level`` (the family's α split over every comparison: Bonferroni). At the training condition
+    also ``non_inferior``: whether the interval's lower end lies above −margin (`uqdrive.uq.paired.non_inferior`;
+    acquisition must not buy the flagged conditions with the one the controller was trained for), one more
+    comparison of the family."""
 
     round: int
     cell: str
@@ -140,22 +143,7 @@ class BeforeAfter:
     p_value: float
     level: float
     verdict: str  # safer | less safe | undecided
-
-
-@record
-class NotWorse:
-    """Round ``round``'s controller against the behaviour-cloned one at the training condition ``cell``, paired by
-    seed: non-inferior when the lower end ``low`` of the gain's interval (coverage ≥ 1 − ``level`` for any joint
-    law) lies above −``margin`` (`uqdrive.uq.paired.non_inferior`), else undecided — acquisition must not buy the
-    flagged conditions with the one the controller was trained for."""
-
-    round: int
-    cell: str
-    gain: float
-    low: float
-    margin: float
-    level: float
-    verdict: str  # non-inferior | undecided
+    non_inferior: str = ""  # non-inferior | undecided at the training cell; "" at the others
 
 
 @record
@@ -194,25 +182,25 @@ class Acquisition:
     checks: list[AcquisitionCheck]
     before_after: list[BeforeAfter] = dataclasses.field(default_factory=list)
     training: str = ""  # the training condition's cell, checked for non-inferiority every round
-    not_worse: list[NotWorse] = dataclasses.field(default_factory=list)
+    margin: float = 0.1  # within which the training cell must stay
 
 
 def before_after(
     checks: Sequence[AcquisitionCheck], training: str, margin: float, alpha: float = 0.05
-) -> tuple[list[BeforeAfter], list[NotWorse]]:
+) -> list[BeforeAfter]:
     """Every later round against round 0 at each cell both checked (exact paired tests on the cells' shared seeds),
     and at the ``training`` cell whether it stayed within ``margin`` (non-inferiority), family-wise at ``alpha``
     over all of these (Bonferroni); these trained controllers only, one replicate."""
     first = {c.cell: c for c in checks if c.round == 0 and c.outcomes}
     later = [c for c in checks if c.round > 0 and c.cell in first and len(c.outcomes) == len(first[c.cell].outcomes)]
     level = alpha / max(len(later) + sum(c.cell == training for c in later), 1)
-    compared, not_worse = [], []
+    compared = []
     for c in later:
         table = paired_table([o == "1" for o in c.outcomes], [o == "1" for o in first[c.cell].outcomes])
         test = paired_test(table, level)
         verdict = "undecided" if test.p_value > level else "safer" if test.effect > 0 else "less safe"
-        compared.append(BeforeAfter(c.round, c.cell, test.effect, test.low, test.high, test.p_value, level, verdict))
-        if c.cell == training:
-            held = "non-inferior" if non_inferior(table, margin, level) else "undecided"
-            not_worse.append(NotWorse(c.round, c.cell, test.effect, test.low, margin, level, held))
-    return compared, not_worse
+        held = "" if c.cell != training else "non-inferior" if non_inferior(table, margin, level) else "undecided"
+        compared.append(
+            BeforeAfter(c.round, c.cell, test.effect, test.low, test.high, test.p_value, level, verdict, held)
+        )
+    return compared
