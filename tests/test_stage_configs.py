@@ -55,6 +55,7 @@ STAGES = {
     "rare": run_rare,
     "certify": run_certify,
     "acquire": lambda cfg: run_acquire(cfg, []),
+    "gym_acquire": lambda cfg: run_acquire(cfg, []),
     "acquire_summary": run_acquire_summary,
 }
 
@@ -162,6 +163,11 @@ BAD = {
         ("+acquire.round=1", "acquire.round: unknown key; did you mean 'rounds'?"),
         ("acquire.beta=often", "acquire.beta='often': input should be a valid number"),
         ("acquire.rounds=-1", "acquire.rounds=-1: input should be greater than or equal to 0"),
+    ],
+    "gym_acquire": [
+        ("+acquire.episode=3", "acquire.episode: unknown key; did you mean 'episodes'?"),
+        ("acquire.margin=wide", "acquire.margin='wide': input should be a valid number"),
+        ("acquire.margin=1", "acquire.margin=1: input should be less than 1"),
     ],
     "acquire_summary": [
         ("+summary.alhpa=0.1", "summary.alhpa: unknown key; did you mean 'alpha'?"),
