@@ -13,6 +13,7 @@ from uqdrive.stage_schemas import NonEmptyNames, NonEmptySeeds, Stage
 
 @schema
 class AcquireSummarySection:
+    experiment: Str  # whose controllers acquired
     alpha: OpenUnit  # family-wise error of the method-level claims
     margin: OpenUnit  # the training cell's non-inferiority margin
     acquire_dir: Str
@@ -23,7 +24,6 @@ class AcquireSummarySection:
 class AcquireSummaryStage(Stage):
     methods: NonEmptyNames
     replicates: NonEmptySeeds
-    experiment: Str
     summary: AcquireSummarySection
 
 
@@ -31,7 +31,7 @@ def run_acquire_summary(cfg: DictConfig) -> AcquisitionSummary:
     stage = validate(AcquireSummaryStage, cfg)
     s = stage.summary
     controllers = read_acquisitions(s.acquire_dir, list(stage.methods), list(stage.replicates))
-    summary = summarise_acquisition(stage.experiment, controllers, s.alpha, s.margin)
+    summary = summarise_acquisition(s.experiment, controllers, s.alpha, s.margin)
     write_record(s.out, summary)
     return summary
 
