@@ -2,11 +2,14 @@
 against the behaviour-cloned ones over the replicates — decided by the method-level procedure (sign test and
 betting interval), non-inferiority at the training cell from the same interval's lower end."""
 
+import numpy as np
 import pytest
+from test_uq_claims import LEVELS, beta, bimodal, constant, differences, fails, upper
 
 from uqdrive.analysis.acquisition_summary import summarise_acquisition
 from uqdrive.safety.acquisition import Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.schema import ConfigError
+from uqdrive.uq.betting import mean_interval
 from uqdrive.uq.verdict import Verdict
 
 TRAINING, FLAGGED = "roundabout-clear_noon-noise0.0", "roundabout_large-rain-noise0.0"
@@ -57,3 +60,25 @@ def test_a_method_whose_controllers_ran_no_round_has_no_claim_and_another_experi
     assert summarise_acquisition("offline", [only_checked], 0.05, 0.1).methods == []
     with pytest.raises(ConfigError, match="acquisition of highway_roundabout"):
         summarise_acquisition("highway_roundabout", [run], 0.05, 0.1)
+
+
+# Designs whose mean gain of the acquired runs over the behaviour-cloned ones is exactly −δ = −0.1 (acquisition
+# lost the margin): "non-inferior" is false there. Runs that fail outright, skewed and bimodal spreads.
+LOST_THE_MARGIN = {
+    "acquired fails outright 0.1, cloned never": (fails(0.1), constant(1.0)),
+    "beta spreads 0.85 and 0.95, κ 2": (beta(0.85, 2), beta(0.95, 2)),
+    "bimodal acquired": (bimodal(0.6, 0.9, 1 / 3), constant(0.9)),
+}
+
+
+@pytest.mark.parametrize("level", LEVELS)
+@pytest.mark.parametrize("design", list(LOST_THE_MARGIN))
+@pytest.mark.parametrize("runs", [10, 200])
+def test_a_method_that_lost_the_margin_is_rarely_called_non_inferior(level, design, runs):
+    """The rule `summarise_acquisition` applies (the lower end of `decide_claim`'s betting interval above −δ),
+    simulated 10,000 times per design: wrongly declared with probability below level/2, its own interval's top
+    included; with 200 runs the interval is narrow enough to declare it nearer 0, so the designs test it."""
+    acquired, cloned = LOST_THE_MARGIN[design]
+    diffs = differences(np.random.default_rng([runs, len(design)]), acquired, cloned, 14, runs)
+    count = int((mean_interval(diffs, -1.0, 1.0, level).low > -0.1).sum())
+    assert upper(count) < level / 2, count

@@ -297,8 +297,7 @@ def draw_clips(plan: CellPlan, cell: SafetyCell, only_missing: bool) -> float:
     section, started = plan.stage.safety, time.perf_counter()
     failures = cell.failures[: section.clips]
     if only_missing:
-        drawn = set(_clips_of(section, cell))
-        failures = [f for f in failures if _clip_path(section, cell, f.seed) not in drawn]
+        failures = [f for f in failures if not _clip_path(section, cell, f.seed).exists()]
     worst_clips(plan.job, failures, _clip_title(cell), section.clips_dir, cell.name, len(failures))
     return time.perf_counter() - started
 

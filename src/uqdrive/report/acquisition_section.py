@@ -38,9 +38,8 @@ def _controllers_table(controllers: list[Acquisition]) -> str:
         last = max(s.round for s in a.rounds)
         by = {(c.round, c.cell): c for c in a.checks}
         compared = {b.cell: b for b in a.before_after if b.round == last}
-        for (k, cell), before in by.items():
-            if k != 0:
-                continue
+        for before in (c for c in a.checks if c.round == 0):
+            cell = before.cell
             after, b = by[last, cell], compared.get(cell)
             verdict = "—" if b is None else f"{b.verdict} ({b.gain:+.2f}, p {b.p_value:.2g})"
             held = f"; {b.non_inferior} within {a.margin:g}" if b is not None and b.non_inferior else ""
