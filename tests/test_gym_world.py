@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
 import gymnasium
@@ -282,3 +283,36 @@ def test_highway_refuses_a_destination_its_road_lacks_and_a_bad_option_value_bef
         GymWorld(racetrack)
     with pytest.raises(ConfigError, match=r"^gym_world.hooks_options.expert_speed=-1.0 must be a speed > 0 \(m/s\)$"):
         GymWorldConfig.from_config({**highway_config.to_dict(), "hooks_options": {"expert_speed": -1.0}})
+
+
+@pytest.mark.parametrize("heading", [0.0, np.pi / 2, 2.0, -2.7])
+def test_highways_car_view_turns_the_frame_with_the_ego_so_ahead_is_up(highway_config, heading: float) -> None:
+    """A spot drawn on HighwayEnv's screen 10 px ahead of the ego (its heading: y down the screen) lands 10 px above
+    the ego's place in the car view, a spot 8 px to its right 8 px right of it: what the view shows turns with the car
+    (and a world view shows them where the screen has them)."""
+    from uqdrive.sim.gym_highway import CAR_VIEW_EGO_ROW
+
+    world = GymWorld(highway_config)
+    world.reset(0, render=False)
+    world.hooks.env.vehicle.heading = heading
+    side = highway_config.env_kwargs["config"]["observation"]["observation_shape"][0]
+    ahead, right = np.array([np.cos(heading), np.sin(heading)]), np.array([-np.sin(heading), np.cos(heading)])
+    ego_col, ego_row = 32, int(48 * CAR_VIEW_EGO_ROW)
+    for offset, where in ((10 * ahead, (ego_row - 10, ego_col)), (8 * right, (ego_row, ego_col + 8))):
+        screen = np.zeros((side, side), np.uint8)
+        col, row = np.rint(side / 2 + offset).astype(int)
+        screen[row, col] = 255
+        view = world.hooks.frame(screen.T[None])  # HighwayEnv's obs: stack x W x H
+        assert view.shape == (48, 64) and np.unravel_index(view.argmax(), view.shape) == where
+    world.close()
+
+
+def test_highways_car_view_needs_an_observation_that_holds_the_turned_frame(highway_config) -> None:
+    from uqdrive.sim.gym_highway import car_view_side
+
+    config = copy.deepcopy(highway_config.to_dict())
+    config["env_kwargs"]["config"]["observation"]["observation_shape"] = [car_view_side() - 1, 120]
+    with pytest.raises(ConfigError, match=rf"observation_shape=\[{car_view_side() - 1}, 120\]: the car view needs"):
+        GymWorld(GymWorldConfig.from_config(config))
+    with pytest.raises(ConfigError, match=r"^gym_world.hooks_options.view='bird' must be one of world, car$"):
+        GymWorldConfig.from_config({**highway_config.to_dict(), "hooks_options": {"view": "bird"}})

@@ -10,6 +10,11 @@ The one module of uqdrive that names that package.
 - Frames: HighwayEnv draws with y down the screen, so uqdrive's pose is (x, −y, −heading): what the picture shows
   as a left turn is a left turn (+ steer, counter-clockwise yaw, + lateral deviation), and steer s is
   ContinuousAction's −s (its steering_range, ±45° by default, maps [-1, 1] to the road-wheel angle).
+- View (``hooks_options.view``): ``world`` gives HighwayEnv's frame as it draws it (north up); ``car`` turns it
+  with the ego, as a camera on the car would see it: the ego points up at `CAR_VIEW_EGO_ROW` of the network's
+  64x48 frame, so the frame shows more road ahead than behind. The car view cuts that frame out of a larger
+  observation at the same px per m, so ``observation_shape`` must hold the turned frame's corners (side ≥
+  `car_view_side`).
 - State: ``collision`` is the ego's ``crashed``; ``off_road`` is not ``on_road`` (off its closest lane's width);
   ``lateral_deviation`` is the offset from that lane's centre line. The info also gets ``on_road`` for the safe set.
 - Expert: IDM (speed) and MOBIL (lanes) with HighwayEnv's lane-following steering, i.e. the policy of its own
@@ -25,23 +30,33 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+import cv2
 import highway_env  # noqa: F401  (registers HighwayEnv's ids)
 import numpy as np
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.vehicle.behavior import IDMVehicle
 
+from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.schema import ConfigError, invalid
 
 from .config import GymWorldConfig
 from .gym_hooks import WorldHooks
 
 SPEED_TIME_CONSTANT_S = 1.0  # of the speed_range tracker: acceleration = (command − v) / this
+CAR_VIEW_EGO_ROW = 0.75  # of the car view's height, from the top: 3/4 of the frame lies ahead of the ego
+VIEWS = ("world", "car")
+
+
+def car_view_side() -> int:
+    """The least side (px) of a square observation centred on the ego that holds the car view's turned frame."""
+    reach = np.hypot(INPUT_WIDTH / 2, INPUT_HEIGHT * CAR_VIEW_EGO_ROW)
+    return 2 * int(np.ceil(reach)) + 2  # + a pixel each side for the interpolation
 
 
 class HighwayHooks(WorldHooks):
     """A HighwayEnv env's ego vehicle behind `GymWorld` (module docstring)."""
 
-    OPTIONS: ClassVar[Mapping[str, Any]] = {"destination": "nxs", "expert_speed": 8.0}
+    OPTIONS: ClassVar[Mapping[str, Any]] = {"destination": "nxs", "expert_speed": 8.0, "view": "world"}
     packages: ClassVar[tuple[str, ...]] = ("highway-env", "pygame-ce")  # the sim, and what draws its observation
 
     def __init__(self, env: Any, config: GymWorldConfig):
@@ -60,6 +75,13 @@ class HighwayHooks(WorldHooks):
                 f"gym_world.hooks_options.destination={self.options['destination']!r}: not a node of {config.env_id}'s "
                 f"road network ({sorted(nodes)})"
             )
+        if self.options["view"] == "car":
+            shape = self.env.config["observation"].get("observation_shape", (0, 0))
+            if min(shape) < car_view_side():
+                raise ConfigError(
+                    f"gym_world.env_kwargs.config.observation.observation_shape={list(shape)}: the car view needs "
+                    f"both sides ≥ {car_view_side()} px (its {INPUT_WIDTH}x{INPUT_HEIGHT} frame, turned)"
+                )
         self._shadow: IDMVehicle | None = None
         self._timer0 = 0.0
 
@@ -72,6 +94,9 @@ class HighwayHooks(WorldHooks):
             raise invalid("hooks_options.expert_speed", speed, "must be a speed > 0 (m/s)")
         if not isinstance(destination, str):
             raise invalid("hooks_options.destination", destination, "must be a node of the road network (a string)")
+        view = options.get("view", "world")
+        if view not in VIEWS:
+            raise invalid("hooks_options.view", view, f"must be one of {', '.join(VIEWS)}")
 
     @classmethod
     def env_kwargs(cls, kwargs: Mapping[str, Any]) -> dict[str, Any]:
@@ -106,7 +131,18 @@ class HighwayHooks(WorldHooks):
         self._timer0 = self._shadow.timer
 
     def frame(self, obs: Any) -> np.ndarray:
-        return np.ascontiguousarray(np.asarray(obs)[-1].T)
+        grey = np.ascontiguousarray(np.asarray(obs)[-1].T)  # rows: y down the screen; the ego at the centre
+        if self.options["view"] == "world":
+            return grey
+        heading = self.env.vehicle.heading  # on the screen: the ego points along (cos, sin), its right is (−sin, cos)
+        ahead, right = np.array([np.cos(heading), np.sin(heading)]), np.array([-np.sin(heading), np.cos(heading)])
+        ego_on_screen = np.array([grey.shape[1], grey.shape[0]]) / 2
+        ego_in_view = np.array([INPUT_WIDTH / 2, INPUT_HEIGHT * CAR_VIEW_EGO_ROW])
+        to_screen = np.column_stack([right, -ahead])  # the view's (column, row) offset from the ego → the screen's
+        offset = ego_on_screen - to_screen @ ego_in_view
+        return cv2.warpAffine(
+            grey, np.column_stack([to_screen, offset]), (INPUT_WIDTH, INPUT_HEIGHT), flags=cv2.WARP_INVERSE_MAP
+        )
 
     def state(self, info: Mapping[str, Any]) -> dict[str, Any]:
         ego = self.env.vehicle
