@@ -168,14 +168,27 @@ def test_the_training_cell_is_non_inferior_only_where_its_pairs_bound_the_loss_w
     assert short.non_inferior == "undecided"
 
 
-def test_round_zero_reads_the_sweeps_own_cell_where_it_is_the_same_cell(project, one_round):
-    """The behaviour-cloned controller at the training condition is the sweep's cell (same model, world, estimator,
-    seeds): read back, not driven again; the flagged cell's record here is another's (a different identity)."""
+def test_compared_rounds_are_checked_on_fresh_seeds_and_a_lone_round_zero_reads_the_sweep(project, one_round, tmp_path):
+    """The sweep flagged its cells by their outcomes on its own seeds: with rounds to compare, round 0 and every round
+    drive acquire.check_seed's block instead. With no rounds (nothing compared) the behaviour-cloned controller at the
+    training condition is the sweep's cell (same model, world, estimator, seeds): read back, not driven again."""
+    for k in (0, 1):
+        folder = project / f"data/acquire/offline/mcd-seed0/round{k}/check"
+        cells = [read_record(SafetyCell, p, "acquire") for p in sorted(folder.glob("*.json"))]
+        assert [c.location for c in cells] == ["roundabout", "roundabout_large"]
+        assert {c.base_seed for c in cells} == {700000}
     swept = read_record(SafetyCell, project / "metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json", "safety")
-    row = next(c for c in one_round.checks if (c.round, c.cell) == (0, TRAINING.label))
-    assert (row.eta1, row.low, row.high, row.n) == (swept.eta1, swept.eta1_low, swept.eta1_high, swept.n)
-    checks = project / "data/acquire/offline/mcd-seed0/round0/check"
-    assert sorted(p.name for p in checks.glob("*.json")) == ["roundabout_large-rain-noise0.1.json"]
+    assert swept.base_seed == 100000
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        overrides = [f"paths.root={project}", "profile=tiny", "progress=false", *TINY, "acquire.rounds=0"]
+        overrides += [f"acquire.out_dir={tmp_path}", f"acquire.out={tmp_path}/a.json"]
+        overrides += [f"acquire.expert_logs={tmp_path}"]
+        alone = run_acquire(compose("acquire", overrides=overrides), overrides)
+    row = next(c for c in alone.checks if c.cell == TRAINING.label)
+    assert (row.eta1, row.low, row.high, row.n, row.outcomes) == (
+        swept.eta1, swept.eta1_low, swept.eta1_high, swept.n, swept.outcomes
+    )  # fmt: skip
+    assert sorted(p.name for p in (tmp_path / "round0/check").glob("*.json")) == ["roundabout_large-rain-noise0.1.json"]
 
 
 def test_every_acquired_label_is_the_experts_command_in_that_state(project, one_round):

@@ -54,6 +54,17 @@ def test_two_replicates_decide_nothing_and_say_how_many_differing_runs_would():
     assert training.non_inferior == "undecided"
 
 
+def test_a_cell_flagged_for_only_some_replicates_is_compared_per_controller_not_for_the_method():
+    """The sweep flags each controller's own cells: replicate 1 was safe at FLAGGED, so it has no rounds there."""
+    runs = [
+        controller(0, {TRAINING: "1" * 14, FLAGGED: "0" * 14}, {TRAINING: "1" * 14, FLAGGED: "1" * 14}),
+        controller(1, {TRAINING: "1" * 14}, {TRAINING: "1" * 14}),
+    ]
+    summary = summarise_acquisition("offline", runs, alpha=0.05, margin=0.1)
+    assert [g.cell for g in summary.methods] == [TRAINING]
+    assert summary.controllers[0].before_after[1].cell == FLAGGED
+
+
 def test_a_method_whose_controllers_ran_no_round_has_no_claim_and_another_experiment_is_refused():
     run = controller(0, {TRAINING: "1" * 14}, {TRAINING: "1" * 14})
     only_checked = Acquisition(**{**run.__dict__, "rounds": run.rounds[:1], "checks": run.checks[:1]})

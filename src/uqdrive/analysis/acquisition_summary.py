@@ -70,7 +70,9 @@ def _outcomes(check: AcquisitionCheck) -> np.ndarray:
 
 def _method_claims(controllers: Sequence[Acquisition], margin: float) -> list[tuple[str, str, int, MethodClaim]]:
     """Per method and check cell, the claim "round K safer than behaviour cloning" over the method's replicates,
-    K the last round every replicate of it finished."""
+    K the last round every replicate of it finished. Only the cells every replicate checked in both rounds: a sweep
+    flags each controller's own cells, and a claim over the replicates that happened to be flagged would be a claim
+    over a subset the data chose (the others are compared per controller)."""
     claims = []
     for method in dict.fromkeys(a.method for a in controllers):
         own = [a for a in controllers if a.method == method]
@@ -78,7 +80,8 @@ def _method_claims(controllers: Sequence[Acquisition], margin: float) -> list[tu
         if last == 0:
             continue
         by = {(a.replicate, c.round, c.cell): c for a in own for c in a.checks}
-        for cell in dict.fromkeys(c.cell for c in own[0].checks):
+        common = [c.cell for c in own[0].checks if c.round == 0]
+        for cell in (c for c in common if all((a.replicate, k, c) in by for a in own for k in (0, last))):
             tables = {
                 a.replicate: paired_table(_outcomes(by[a.replicate, last, cell]), _outcomes(by[a.replicate, 0, cell]))
                 for a in own

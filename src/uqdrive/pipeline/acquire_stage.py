@@ -82,6 +82,7 @@ class AcquireSection:
     beta: Unit  # round 1's chance per step that the expert drives instead of the learner
     beta_decay: Unit  # β of round k: beta · beta_decay^(k−1)
     base_seed: Seed  # acquisition rollouts: seeds base_seed + replicate·1,000,000 + i, apart from the sweep's
+    check_seed: Seed  # rounds > 0: every round's check rollouts (round 0's too), apart from the sweep's seeds
     target: Unit  # a swept condition is flagged when the upper end of η1's interval is below it
     margin: OpenUnit  # the training condition is non-inferior when its paired loss is bounded below this
     cells_dir: Str  # the previous offline-safety sweep's cells (metrics/safety/<method>-seed<r>-<condition>.json)
@@ -182,6 +183,7 @@ def rounds_key(cfg: DictConfig, model: Path) -> str:
     behaviour-cloned model's bytes and the code a round runs."""
     settings = OmegaConf.to_container(cfg, resolve=True)
     settings["acquire"].pop("rounds")
+    settings["acquire"].pop("check_seed")  # checks are cells of their own, reused by their identity
     settings.pop("progress", None)
     code = code_digest([__name__])
     identity = json.dumps(
@@ -240,13 +242,16 @@ def retrain(train_overrides: Sequence[str], method: str, processed: Path, models
 
 
 def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
-    """η̂1 of ``model`` at every check cell, by the safety cell's estimator and seeds (paired with the sweep and
-    every round), beside the expert's. A cell is read back where a record with its identity exists: its own, or
-    (round 0, the behaviour-cloned controller) the sweep's cell at that condition."""
+    """η̂1 of ``model`` at every check cell, by the safety cell's estimator, beside the expert's. Where rounds are
+    compared, every round drives the same fresh seeds (``acquire.check_seed``): the sweep flagged its cells by their
+    outcomes on its own seeds, so a comparison on those would favour a gain wherever the sweep was unlucky. A cell is
+    read back where a record with its identity exists: its own, or (no rounds: the behaviour-cloned controller
+    alone, compared with nothing) the sweep's cell at that condition."""
     rows, stage = [], ctx.stage
+    seeds = {"safety.base_seed": stage.acquire.check_seed} if stage.acquire.rounds else {}
     for where in ctx.checks:
         out = ctx.folder(k) / "check" / where.label
-        plan = plan_cell(ctx.safety_config(where, model, **{"safety.rollout_log": f"{out}.jsonl"}))
+        plan = plan_cell(ctx.safety_config(where, model, **{"safety.rollout_log": f"{out}.jsonl"}, **seeds))
         swept = Path(stage.acquire.cells_dir) / f"{stage.model['name']}-{stage.replicate}-{where.label}.json"
         cell = reusable_result(f"{out}.json", plan.key) or (reusable_result(swept, plan.key) if k == 0 else None)
         if cell is None:
@@ -281,6 +286,13 @@ def reused_round(ctx: Rounds, k: int) -> RoundRecord | None:
     except (FileNotFoundError, ConfigError):
         return None
     return done if done.config_hash == ctx.key and Path(done.model).exists() else None
+
+
+def rechecked(ctx: Rounds, k: int, done: RoundRecord) -> RoundRecord:
+    """A finished round's controller checked with this run's check settings (its cells reused where unchanged)."""
+    done = dataclasses.replace(done, checks=check(ctx, k, Path(done.model)))
+    write_record(ctx.folder(k) / "round.json", done)
+    return done
 
 
 def run_round(ctx: Rounds, k: int, model: Path) -> RoundRecord:
@@ -352,7 +364,8 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
         history = [round_zero(ctx, model)]
         for k in range(1, section.rounds + 1):
             previous = Path(history[-1].model)
-            history.append(reused_round(ctx, k) or run_round(ctx, k, previous))
+            done = reused_round(ctx, k)
+            history.append(rechecked(ctx, k, done) if done else run_round(ctx, k, previous))
     rows = [c for r in history for c in r.checks]
     compared = before_after(rows, training.label, section.margin)
     acquisition = Acquisition(
