@@ -124,10 +124,11 @@ def test_saved_models_reload_with_the_reported_accuracy(trained):
         posterior = load_posterior(
             root / f"models/joint/{method}/seed0.pt", expected_method=method, expected_classes=bins
         )
-        # 200 draws: the predictive the reported 20-draw number estimates (two 20-draw MCD estimates differ by ~0.09)
+        # 200 draws: the predictive the reported 20-draw number estimates. Two 20-draw MCD estimates on the tiny
+        # validation split differ by ~0.09, one sits ~0.06 (an sd) from the 200-draw value: 0.05 failed on an AMD EPYC
         features = compute_features(posterior, val)
         scores = evaluate(posterior, features, val.labels, 200, torch.Generator().manual_seed(0))
-        assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.05
+        assert abs(scores["accuracy"] - metrics[method]["val_accuracy"]) < 0.15
 
 
 def test_head_methods_share_the_mcd_trunk(trained):
