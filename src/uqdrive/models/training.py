@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from uqdrive.data.binning import SteeringBins
@@ -24,6 +25,7 @@ from uqdrive.models.stacking import FEATURE_ROWS, stacked_features, stacked_trun
 
 EVAL_CHUNK = 2048  # frames per head evaluation: bounds memory at n draws x chunk x classes
 BASE_METHOD = "mcd"  # the model whose trunk (and head, as a start) the head methods build on
+VALIDATION_STREAM = 0x76616C  # "val": the reported validation draws' stream, apart from the fit's own
 
 
 @dataclass
@@ -90,6 +92,12 @@ def evaluate(
     """Metrics of the posterior predictive (mean of n draws' probabilities) on cached features."""
     probs = torch.cat([posterior.head_probs(f, n, generator).mean(0) for f in features.split(EVAL_CHUNK)])
     return classification_metrics(probs, labels)
+
+
+def validation_generator(seed: int) -> torch.Generator:
+    """The draws behind a replicate's reported validation metrics: a function of its seed alone, so whoever reloads
+    the saved model reproduces the number exactly (the fit's generator ends wherever training left it)."""
+    return torch.Generator().manual_seed(int(np.random.SeedSequence([seed, VALIDATION_STREAM]).generate_state(1)[0]))
 
 
 def curve_row(step: int, train_loss: float, scores: dict[str, float], **extra: float) -> dict:

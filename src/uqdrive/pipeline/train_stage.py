@@ -29,7 +29,7 @@ from uqdrive.models.metrics import majority_accuracy
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, posterior_settings
 from uqdrive.models.trained_record import TrainMetrics
-from uqdrive.models.training import TrainingData, compute_features, evaluate
+from uqdrive.models.training import TrainingData, compute_features, evaluate, validation_generator
 from uqdrive.parallel import ProcessPool
 from uqdrive.records import as_dict, write_record
 from uqdrive.schema import Count, Str, schema, validate
@@ -86,7 +86,7 @@ def fit(stages: list[TrainStage]) -> tuple[list[Fitted], list[dict], float, Trai
         seconds = (time.perf_counter() - started) / len(fits)
         scores = [
             evaluate(f.posterior.eval(), compute_features(f.posterior, val), val.labels, d.eval_samples, g)
-            for f, d, g in zip(fits, data, generators)
+            for f, d, g in zip(fits, data, (validation_generator(s.seed) for s in stages))
         ]
     finally:
         torch.set_num_threads(previous_threads)
