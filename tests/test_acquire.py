@@ -24,6 +24,7 @@ from uqdrive.pipeline.acquire_stage import (
     as_swept,
     placed,
     retrain,
+    rounds_key,
     run_acquire,
     targeted_conditions,
 )
@@ -34,6 +35,7 @@ from uqdrive.safety.acquisition import AcquisitionCheck, before_after, flagged_c
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import Autopilot, AutopilotConfig, build_geometry
+from uqdrive.uq.bounds import chernoff_n
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 ALL_TENTHS = ("experiment.bins.low=-1.0", "experiment.bins.high=1.0")  # the synthetic frames' labels span ±0.6
@@ -46,7 +48,9 @@ TINY = (
     "acquire.episodes=1",
     "safety.horizon_s=6",
     "train.mcd.epochs=1",
+    "acquire.checks=[{location: roundabout_town, weather: clear_noon, noise: 0.0}]",  # never acquired at
 )
+TOWN = "roundabout_town-clear_noon-noise0.0"
 
 
 def compose_in(root: Path, stage: str, *overrides: str):
@@ -111,7 +115,7 @@ def test_the_stage_acquires_where_the_sweep_flagged_this_controller(one_round):
     assert one_round.rounds[1].frames_added == sum(a.frames for a in acquired)
     assert one_round.rounds[1].train_frames == 160 + one_round.rounds[1].frames_added
     rows = {(c.round, c.cell) for c in one_round.checks}
-    assert rows == {(r, a.condition) for r in (0, 1) for a in acquired}
+    assert rows == {(r, cell) for r in (0, 1) for cell in [*(a.condition for a in acquired), TOWN]}
     for c in one_round.checks:
         assert c.low <= c.eta1 <= c.high and c.expert_low <= c.expert <= c.expert_high and c.n == 4
 
@@ -119,8 +123,8 @@ def test_the_stage_acquires_where_the_sweep_flagged_this_controller(one_round):
 def test_each_round_is_compared_with_behaviour_cloning_on_the_shared_seeds(one_round):
     first = {c.cell: c.outcomes for c in one_round.checks if c.round == 0}
     compared = {b.cell: b for b in one_round.before_after}
-    assert set(compared) == set(first) and all(b.round == 1 and b.level == 0.05 / 3 for b in compared.values())
-    # the training cell's non-inferiority, one round: counted in the family of 2 + 1; 4 pairs bound nothing
+    assert set(compared) == set(first) and all(b.round == 1 and b.level == 0.05 / 4 for b in compared.values())
+    # the training cell's non-inferiority, one round: counted in the family of 3 + 1; 4 pairs bound nothing
     assert one_round.training == TRAINING.label and one_round.margin == 0.1
     assert {b.cell: b.non_inferior for b in compared.values()} == {
         cell: "undecided" if cell == TRAINING.label else "" for cell in first
@@ -175,7 +179,7 @@ def test_compared_rounds_are_checked_on_fresh_seeds_and_a_lone_round_zero_reads_
     for k in (0, 1):
         folder = project / f"data/acquire/offline/mcd-seed0/round{k}/check"
         cells = [read_record(SafetyCell, p, "acquire") for p in sorted(folder.glob("*.json"))]
-        assert [c.location for c in cells] == ["roundabout", "roundabout_large"]
+        assert [c.location for c in cells] == ["roundabout", "roundabout_large", "roundabout_town"]
         assert {c.base_seed for c in cells} == {700000}
     swept = read_record(SafetyCell, project / "metrics/safety/mcd-seed0-roundabout-clear_noon-noise0.0.json", "safety")
     assert swept.base_seed == 100000
@@ -188,7 +192,41 @@ def test_compared_rounds_are_checked_on_fresh_seeds_and_a_lone_round_zero_reads_
     assert (row.eta1, row.low, row.high, row.n, row.outcomes) == (
         swept.eta1, swept.eta1_low, swept.eta1_high, swept.n, swept.outcomes
     )  # fmt: skip
+    # and the further check cells (the town) are not driven: nothing would be compared with them
     assert sorted(p.name for p in (tmp_path / "round0/check").glob("*.json")) == ["roundabout_large-rain-noise0.1.json"]
+
+
+def test_the_check_cells_run_as_many_pairs_as_check_theta_asks_and_the_rounds_do_not_depend_on_it(project, tmp_path):
+    """acquire.check_theta sizes every round's check cells (round 0's too); it and the check seeds are the checks'
+    own: changing them rechecks finished rounds instead of running them again."""
+    base = [f"paths.root={project}", "profile=tiny", "progress=false", *TINY, "acquire.rounds=1"]
+    base += [f"acquire.out_dir={tmp_path}", f"acquire.out={tmp_path}/a.json", f"acquire.expert_logs={tmp_path}"]
+    model = project / "models/offline/mcd/seed0.pt"
+    keys = {
+        more: rounds_key(compose_in(project, "acquire", *base[3:], *more), model)
+        for more in ((), ("acquire.check_theta=0.6",), ("acquire.check_seed=1",), ("acquire.beta=0.3",))
+    }
+    assert len(set(keys.values())) == 2 and keys[("acquire.beta=0.3",)] != keys[()]
+    overrides = [*base, "acquire.check_theta=0.6"]
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        larger = run_acquire(compose("acquire", overrides=overrides), overrides)
+    assert {c.n for c in larger.checks} == {chernoff_n(0.6, 0.05)} != {4}  # tiny's scheme at that θ, every round
+    assert {len(c.outcomes) for c in larger.checks} == {chernoff_n(0.6, 0.05)}
+
+
+def test_the_controller_the_rounds_end_with_is_copied_where_later_stages_find_it(project, one_round, tmp_path):
+    """acquire.out_dir/controller.pt: the last round's controller (no rounds: the behaviour-cloned one), at a path
+    the warnings' rerun (conf/gym_avoid_acquired.yaml) names whatever the round count."""
+    folder = project / "data/acquire/offline/mcd-seed0"
+    assert (folder / "controller.pt").read_bytes() == (folder / "round1/models/mcd/seed0.pt").read_bytes()
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        overrides = [f"paths.root={project}", "profile=tiny", "progress=false", *TINY, "acquire.rounds=0"]
+        overrides += [f"acquire.out_dir={tmp_path}", f"acquire.out={tmp_path}/a.json"]
+        overrides += [f"acquire.expert_logs={tmp_path}"]
+        run_acquire(compose("acquire", overrides=overrides), overrides)
+    assert (tmp_path / "controller.pt").read_bytes() == (project / "models/offline/mcd/seed0.pt").read_bytes()
+    avoid = compose_in(project, "gym_avoid_acquired", "gym_world=highway_roundabout", "experiment=offline")
+    assert avoid.avoid.model_path == str(folder / "controller.pt")
 
 
 def test_every_acquired_label_is_the_experts_command_in_that_state(project, one_round):
@@ -280,6 +318,7 @@ def test_a_gymnasium_worlds_flagged_location_is_placed_by_its_axis(tmp_path):
     """A sweep's Gymnasium cell is named <world>-<label>: the acquisition drives the world at that label's value, as
     the sweep's cell did; a location the axis does not name is one line naming the key."""
     gym = ("gym_world=highway_roundabout", "experiment=highway_roundabout", "safety.speed=8.0", AXIS)
+    gym += ("acquire.checks=[]",)  # conf/acquire.yaml's town checks are the pybullet world's
     training = "acquire.training={location: highway_roundabout-idm, weather: env, noise: 0.0}"
     stage = validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, training))
     assert placed(stage, Where("highway_roundabout-aggressive", "env", 0.1)) == {
@@ -299,3 +338,6 @@ def test_a_gymnasium_worlds_flagged_location_is_placed_by_its_axis(tmp_path):
     wrong = "acquire.training={location: highway_roundabout-defensive, weather: env, noise: 0.0}"
     with pytest.raises(ConfigError, match=r"^acquire.training.location='highway_roundabout-defensive' must be"):
         validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, wrong))
+    town = "acquire.checks=[{location: roundabout_town, weather: clear_noon, noise: 0.0}]"  # conf/acquire.yaml's
+    with pytest.raises(ConfigError, match=r"^acquire.checks\[0\].weather='clear_noon' must be 'env'"):
+        validate(AcquireStage, compose_in(tmp_path, "acquire", *gym, training, town))

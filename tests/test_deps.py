@@ -115,6 +115,7 @@ def test_the_gymnasium_proofs_stages_exist_only_when_params_name_a_world():
             "safety",
             "avoid",
             "acquire",
+            "avoid_acquired",
             "acquire_summary",
             "findings",
         )

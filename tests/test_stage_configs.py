@@ -46,6 +46,7 @@ STAGES = {
     "evaluate": run_evaluate,
     "avoid": run_avoid,
     "gym_avoid": run_avoid,
+    "gym_avoid_acquired": run_avoid,
     "safety_summary": run_safety_summary,
     "avoid_summary": run_avoid_summary,
     "findings": run_findings,
@@ -105,6 +106,11 @@ BAD = {
         ("avoid.unknown=[{name: x, wrld: {}}]", "avoid.unknown[0].wrld: unknown key; did you mean 'world'?"),
         ("avoid.unknown=[{name: x, world: 3}]", "avoid.unknown[0].world=3: input should be a valid dictionary"),
         ("avoid.unknown=[{name: x, noise: -1}]", "avoid.unknown[0].noise=-1: input should be greater than or equal"),
+    ],
+    "gym_avoid_acquired": [
+        ("+avoid.model_pth=x", "avoid.model_pth: unknown key; did you mean 'model_path'?"),
+        ("avoid.speed=fast", "avoid.speed='fast': input should be a valid number"),
+        ("avoid.speed=-1", "avoid.speed=-1: input should be greater than 0"),
     ],
     "evaluate": [
         ("+evaluate.sample=3", "evaluate.sample: unknown key; did you mean 'samples'?"),

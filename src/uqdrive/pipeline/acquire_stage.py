@@ -7,7 +7,9 @@ functions; then η̂1 of the new controller at the check cells, beside the exper
 
 Round 0 is the behaviour-cloned controller the train stage made (`safety.model_path`); ``acquire.rounds=0`` only
 checks it. Each round's files sit in a folder of its own (``acquire.out_dir``/round<k>) with its record, so an
-interrupted stage resumes at the first round without one for the same settings.
+interrupted stage resumes at the first round without one for the same settings. The controller the rounds end with
+is copied to ``acquire.out_dir``/controller.pt, at a path that does not depend on the round count, for the stages
+that drive it further (conf/gym_avoid_acquired.yaml).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ from uqdrive.stage import compose_cell
 from uqdrive.tracking import stage_run
 from uqdrive.uq import Estimate
 
+CONTROLLER = "controller.pt"  # in acquire.out_dir: the last round's controller (no rounds: the behaviour-cloned one)
 TRAIN_KEYS = {"experiment", "model", "seed", "profile", "outputs", "paths", "progress", "train", "arch", "tracking"}
 """The overrides of the stage's command line a retraining's `train` config takes (the rest are the rollouts')."""
 
@@ -83,6 +86,7 @@ class AcquireSection:
     beta_decay: Unit  # β of round k: beta · beta_decay^(k−1)
     base_seed: Seed  # acquisition rollouts: seeds base_seed + replicate·1,000,000 + i, apart from the sweep's
     check_seed: Seed  # rounds > 0: every round's check rollouts (round 0's too), apart from the sweep's seeds
+    check_theta: OpenUnit | None  # rounds > 0: the check cells' θ, smaller than the sweep's for more paired runs
     target: Unit  # a swept condition is flagged when the upper end of η1's interval is below it
     margin: OpenUnit  # the training condition is non-inferior when its paired loss is bounded below this
     cells_dir: Str  # the previous offline-safety sweep's cells (metrics/safety/<method>-seed<r>-<condition>.json)
@@ -104,7 +108,7 @@ class AcquireStage(SafetyStage):
         super().__post_init__()
         for key, where in (
             ("acquire.training", self.acquire.training),
-            *(("acquire.checks", w) for w in self.acquire.checks),
+            *((f"acquire.checks[{i}]", w) for i, w in enumerate(self.acquire.checks)),
         ):
             placed(self, where, key)
 
@@ -183,7 +187,8 @@ def rounds_key(cfg: DictConfig, model: Path) -> str:
     behaviour-cloned model's bytes and the code a round runs."""
     settings = OmegaConf.to_container(cfg, resolve=True)
     settings["acquire"].pop("rounds")
-    settings["acquire"].pop("check_seed")  # checks are cells of their own, reused by their identity
+    for key in ("check_seed", "check_theta"):  # checks are cells of their own, reused by their identity
+        settings["acquire"].pop(key)
     settings.pop("progress", None)
     code = code_digest([__name__])
     identity = json.dumps(
@@ -243,15 +248,18 @@ def retrain(train_overrides: Sequence[str], method: str, processed: Path, models
 
 def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
     """η̂1 of ``model`` at every check cell, by the safety cell's estimator, beside the expert's. Where rounds are
-    compared, every round drives the same fresh seeds (``acquire.check_seed``): the sweep flagged its cells by their
-    outcomes on its own seeds, so a comparison on those would favour a gain wherever the sweep was unlucky. A cell is
+    compared, every round drives the same fresh seeds (``acquire.check_seed``; ``acquire.check_theta``: as many as
+    that θ needs): the sweep flagged its cells by their outcomes on its own seeds, so a comparison on those would
+    favour a gain wherever the sweep was unlucky. A cell is
     read back where a record with its identity exists: its own, or (no rounds: the behaviour-cloned controller
     alone, compared with nothing) the sweep's cell at that condition."""
-    rows, stage = [], ctx.stage
-    seeds = {"safety.base_seed": stage.acquire.check_seed} if stage.acquire.rounds else {}
+    rows, stage, section = [], ctx.stage, ctx.stage.acquire
+    fresh = {"safety.base_seed": section.check_seed} if section.rounds else {}
+    if section.rounds and section.check_theta is not None:
+        fresh["safety.theta"] = section.check_theta
     for where in ctx.checks:
         out = ctx.folder(k) / "check" / where.label
-        plan = plan_cell(ctx.safety_config(where, model, **{"safety.rollout_log": f"{out}.jsonl"}, **seeds))
+        plan = plan_cell(ctx.safety_config(where, model, **{"safety.rollout_log": f"{out}.jsonl"}, **fresh))
         swept = Path(stage.acquire.cells_dir) / f"{stage.model['name']}-{stage.replicate}-{where.label}.json"
         cell = reusable_result(f"{out}.json", plan.key) or (reusable_result(swept, plan.key) if k == 0 else None)
         if cell is None:
@@ -346,7 +354,8 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
     section, model = stage.acquire, Path(stage.safety.model_path)
     flagged, training = flagged_cells(sweep_cells(stage), section.target), as_swept(stage, section.training)
     conditions = targeted_conditions(training, flagged)
-    checks = list({w.label: w for w in [*conditions, *section.checks]}.values())
+    further = section.checks if section.rounds else ()  # nothing to compare them with: none driven
+    checks = list({w.label: w for w in [*conditions, *further]}.values())
     own = [o for o in overrides if not o.lstrip("+~").startswith("acquire.")]
     ctx = Rounds(
         cfg,
@@ -380,6 +389,7 @@ def run_acquire(cfg: DictConfig, overrides: Sequence[str]) -> Acquisition:
         training.label,
         section.margin,
     )
+    shutil.copyfile(history[-1].model, Path(section.out_dir) / CONTROLLER)
     write_record(section.out, acquisition)
     for done in history:
         log_round(ctx, done)
