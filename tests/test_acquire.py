@@ -35,7 +35,8 @@ from uqdrive.safety.acquisition import AcquisitionCheck, before_after, flagged_c
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import Autopilot, AutopilotConfig, build_geometry
-from uqdrive.uq.bounds import chernoff_n
+from uqdrive.uq.bounds import chernoff_n, clopper_pearson_n
+from uqdrive.uq.paired import non_inferior, paired_table
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 ALL_TENTHS = ("experiment.bins.low=-1.0", "experiment.bins.high=1.0")  # the synthetic frames' labels span ±0.6
@@ -49,6 +50,7 @@ TINY = (
     "safety.horizon_s=6",
     "train.mcd.epochs=1",
     "acquire.checks=[{location: roundabout_town, weather: clear_noon, noise: 0.0}]",  # never acquired at
+    "acquire.check_theta=null",  # the tiny profile's 4 check runs
 )
 TOWN = "roundabout_town-clear_noon-noise0.0"
 
@@ -212,6 +214,18 @@ def test_the_check_cells_run_as_many_pairs_as_check_theta_asks_and_the_rounds_do
         larger = run_acquire(compose("acquire", overrides=overrides), overrides)
     assert {c.n for c in larger.checks} == {chernoff_n(0.6, 0.05)} != {4}  # tiny's scheme at that θ, every round
     assert {len(c.outcomes) for c in larger.checks} == {chernoff_n(0.6, 0.05)}
+
+
+def test_the_default_checks_can_show_a_training_condition_that_stays_safe_non_inferior(tmp_path):
+    """conf/acquire.yaml's check_theta at the quick profile: a cell of 12 flagged or further checks plus the training
+    one (13 tests, Bonferroni) where every pair stays safe is declared non-inferior within the margin; 14 (the
+    sweep's own size) could not."""
+    stage = validate(AcquireStage, compose_in(tmp_path, "acquire", "profile=quick"))
+    n = clopper_pearson_n(stage.acquire.check_theta, stage.safety.gamma)
+    assert stage.safety.scheme == "clopper_pearson" and n == 75
+    level = 0.05 / 13
+    assert non_inferior(paired_table([True] * n, [True] * n), stage.acquire.margin, level)
+    assert not non_inferior(paired_table([True] * 14, [True] * 14), stage.acquire.margin, level)
 
 
 def test_the_controller_the_rounds_end_with_is_copied_where_later_stages_find_it(project, one_round, tmp_path):
