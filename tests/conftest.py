@@ -1,11 +1,13 @@
 import functools
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import torch
+import yaml
 from hydra import compose, initialize_config_dir
 
 import uqdrive.pipeline  # noqa: F401  (registers the ${params:...} resolver)
@@ -88,3 +90,17 @@ def dvc(project: Path, *args: str, timeout: float = 300) -> str:
     )
     assert result.returncode == 0, result.stdout + result.stderr
     return result.stdout
+
+
+def project_copy(folder: Path, **params) -> Path:
+    """The pipeline's definition, configs, stages and package copied into ``folder``/project, with ``params``
+    updated in its params.yaml (its key order kept: `dvc exp show`'s); returns the project folder."""
+    root, project = CONF.parent, folder / "project"
+    project.mkdir()
+    for name in ("dvc.yaml", "params.yaml", ".gitignore", ".dvcignore"):
+        shutil.copy(root / name, project / name)
+    for name in ("conf", "stages", "src"):
+        shutil.copytree(root / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    values = yaml.safe_load((project / "params.yaml").read_text())
+    (project / "params.yaml").write_text(yaml.safe_dump({**values, **params}, sort_keys=False))
+    return project

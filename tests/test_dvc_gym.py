@@ -2,33 +2,23 @@
 expert data, an MCD controller, its sweep, one round of data acquisition where the sweep flagged it, and the warning
 system driven again by the controller the round ended with (gym_avoid_acquired)."""
 
-import shutil
 import subprocess
-from pathlib import Path
 
 import pytest
-import yaml
-from conftest import dvc
+from conftest import dvc, project_copy
 
 from uqdrive.analysis.acquisition_summary import AcquisitionSummary
 from uqdrive.avoid.results import read_avoid_results
 from uqdrive.records import read_record
 
-ROOT = Path(__file__).resolve().parents[1]
 WORLD = "highway_roundabout"
 
 
 @pytest.mark.slow
 def test_dvc_repro_acquires_in_a_gym_world_and_reruns_the_warnings_with_the_acquired_controller(tmp_path):
-    project = tmp_path / "project"
-    project.mkdir()
-    for name in ("dvc.yaml", "params.yaml", ".gitignore", ".dvcignore"):
-        shutil.copy(ROOT / name, project / name)
-    for name in ("conf", "stages", "src"):
-        shutil.copytree(ROOT / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
-    params = yaml.safe_load((project / "params.yaml").read_text())
-    params.update(profile="tiny", methods=["mcd"], heads=[], replicates=[0], gym_worlds=[WORLD], acquire_rounds=1)
-    (project / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    project = project_copy(
+        tmp_path, profile="tiny", methods=["mcd"], heads=[], replicates=[0], gym_worlds=[WORLD], acquire_rounds=1
+    )
     acquire_conf = project / "conf/gym_acquire.yaml"  # the tiny profile's θ for the checks too: 4 runs, not 49
     acquire_conf.write_text(acquire_conf.read_text().replace("check_theta: 0.15", "check_theta: null"))
     subprocess.run(["git", "init", "-q"], cwd=project, check=True, timeout=60)

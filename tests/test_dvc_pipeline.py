@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from conftest import dvc
+from conftest import dvc, project_copy
 from rendered_plots import chromium, problems, render
 from test_report import markdown_rows
 
@@ -44,14 +44,8 @@ def _metrics_of_experiments(shown: object) -> list[dict]:
 
 @pytest.mark.slow
 def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
-    project = tmp_path / "project"
-    project.mkdir()
-    for name in ("dvc.yaml", "params.yaml", ".gitignore", ".dvcignore"):
-        shutil.copy(ROOT / name, project / name)
-    for name in ("conf", "stages", "src"):
-        shutil.copytree(ROOT / name, project / name, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
-    params = yaml.safe_load((project / "params.yaml").read_text())
-    params.update(
+    project = project_copy(
+        tmp_path,
         profile="tiny",
         heads=["vi"],  # trained and evaluated, not driven: every trained posterior is evaluated
         methods=["mcd"],  # one driven method: the closed-loop stages' wiring, not method-vs-method (test_findings)
@@ -60,7 +54,6 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
         noises=[0.0],
         locations=["roundabout"],
     )
-    (project / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))  # its order: `dvc exp show`'s
     _git(project, "init", "-q")
     for key, value in (("user.name", "uqdrive test"), ("user.email", "test@localhost")):  # dvc exp commits need one
         _git(project, "config", key, value)

@@ -250,9 +250,8 @@ def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
     """η̂1 of ``model`` at every check cell, by the safety cell's estimator, beside the expert's. Where rounds are
     compared, every round drives the same fresh seeds (``acquire.check_seed``; ``acquire.check_theta``: as many as
     that θ needs): the sweep flagged its cells by their outcomes on its own seeds, so a comparison on those would
-    favour a gain wherever the sweep was unlucky. A cell is
-    read back where a record with its identity exists: its own, or (no rounds: the behaviour-cloned controller
-    alone, compared with nothing) the sweep's cell at that condition."""
+    favour a gain wherever the sweep was unlucky. A cell is read back where a record with its identity exists: its
+    own, or (no rounds: the behaviour-cloned controller alone, compared with nothing) the sweep's cell there."""
     rows, stage, section = [], ctx.stage, ctx.stage.acquire
     fresh = {"safety.base_seed": section.check_seed} if section.rounds else {}
     if section.rounds and section.check_theta is not None:
