@@ -14,6 +14,7 @@ import torch
 from uqdrive.data.datasets import FrameSet
 from uqdrive.models.metrics import classification_metrics, mistake_auroc
 from uqdrive.models.posterior import Posterior
+from uqdrive.models.training import derived_generator
 from uqdrive.records import record
 from uqdrive.resolvers import noise_label
 from uqdrive.uq import frame_measures
@@ -59,7 +60,7 @@ def noise_key(noise: float) -> str:
 def cell_generator(seed: int, method: str, weather: str, noise: float) -> torch.Generator:
     """A cell's draws depend on the seed and its name only: adding a weather leaves the other cells as they were."""
     key = zlib.crc32(f"{method}-{weather}-{noise_key(noise)}".encode())
-    return torch.Generator().manual_seed(int(np.random.SeedSequence([seed, key]).generate_state(1)[0]))
+    return derived_generator(seed, key)
 
 
 @torch.no_grad()

@@ -94,10 +94,15 @@ def evaluate(
     return classification_metrics(probs, labels)
 
 
+def derived_generator(*entropy: int) -> torch.Generator:
+    """A torch generator seeded from a seed sequence over ``entropy``: independent streams per distinct tuple."""
+    return torch.Generator().manual_seed(int(np.random.SeedSequence(list(entropy)).generate_state(1)[0]))
+
+
 def validation_generator(seed: int) -> torch.Generator:
     """The draws behind a replicate's reported validation metrics: a function of its seed alone, so whoever reloads
     the saved model reproduces the number exactly (the fit's generator ends wherever training left it)."""
-    return torch.Generator().manual_seed(int(np.random.SeedSequence([seed, VALIDATION_STREAM]).generate_state(1)[0]))
+    return derived_generator(seed, VALIDATION_STREAM)
 
 
 def curve_row(step: int, train_loss: float, scores: dict[str, float], **extra: float) -> dict:
