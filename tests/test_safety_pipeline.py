@@ -9,6 +9,8 @@ from conftest import ALL_TENTHS
 from mlflow.tracking import MlflowClient
 
 import uqdrive.safety.runner as runner
+from uqdrive.models import save_posterior
+from uqdrive.models.checkpoint import load_posterior
 from uqdrive.pipeline.safety_stage import run_safety
 from uqdrive.pipeline.safety_summary_stage import run_safety_summary
 from uqdrive.records import as_dict
@@ -243,3 +245,40 @@ def test_summary_answers_per_method_over_replicates_and_draws_one_grid_per_locat
                 "locations=[roundabout]",
             )
         )
+
+
+USER_POSTERIOR = """from uqdrive.models.mcd import MCDPosterior
+
+
+class UserMCD(MCDPosterior):
+    method = "user_mcd"
+"""
+
+
+def test_a_cell_reruns_when_a_user_posteriors_package_changes(safety_config, random_models, tmp_path, monkeypatch):
+    """A posterior of the user's, loaded by ``_target_`` from a package outside uqdrive: editing its module, or
+    another file of its package that it might import, is a new cell (its cached outcomes are not replayed)."""
+    package = tmp_path / "site" / "h68_user_posterior"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "heads.py").write_text(USER_POSTERIOR)
+    monkeypatch.syspath_prepend(str(package.parent))
+    from h68_user_posterior.heads import UserMCD
+
+    mcd = load_posterior(random_models["mcd"])
+    model = UserMCD(mcd.arch, mcd.bins)
+    model.load_state_dict(mcd.state_dict())
+    path = save_posterior(model.eval(), tmp_path / "models/user_mcd.pt")
+    conf = tmp_path / "user_conf/model"
+    conf.mkdir(parents=True)
+    (conf / "user_mcd.yaml").write_text(
+        "defaults: [mcd, _self_]\nname: user_mcd\n_target_: h68_user_posterior.heads.UserMCD\n"
+    )
+    cfg = safety_config(
+        "model=user_mcd", f"safety.model_path={path}", f"hydra.searchpath=[file://{conf.parent}]", "safety.clips=0"
+    )
+    assert not run_safety(cfg).reused and run_safety(cfg).reused
+    (package / "heads.py").write_text(USER_POSTERIOR + "# its steering changed\n")
+    assert not run_safety(cfg).reused
+    (package / "helpers.py").write_text("GAIN = 2.0\n")  # a module of its package, which it might import
+    assert not run_safety(cfg).reused and run_safety(cfg).reused

@@ -2,14 +2,15 @@
 envelope): a cell's identity, its rollout log, the executor's lifetime and the progress bar.
 
 A cell's identity hashes everything its rollouts depend on and nothing they do not (worker count, backend, output
-paths): the model file's bytes, the job (world, policy, seeds), what consumes the outcomes (estimator or test),
-and every project source file a rollout runs — the runner's own import closure (executors, controllers, the
-simulator, the estimators), the posterior's module (loaded by name from the model file, so no static import
-reaches it) and the stage module that shapes the cell's result. A cell that drives a Gymnasium world has that
-world's identity in place of its config (`uqdrive.sim.gym_world.world_identity`: the config and the versions of the
-env's packages) and the modules that world loads by name in its code digest (`world_modules`: the hooks, a uqdrive
-env). Finished rollouts are appended to the cell's log under that identity; a rerun replays them and simulates only
-the rest, and a log of another identity is started afresh.
+paths): the model file's bytes, the job (world, policy, seeds), what consumes the outcomes (estimator or test), and
+every source file a rollout runs, in one place (`cell_key`) — the runner's own import closure (executors, controllers,
+the simulator, the estimators), the stage module that shapes the cell's result, and the modules loaded by name, which
+no static import reaches: the posterior's (named by the model file), a Gymnasium world's env and hooks
+(`world_modules`); a user's policy by its digest. uqdrive's modules count by their import closure, a user's package by
+all of its sources. A cell that drives a Gymnasium world has that world's identity in place of its config
+(`uqdrive.sim.gym_world.world_identity`: the config and the versions of the env's packages). Finished rollouts are
+appended to the cell's log under that identity; a rerun replays them and simulates only the rest, and a log of another
+identity is started afresh.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from typing import Any, Generic, TypeVar
 
 from tqdm import tqdm
 
-from uqdrive.deps import SRC, file_digest, files_digest, import_closure
+from uqdrive.deps import SRC, file_digest, files_digest, import_closure, user_sources
 from uqdrive.models.checkpoint import read_checkpoint
 from uqdrive.parallel import ProcessPool
 from uqdrive.safety.cells import EstimatorSettings, OutcomeStream
@@ -91,13 +92,17 @@ def job_identity(job: Any) -> dict:
 
 
 def cell_key(job: Any, consumer: Mapping[str, Any], model_path: str | Path | None, stage_module: str) -> str:
-    """The identity hash of a cell: model bytes, job, ``consumer`` (the estimator's or test's settings), code (the
-    modules a Gymnasium world loads by name among it)."""
+    """The identity hash of a cell: model bytes, job, ``consumer`` (the estimator's or test's settings), and the code
+    of every module its rollouts run — the runner's closure, the stage's, and the modules loaded by name (the
+    posterior's, a Gymnasium world's env and hooks): uqdrive's files by their closure, a user package's by all its
+    sources (`uqdrive.deps.user_sources`), so an edit anywhere in either is a new cell. A user's policy is in the
+    job by its own digest (its class's package, the files its settings name)."""
     worlds = [module for where in external(getattr(job, "where", None)) for module in where.loaded_modules()]
     modules = [stage_module, *([model_module(model_path)] if model_path else []), *worlds]
     identity = {
         "model_sha256": file_digest(model_path) if model_path else None,
         "code": code_digest(modules),
+        "user_code": user_sources(modules),
         "job": job_identity(job),
         "consumer": dict(consumer),
     }

@@ -88,7 +88,7 @@ class Condition:
         return None if world is None else world_identity(world)
 
     def loaded_modules(self) -> list[str]:
-        """uqdrive's modules rollouts here load by name, which no static import reaches (`world_modules`)."""
+        """The modules rollouts here load by name, which no static import reaches (`world_modules`)."""
         world = self.gym_world
         return [] if world is None else world_modules(world)
 

@@ -32,7 +32,6 @@ from typing import Any, TypeVar
 import cv2
 import numpy as np
 
-from uqdrive.deps import user_sources
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.schema import ConfigError
 
@@ -252,23 +251,20 @@ class GymWorld(World):
 
 
 def world_identity(config: GymWorldConfig) -> dict[str, Any]:
-    """Everything a Gymnasium world's rollouts depend on beyond uqdrive's code, for a cell's identity hash: the
-    config (env id, kwargs, hooks, safe set, horizon), the versions of Gymnasium, of the env's and the hooks'
-    distributions and of what they name (e.g. the renderer that draws HighwayEnv's observation), and the source of
-    every package of the user's among them (not installed: an edit of the user's hooks or env is a new cell)."""
-    modules = _world_modules(config)
+    """What a Gymnasium world's rollouts depend on beyond code, for a cell's identity hash: the config (env id,
+    kwargs, hooks, safe set, horizon) and the versions of Gymnasium, of the env's and the hooks' distributions and of
+    what they name (e.g. the renderer that draws HighwayEnv's observation). The code it loads by name, a user's
+    included, is digested with every other module of the cell (`world_modules`)."""
     found = metadata.packages_distributions()
-    owners = {name for module in modules for name in found.get(module.partition(".")[0], [])}
+    owners = {name for module in _world_modules(config) for name in found.get(module.partition(".")[0], [])}
     names = sorted({"gymnasium", *owners, *hooks_class(config.hooks).packages})
-    packages = {name: metadata.version(name) for name in names}
-    return {"config": config.to_dict(), "packages": packages, "code": user_sources(modules)}
+    return {"config": config.to_dict(), "packages": {name: metadata.version(name) for name in names}}
 
 
 def world_modules(config: GymWorldConfig) -> list[str]:
-    """uqdrive's modules a Gymnasium world's rollouts run that no static import reaches (its hooks and env are
-    loaded by name), for a cell's code digest (a user's are in `world_identity`)."""
-    own = [m for m in _world_modules(config) if m.startswith("uqdrive.")]
-    return list(dict.fromkeys(["uqdrive.sim.gym_world", *own]))
+    """The modules a Gymnasium world's rollouts run that no static import reaches (its hooks and env are loaded by
+    name), uqdrive's and a user's, for a cell's code digest."""
+    return list(dict.fromkeys(["uqdrive.sim.gym_world", *_world_modules(config)]))
 
 
 def _world_modules(config: GymWorldConfig) -> list[str]:
