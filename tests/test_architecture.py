@@ -40,13 +40,26 @@ def modules() -> dict[Path, ast.Module]:
     return {p: ast.parse(p.read_text()) for p in sorted(PACKAGE.rglob("*.py"))}
 
 
-def imported_packages(tree: ast.Module) -> set[str]:
+def imported_packages(tree: ast.Module, path: Path = PACKAGE / "__init__.py") -> set[str]:
+    """The project's subpackages and root modules a module at ``path`` imports, in every spelling: ``import
+    uqdrive.x``, ``from uqdrive.x import y``, ``from uqdrive import x`` and relative imports (``from . import x``,
+    ``from ..x import y``)."""
+    here = path.relative_to(PACKAGE).with_suffix("").parts
+    package = here if path.name == "__init__.py" else here[:-1]
+    package = package[:-1] if package and package[-1] == "__init__" else package
     names = set()
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("uqdrive."):
-            names.add(node.module.split(".")[1])
-        elif isinstance(node, ast.Import):
+        if isinstance(node, ast.Import):
             names |= {a.name.split(".")[1] for a in node.names if a.name.startswith("uqdrive.")}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                anchor = package[: len(package) - node.level + 1]
+                dotted = [*anchor, *(node.module.split(".") if node.module else [])]
+            elif node.module == "uqdrive" or (node.module or "").startswith("uqdrive."):
+                dotted = node.module.split(".")[1:]
+            else:
+                continue
+            names |= {dotted[0]} if dotted else {a.name for a in node.names}
     return names
 
 
@@ -56,12 +69,23 @@ def test_packages_import_only_the_packages_below_them():
     for path, tree in modules().items():
         here = path.relative_to(PACKAGE).parts[0]
         if here in LAYERS:
-            for name in imported_packages(tree) & packages - LAYERS[here] - {here}:
+            for name in imported_packages(tree, path) & packages - LAYERS[here] - {here}:
                 upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
         elif path.parent == PACKAGE:  # root utilities
-            for name in imported_packages(tree) & ({"pipeline", "report", "analysis"} | TOOLS):
+            for name in imported_packages(tree, path) & ({"pipeline", "report", "analysis"} | TOOLS):
                 upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
     assert not upward, "\n".join(upward)
+
+
+def test_imports_are_found_in_every_spelling():
+    source = (
+        "import uqdrive.sim.world\nfrom uqdrive.models import x\nfrom uqdrive import safety, report as r\n"
+        "from . import gym_env\nfrom ...uq.bounds import b\nfrom ... import data\nimport numpy\nfrom os import path\n"
+    )
+    found = imported_packages(ast.parse(source), PACKAGE / "sim" / "deep" / "mod.py")
+    assert found == {"sim", "models", "safety", "report", "uq", "data"}
+    assert imported_packages(ast.parse("from . import gym_env\n"), PACKAGE / "sim" / "__init__.py") == {"sim"}
+    assert imported_packages(ast.parse("from . import records\n"), PACKAGE / "stage.py") == {"records"}
 
 
 def _names(node: ast.expr) -> set[str]:
