@@ -1,25 +1,21 @@
 """Same seeds ⇒ same η̂1 and the same per-rollout outcomes, whatever the backend and worker count."""
 
-import contextlib
 import json
-import os
-import shutil
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import ray_kit
 from conftest import ALL_TENTHS, CONF, cell_result
 
 from uqdrive.data.binning import SteeringBins
+from uqdrive.parallel import RAY_MISSING
 from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.safety.cells import EstimatorSettings
-from uqdrive.safety.executors import RAY_MISSING, RolloutJob, make_executor
+from uqdrive.safety.executors import RolloutJob, make_executor
 from uqdrive.safety.runner import CellRunner
 from uqdrive.schema import ConfigError
 from uqdrive.sim import ScenarioConfig, WeatherConfig
@@ -90,7 +86,7 @@ def test_executor_ray_without_ray_installed_is_one_line_naming_what_to_install(r
 
 def test_executor_ray_at_an_address_nobody_listens_at_is_one_line_naming_it(random_models):
     pytest.importorskip("ray")
-    address = f"127.0.0.1:{_free_port()}"
+    address = f"127.0.0.1:{ray_kit.free_port()}"
     with pytest.raises(ConfigError, match=rf"^executor.address='{address}': no Ray cluster answers there \(") as err:
         make_executor("ray", job(random_models["vi"]), 1, address=address)
     assert "\n" not in str(err.value) and "ray start --head" in str(err.value)
@@ -98,74 +94,12 @@ def test_executor_ray_at_an_address_nobody_listens_at_is_one_line_naming_it(rand
         make_executor("ray", job(random_models["vi"]), 1, address="ray://nowhere")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _end_processes_of(session_dir: str) -> None:
-    """End this cluster's processes (every one names its temp dir on its command line), by pid: `ray stop`
-    would end every Ray process of the user on this machine, other people's clusters too."""
-
-    def ours() -> list[int]:
-        pids = []
-        for proc in Path("/proc").iterdir():
-            try:
-                if proc.name.isdigit() and session_dir.encode() in (proc / "cmdline").read_bytes():
-                    pids.append(int(proc.name))
-            except OSError:
-                continue
-        return pids
-
-    for sig in (signal.SIGTERM, signal.SIGKILL):
-        for pid in ours():
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, sig)
-        deadline = time.monotonic() + 5
-        while ours() and time.monotonic() < deadline:
-            time.sleep(0.2)
-
-
 @pytest.fixture
 def ray_cluster():
-    """A real one-node Ray cluster on loopback, started as a user would (`ray start --head`), always stopped."""
+    """A real one-node Ray cluster on loopback, started as a user would (`ray_kit.ray_cluster`), always stopped."""
     pytest.importorskip("ray")
-    temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths live under it
-    address = f"127.0.0.1:{_free_port()}"
-    # RAY_ADDRESS: `address=auto` reads it first (else the shared /tmp/ray/ray_current_cluster, maybe someone else's).
-    # RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0: a driver keeps 127.0.0.1 as is; Ray otherwise swaps a loopback
-    # address for the machine's outward IP, where a loopback-only cluster does not listen.
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")])),
-        "RAY_ADDRESS": address,
-        "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
-        "RAY_AUTH_MODE": "disabled",
-    }  # loopback only; else a token in ~/.ray turns auth on for the head alone
-    try:
-        subprocess.run(
-            [
-                str(Path(sys.executable).parent / "ray"),
-                "start",
-                "--head",
-                "--node-ip-address=127.0.0.1",
-                f"--port={address.rsplit(':', 1)[1]}",
-                "--num-cpus=2",
-                "--include-dashboard=false",
-                "--disable-usage-stats",
-                f"--temp-dir={temp_dir}",
-            ],
-            env=env,
-            check=True,
-            capture_output=True,
-            text=True,
-            timeout=180,
-        )
-        yield env, Path(temp_dir)
-    finally:
-        _end_processes_of(temp_dir)
-        shutil.rmtree(temp_dir, ignore_errors=True)
+    with ray_kit.ray_cluster() as cluster:
+        yield cluster
 
 
 @pytest.mark.slow

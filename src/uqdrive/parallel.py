@@ -1,5 +1,6 @@
 """One pool of worker processes for everything the project runs many times over: autopilot episodes
-(`collect`, `heldout`) and closed-loop rollouts (`safety`, `avoid`).
+(`collect`, `heldout`), training replicates (`train`) and closed-loop rollouts (`safety`, `avoid`); and its Ray
+counterpart (`RayPool`: the same jobs on Ray actors, locally or on a cluster, with ``executor=ray``).
 
 A *job* is a picklable recipe whose ``worker()`` builds the expensive per-process state once (a pybullet
 client and its world, a policy); ``worker().run(item)`` does one item (an episode's index, or a chunk of
@@ -12,10 +13,16 @@ from __future__ import annotations
 
 import itertools
 import multiprocessing
+import socket
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Protocol
+
+from uqdrive.schema import ConfigError
+
+RAY_CONNECT_TIMEOUT_S = 10.0  # a cluster's head answers a TCP connect at once; this long, and it is not there
+RAY_MISSING = "executor.name=ray needs Ray, which is not installed: pip install 'uqdrive[ray]' (Ray 2.60.0)"
 
 
 class Worker(Protocol):
@@ -184,3 +191,93 @@ class PooledExecutor:
     def close(self) -> None:
         self.pool.listen(self.key, None)
         self.pool.close() if self.owns_pool else self.pool.release(self.key)
+
+
+class JobActor:
+    """A Ray actor: one job's worker (its per-process state built once), for all the items it is given."""
+
+    def __init__(self, job: Job):
+        self.worker = job.worker()
+
+    def run(self, item: Any) -> Any:
+        return self.worker.run(item)
+
+    def node(self) -> str:
+        """The id of the Ray node this actor lives on."""
+        import ray
+
+        return ray.get_runtime_context().get_node_id()
+
+
+class RayPool:
+    """One Ray actor per worker, each a `JobActor` of ``job``; ``run(items)`` deals the items to them and yields the
+    results in item order, whichever actor finishes first.
+
+    ``address=None`` starts a private local Ray with ``workers`` CPUs (and shuts it down on close); otherwise joins
+    that cluster ("auto": the one ``RAY_ADDRESS`` names). The actors read and write the project's files at the paths
+    the job names: on a cluster, nodes that share the project folder. (Ray 2.60 has no ``local_mode`` any more.)
+    """
+
+    def __init__(self, job: Job, workers: int, address: str | None = None):
+        try:
+            import ray
+            from ray.util import ActorPool
+        except ImportError:
+            raise ConfigError(RAY_MISSING) from None
+
+        self._ray = ray
+        self._started = not ray.is_initialized()
+        if self._started:
+            _check_reachable(address)
+            try:
+                ray.init(
+                    address=address,
+                    num_cpus=None if address else workers,
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    configure_logging=False,
+                )
+            except ConnectionError as err:  # what Ray raises for an address with no cluster behind it
+                reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+                raise ConfigError(_unreachable(address, reason)) from None
+        actor = ray.remote(num_cpus=1)(JobActor)
+        self._actors = [actor.remote(job) for _ in range(workers)]
+        self._pool = ActorPool(self._actors)
+
+    def run(self, items: Sequence[Any]) -> Iterator[Any]:
+        yield from self._pool.map(lambda a, item: a.run.remote(item), list(items))
+
+    def nodes(self) -> list[str]:
+        """The Ray node of each actor (a cluster spreads them over its nodes)."""
+        return self._ray.get([a.node.remote() for a in self._actors])
+
+    def close(self) -> None:
+        for a in self._actors:
+            self._ray.kill(a)
+        self._actors = []
+        if self._started and self._ray.is_initialized():
+            self._ray.shutdown()
+
+    def __enter__(self) -> RayPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _check_reachable(address: str | None) -> None:
+    """Fail in one line on a cluster address nothing listens at: Ray itself retries such an address for minutes."""
+    if address in (None, "auto", "local"):  # a local Ray, or the one RAY_ADDRESS names (Ray fails fast if none)
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout=RAY_CONNECT_TIMEOUT_S).close()
+    except (OSError, ValueError) as err:
+        raise ConfigError(_unreachable(address, str(err) or type(err).__name__)) from None
+
+
+def _unreachable(address: str | None, reason: str) -> str:
+    return (
+        f"executor.address={address!r}: no Ray cluster answers there ({reason}); start one (`ray start --head`) "
+        "or set executor.address=null for a local Ray"
+    )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,11 +31,11 @@ from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, posterior_settings
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.models.training import TrainingData, compute_features, evaluate, validation_generator
-from uqdrive.parallel import ProcessPool
+from uqdrive.parallel import PooledExecutor, ProcessPool, RayPool
 from uqdrive.records import as_dict, write_record
 from uqdrive.schema import Count, Str, schema, validate
 from uqdrive.stage import compose_cell, grid
-from uqdrive.stage_schemas import ModelStage, NonEmptySeeds
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, NonEmptySeeds
 from uqdrive.tracking import stage_run
 
 
@@ -57,15 +58,31 @@ class TrainSection:
 class TrainStage(ModelStage):
     arch: Architecture
     train: TrainSection
+    executor: ExecutorSettings  # where `run_train_replicates` fits its groups (one replicate trains here)
 
 
 def run_train(cfg: DictConfig) -> TrainMetrics:
     return train_replicates([cfg])[0]
 
 
-def fit(stages: list[TrainStage]) -> tuple[list[Fitted], list[dict], float, TrainingData]:
+@dataclass(frozen=True)
+class FitResult:
+    """One replicate fitted and scored on validation, what its record needs of the data beside it: what a worker
+    (a process, or a Ray actor on another node) hands back to be written here. ``seconds``: its share of its batch."""
+
+    fitted: Fitted
+    scores: dict[str, float]
+    seconds: float
+    majority_baseline_accuracy: float
+    train_frames: int
+    val_frames: int
+    eval_samples: int
+    batched_replicates: int
+
+
+def fit(stages: list[TrainStage]) -> list[FitResult]:
     """Fit one method's replicates as one batch (`Posterior.fit_replicates`: stacked where the method allows) and
-    score each on validation; the seconds are each replicate's share of the batch."""
+    score each on validation."""
     cls, settings = posterior_settings(stages[0].model)
     first, bins = stages[0], stages[0].experiment.bins
     if (
@@ -90,32 +107,35 @@ def fit(stages: list[TrainStage]) -> tuple[list[Fitted], list[dict], float, Trai
         ]
     finally:
         torch.set_num_threads(previous_threads)
-    return fits, scores, seconds, data[0]
+    baseline = majority_accuracy(train.labels, val.labels, bins.num_classes)
+    sizes = (len(train), len(val), first.train.eval_samples, len(fits))
+    return [FitResult(f, score, seconds, baseline, *sizes) for f, score in zip(fits, scores)]
 
 
 def train_replicates(configs: Sequence[DictConfig]) -> list[TrainMetrics]:
     """Fit one method's replicates (configs that differ by seed only) as one batch, then save, write and log each as
     its own run. Returns their metrics."""
     stages = [validate(TrainStage, cfg) for cfg in configs]
-    fits, scores, seconds, data = fit(stages)
-    baseline = majority_accuracy(data.train.labels, data.val.labels, data.bins.num_classes)
-    trained = []
-    for cfg, stage, fitted, score in zip(configs, stages, fits, scores):
-        metrics = TrainMetrics(
-            method=fitted.posterior.method,
-            **{f"val_{k}": v for k, v in score.items()},
-            majority_baseline_accuracy=baseline,
-            train_frames=len(data.train),
-            val_frames=len(data.val),
-            eval_samples=data.eval_samples,
-            seed=stage.seed,
-            train_seconds=seconds,
-            batched_replicates=len(fits),
-            **fitted.extra,
-        )
-        write_replicate(cfg, stage, fitted, metrics)
-        trained.append(metrics)
-    return trained
+    return [record(cfg, stage, result) for cfg, stage, result in zip(configs, stages, fit(stages))]
+
+
+def record(cfg: DictConfig, stage: TrainStage, result: FitResult) -> TrainMetrics:
+    """A fitted replicate's metrics, written and logged (`write_replicate`)."""
+    fitted = result.fitted
+    metrics = TrainMetrics(
+        method=fitted.posterior.method,
+        **{f"val_{k}": v for k, v in result.scores.items()},
+        majority_baseline_accuracy=result.majority_baseline_accuracy,
+        train_frames=result.train_frames,
+        val_frames=result.val_frames,
+        eval_samples=result.eval_samples,
+        seed=stage.seed,
+        train_seconds=result.seconds,
+        batched_replicates=result.batched_replicates,
+        **fitted.extra,
+    )
+    write_replicate(cfg, stage, fitted, metrics)
+    return metrics
 
 
 def write_replicate(cfg: DictConfig, stage: TrainStage, fitted: Fitted, metrics: TrainMetrics) -> None:
@@ -168,16 +188,16 @@ class TrainReplicatesStage(TrainStage):
 
 @dataclass(frozen=True)
 class TrainJob:
-    """The replicates' configs, resolved (a worker process has no Hydra), in groups: item i trains group i as one
-    batch (`train_replicates`)."""
+    """The replicates' configs, resolved (a worker has no Hydra), in groups: item i fits group i as one batch
+    (`fit`); what it hands back is written where the stage runs."""
 
     groups: tuple[tuple[dict, ...], ...]
 
     def worker(self) -> TrainJob:
         return self
 
-    def run(self, index: int) -> list[TrainMetrics]:
-        return train_replicates([OmegaConf.create(c) for c in self.groups[index]])
+    def run(self, index: int) -> list[FitResult]:
+        return fit([validate(TrainStage, OmegaConf.create(c)) for c in self.groups[index]])
 
     def close(self) -> None:
         """Nothing held between items."""
@@ -192,15 +212,27 @@ class Trained:
 
 def run_train_replicates(cfg: DictConfig, overrides: Sequence[str]) -> Trained:
     """Every replicate of ``cfg.replicates``, in ``train.workers`` groups of consecutive seeds, each group one batch
-    in a process of its own (a core each: stacking replicates saves per-replicate overhead, a second core doubles
-    throughput); each replicate's config checked before any trains. Returns their metrics in replicate order."""
+    on a worker of its own (a core each: stacking replicates saves per-replicate overhead, a second core doubles
+    throughput): processes here, or Ray actors with ``executor=ray`` (on a cluster, nodes that share the project
+    folder). The groups, and so every model, are the same on either backend. Each replicate's config is checked
+    before any trains; each is written and logged here as its batch comes back. Returns their metrics in replicate
+    order."""
     stage = validate(TrainReplicatesStage, cfg)
     configs = [compose_cell("train", overrides, cell) for cell in grid(seed=stage.replicates)]
-    for config in configs:
-        validate(TrainStage, config)
+    stages = [validate(TrainStage, config) for config in configs]
     resolved = [OmegaConf.to_container(c, resolve=True) for c in configs]
-    workers = min(stage.train.workers, len(configs))
-    bounds = [round(i * len(configs) / workers) for i in range(workers + 1)]
+    groups = min(stage.train.workers, len(configs))
+    bounds = [round(i * len(configs) / groups) for i in range(groups + 1)]
     job = TrainJob(tuple(tuple(resolved[start:end]) for start, end in zip(bounds, bounds[1:])))
-    with ProcessPool(workers) as pool:
-        return Trained([metrics for group in pool.executor(job).run(range(workers)) for metrics in group])
+    trained = []
+    with closing(_pool(stage.executor, job, groups)) as pool:
+        for start, results in zip(bounds, pool.run(range(groups))):
+            trained += [record(configs[start + i], stages[start + i], r) for i, r in enumerate(results)]
+    return Trained(trained)
+
+
+def _pool(executor: ExecutorSettings, job: TrainJob, groups: int) -> PooledExecutor | RayPool:
+    """Where the groups are fitted: ``groups`` processes, or Ray actors (at most ``executor.workers``)."""
+    if executor.name == "ray":
+        return RayPool(job, min(executor.workers, groups), **executor.options())
+    return ProcessPool(groups).executor(job, owns_pool=True)

@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import socket
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Protocol
 
 import torch
 
-from uqdrive.parallel import ProcessPool, report
+from uqdrive.parallel import ProcessPool, RayPool, report
 from uqdrive.policy.interface import Command
 from uqdrive.policy.recipes import PolicyRecipe
 from uqdrive.policy.slots import in_lockstep
@@ -34,8 +33,6 @@ from uqdrive.sim.config import GymWorldConfig
 from uqdrive.sim.world import World
 
 BACKENDS = ("process", "ray")
-RAY_CONNECT_TIMEOUT_S = 10.0  # a cluster's head answers a TCP connect at once; this long, and it is not there
-RAY_MISSING = "executor.name=ray needs Ray, which is not installed: pip install 'uqdrive[ray]' (Ray 2.60.0)"
 LOCKSTEP = 8
 """Rollouts a worker steps at once by default: the trunk's cost per frame at batch 8 is about half its cost
 alone (`uqdrive bench rollout --lockstep`), and 8 envs per worker stay small (pybullet clients of one world)."""
@@ -102,16 +99,6 @@ class LockstepJob:
 
     def worker(self) -> RolloutWorker:
         return RolloutWorker(self.job, self.width)
-
-
-class ChunkActor:
-    """A Ray actor: one `LockstepJob` worker for all the chunks it is given."""
-
-    def __init__(self, job: LockstepJob):
-        self.worker = job.worker()
-
-    def run(self, indices: Sequence[int]) -> list[RolloutResult]:
-        return self.worker.run(indices)
 
 
 _spare_envs: dict[str, list[World]] = {}
@@ -258,68 +245,6 @@ class Executor(Protocol):
         """Release workers."""
 
 
-class RayRunner:
-    """One Ray actor per worker, each a `RolloutWorker` of ``width`` envs running chunks.
-
-    ``address=None`` starts a private local Ray with ``workers`` CPUs (and shuts it down on
-    close); otherwise joins that cluster. (Ray 2.60 has no ``local_mode`` any more.)
-    """
-
-    def __init__(self, job: RolloutJob, workers: int, width: int, address: str | None = None):
-        try:
-            import ray
-            from ray.util import ActorPool
-        except ImportError:
-            raise ConfigError(RAY_MISSING) from None
-
-        self._ray = ray
-        self._started = not ray.is_initialized()
-        if self._started:
-            _check_reachable(address)
-            try:
-                ray.init(
-                    address=address,
-                    num_cpus=None if address else workers,
-                    include_dashboard=False,
-                    log_to_driver=False,
-                    configure_logging=False,
-                )
-            except ConnectionError as err:  # what Ray raises for an address with no cluster behind it
-                reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-                raise ConfigError(_unreachable(address, reason)) from None
-        actor = ray.remote(num_cpus=1)(ChunkActor)
-        self._actors = [actor.remote(LockstepJob(job, width)) for _ in range(workers)]
-        self._pool = ActorPool(self._actors)
-
-    def run(self, items: Sequence[tuple[int, ...]]) -> Iterator[list[RolloutResult]]:
-        yield from self._pool.map(lambda a, chunk: a.run.remote(chunk), list(items))
-
-    def close(self) -> None:
-        for a in self._actors:
-            self._ray.kill(a)
-        self._actors = []
-        if self._started and self._ray.is_initialized():
-            self._ray.shutdown()
-
-
-def _check_reachable(address: str | None) -> None:
-    """Fail in one line on a cluster address nothing listens at: Ray itself retries such an address for minutes."""
-    if address in (None, "auto", "local"):  # a local Ray, or the one RAY_ADDRESS names (Ray fails fast if none)
-        return
-    host, _, port = address.removeprefix("ray://").rpartition(":")
-    try:
-        socket.create_connection((host, int(port)), timeout=RAY_CONNECT_TIMEOUT_S).close()
-    except (OSError, ValueError) as err:
-        raise ConfigError(_unreachable(address, str(err) or type(err).__name__)) from None
-
-
-def _unreachable(address: str | None, reason: str) -> str:
-    return (
-        f"executor.address={address!r}: no Ray cluster answers there ({reason}); start one (`ray start --head`) "
-        "or set executor.address=null for a local Ray"
-    )
-
-
 def make_executor(
     backend: str,
     job: RolloutJob,
@@ -340,5 +265,5 @@ def make_executor(
         runner = (pool or ProcessPool(workers)).executor(LockstepJob(job, lockstep), owns_pool=pool is None)
         return LockstepExecutor(runner, (pool.workers if pool else workers), lockstep)
     if backend == "ray":
-        return LockstepExecutor(RayRunner(job, workers, lockstep, **options), workers, lockstep)
+        return LockstepExecutor(RayPool(LockstepJob(job, lockstep), workers, **options), workers, lockstep)
     raise ConfigError(f"executor.name={backend!r} is not a known backend; choose one of {list(BACKENDS)}")
