@@ -29,10 +29,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from uqdrive.uq.threshold import ThresholdTest
+if TYPE_CHECKING:  # the floor and γ_k need no scipy: a refused input stays fast
+    from uqdrive.uq.threshold import ThresholdTest
 
 MARGIN = 1e-6  # how far below η − θ (above η + θ) an undecided end is capped: visible at 3 decimals
 _BISECT = 48  # bisection steps for an end: to within 4e-15
@@ -65,6 +67,8 @@ def budget_floor(eta: float, theta: float, gamma: float, look_size: int) -> int:
     """A budget (a multiple of ``look_size``) whose test certifies a policy with no failure: from the zero-failure
     floor up, each try the larger of 5 % more and the n at which (η − θ)^n reaches the last try's calibrated level
     (the all-safe run's tail), so a few calibrations find it; within 5 % of the smallest such budget."""
+    from uqdrive.uq.threshold import ThresholdTest
+
     budget = look_size * math.ceil(zero_failure_floor(eta, theta, gamma) / look_size)
     while True:
         test = ThresholdTest(eta, gamma, looks_for(look_size, budget), theta=theta, forced=False)
@@ -132,13 +136,14 @@ class NearTarget:
     certify_at_eta: float
     undecided_at_eta: float
     band: tuple[float, float]
+    gamma: float
 
     def said(self) -> str:
         low, high = self.band
         return (
             f"at eta1 = eta it certifies with probability {self.certify_at_eta:.2f} and ends undecided with "
             f"{self.undecided_at_eta:.2f}; for eta1 in ({low:.3f}, {high:.3f}) the right verdict has probability "
-            "below 1 - gamma"
+            f"below 1 - {self.gamma:.3g}"
         )
 
 
@@ -150,4 +155,4 @@ def near_target(test: ThresholdTest) -> NearTarget:
     short = grid[right < 1 - test.gamma]
     at = test.operating_characteristics(test.threshold)
     band = (float(short.min()) - 0.001, float(short.max()) + 0.001) if short.size else (test.threshold,) * 2
-    return NearTarget(float(at[0][0]), float(1 - at[0][0] - at[1][0]), band)
+    return NearTarget(float(at[0][0]), float(1 - at[0][0] - at[1][0]), band, test.gamma)
