@@ -79,7 +79,8 @@ def uqdrive_answer(args: argparse.Namespace, folder: Path) -> dict:
     policy = folder / "steer.pt"
     torch.jit.save(torch.jit.script(_Steer(args.steer)), str(policy))
     flags = [f"--eta={args.eta}", f"--theta={args.theta}", f"--gamma={args.gamma}", f"--look-size={args.look_size}"]
-    argv = ["--policy", str(policy), "--world", args.world, "--root", str(folder), "--no-progress", *flags]
+    argv = ["--policy", str(policy), "--world", args.world, "--out-dir", str(folder), "--no-progress", *flags]
+    argv += ["--seed-base", "0"]  # fixed seeds, the full gamma, no ledger: what PyDSMC does
     argv += [f"--budget={args.budget}", "--out", str(folder / "certify.json")]
     argv.append(f"gym_world.horizon_steps={args.horizon}")
     record = run_certify(compose_certify(parse(argv)))
