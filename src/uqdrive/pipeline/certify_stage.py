@@ -163,10 +163,11 @@ def take_attempt(stage: CertifyStage, spec: UserPolicySpec, job: RolloutJob):
     section = stage.certify
     if not section.ledger:
         return Attempt(0, "", spec.digest, section.base_seed, section.gamma, "unledgered"), job
-    settings = [section.eta, section.theta, section.gamma, section.look_size, section.budget]
+    settings = [section.eta, section.theta, section.gamma, section.look_size, section.budget, section.base_seed]
     world = cell_key(dataclasses.replace(job, base_seed=0), {"test": "certify"}, None, __name__)
     identity = hashlib.sha256(json.dumps([world, settings]).encode()).hexdigest()[:16]
-    attempt = Ledger(ledger_path(stage)).attempt(spec.name, identity, spec.digest, section.gamma, section.fresh_seeds)
+    ledger = Ledger(ledger_path(stage))
+    attempt = ledger.attempt(spec.name, identity, spec.digest, section.gamma, section.base_seed, section.fresh_seeds)
     return attempt, dataclasses.replace(job, base_seed=attempt.seed_base)
 
 

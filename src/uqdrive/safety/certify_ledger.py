@@ -4,8 +4,9 @@
 An attempt is a policy's digest in a world at the test's settings. The same attempt submitted again replays it:
 the same seeds, the same γ_k, the same verdict (its rollouts come back from the log). Anything else — a changed
 policy, or the same one at other settings — is the name's next attempt k: seeds from a block no earlier attempt
-of the name used (``SEED_BLOCK`` apart) and error γ_k = 6γ / (π² k²) (`uqdrive.uq.gate.attempt_gamma`), so that
-P(some attempt ever certifies a policy whose η1 ≤ η − θ) ≤ Σ γ_k = γ whatever is resubmitted. An attempt is
+of the name used (``SEED_BLOCK`` apart, from the config's ``base_seed``) and error γ_k = 6γ / (π² k²)
+(`uqdrive.uq.gate.attempt_gamma`), so that P(some attempt ever certifies a policy whose η1 < η − θ) ≤ Σ γ_k = γ
+whatever is resubmitted. An attempt is
 written before its first rollout, so an interrupted one still counts (and resumes when resubmitted).
 
 The file is JSON in the run's folder; one that is not a ledger (corrupt, another tool's, another version) is
@@ -23,7 +24,7 @@ from uqdrive.schema import ConfigError
 
 FORMAT = "uqdrive certify ledger"
 VERSION = 1
-SEED_BLOCK = 1_000_000  # attempt k of a name draws seeds (k − 1)·SEED_BLOCK + 0, 1, …: the budget stays below it
+SEED_BLOCK = 1_000_000  # attempt k of a name draws seeds base + (k − 1)·SEED_BLOCK + 0, 1, …: budgets stay below it
 RULE = "gamma_k = 6 gamma / (pi^2 k^2)"
 
 
@@ -63,9 +64,12 @@ class Ledger:
                 "--out-dir (a fresh ledger restarts the error spending: the gate's guarantee then holds only from it)"
             ) from None
 
-    def attempt(self, name: str, identity: str, digest: str, gamma: float, fresh: bool = False) -> Attempt:
+    def attempt(
+        self, name: str, identity: str, digest: str, gamma: float, base_seed: int = 0, fresh: bool = False
+    ) -> Attempt:
         """The attempt this submission is: an earlier one with the same ``identity`` (unless ``fresh``), else the
-        name's next, reserved in the file before it runs."""
+        name's next, reserved in the file before it runs. Attempt k's seeds start at base_seed + (k − 1)·SEED_BLOCK,
+        or past every earlier attempt's block where that would overlap one."""
         from uqdrive.uq.gate import attempt_gamma
 
         earlier = self.names.get(name, [])
@@ -73,7 +77,10 @@ class Ledger:
         if same and not fresh:
             return same[-1]
         number = len(earlier) + 1
-        new = Attempt(number, identity, digest, (number - 1) * SEED_BLOCK, attempt_gamma(gamma, number))
+        start = base_seed + (number - 1) * SEED_BLOCK
+        if any(abs(start - a.seed_base) < SEED_BLOCK for a in earlier):
+            start = max(a.seed_base for a in earlier) + SEED_BLOCK
+        new = Attempt(number, identity, digest, start, attempt_gamma(gamma, number))
         self.names[name] = [*earlier, new]
         self._write()
         return new
