@@ -80,3 +80,17 @@ def test_an_adversary_resubmitting_changed_policies_certifies_one_below_target_w
         survive, spent = survive * (1 - error), spent + attempt.gamma
     later = gamma - spent  # Σ_{k>10} γ_k = γ − Σ_{k≤10} γ_k, each later attempt's error ≤ its γ_k
     assert 0 < later and 1 - survive + later <= gamma
+
+
+def test_a_submission_its_check_refuses_spends_no_attempt(tmp_path):
+    """The floor is checked at the attempt's own γ_k before the attempt is written."""
+    ledger = Ledger(tmp_path / "ledger.json")
+    ledger.attempt("p", "id-1", "d-1", 0.05)
+
+    def refuse(gamma: float) -> None:
+        raise ConfigError(f"budget too small at gamma={gamma:.4g}")
+
+    with pytest.raises(ConfigError, match="gamma=0.007599"):  # what attempt 2 would have spent
+        ledger.attempt("p", "id-2", "d-2", 0.05, check=refuse)
+    assert [a.number for a in Ledger(tmp_path / "ledger.json").names["p"]] == [1]
+    assert ledger.attempt("p", "id-2", "d-2", 0.05).number == 2

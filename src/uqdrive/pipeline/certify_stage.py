@@ -82,7 +82,6 @@ def run_certify(cfg: DictConfig) -> CertifyRecord:
     spec, job = plan(stage)
     attempt, job = take_attempt(stage, spec, job)
     test = section.test(attempt.gamma)
-    check_floor(section, attempt.gamma, test)
     record = _decide(stage, spec, job, attempt, test)
     if section.ledger:
         from uqdrive.safety.certify_ledger import Ledger
@@ -152,8 +151,8 @@ def check_floor(section, gamma: float, test=None) -> None:
 
 
 def take_attempt(stage: CertifyStage, spec: UserPolicySpec, job: RolloutJob):
-    """The ledger's attempt for this policy, world and test (its seeds in ``job``); without a ledger, attempt 0 at
-    the section's seeds and full γ."""
+    """The ledger's attempt for this policy, world and test (its seeds in ``job``), its budget checked against the
+    floor at its γ_k before it is written; without a ledger, attempt 0 at the section's seeds and full γ."""
     import dataclasses
     import hashlib
 
@@ -162,12 +161,16 @@ def take_attempt(stage: CertifyStage, spec: UserPolicySpec, job: RolloutJob):
 
     section = stage.certify
     if not section.ledger:
+        check_floor(section, section.gamma, section.test())
         return Attempt(0, "", spec.digest, section.base_seed, section.gamma, "unledgered"), job
     settings = [section.eta, section.theta, section.gamma, section.look_size, section.budget, section.base_seed]
     world = cell_key(dataclasses.replace(job, base_seed=0), {"test": "certify"}, None, __name__)
     identity = hashlib.sha256(json.dumps([world, settings]).encode()).hexdigest()[:16]
     ledger = Ledger(ledger_path(stage))
-    attempt = ledger.attempt(spec.name, identity, spec.digest, section.gamma, section.base_seed, section.fresh_seeds)
+    attempt = ledger.attempt(
+        spec.name, identity, spec.digest, section.gamma, section.base_seed, section.fresh_seeds,
+        check=lambda gamma: check_floor(section, gamma, section.test(gamma)),  # refused: no attempt spent
+    )  # fmt: skip
     return attempt, dataclasses.replace(job, base_seed=attempt.seed_base)
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 from uqdrive.files import write_json
@@ -65,22 +66,34 @@ class Ledger:
             ) from None
 
     def attempt(
-        self, name: str, identity: str, digest: str, gamma: float, base_seed: int = 0, fresh: bool = False
+        self,
+        name: str,
+        identity: str,
+        digest: str,
+        gamma: float,
+        base_seed: int = 0,
+        fresh: bool = False,
+        check: Callable[[float], object] | None = None,
     ) -> Attempt:
         """The attempt this submission is: an earlier one with the same ``identity`` (unless ``fresh``), else the
-        name's next, reserved in the file before it runs. Attempt k's seeds start at base_seed + (k − 1)·SEED_BLOCK,
-        or past every earlier attempt's block where that would overlap one."""
+        name's next, reserved in the file before it runs — after ``check(γ_k)``, which may refuse it (raise), so a
+        refused submission spends no attempt. Attempt k's seeds start at base_seed + (k − 1)·SEED_BLOCK, or past
+        every earlier attempt's block where that would overlap one."""
         from uqdrive.uq.gate import attempt_gamma
 
         earlier = self.names.get(name, [])
         same = [a for a in earlier if a.identity == identity]
         if same and not fresh:
+            if check is not None:
+                check(same[-1].gamma)
             return same[-1]
         number = len(earlier) + 1
         start = base_seed + (number - 1) * SEED_BLOCK
         if any(abs(start - a.seed_base) < SEED_BLOCK for a in earlier):
             start = max(a.seed_base for a in earlier) + SEED_BLOCK
         new = Attempt(number, identity, digest, start, attempt_gamma(gamma, number))
+        if check is not None:
+            check(new.gamma)
         self.names[name] = [*earlier, new]
         self._write()
         return new
