@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -132,3 +133,42 @@ def test_rare_benchmark_prints_its_result_line_with_each_designs_coverage(capsys
         rf"coverage_1e3={coverage} coverage_1e4={coverage}"
     )
     assert re.fullmatch(pattern, out[-1]), out[-1]
+
+
+def test_the_peer_grid_compares_both_tools_over_every_eta1(capsys: pytest.CaptureFixture[str]) -> None:
+    """`bench peer --grid`: the synthetic agent at 21 true η1; PyDSMC's sound method takes its fixed Clopper–Pearson
+    sample (the n at which the interval at η̂ = ½ has half-width θ, in whole runs of 4) whatever η1 is; uqdrive's
+    expected episodes are exact, and the ratios are read off them."""
+    pytest.importorskip("pydsmc", reason="PyDSMC is not installed (pip install 'uqdrive[peer]')")
+    from uqdrive.bench.peer_grid import GRID
+    from uqdrive.uq import ThresholdTest, clopper_pearson_interval
+    from uqdrive.uq.gate import looks_for
+
+    assert main(["bench", "peer", "--grid", "--reps", "2", "--budget", "400"]) == 0
+    out = capsys.readouterr().out
+    line = out.strip().splitlines()[-1]
+    assert re.fullmatch(r"RESULT peer ratio_min=[\d.]+ ratio_median=[\d.]+ ratio_at_target=[\d.]+ "
+                        r"worst_ratio_min=[\d.]+ worst_ratio_median=[\d.]+ grid=21", line)  # fmt: skip
+    rows = [row.split() for row in out.splitlines() if re.match(r"^\s+[01]\.\d{3}\s", row)]
+    assert [float(r[0]) for r in rows] == list(GRID)
+    low, high = clopper_pearson_interval(202, 404, 0.05)
+    assert high - low <= 0.1 < float(np.subtract(*clopper_pearson_interval(200, 400, 0.05)[::-1]))
+    assert {r[3] for r in rows} == {"404.0"}  # PyDSMC: 404 episodes at every η1
+    test = ThresholdTest(0.9, 0.05, looks_for(4, 400), theta=0.05, forced=False)
+    expected = test.operating_characteristics(np.array(GRID))[2]
+    assert np.allclose([float(r[1]) for r in rows], expected, atol=0.05)  # uqdrive's E[n]: exact, as printed
+    values = dict(pair.split("=") for pair in line.split()[2:])
+    assert float(values["ratio_min"]) == pytest.approx(min(404 / expected), abs=0.01)
+    assert float(values["ratio_median"]) == pytest.approx(np.median(404 / expected), abs=0.01)
+    assert float(values["ratio_at_target"]) == pytest.approx(404 / expected[GRID.index(0.9)], abs=0.01)
+
+
+@pytest.mark.slow  # fresh processes: helps, a refusal, a certify run to its first rollout
+def test_the_startup_benchmark_prints_its_result_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "startup", "--repeats", "1"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert re.fullmatch(
+        r"RESULT startup help_s=[\d.]+ refuse_s=[\d.]+ first_rollout_s=[\d.]+ uqdrive_help_s=[\d.]+ "
+        r"other_help_s=[\d.]+ python_s=[\d.]+ help_over_python=[\d.]+ refuse_over_python=[\d.]+",
+        line,
+    )

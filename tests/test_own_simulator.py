@@ -122,7 +122,14 @@ def refuse(token: str):
 def certify(stage_config, tmp_path, *overrides: str):
     policy = tmp_path / "straight.yaml"
     policy.write_text(f"policy:\n  _target_: {PACKAGE}.policies.Straight\n")
-    settings = ("certify.eta=0.5", "certify.look_size=4", "certify.budget=8", "executor.workers=1")
+    settings = (
+        "certify.eta=0.5",
+        "certify.look_size=4",
+        "certify.budget=8",
+        "executor.workers=1",
+        "certify.ledger=false",
+    )
+    # fixed seeds, no ledger: the edits below are new cells on the same seeds, not new attempts spending gamma
     return run_certify(stage_config("certify", *WORLD, f"certify.policy={policy}", *settings, *overrides))
 
 

@@ -21,11 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
-from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
 from omegaconf import OmegaConf
-
-from uqdrive.schema import ConfigError
 
 # The `outputs` key: auto = the run's (or the sweep's) own Hydra folder; pipeline = the project's folders.
 OUTPUTS = ("auto", "pipeline")
@@ -91,7 +87,12 @@ def output_root(root: str, outputs: str) -> str:
     """``root`` with ``outputs=pipeline`` or outside a Hydra job (a config composed in code); else the job's own
     folder: hydra.run.dir for a single run, hydra.sweep.dir for a multirun."""
     if outputs not in OUTPUTS:
+        from uqdrive.schema import ConfigError  # here, not at the top: a command's argument path imports this module
+
         raise ConfigError(f"outputs={outputs!r} is not known; choose one of {list(OUTPUTS)}")
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
     if outputs == "pipeline" or not HydraConfig.initialized():
         return root
     hydra = HydraConfig.get()

@@ -11,6 +11,10 @@ road). uqdrive: `uqdrive certify` in that world (its sequential threshold test, 
 binomial property with its sound method (Clopper–Pearson to half-width θ at confidence 1 − γ), evaluated in runs of
 ``--look-size`` episodes until it converges; its estimate ≥ eta is its "certified" (η1 > eta − θ with probability
 ≥ 1 − γ), below it "refuted". Prints both answers and ``RESULT peer episodes_ratio=<PyDSMC / uqdrive>``.
+
+``--grid``: no env — a synthetic agent of exact η1 on a grid 0.5 … 1 (`uqdrive.bench.peer_grid`), both tools'
+expected and worst episodes; prints ``RESULT peer ratio_min=… ratio_median=… ratio_at_target=…``. (A policy file
+and an env id in place of the fixed agent and the built-in worlds: `uqdrive_answer` and `world_env` are the seam.)
 """
 
 from __future__ import annotations
@@ -75,7 +79,8 @@ def uqdrive_answer(args: argparse.Namespace, folder: Path) -> dict:
     policy = folder / "steer.pt"
     torch.jit.save(torch.jit.script(_Steer(args.steer)), str(policy))
     flags = [f"--eta={args.eta}", f"--theta={args.theta}", f"--gamma={args.gamma}", f"--look-size={args.look_size}"]
-    argv = ["--policy", str(policy), "--world", args.world, "--root", str(folder), "--no-progress", *flags]
+    argv = ["--policy", str(policy), "--world", args.world, "--out-dir", str(folder), "--no-progress", *flags]
+    argv += ["--seed-base", "0"]  # fixed seeds, the full gamma, no ledger: what PyDSMC does
     argv += [f"--budget={args.budget}", "--out", str(folder / "certify.json")]
     argv.append(f"gym_world.horizon_steps={args.horizon}")
     record = run_certify(compose_certify(parse(argv)))
@@ -139,7 +144,17 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--look-size", type=int, default=4, help="episodes between looks, both tools")
     ap.add_argument("--budget", type=int, default=2000, help="uqdrive's most episodes")
     ap.add_argument("--pydsmc-limit", type=int, default=5000, help="PyDSMC's most episodes")
+    ap.add_argument("--grid", action="store_true", help="a synthetic agent over every eta1 0.5 ... 1, no env")
+    ap.add_argument("--reps", type=int, default=50, help="--grid: simulated runs per eta1 (each tool's worst)")
+    ap.add_argument("--seed", type=int, default=0, help="--grid: the simulated episodes' seed")
     args = ap.parse_args(argv)
+    if args.grid:
+        from uqdrive.bench.peer_grid import grid, report
+
+        print(f"question: eta1 >= {args.eta:g}? (theta={args.theta:g}, gamma={args.gamma:g}), a look every "
+              f"{args.look_size}, uqdrive's budget {args.budget}, {args.reps} runs per eta1")  # fmt: skip
+        print(report(grid(args), args.eta))
+        return 0
     with tempfile.TemporaryDirectory() as folder:
         ours = uqdrive_answer(args, Path(folder))
         theirs = pydsmc_answer(args, Path(folder))

@@ -1,124 +1,68 @@
 """`uqdrive certify`: a user's policy certified "η1 ≥ target" in a world, or refused — a gate a CI job can call.
 
 The sequential threshold test (`uqdrive.uq.threshold`, unforced) looks after every ``look_size`` rollouts and stops
-as soon as it decides: certified (η1 ≥ η wrongly said with probability ≤ γ), refuted (η1 < η, likewise) or, after
-``budget`` rollouts, undecided. θ > 0 stops sooner but then certifies only η1 > η − θ (refutes only η1 < η + θ).
-The interval printed beside the verdict is Clopper–Pearson at γ / L for the test's L looks: by the union bound it
-covers η1 with probability ≥ 1 − γ at whichever look the test stopped.
+as soon as it decides: certified (a policy with η1 < η − θ passes with probability ≤ γ_k), refuted (η1 ≥ η + θ
+refuted likewise) or, after ``budget`` rollouts, undecided. θ > 0 stops sooner but then certifies only η1 ≥ η − θ.
+The interval printed beside the verdict inverts the same test at the stopping time (`uqdrive.uq.gate`): its low end
+is ≥ η − θ exactly when certified. A budget that cannot certify even with no failure is refused before any rollout.
 
-The policy is built and run on the first frame before any rollout, so a missing, corrupt or mismatched file fails
-in one line; rollouts are kept in a log under the cell's key (the policy's bytes or source among it) and replayed
-by a rerun of the same policy, world and test. Exit status: 0 certified, 1 refuted, 3 undecided, 2 bad input.
+Each attempt of a policy name is kept in a ledger (`certify_ledger`): a resubmitted unchanged policy replays its
+attempt, a changed one gets fresh seeds and γ_k = 6γ/(π²k²), so re-running the gate never spends more than γ.
+Rollouts are kept in a log under the cell's key (policy, world, seeds — not the test's settings) and replayed, and
+extended where the test needs more. Everything goes under one folder (``--out-dir``). Exit status: 0 certified,
+1 refuted, 3 undecided, 2 bad input. Nothing heavy is imported before the arguments are read.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING
 
-import mlflow
-from omegaconf import DictConfig
+if TYPE_CHECKING:
+    from omegaconf import DictConfig
 
-from uqdrive.policy.policy_files import UserPolicySpec, load_policy
-from uqdrive.records import write_record
-from uqdrive.safety.cells import rates
-from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
-from uqdrive.safety.runner import CellRunner, cell_key
-from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, Str, Unit, invalid, schema, validate
-from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import SimConfig, find_conf
-from uqdrive.stage_schemas import ExecutorSettings, Stage
-from uqdrive.tracking import numeric_metrics, stage_run
-from uqdrive.uq import ThresholdTest, clopper_pearson_interval
+    from uqdrive.policy.policy_files import UserPolicySpec
+    from uqdrive.safety.certify_config import CertifyRecord, CertifyStage
+    from uqdrive.safety.executors import RolloutJob
 
-CertifyVerdict = Literal["certified", "refuted", "undecided"]
 EXIT = {"certified": 0, "refuted": 1, "undecided": 3}
 BAD_INPUT = 2
 DESCRIPTION = (
     'Tests "eta1 >= ETA" for a policy file in a world by the sequential threshold test, stopping once decided; prints '
-    "the verdict, an interval and the rollouts used, writes a JSON record and an MLflow run, and exits 0 certified, "
-    "1 refuted, 3 undecided within the budget, 2 for a bad policy file or flag (one line)."
+    "what the verdict proves, an interval valid at the stopping time and the rollouts used, writes a JSON record, an "
+    "MLflow run and the ledger of attempts under --out-dir, and exits 0 certified, 1 refuted, 3 undecided within the "
+    "budget, 2 for a bad policy file or flag (one line)."
+)
+NEAR_DEFAULT = (
+    "Near the target: with theta = 0 there is no indifference zone, so a policy with eta1 close to ETA is seldom "
+    "decided. Each attempt k of a policy name spends gamma_k = 6 gamma / (pi^2 k^2) of gamma (the ledger): at the "
+    "defaults (eta 0.9, gamma 0.05, budget 400, a look every 4) a first attempt runs at gamma_1 = 0.0304, and exactly, "
+    "over the stopping rule, at eta1 = eta it certifies with probability 0.03 and ends undecided with 0.94; for eta1 "
+    "in (0.827, 0.955) the right verdict has probability below 1 - 0.0304. A theta > 0 decides sooner but certifies "
+    "only eta1 >= ETA - THETA."
 )
 SUMMARIES = ("collision_rate", "off_road_rate", "left_corridor_rate", "mean_eta2", "mean_mutual_information")
-VERDICTS: dict[str | None, CertifyVerdict] = {"above": "certified", "below": "refuted", None: "undecided"}
+VERDICTS = {"above": "certified", "below": "refuted", None: "undecided"}
+DEFAULT_DIR = "uqdrive-certify"
 
 
-@schema(frozen=True)
-class CertifySection:
-    """conf/certify.yaml's `certify`: the policy file, the target η and the test's (θ, γ), looks and budget, the
-    first rollout seed and the record's path."""
+def __getattr__(name: str):
+    """The config section, stage schema and record, imported when first asked for (`certify_config`)."""
+    if name in {"CertifySection", "CertifyStage", "CertifyRecord", "CertifyVerdict"}:
+        from uqdrive.safety import certify_config
 
-    policy: Str
-    eta: OpenUnit = 0.9
-    theta: Unit = 0.0
-    gamma: OpenUnit = 0.05
-    look_size: Count = 4
-    budget: Count = 400
-    base_seed: Seed = 0
-    out: Str = "certify.json"
-
-    def __post_init__(self) -> None:
-        if self.budget < self.look_size:
-            raise invalid("budget", self.budget, f"must be >= look_size ({self.look_size})")
-        if not self.theta < min(self.eta, 1 - self.eta):
-            raise invalid("theta", self.theta, f"must be < min(eta, 1 - eta) = {min(self.eta, 1 - self.eta):g}")
-
-    def test(self) -> ThresholdTest:
-        """The sequential test (unforced: undecided at the budget rather than a guess)."""
-        looks = tuple(sorted({*range(self.look_size, self.budget + 1, self.look_size), self.budget}))
-        return ThresholdTest(self.eta, self.gamma, looks, theta=self.theta, forced=False)
-
-
-@schema(root=True)
-class CertifyStage(WorldChoice, SimConfig, Stage):
-    """`stages/certify.py` and `uqdrive certify`: a policy in a pybullet location and weather, or in a Gymnasium
-    world (`WorldChoice`: then its own horizon and control rate), the car, camera and horizon (`SimConfig`), the
-    workers, the test."""
-
-    executor: ExecutorSettings
-    certify: CertifySection
-
-
-@dataclasses.dataclass(frozen=True)
-class CertifyRecord:
-    """The verdict with what it rests on (written as JSON, logged to MLflow)."""
-
-    verdict: CertifyVerdict
-    policy: str
-    policy_kind: str
-    policy_digest: str
-    world: str
-    weather: str
-    noise: float
-    eta: float
-    theta: float
-    gamma: float
-    rollouts: int
-    safe: int
-    eta1_hat: float
-    eta1_low: float
-    eta1_high: float
-    interval_gamma: float
-    budget: int
-    base_seed: int
-    cell_key: str
-    reused: bool
-    seconds: float
-    outcomes: str
-    collision_rate: float | None = None  # how the rollouts read failed, and (with draws) the policy's confidence
-    off_road_rate: float | None = None
-    left_corridor_rate: float | None = None
-    mean_eta2: float | None = None
-    mean_mutual_information: float | None = None
-    warning_share: float | None = None  # of the steps, those that raised a warning (a policy YAML's `warnings`)
+        return getattr(certify_config, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
     """The policy's spec and the rollout job, checked: the policy built and run on rollout 0's first frame."""
+    from uqdrive.policy.policy_files import load_policy
+    from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
+
     spec = load_policy(stage.certify.policy)
     world = job_world(stage.gym_world, stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
     job = RolloutJob(spec, stage.condition(), stage.certify.base_seed, **world)
@@ -127,30 +71,107 @@ def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
 
 
 def run_certify(cfg: DictConfig) -> CertifyRecord:
-    """Validate, plan, test (rollouts until decided), write the record, log it."""
+    """Validate, check the budget's floor, plan, take the ledger's attempt, test (rollouts until decided), write
+    the record, log it."""
+    from uqdrive.safety.certify_config import CertifyStage
+    from uqdrive.schema import validate
+
     stage = validate(CertifyStage, cfg)
-    section, test = stage.certify, stage.certify.test()
+    section = stage.certify
+    check_floor(section, first_gamma(section))  # before the policy is even built: the best case cannot certify
     spec, job = plan(stage)
-    consumer = {"test": "threshold", "eta": section.eta, "theta": section.theta, "gamma": section.gamma}
-    key = cell_key(job, {**consumer, "looks": test.looks}, None, __name__)
+    attempt, job = take_attempt(stage, spec, job)
+    test = section.test(attempt.gamma)
+    record = _decide(stage, spec, job, attempt, test)
+    if section.ledger:
+        from uqdrive.safety.certify_ledger import Ledger
+
+        Ledger(ledger_path(stage)).decided(spec.name, attempt, record.verdict)
+    log_certify(cfg, stage, record)
+    return record
+
+
+def _decide(stage: CertifyStage, spec: UserPolicySpec, job: RolloutJob, attempt, test) -> CertifyRecord:
+    """The rollouts until the test decides (replayed from the cell's log, extended where it needs more), the
+    record written."""
+    from uqdrive.records import write_record
+    from uqdrive.safety.cells import rates
+    from uqdrive.safety.certify_config import CertifyRecord
+    from uqdrive.safety.runner import CellRunner, cell_key
+    from uqdrive.uq.gate import stop_interval
+
+    section = stage.certify
+    key = cell_key(job, {"test": "certify"}, None, __name__)  # not the test's settings: rollouts do not depend on them
     log = Path(stage.paths.root) / "cache" / "rollouts" / "certify" / f"{key}.jsonl"
     log.parent.mkdir(parents=True, exist_ok=True)
     with CellRunner.of(stage.executor, stage.progress) as runner:
-        run = runner.run("certify", job, key, log, section.base_seed, test.run, section.budget, ahead=runner.batch)
+        run = runner.run("certify", job, key, log, job.base_seed, test.run, section.budget, ahead=runner.batch)
     decision, where = run.outcome, job.where
     read = run.results[: decision.n]
-    interval_gamma = section.gamma / len(test.looks)
-    low, high = clopper_pearson_interval(decision.k, decision.n, interval_gamma)
+    interval = stop_interval(test, decision.k, decision.n)
+    verdict = VERDICTS[decision.decision]
     record = CertifyRecord(
-        VERDICTS[decision.decision], spec.name, spec.kind, spec.digest, where.location, where.weather_name,
-        where.noise, section.eta, section.theta, section.gamma, decision.n, decision.k,
-        decision.k / decision.n, float(low), float(high), interval_gamma, section.budget, section.base_seed,
-        key, run.reused, run.seconds, "".join("1" if r.verdict.safe else "0" for r in read),
+        verdict, guarantee(verdict, section, attempt.gamma), spec.name, spec.kind, spec.digest, where.location,
+        where.weather_name, where.noise, section.eta, section.theta, section.gamma, attempt.number, attempt.gamma,
+        decision.n, decision.k, decision.k / decision.n, interval.low, interval.high, attempt.gamma,
+        section.budget, job.base_seed, key, run.reused, run.seconds,
+        "".join("1" if r.verdict.safe else "0" for r in read),
         **{k: v for k, v in rates(read).items() if k in SUMMARIES}, warning_share=_warning_share(spec, read),
     )  # fmt: skip
     write_record(section.out, record)  # before logging: a tracking failure never loses the verdict
-    log_certify(cfg, stage, record)
     return record
+
+
+def ledger_path(stage: CertifyStage) -> Path:
+    return Path(stage.paths.root) / "ledger.json"
+
+
+def first_gamma(section) -> float:
+    """The most error any attempt may spend: the first attempt's γ_1 under a ledger, else γ."""
+    from uqdrive.uq.gate import attempt_gamma
+
+    return attempt_gamma(section.gamma, 1) if section.ledger else section.gamma
+
+
+def check_floor(section, gamma: float, test=None) -> None:
+    """Refuse a budget that cannot certify at error ``gamma`` even with no failed rollout (the zero-failure floor,
+    or ``test`` itself), naming a budget that can."""
+    from uqdrive.schema import ConfigError
+    from uqdrive.uq.gate import budget_floor, certifies_all_safe, zero_failure_floor
+
+    floor = zero_failure_floor(section.eta, section.theta, gamma)
+    if section.budget >= floor and (test is None or certifies_all_safe(test)):
+        return
+    enough = budget_floor(section.eta, section.theta, gamma, section.look_size)
+    raise ConfigError(
+        f"budget={section.budget}: can never certify eta1 >= {section.eta - section.theta:g} at gamma={gamma:.4g}, "
+        f"even with every rollout safe (the zero-failure floor ln(gamma)/ln(eta - theta) is {floor} rollouts); "
+        f"--budget {enough} can"
+    )
+
+
+def take_attempt(stage: CertifyStage, spec: UserPolicySpec, job: RolloutJob):
+    """The ledger's attempt for this policy, world and test (its seeds in ``job``), its budget checked against the
+    floor at its γ_k before it is written; without a ledger, attempt 0 at the section's seeds and full γ."""
+    import dataclasses
+    import hashlib
+
+    from uqdrive.safety.certify_ledger import Attempt, Ledger
+    from uqdrive.safety.runner import cell_key
+
+    section = stage.certify
+    if not section.ledger:
+        check_floor(section, section.gamma, section.test())
+        return Attempt(0, "", spec.digest, section.base_seed, section.gamma, "unledgered"), job
+    settings = [section.eta, section.theta, section.gamma, section.look_size, section.budget, section.base_seed]
+    world = cell_key(dataclasses.replace(job, base_seed=0), {"test": "certify"}, None, __name__)
+    identity = hashlib.sha256(json.dumps([world, settings]).encode()).hexdigest()[:16]
+    ledger = Ledger(ledger_path(stage))
+    attempt = ledger.attempt(
+        spec.name, identity, spec.digest, section.gamma, section.base_seed, section.fresh_seeds,
+        check=lambda gamma: check_floor(section, gamma, section.test(gamma)),  # refused: no attempt spent
+    )  # fmt: skip
+    return attempt, dataclasses.replace(job, base_seed=attempt.seed_base)
 
 
 def _warning_share(spec: UserPolicySpec, results: list) -> float | None:
@@ -164,6 +185,10 @@ def _warning_share(spec: UserPolicySpec, results: list) -> float | None:
 def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> None:
     """One MLflow run in `<prefix>/certify`: the `certify` section and the world (location, weather, noise) as params,
     the verdict as a tag and metrics."""
+    import mlflow
+
+    from uqdrive.tracking import numeric_metrics, stage_run
+
     tags = {"verdict": record.verdict, "policy_digest": record.policy_digest, "cell_key": record.cell_key}
     name = f"{Path(record.policy).name} · {record.world} · {record.verdict}"
     with stage_run(stage.paths.root, "certify", cfg, run_name=name, tags=tags):
@@ -176,25 +201,38 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
         mlflow.log_artifact(stage.certify.out)
 
 
+def guarantee(verdict: str, section, gamma: float) -> str:
+    """What the verdict proves, in words nobody can misread."""
+    eta, theta = section.eta, section.theta
+    low, high = eta - theta, eta + theta
+    zone = f" (target {eta:g}, indifference zone {low:g}..{high:g} where either verdict may come)" if theta else ""
+    return {
+        "certified": f"eta1 >= {low:g}{zone}: a policy with eta1 < {low:g} passes with probability <= {gamma:.3g}",
+        "refuted": f"eta1 < {high:g}{zone}: a policy with eta1 >= {high:g} is refuted with probability <= {gamma:.3g}",
+        "undecided": f"neither eta1 >= {low:g} nor eta1 < {high:g} shown within {section.budget} rollouts{zone}",
+    }[verdict]
+
+
 def describe(record: CertifyRecord) -> str:
     """The verdict as the command prints it."""
-    claim = {
-        "certified": f"eta1 >= {record.eta:g} certified",
-        "refuted": f"eta1 < {record.eta:g} (refuted)",
-        "undecided": f"undecided whether eta1 >= {record.eta:g} within {record.budget} rollouts",
-    }[record.verdict]
-    zone = f", theta={record.theta:g}" if record.theta else ""
+    attempt = (
+        f"attempt {record.attempt} of this policy name (gamma {record.gamma:g} spent as 6 gamma/(pi^2 k^2))"
+        if record.attempt
+        else f"no ledger: seeds from {record.base_seed}"
+    )
+    from uqdrive.uq.gate import GateInterval
+
+    shown = GateInterval(record.eta1_low, record.eta1_high).shown()
     return (
-        f"{record.verdict.upper()}: {claim} (gamma={record.gamma:g}{zone}) for {record.policy} in {record.world}"
-        f" ({record.weather}, noise {record.noise:g}); {record.safe}/{record.rollouts} rollouts safe, "
-        f"eta1 in [{record.eta1_low:.3f}, {record.eta1_high:.3f}] "
-        f"(Clopper-Pearson at gamma/{round(record.gamma / record.interval_gamma)} looks)"
+        f"{record.verdict.upper()}: {record.guarantee}. For {record.policy} in {record.world}"
+        f" ({record.weather}, noise {record.noise:g}): {record.safe}/{record.rollouts} rollouts safe, "
+        f"eta1 in {shown} (each end at confidence 1 - {record.interval_gamma:.3g} at the stopping time); {attempt}"
         f"{' (replayed)' if record.reused else ''}"
     )
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="uqdrive certify", description=DESCRIPTION)
+    p = argparse.ArgumentParser(prog="uqdrive certify", description=DESCRIPTION, epilog=NEAR_DEFAULT)
     kinds = "a TorchScript (.pt), ONNX (.onnx), stable-baselines3 (.zip) or policy YAML file"
     p.add_argument("--policy", required=True, help=kinds)
     p.add_argument(
@@ -207,15 +245,47 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--noise", type=float, default=0.0, help="sensor noise sigma (default: 0)")
     p.add_argument("--eta", type=float, default=0.9, help="target: certify eta1 >= this (default: 0.9)")
-    p.add_argument("--theta", type=float, default=0.0, help="indifference half-width (default: 0)")
-    p.add_argument("--gamma", type=float, default=0.05, help="error probability of a verdict (default: 0.05)")
+    p.add_argument(
+        "--theta",
+        type=float,
+        default=0.0,
+        help="indifference half-width: certifies only eta1 >= ETA - THETA (default: 0)",
+    )
+    p.add_argument(
+        "--gamma",
+        type=float,
+        default=0.05,
+        help="error probability of a wrong verdict over all attempts (default: 0.05)",
+    )
     p.add_argument("--look-size", type=int, default=4, help="rollouts between the test's looks (default: 4)")
     p.add_argument("--budget", type=int, default=400, help="most rollouts run; undecided after (default: 400)")
-    p.add_argument("--seed", type=int, default=0, help="rollout i uses seed SEED + i (default: 0)")
+    p.add_argument(
+        "--seed-base",
+        "--seed",
+        type=int,
+        default=None,
+        dest="seed",
+        help="rollout i uses seed SEED + i and no ledger: the full gamma every run, so re-running changed policies "
+        "until one passes (or tuning one to these seeds) multiplies the error (default: the ledger's seeds)",
+    )
+    p.add_argument(
+        "--fresh-seeds",
+        action="store_true",
+        help="a new attempt even for an unchanged policy: fresh seeds, and it spends the next gamma_k",
+    )
     p.add_argument("--horizon", type=float, default=20.0, help="episode length T in seconds (default: 20)")
     p.add_argument("--workers", type=int, default=1, help="worker processes (default: 1)")
-    p.add_argument("--out", default="certify.json", help="the JSON record written (default: certify.json)")
-    p.add_argument("--root", default=".", help="project folder: rollout cache, MLflow store (default: .)")
+    p.add_argument(
+        "--out-dir",
+        "--root",
+        default=DEFAULT_DIR,
+        dest="out_dir",
+        help=f"where a run writes: rollout cache, MLflow store, ledger, record (default: {DEFAULT_DIR})",
+    )
+    p.add_argument(
+        "--out", default=None, help="the JSON record, refused if it exists (default: OUT_DIR/certify.json, rewritten)"
+    )
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("overrides", nargs="*", help="more Hydra overrides of conf/certify.yaml, e.g. vehicle.max_speed=9")
     return p.parse_args(argv)
@@ -230,17 +300,19 @@ def compose_certify(a: argparse.Namespace) -> DictConfig:
     from hydra import compose, initialize_config_dir
 
     from uqdrive.resolvers import register_resolvers
-    from uqdrive.sim.config import register_schemas
+    from uqdrive.sim.config import find_conf, register_schemas
 
     conf = find_conf()
     place = _world_overrides(a, conf)
     register_schemas()
     register_resolvers()
-    root = Path(a.root).resolve()
+    root = Path(a.out_dir).resolve()
+    seeds = [f"certify.base_seed={a.seed}", "certify.ledger=false"] if a.seed is not None else []
     overrides = [
-        f"certify.policy={_quoted(Path(a.policy).resolve())}", f"certify.out={_quoted(Path(a.out).resolve())}",
+        f"certify.policy={_quoted(Path(a.policy).resolve())}", f"certify.out={_quoted(record_path(a).resolve())}",
         f"certify.eta={a.eta}", f"certify.theta={a.theta}", f"certify.gamma={a.gamma}",
-        f"certify.look_size={a.look_size}", f"certify.budget={a.budget}", f"certify.base_seed={a.seed}",
+        f"certify.look_size={a.look_size}", f"certify.budget={a.budget}", *seeds,
+        f"certify.fresh_seeds={str(a.fresh_seeds).lower()}",
         *place, f"noise={a.noise}", f"horizon_s={a.horizon}",
         f"executor.workers={a.workers}", f"paths.root={_quoted(root)}", f"progress={str(not a.no_progress).lower()}",
         *a.overrides,
@@ -253,6 +325,8 @@ def _world_overrides(a: argparse.Namespace, conf: Path) -> list[str]:
     """Where ``--world`` and ``--weather`` put the policy, as overrides: a location of conf/scenario/ in a weather
     of conf/weather/, a Gymnasium world of conf/gym_world/, or a world file of the user's own in a folder named
     ``gym_world`` (its parent joins Hydra's search path). Anything else: one line saying what there is."""
+    from uqdrive.schema import ConfigError
+
     if a.world.endswith(".yaml"):
         path = Path(a.world).resolve()
         if not path.is_file() or path.parent.name != "gym_world":
@@ -276,12 +350,22 @@ def _world_overrides(a: argparse.Namespace, conf: Path) -> list[str]:
     return [f"scenario={a.world}", f"weather={a.weather}"]
 
 
+def record_path(a: argparse.Namespace) -> Path:
+    return Path(a.out) if a.out else Path(a.out_dir) / "certify.json"
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parse(argv)
+    if a.out and Path(a.out).exists() and not a.force:
+        print(
+            f"uqdrive certify: --out={a.out!r} exists; give another path, or --force to overwrite it", file=sys.stderr
+        )
+        return BAD_INPUT
     try:
         cfg = compose_certify(a)
         record = run_certify(cfg)
     except Exception as err:  # a bad flag, config value or policy: one line, exit 2
+        from uqdrive.schema import ConfigError
         from uqdrive.stage import one_line
 
         if not isinstance(err, ConfigError) and type(err).__module__.split(".")[0] not in ("hydra", "omegaconf"):

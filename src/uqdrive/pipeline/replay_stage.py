@@ -14,11 +14,13 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from uqdrive.records import read_record
-from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.schema import ConfigError
-from uqdrive.sim.config import find_conf
+
+if TYPE_CHECKING:  # imported where used: `uqdrive replay --help` loads no torch
+    from uqdrive.safety.cell_records import SafetyCell
 
 DESCRIPTION = (
     "Re-drive one rollout of a safety cell from its record (metrics/safety/<cell>.json) exactly as the cell drove "
@@ -39,6 +41,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 
 
 def read_cell(path: str | Path) -> SafetyCell:
+    from uqdrive.safety.cell_records import SafetyCell
+
     """The safety cell at ``path``, or one line saying why it is not one that can be replayed."""
     try:
         cell = read_record(SafetyCell, path, "safety")
@@ -60,6 +64,7 @@ def compose_cell(cell: SafetyCell):
 
     from uqdrive.models.schemas import register_schemas as register_models
     from uqdrive.resolvers import register_resolvers
+    from uqdrive.sim.config import find_conf
     from uqdrive.sim.config import register_schemas as register_world
 
     register_world()

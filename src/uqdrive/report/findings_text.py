@@ -171,8 +171,6 @@ def findings_markdown(findings) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from uqdrive.analysis.comparisons import Findings
-
     parser = argparse.ArgumentParser(prog="uqdrive findings", description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument(
         "path",
@@ -182,5 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         help="the findings record (default: metrics/findings.json)",
     )
     args = parser.parse_args(argv)
+    from uqdrive.analysis.comparisons import Findings  # after the arguments: it loads torch
+
     print(findings_markdown(read_record(Findings, args.path, "findings")))
     return 0

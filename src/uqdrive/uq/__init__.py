@@ -8,67 +8,90 @@ intervals over training replicates (`replicates`, `betting`); the two levels of 
 these trained controllers (`family`) and method claims over training runs (`claims`), with their `verdict`;
 Learn-then-Test (`ltt`); rare events over an operating domain — refutation by importance sampling with a bound valid
 at any stopping time, certification at the zero-failure floor (`rare`, `rare_proposal`).
+
+Names are imported from their modules when first asked for (`__getattr__`): a command that needs one part — the
+certify gate's floor, a bound — does not pay for the rest (torch, which the per-frame measures import).
 """
 
-from uqdrive.uq.betting import MeanInterval, mean_interval
-from uqdrive.uq.bounds import (
-    chernoff_n,
-    clopper_pearson_interval,
-    clopper_pearson_n,
-    massart_n,
-)
-from uqdrive.uq.claims import (
-    ClaimResult,
-    MethodClaim,
-    ScoreClaim,
-    decide_claim,
-    decide_claims,
-    equivalence_runs_needed,
-    sign_runs_needed,
-)
-from uqdrive.uq.estimators import (
-    Estimate,
-    SPRTResult,
-    chernoff,
-    clopper_pearson,
-    massart,
-    sequential,
-    simulate_sprt,
-    sprt,
-    sprt_cap,
-    wilson,
-)
-from uqdrive.uq.family import Comparison, Finding, decide_finding, decide_findings
-from uqdrive.uq.measures import (
-    FrameMeasures,
-    check_samples,
-    decision,
-    decision_confidence,
-    draw_measures,
-    expected_entropy,
-    frame_measures,
-    mutual_information,
-    mutual_information_se,
-    predictive_entropy,
-    predictive_probs,
-    sample_decisions,
-    steering_moments,
-    within_ball,
-)
-from uqdrive.uq.multiplicity import split_gamma
-from uqdrive.uq.paired import (
-    PairedTable,
-    PairedTest,
-    difference_interval,
-    mcnemar_p,
-    paired_table,
-    paired_test,
-    share_interval,
-)
-from uqdrive.uq.replicates import ReplicateInterval, replicate_bounded_interval, replicate_t_interval
-from uqdrive.uq.sequential import SequentialScheme, sequential_scheme
-from uqdrive.uq.threshold import ThresholdDecision, ThresholdTest, doubling_looks
-from uqdrive.uq.verdict import Reason, Verdict
+from __future__ import annotations
+
+import importlib
+
+_HOME = {  # name → the module defining it
+    "MeanInterval": "uqdrive.uq.betting",
+    "mean_interval": "uqdrive.uq.betting",
+    "chernoff_n": "uqdrive.uq.bounds",
+    "clopper_pearson_interval": "uqdrive.uq.bounds",
+    "clopper_pearson_n": "uqdrive.uq.bounds",
+    "massart_n": "uqdrive.uq.bounds",
+    "ClaimResult": "uqdrive.uq.claims",
+    "MethodClaim": "uqdrive.uq.claims",
+    "ScoreClaim": "uqdrive.uq.claims",
+    "decide_claim": "uqdrive.uq.claims",
+    "decide_claims": "uqdrive.uq.claims",
+    "equivalence_runs_needed": "uqdrive.uq.claims",
+    "sign_runs_needed": "uqdrive.uq.claims",
+    "Estimate": "uqdrive.uq.estimators",
+    "SPRTResult": "uqdrive.uq.estimators",
+    "chernoff": "uqdrive.uq.estimators",
+    "clopper_pearson": "uqdrive.uq.estimators",
+    "massart": "uqdrive.uq.estimators",
+    "sequential": "uqdrive.uq.estimators",
+    "simulate_sprt": "uqdrive.uq.estimators",
+    "sprt": "uqdrive.uq.estimators",
+    "sprt_cap": "uqdrive.uq.estimators",
+    "wilson": "uqdrive.uq.estimators",
+    "Comparison": "uqdrive.uq.family",
+    "Finding": "uqdrive.uq.family",
+    "decide_finding": "uqdrive.uq.family",
+    "decide_findings": "uqdrive.uq.family",
+    "FrameMeasures": "uqdrive.uq.measures",
+    "check_samples": "uqdrive.uq.measures",
+    "decision": "uqdrive.uq.measures",
+    "decision_confidence": "uqdrive.uq.measures",
+    "draw_measures": "uqdrive.uq.measures",
+    "expected_entropy": "uqdrive.uq.measures",
+    "frame_measures": "uqdrive.uq.measures",
+    "mutual_information": "uqdrive.uq.measures",
+    "mutual_information_se": "uqdrive.uq.measures",
+    "predictive_entropy": "uqdrive.uq.measures",
+    "predictive_probs": "uqdrive.uq.measures",
+    "sample_decisions": "uqdrive.uq.measures",
+    "steering_moments": "uqdrive.uq.measures",
+    "within_ball": "uqdrive.uq.measures",
+    "split_gamma": "uqdrive.uq.multiplicity",
+    "PairedTable": "uqdrive.uq.paired",
+    "PairedTest": "uqdrive.uq.paired",
+    "difference_interval": "uqdrive.uq.paired",
+    "mcnemar_p": "uqdrive.uq.paired",
+    "paired_table": "uqdrive.uq.paired",
+    "paired_test": "uqdrive.uq.paired",
+    "share_interval": "uqdrive.uq.paired",
+    "ReplicateInterval": "uqdrive.uq.replicates",
+    "replicate_bounded_interval": "uqdrive.uq.replicates",
+    "replicate_t_interval": "uqdrive.uq.replicates",
+    "SequentialScheme": "uqdrive.uq.sequential",
+    "sequential_scheme": "uqdrive.uq.sequential",
+    "ThresholdDecision": "uqdrive.uq.threshold",
+    "ThresholdTest": "uqdrive.uq.threshold",
+    "doubling_looks": "uqdrive.uq.threshold",
+    "Reason": "uqdrive.uq.verdict",
+    "Verdict": "uqdrive.uq.verdict",
+}
+
+
+def __getattr__(name: str):
+    module = _HOME.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_HOME})
+
 
 __all__ = [
     "Estimate",
