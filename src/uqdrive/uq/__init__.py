@@ -23,7 +23,7 @@ from uqdrive.uq.claims import (
     ScoreClaim,
     decide_claim,
     decide_claims,
-    equivalence_runs_needed,
+    mean_verdicts,
     sign_runs_needed,
 )
 from uqdrive.uq.estimators import (
@@ -114,7 +114,7 @@ __all__ = [
     "decide_claims",
     "decide_finding",
     "decide_findings",
-    "equivalence_runs_needed",
+    "mean_verdicts",
     "sign_runs_needed",
     "mean_interval",
     "MeanInterval",
