@@ -74,7 +74,8 @@ def _claim(raw: dict, margin: float, on_margins: bool) -> MethodClaim | ScoreCla
     """A recorded claim from its per-replicate differences (η1's as tables of the same effect)."""
     differences = dict(zip(raw["replicates"], raw["per_replicate"]))
     if on_margins:
-        return ScoreClaim(raw["name"], {r: np.array([d]) for r, d in differences.items()}, margin)
+        # each replicate's mean difference, repeated over its runs: the mean (all the sign test reads) and n kept
+        return ScoreClaim(raw["name"], {r: np.full(raw["pairs"], d) for r, d in differences.items()}, margin)
     runs = raw["pairs"]
     tables = {r: PairedTable(runs, max(0, round(d * runs)), max(0, -round(d * runs))) for r, d in differences.items()}
     return MethodClaim(raw["name"], tables, margin)
@@ -106,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     write_record(args.out or args.path, findings)
     print(
-        f"{findings.supported} of {findings.comparisons} comparisons supported; claims decided: "
-        f"{sum(c.result.verdict != 'undecided' for c in findings.claims)} of {len(findings.claims)}"
+        f"{findings.supported} of {findings.comparisons} comparisons supported; claims decided for the mean: "
+        f"{sum(c.result.verdict != 'undecided' for c in findings.claims)} of {len(findings.claims)}, for q: "
+        f"{sum(c.result.sign_verdict != 'undecided' for c in findings.claims)}"
     )
     return 0

@@ -134,9 +134,10 @@ def _family_line(title: str, members: list[ClaimResult], findings) -> str:
             for c in members
             if read(c) is not Verdict.UNDECIDED
         )
+        equivalent = f", equivalent {counts[Verdict.EQUIVALENT]}" if what == "for the mean" else ""
         parts.append(
-            f"{what}: supported {counts[Verdict.SUPPORTED]}, refuted {counts[Verdict.REFUTED]}, "
-            f"equivalent {counts[Verdict.EQUIVALENT]}" + (f" — {listed}" if listed else "")
+            f"{what}: supported {counts[Verdict.SUPPORTED]}, refuted {counts[Verdict.REFUTED]}{equivalent}"
+            + (f" — {listed}" if listed else "")
         )
     m = len(members)
     return (
