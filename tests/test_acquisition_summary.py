@@ -41,7 +41,7 @@ def test_ten_runs_that_all_gain_at_the_flagged_cell_support_the_method_and_the_t
     assert {(c.method, c.replicate, c.round, c.cell) for c in summary.checks} == {
         ("vi", r, k, cell) for r in range(10) for k in (0, 1) for cell in (TRAINING, FLAGGED)
     }
-    assert summary.methods[0].claim.level == 0.05 / 2  # one family: the method's two cells
+    assert summary.methods[0].claim.level == 0.05 / 2 / 2  # one family: two cells, α halved between mean and sign
 
 
 def test_two_replicates_decide_nothing_and_say_how_many_differing_runs_would():

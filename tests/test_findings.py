@@ -90,3 +90,30 @@ def test_redecide_gives_the_stages_claims_exactly_and_its_findings_from_the_coun
         assert (new.name, new.a_only, new.b_only, new.runs) == (old.name, old.a_only, old.b_only, old.runs)
         assert new.effect == pytest.approx(old.effect) and abs(new.low - old.low) < 0.2
     assert main([str(path), "--out", str(tmp_path / "again.json")]) == 0 and (tmp_path / "again.json").exists()
+
+
+def test_a_replicate_missing_from_one_method_stops_the_claims_with_one_line(tmp_path):
+    """vi lacks replicate 2 (offline) and mcd lacks replicate 1 (avoid): one line naming the method, the replicates
+    and the experiment, before any claim is decided; a recorded claim whose sides do not pair, the same."""
+    import json
+
+    from uqdrive.analysis.method_claims import check_replicates
+    from uqdrive.analysis.redecide import main
+    from uqdrive.schema import ConfigError
+
+    cells = [c for c in cells_where({0: ("1" * N,) * 2, 1: ("1" * N,) * 2, 2: ("1" * N,) * 2})]
+    uneven = [c for c in cells if not (c.method == "vi" and c.replicate == 2)]
+    with pytest.raises(ConfigError, match=r"^method claims, offline safety: replicates \[2\] of \[0, 1, 2\] missing"):
+        check_replicates(uneven, [], list(METHODS))
+    rng = np.random.default_rng(2)
+    results = [avoid_result(rng, m, r) for m in METHODS for r in (0, 1) if (m, r) != ("mcd", 1)]
+    with pytest.raises(ConfigError, match=r"collision avoidance: replicates \[1\] of \[0, 1\] missing from mcd"):
+        check_replicates(cells, results, list(METHODS))
+    check_replicates(cells, [], list(METHODS))  # the same replicates everywhere: nothing to say
+    claim = dict(name="vi safer than hmc offline", family="paper", replicates=[0, 1, 2], per_replicate=[0.0, 0.1],
+                 a_rates=[1.0, 1.0], b_rates=[1.0, 0.9, 1.0], experiment="offline", a="vi", b="hmc", paper=None,
+                 pairs=29)  # fmt: skip
+    path = tmp_path / "findings.json"
+    path.write_text(json.dumps(dict(alpha=0.05, margin=0.1, findings=[], claims=[claim])))
+    assert main([str(path)]) == 2
+    assert json.loads(path.read_text())["claims"] == [claim]  # nothing written over

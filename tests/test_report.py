@@ -260,7 +260,8 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert text.index("## The paper's claims and what the run found") < text.index(findings_markdown(findings))
     assert text.index("**The paper's claims, for the method**") < text.index("**For these trained controllers**")
     assert text.index("**For these trained controllers**") < text.index("## Controllers")
-    claims = {r["claim (A safer than B)"]: r for r in markdown_rows(text, "claim (A safer than B)")}
+    header = "claim (A safer than B), for the mean"
+    claims = {r[header]: r for r in markdown_rows(text, header)}
     paper = [c.result for c in findings.claims if c.family == "paper"]
     assert set(claims) == {c.name for c in paper} and {c.name for c in paper} >= {
         "vi safer than mcd offline",
@@ -270,8 +271,11 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     on = next(c for c in paper if c.name == "vi: warnings on safer than off, unknown conditions")
     assert (
         claims[on.name]["paper"] == "0.9 vs 0"
-        and f"mean {on.estimate:+.2f}" in claims[on.name]["runs won; mean Δ̂ [interval]"]
+        and claims[on.name]["mean Δ̂ [interval]"].startswith(f"{on.estimate:+.2f} [")
+        and claims[on.name]["verdict (mean)"].strip("*") == str(on.verdict)
     )
+    signs = {r["claim, for q"]: r for r in markdown_rows(text, "claim, for q")}  # q: its own table, its own words
+    assert signs[on.name]["runs that differ"].startswith(f"a training run of A beats its paired run of B in {on.ahead}")
     assert {c.family for c in findings.claims} == {"paper", "exploratory"}  # the synthetic cells record no margins
     assert findings.supported > 0  # rain with noise breaks both methods in every replicate (0.2 against 0.9)
     rows = markdown_rows(text, "method | location | weather")
@@ -392,21 +396,25 @@ def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp
 
 
 def test_an_undecided_claim_shows_both_estimands_and_the_runs_that_would_decide_it():
-    """Every replicate at 1.00 on both sides: no run differs, the mean's betting interval is wide, and the report
-    says what would decide it (differing runs for the sign test, runs for ±δ whatever the spread)."""
+    """Every replicate at 1.00 on both sides: no run differs, the mean's betting interval is wide; the mean's row
+    says how many training runs would decide it (simulated, the study's spread / the worst), q's row its own words."""
     result = SimpleNamespace(
-        name="hmc safer than mcd offline", estimate=0.0, low=-0.9, high=0.9, ahead=0, behind=0,
-        verdict=Verdict.UNDECIDED, margin=0.1, differing_runs_needed=19, equivalence_runs_needed=3145,
-        replicates=[0, 1, 2], level=0.005, assumption="none beyond i.i.d. training runs",
+        name="hmc safer than mcd offline", estimate=0.0, low=-0.9, high=0.9, ahead=0, behind=0, rollouts=14,
+        verdict=Verdict.UNDECIDED, sign_verdict=Verdict.UNDECIDED, margin=0.1, differing_runs_needed=19,
+        runs_needed=61, runs_needed_worst=None, replicates=[0, 1, 2], level=0.0025, sign_level=0.0025,
+        assumption="none beyond i.i.d. training runs",
     )  # fmt: skip
     claim = SimpleNamespace(family="paper", paper=None, a_rates=[1.0] * 3, b_rates=[1.0] * 3, pairs=14, result=result)
-    row = markdown_rows(
-        claims_markdown(SimpleNamespace(claims=[claim], margin=0.1, alpha=0.05)), "claim (A safer than B)"
-    )[0]
-    assert row["runs won; mean Δ̂ [interval]"] == "A higher in 0, B in 0 of 3 runs; mean +0.00 [-0.90, +0.90]"
+    text = claims_markdown(SimpleNamespace(claims=[claim], margin=0.1, alpha=0.05))
+    row = markdown_rows(text, "claim (A safer than B), for the mean")[0]
+    assert row["mean Δ̂ [interval]"] == "+0.00 [-0.90, +0.90]" and row["verdict (mean)"] == "undecided"
+    assert row["runs needed: study's spread / worst"] == "61 / > 20,000"
+    sign = markdown_rows(text, "claim, for q")[0]
     assert (
-        row["would decide it"] == "19 differing runs (sign test, A safer in 9 of 10); 3145 runs for ±0.1 (any spread)"
+        sign["runs that differ"]
+        == "a training run of A beats its paired run of B in 0 of 0 that differ (of 3), at 14 rollouts per run"
     )
+    assert "Family: these 1 claims' mean and sign verdicts together, family-wise error ≤ 0.05" in text
 
 
 def test_the_report_opens_with_the_answer_then_its_contents_and_ends_with_the_learning_curves(stage_config, tmp_path):

@@ -30,8 +30,10 @@ from uqdrive.avoid.results import PAIRS, AvoidCell, AvoidResult, Mode
 from uqdrive.records import flattened, record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.schema import ConfigError
 from uqdrive.uq.claims import ClaimResult, MethodClaim, ScoreClaim, decide_claims
 from uqdrive.uq.paired import paired_table
+from uqdrive.uq.runs_needed import SIMS
 
 PAPER_OFFLINE = (("vi", "hmc"), ("vi", "mcd"), ("hmc", "mcd"))  # the paper's ranking: VI 0.91 > HMC 0.766 > MCD 0.58
 RAIN = "rain"
@@ -163,8 +165,24 @@ def exploratory_claims(cells: list[SafetyCell], results: list[AvoidResult], meth
     return out
 
 
+def check_replicates(cells: Iterable[SafetyCell], results: Iterable[AvoidResult], methods: Sequence[str]) -> None:
+    """Every method has the same replicates in each experiment, or a claim would pair a replicate with nothing:
+    one line naming the method, the replicates it lacks and the experiment (ConfigError), before any claim."""
+    for experiment, owned in (("offline safety", cells), ("collision avoidance", results)):
+        sets = {m: sorted({x.replicate for x in owned if x.method == m}) for m in methods}
+        sets = {m: r for m, r in sets.items() if r}
+        union = sorted(set().union(*sets.values())) if sets else []
+        for method, replicates in sets.items():
+            if replicates != union:
+                missing = sorted(set(union) - set(replicates))
+                raise ConfigError(
+                    f"method claims, {experiment}: replicates {missing} of {union} missing from {method} "
+                    f"(it has {replicates}): a claim pairs each replicate of one method with the same of the other"
+                )
+
+
 def _decide(
-    family: str, claims: list[_Claim], margin: float, alpha: float, on_margins: bool = False
+    family: str, claims: list[_Claim], margin: float, alpha: float, on_margins: bool = False, sims: int = 0
 ) -> list[ClaimRecord]:
     for claim in claims:
         _check_paired(claim.sides)
@@ -173,7 +191,7 @@ def _decide(
         decided = decide_claims(scores, alpha)
     else:
         tables = [{r: paired_table(*c.outcomes(r)) for r in c.sides} for c in claims]
-        decided = decide_claims([MethodClaim(c.name, t, margin) for c, t in zip(claims, tables)], alpha)
+        decided = decide_claims([MethodClaim(c.name, t, margin) for c, t in zip(claims, tables)], alpha, sims)
     return [_record(family, c, d, on_margins) for c, d in zip(claims, decided)]
 
 
@@ -236,11 +254,15 @@ def method_claims(
     alpha: float,
     margin: float,
     paper: bool = True,
+    sims: int = SIMS,
 ) -> list[ClaimRecord]:
     """Every family of method claims, each decided at family-wise error ``alpha``; ``margin``: δ of equivalence
     (η1 units; the margin family, unbounded, is never called equivalent). ``paper``: the cells are the paper's
     offline experiment, so its claims are made (not for a Gymnasium world's cells, which only the exploratory family
-    compares: there the warnings' claims over the unknown conditions are exploratory too)."""
+    compares: there the warnings' claims over the unknown conditions are exploratory too). ``sims``: simulated
+    studies per run count for the paper family's runs needed (the other families' are not computed: they are
+    counted, not tabled)."""
+    check_replicates(cells, results, methods)
     location, _, noise = training
     offline = offline_claims(cells, methods, location, noise) if paper else []
     warnings = warning_claims(results, methods, paper) if results else []
@@ -248,7 +270,12 @@ def method_claims(
         "paper": [*offline, *warnings] if paper else [],
         "exploratory": [*exploratory_claims(cells, results, methods), *([] if paper else warnings)],
     }
-    out = [record for family, claims in families.items() if claims for record in _decide(family, claims, margin, alpha)]
+    out = [
+        record
+        for family, claims in families.items()
+        if claims
+        for record in _decide(family, claims, margin, alpha, sims=sims if family == "paper" else 0)
+    ]
     pairs = [c for c in offline if c.a != "mcd dry"]
     if pairs and has_margins(pairs):
         out += _decide("margin", pairs, margin, alpha, on_margins=True)

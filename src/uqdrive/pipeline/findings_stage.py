@@ -11,11 +11,11 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from uqdrive.analysis.comparisons import Findings, avoid_comparisons, decide, safety_comparisons
-from uqdrive.analysis.method_claims import method_claims
+from uqdrive.analysis.method_claims import check_replicates, method_claims
 from uqdrive.avoid.results import read_avoid_results
 from uqdrive.records import write_record
 from uqdrive.safety.cell_records import read_safety_cells
-from uqdrive.schema import OpenUnit, Str, schema, validate
+from uqdrive.schema import OpenUnit, Seed, Str, schema, validate
 from uqdrive.stage_schemas import SafetyGrid
 
 
@@ -26,6 +26,7 @@ class FindingsSection:
     experiment: Str  # whose controllers drove the cells: offline (the paper's), or a Gymnasium world's experiment
     cells_dir: Str
     results_dir: Str  # the avoid results
+    runs_needed_sims: Seed  # simulated studies per run count for the paper claims' runs needed (0: not computed)
     out: Str
 
 
@@ -44,9 +45,12 @@ def run_findings(cfg: DictConfig) -> Findings:
     training = (stage.locations[0], stage.train_weather, 0.0)
     cells = read_safety_cells(settings.cells_dir, stage)
     results = read_avoid_results(settings.results_dir, methods, list(stage.replicates))
+    check_replicates(cells, results, methods)
     family = [*safety_comparisons(cells, methods, training, settings.experiment), *avoid_comparisons(results, methods)]
     paper = settings.experiment == "offline"
-    claims = method_claims(cells, results, methods, training, settings.alpha, settings.margin, paper)
+    claims = method_claims(
+        cells, results, methods, training, settings.alpha, settings.margin, paper, settings.runs_needed_sims
+    )
     findings = dataclasses.replace(decide(family, settings.alpha), margin=settings.margin, claims=claims)
     write_record(Path(settings.out), findings)
     return findings

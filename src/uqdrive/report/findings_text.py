@@ -15,6 +15,7 @@ from pathlib import Path
 from uqdrive.records import read_record
 from uqdrive.report.document import fmt, table
 from uqdrive.uq.claims import ClaimResult
+from uqdrive.uq.runs_needed import MOST
 from uqdrive.uq.verdict import Verdict
 
 KINDS = {
@@ -36,73 +37,113 @@ def _interval(low: float | None, high: float | None) -> str:
     return "[no bounded range]" if low is None or high is None else f"[{low:+.2f}, {high:+.2f}]"
 
 
-def _estimate(claim: ClaimResult) -> str:
-    """The two estimands: the runs each side won (the sign test's) and the mean difference with its betting
-    interval — the one that decided equivalence, or would have."""
-    runs = f"A higher in {claim.ahead}, B in {claim.behind} of {len(claim.replicates)} runs"
-    return f"{runs}; mean {claim.estimate:+.2f} {_interval(claim.low, claim.high)}"
+def _mean(claim: ClaimResult) -> str:
+    return f"{claim.estimate:+.2f} {_interval(claim.low, claim.high)}"
+
+
+def _sign_line(claim: ClaimResult) -> str:
+    """The sign estimand in its own words: how many runs of A beat their paired B, of those that differ."""
+    return (
+        f"a training run of A beats its paired run of B in {claim.ahead} of {claim.ahead + claim.behind} that differ "
+        f"(of {len(claim.replicates)}), at {claim.rollouts} rollouts per run"
+    )
 
 
 def _needed(claim: ClaimResult) -> str:
-    """What would decide an undecided claim, whatever the spread of training runs."""
+    """Training runs at which the mean's procedure would decide an undecided claim (power 0.8, simulated)."""
     if claim.verdict is not Verdict.UNDECIDED:
         return "–"
-    text = f"{claim.differing_runs_needed} differing runs (sign test, A safer in 9 of 10)"
-    if claim.equivalence_runs_needed:
-        text += f"; {claim.equivalence_runs_needed} runs for ±{claim.margin:g} (any spread)"
-    return text
+    if claim.runs_needed is None and claim.runs_needed_worst is None:
+        return "not computed" if claim.low is not None else "no bounded range"
+    study, worst = (f"{n:,}" if n else f"> {MOST:,}" for n in (claim.runs_needed, claim.runs_needed_worst))
+    return f"{study} / {worst}"
+
+
+def _family(claims: list, findings) -> str:
+    first, m = claims[0].result, len(claims)
+    return (
+        f"family: these {m} claims' mean and sign verdicts together, family-wise error ≤ {findings.alpha:g} "
+        f"(mean verdicts {fmt(first.level * m, 4)} over {m}, {fmt(first.level, 4)} each; sign verdicts "
+        f"{fmt(first.sign_level * m, 4)} over {m}, {fmt(first.sign_level, 4)} each)"
+    )
 
 
 def claims_markdown(findings) -> str:
-    """The paper's claims decided for the method, one row each, then the other method-level families' counts."""
+    """The paper's claims decided for the mean over training runs, one row each; q in a second table; then the
+    other method-level families' counts."""
     paper = [c for c in findings.claims if c.family == "paper"]
     if not paper:
         return ""
-    rows = [
+    mean_rows = [
         [
             c.result.name,
             c.paper or "–",
             f"{sum(c.a_rates) / len(c.a_rates):.2f} vs {sum(c.b_rates) / len(c.b_rates):.2f}",
-            _estimate(c.result),
+            _mean(c.result),
             WORDS[c.result.verdict],
             _needed(c.result),
         ]
         for c in paper
     ]
+    sign_rows = [[c.result.name, _sign_line(c.result), WORDS[c.result.sign_verdict]] for c in paper]
     decided = sum(c.result.verdict is not Verdict.UNDECIDED for c in paper)
+    by_sign = sum(c.result.sign_verdict is not Verdict.UNDECIDED for c in paper)
     first, pairs = paper[0].result, paper[0].pairs
     text = [
-        f"**The paper's claims, for the method** (each posterior family over its training runs: "
-        f"{len(first.replicates)} replicates, {pairs} paired runs each). Supported or refuted: the exact sign "
-        "test of P(A's run scores higher than its paired B's, among runs that differ) = ½; equivalent within "
-        f"±{findings.margin:g}: the betting interval for the mean difference, valid for every spread of training runs "
-        f"on [−1, 1]. Each claim at {fmt(first.level, 4)} (Bonferroni over the {len(paper)} claims: family-wise "
-        f"error ≤ {findings.alpha:g}); assumption: {first.assumption}. **{decided} of {len(paper)} decided.**",
+        f"**The paper's claims, for the method** ({len(first.replicates)} training runs of each side, {pairs} paired "
+        "rollouts each). Estimand: the mean over training runs of the paired difference in η1, A − B (the paper's: "
+        "it compares mean rates); its betting interval is valid for every spread of training runs on [−1, 1], "
+        f"assuming only that they are i.i.d. Supported: the interval lies above 0; refuted: below; equivalent: "
+        f"inside ±{findings.margin:g}. F{_family(paper, findings)[1:]}. **{decided} of {len(paper)} decided "
+        "for the mean.** Runs needed: the training runs at which this interval decides the claim with probability "
+        "0.8, by simulating it with runs resampled from these / with the worst spread of that mean (every run's "
+        "difference at ±1).",
         table(
             [
-                "claim (A safer than B)",
+                "claim (A safer than B), for the mean",
                 "paper",
-                "ours: A vs B",
-                "runs won; mean Δ̂ [interval]",
-                "verdict",
-                "would decide it",
+                "ours: mean η̂1, A vs B",
+                "mean Δ̂ [interval]",
+                "verdict (mean)",
+                "runs needed: study's spread / worst",
             ],
-            rows,
+            mean_rows,
         ),
+        "**A second estimand, q** = P(a training run of A scores higher than its paired run of B, among runs that "
+        "differ): the exact sign test of q = ½. q is not the mean (A can win most pairs and lose on average) and "
+        "not a property of the method alone: it moves with the rollouts a run's score is read from (more rollouts, "
+        f"fewer ties and upsets). **{by_sign} of {len(paper)} decided for q.**",
+        table(["claim, for q", "runs that differ", "verdict (q)"], sign_rows),
     ]
     for family, title in (("exploratory", "Exploratory"), ("margin", "Margins (lane half-widths, not η1)")):
         members = [c.result for c in findings.claims if c.family == family]
         if members:
-            counts = {v: sum(c.verdict is v for c in members) for v in Verdict}
-            listed = "; ".join(
-                f"{c.name}: {WORDS[c.verdict]} ({_estimate(c)})" for c in members if c.verdict is not Verdict.UNDECIDED
-            )
-            text.append(
-                f"**{title}, for the method**: {len(members)} claims, supported {counts[Verdict.SUPPORTED]}, "
-                f"refuted {counts[Verdict.REFUTED]}, equivalent {counts[Verdict.EQUIVALENT]}"
-                + (f" — {listed}." if listed else ".")
-            )
+            text.append(_family_line(title, members, findings))
     return "\n\n".join(text)
+
+
+def _family_line(title: str, members: list[ClaimResult], findings) -> str:
+    """One family's counts, for the mean and for q, each decided claim named under its own estimand."""
+    parts = []
+    for what, read in (("for the mean", lambda c: c.verdict), ("for q", lambda c: c.sign_verdict)):
+        if what == "for the mean" and all(c.low is None for c in members):
+            continue
+        counts = {v: sum(read(c) is v for c in members) for v in Verdict}
+        listed = "; ".join(
+            f"{c.name}: {WORDS[read(c)]} ({_mean(c) if what == 'for the mean' else _sign_line(c)})"
+            for c in members
+            if read(c) is not Verdict.UNDECIDED
+        )
+        equivalent = f", equivalent {counts[Verdict.EQUIVALENT]}" if what == "for the mean" else ""
+        parts.append(
+            f"{what}: supported {counts[Verdict.SUPPORTED]}, refuted {counts[Verdict.REFUTED]}{equivalent}"
+            + (f" — {listed}" if listed else "")
+        )
+    m = len(members)
+    return (
+        f"**{title}, for the method** ({m} claims; family: these {m} claims' verdicts, family-wise error ≤ "
+        f"{findings.alpha:g}): " + "; ".join(parts) + "."
+    )
 
 
 def span(low: float, high: float, digits: int = 2) -> str:

@@ -19,4 +19,5 @@ class Reason(StrEnum):
     DECIDED = ""
     NOT_SIGNIFICANT = "the interval holds 0 at this level"
     TOO_FEW_REPLICATES = "fewer than two replicates"
-    NOT_DECIDED = "neither the sign test nor the mean's interval decides it at this level"
+    NOT_DECIDED = "the mean's interval holds 0 and reaches past ±δ at this level"
+    NO_BOUNDED_RANGE = "an unbounded score has no interval for its mean valid for every spread"
