@@ -247,7 +247,8 @@ class GymWorld(World):
             if bool(env_info.get(key, False)):
                 return key
         if self.safe_when is not None:
-            verdict = self._user("safe_when", "the predicate", self.safe_when, obs, dict(env_info))
+            name = config.safe_when.partition(":")[2]
+            verdict = self._user("safe_when", name, self.safe_when, obs, dict(env_info))
             if not isinstance(verdict, (bool, np.bool_)):
                 raise WorldFailure(f"gym_world.safe_when={config.safe_when!r}: expected a bool, got {_short(verdict)}")
             if not verdict:
