@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import gymnasium
@@ -65,23 +66,23 @@ class SlideEnv(gymnasium.Env):
 
 class SlowEnv(WalkEnv):
     """`WalkEnv` whose steps take ``delay`` seconds for seeds below ``slow_below`` (a worker given those finishes
-    last), writing each episode's end time to ``log_dir`` (the order workers finished in)."""
+    last), writing the time each episode ends (it falls, or its 20 steps are up) to ``log_dir``: the order the
+    workers finished in."""
 
     def __init__(self, delay: float = 0.0, slow_below: int = 0, log_dir: str = ""):
         super().__init__()
-        self.delay, self.slow_below, self.log_dir, self.seed = delay, slow_below, log_dir, 0
+        self.delay, self.slow_below, self.log_dir, self.seed, self.steps = delay, slow_below, log_dir, 0, 0
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        self.seed = int(seed or 0)
+        self.seed, self.steps = int(seed or 0), 0
         return super().reset(seed=seed, options=options)
 
     def step(self, action):
         if self.seed < self.slow_below:
             time.sleep(self.delay)
         out = super().step(action)
-        if (out[2] or out[3]) and self.log_dir:
-            from pathlib import Path
-
+        self.steps += 1
+        if (out[2] or self.steps == 20) and self.log_dir:
             Path(self.log_dir, f"{self.seed}").write_text(repr(time.monotonic()))
         return out
 

@@ -87,8 +87,7 @@ def test_an_onnx_mlp_over_a_vector_observation(tmp_path):
     assert record["policy_kind"] == "onnx" and code in (0, 1, 3)
 
 
-@pytest.mark.slow  # trains nothing, but scripts a module and certifies twice
-def test_a_torchscript_policy_on_a_box_action_env_by_one_worker_or_two(tmp_path):
+def test_a_torchscript_policy_on_a_box_action_env(tmp_path):
     net = Policy(2, 1, box=True, seed=1)
     path = tmp_path / "slide.pt"
     torch.jit.save(torch.jit.script(net), str(path))
@@ -100,9 +99,7 @@ def test_a_torchscript_policy_on_a_box_action_env_by_one_worker_or_two(tmp_path)
             return net(torch.as_tensor(obs[None])).numpy()[0]
 
     plain = native_kit.plain_outcomes(native_kit.SLIDE, act, SEEDS, lambda o, i, t: i["off"])
-    assert record["outcomes"] == plain and record["policy_kind"] == "torchscript"
-    two = certify(tmp_path / "two", path, "--env", env, "--unsafe-if", "off", "--workers", "2", *SHORT)[1]
-    assert two["outcomes"] == plain
+    assert record["outcomes"] == plain and record["policy_kind"] == "torchscript" and "0" in plain
 
 
 sb3 = pytest.importorskip("stable_baselines3")
