@@ -139,7 +139,8 @@ def hooks_class(name: str, key: str = "gym_world.hooks") -> type[WorldHooks]:
     """The hooks class ``name`` names (one of `HOOKS`, or ``module:Class``), or one `ConfigError` line naming
     ``key``, the value and what is allowed."""
     module, sep, attr = HOOKS.get(name, name).partition(":")
-    allowed = f"expected {' or '.join(HOOKS)}, or module:Class (a subclass of uqdrive.sim.gym_hooks.WorldHooks)"
+    names = ", ".join(list(HOOKS)[:-1]) + f" or {list(HOOKS)[-1]}"
+    allowed = f"expected {names}, or module:Class (a subclass of uqdrive.sim.gym_hooks.WorldHooks)"
     if not (sep and module and attr.isidentifier()):
         raise ConfigError(f"{key}={name!r}: {allowed}")
     try:
