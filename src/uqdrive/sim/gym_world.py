@@ -40,6 +40,7 @@ from uqdrive.schema import ConfigError
 from .camera import add_noise
 from .config import AutopilotConfig, GymWorldConfig, VehicleConfig, WeatherConfig, check_noise, refuse_conditions
 from .gym_hooks import HOOKS, WorldFailure, WorldHooks, hooks_class
+from .gym_native import in_space, predicate, short
 from .world import TRAJECTORY_KEYS, Expert, R, World, WorldVisitor
 
 Returned = TypeVar("Returned")
@@ -168,7 +169,7 @@ class GymWorld(World):
         action = in_space(given, space)
         if action is None:
             raise WorldFailure(
-                f"{self.config.env_id} at seed {self._seed}, step {self._steps}: the agent's action {_short(given)} "
+                f"{self.config.env_id} at seed {self._seed}, step {self._steps}: the agent's action {short(given)} "
                 f"is outside the env's action space {space}"
             )
         self._applied = math.nan
@@ -250,7 +251,7 @@ class GymWorld(World):
             name = config.safe_when.partition(":")[2]
             verdict = self._user("safe_when", name, self.safe_when, obs, dict(env_info))
             if not isinstance(verdict, (bool, np.bool_)):
-                raise WorldFailure(f"gym_world.safe_when={config.safe_when!r}: expected a bool, got {_short(verdict)}")
+                raise WorldFailure(f"gym_world.safe_when={config.safe_when!r}: expected a bool, got {short(verdict)}")
             if not verdict:
                 return "safe_when"
         return "terminated" if terminated and config.terminated == "unsafe" else ""
@@ -360,46 +361,6 @@ def _gymnasium() -> Any:
     from . import gym_env  # noqa: F401
 
     return gymnasium
-
-
-def predicate(name: str) -> Callable[[Any, dict[str, Any]], Any] | None:
-    """The function ``module:function`` names (None for ""), or one line naming ``gym_world.safe_when``."""
-    if not name:
-        return None
-    module, _, attr = name.partition(":")
-    try:
-        found = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as err:
-        raise ConfigError(f"gym_world.safe_when={name!r}: {type(err).__name__}: {err}") from None
-    if not callable(found):
-        raise ConfigError(f"gym_world.safe_when={name!r}: expected a function (obs, info) -> bool")
-    return found
-
-
-def in_space(action: Any, space: Any) -> Any:
-    """``action`` as ``space`` holds it (an integer of a Discrete, an array of the space's dtype for a Box or
-    MultiDiscrete), or None where it is not in the space."""
-    try:
-        if hasattr(space, "n") and not hasattr(space, "nvec"):  # Discrete
-            value = np.asarray(action)
-            if value.size != 1 or not np.issubdtype(value.dtype, np.integer) and value.reshape(-1)[0] % 1:
-                return None
-            action = int(value.reshape(-1)[0])
-        elif getattr(space, "shape", None) is not None and getattr(space, "dtype", None) is not None:
-            value = np.asarray(action)
-            if value.shape != space.shape and value.size == int(np.prod(space.shape)):
-                value = value.reshape(space.shape)
-            if np.issubdtype(space.dtype, np.integer) and not np.all(np.mod(value, 1) == 0):
-                return None
-            action = value.astype(space.dtype)
-        return action if space.contains(action) else None
-    except (TypeError, ValueError):
-        return None
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _scalars(info: Mapping[str, Any]) -> dict[str, Any]:
