@@ -98,6 +98,23 @@ def toward_centre(obs: dict[str, Any]) -> int:
     return 0 if pos > 0.5 else 2 if pos < -0.5 else 1
 
 
+class Hesitant:
+    """`toward_centre` with draws: 8 rows of action probabilities from its own seeded generator, each leaning to the
+    action it took (so η̂2 is high but not 1), for η2 and mutual information."""
+
+    def reset(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, obs: dict[str, Any], info: dict) -> Any:
+        from uqdrive.policy.interface import Action
+
+        action = toward_centre(obs)
+        return Action(env_action=action, draws=self.draws(action))
+
+    def draws(self, action: int) -> np.ndarray:
+        return 0.7 * self.rng.dirichlet(np.ones(3), 8) + 0.3 * np.eye(3)[action]
+
+
 def stays_near(obs: Any, info: dict) -> bool:
     """A predicate (safe_when): the walker within 2 of the centre."""
     return abs(float(obs["pos"][0])) < 2.0

@@ -53,6 +53,35 @@ def test_a_plain_function_by_target_is_certified_with_the_outcomes_of_a_plain_lo
     assert "0" in near + plain  # the signals judge: a test that can fail
 
 
+def test_an_agent_with_draws_keeps_eta2_and_mutual_information(tmp_path):
+    """η̂2 per step: the share of the draws whose arg-max is the action taken; MI from the probabilities (computed
+    here by hand, apart from uqdrive's measures), both averaged per rollout then over rollouts as a cell reports."""
+    agent = function_yaml(tmp_path, "native_kit.Hesitant")
+    code, record = certify(tmp_path, agent, "--env", f"native_kit:{native_kit.WALK}", "--unsafe-if", "fell", *SHORT)
+    eta2, mi = [], []
+    with gymnasium.make(native_kit.WALK) as env:
+        for seed in SEEDS:
+            hesitant, (obs, info), steps = native_kit.Hesitant(), env.reset(seed=seed), []
+            hesitant.reset(seed)
+            for _ in range(20):
+                action = native_kit.toward_centre(obs)
+                p = hesitant.draws(action)
+                mean = p.mean(0)
+                steps.append(
+                    ((p.argmax(1) == action).mean(), -(mean * np.log(mean)).sum() + (p * np.log(p)).sum(1).mean())
+                )
+                obs, _, terminated, _, info = env.step(action)
+                if terminated:
+                    break
+            eta2.append(np.mean([s[0] for s in steps]))
+            mi.append(np.mean([s[1] for s in steps]))
+    assert record["mean_eta2"] == pytest.approx(np.mean(eta2), abs=1e-9) and 0.3 < record["mean_eta2"] < 1
+    assert (
+        record["mean_mutual_information"] == pytest.approx(np.mean(mi), abs=1e-9)
+        and record["mean_mutual_information"] > 0
+    )
+
+
 class Policy(torch.nn.Module):
     """An MLP over a vector observation: logits of a Discrete action space, or a tanh action of a Box."""
 

@@ -37,7 +37,7 @@ class Action:
     ``env_action``: an agent's action in the env's own action space, where the world takes it as it is (a native
     Gymnasium world, `uqdrive.policy.native`; ``steer`` is then NaN): an int of a Discrete, an array of a Box."""
 
-    steer: float
+    steer: float = math.nan
     speed: float | None = None
     draws: np.ndarray | None = None
     env_action: Any = None
