@@ -13,7 +13,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-WALK, SLIDE, SLOW = "NativeKitWalk-v0", "NativeKitSlide-v0", "NativeKitSlow-v0"
+WALK, SLIDE, SLOW, PICTURE = "NativeKitWalk-v0", "NativeKitSlide-v0", "NativeKitSlow-v0", "NativeKitPicture-v0"
 
 
 class WalkEnv(gymnasium.Env):
@@ -87,7 +87,23 @@ class SlowEnv(WalkEnv):
         return out
 
 
+class PictureEnv(WalkEnv):
+    """`WalkEnv` seen as an image: RGB uint8 [36, 36, 3] (the smallest stable-baselines3's CnnPolicy takes), the
+    walker a bright column where it stands."""
+
+    def __init__(self):
+        super().__init__()
+        self.observation_space = spaces.Box(0, 255, (36, 36, 3), np.uint8)
+
+    def _obs(self) -> np.ndarray:
+        image = np.zeros((36, 36, 3), np.uint8)
+        column = int(np.clip(round((self.pos + 3.0) / 6.0 * 35), 0, 35))
+        image[:, column, :] = 255 if self.wind else 128
+        return image
+
+
 gymnasium.register(WALK, entry_point=WalkEnv, max_episode_steps=20)
+gymnasium.register(PICTURE, entry_point=PictureEnv, max_episode_steps=20)
 gymnasium.register(SLIDE, entry_point=SlideEnv, max_episode_steps=25)
 gymnasium.register(SLOW, entry_point=SlowEnv, max_episode_steps=20)
 

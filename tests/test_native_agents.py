@@ -148,6 +148,21 @@ def test_a_ppo_multi_input_agent_on_a_dict_observation_env(tmp_path):
     assert record["outcomes"] == plain and record["policy_kind"] == "sb3"
 
 
+@pytest.mark.slow  # trains a PPO CnnPolicy agent (32 steps) and certifies it
+def test_a_ppo_cnn_agent_on_an_image_env(tmp_path):
+    """SB3 saves a channels-last image agent's space channels first; it still reads the env's images."""
+    model = sb3.PPO("CnnPolicy", gymnasium.make(native_kit.PICTURE), n_steps=32, batch_size=32, n_epochs=1, seed=0)
+    model.learn(total_timesteps=32)
+    path = tmp_path / "cnn.zip"
+    model.save(path)
+    code, record = certify(tmp_path, path, "--env", f"native_kit:{native_kit.PICTURE}", "--unsafe-if", "fell", *SHORT)
+    loaded = sb3.PPO.load(path, device="cpu")
+    plain = native_kit.plain_outcomes(
+        native_kit.PICTURE, lambda o: loaded.predict(o, deterministic=True)[0], SEEDS, lambda o, i, t: i["fell"]
+    )
+    assert record["outcomes"] == plain and record["policy_kind"] == "sb3"
+
+
 @pytest.mark.slow  # trains a DQN agent (50 steps) on HighwayEnv and certifies it
 def test_a_dqn_agent_on_highway_kinematics_with_discrete_meta_actions(tmp_path):
     pytest.importorskip("highway_env")
@@ -244,3 +259,13 @@ def test_env_flags_refuse_bad_values_in_one_line(tmp_path, capsys):
         assert certify(tmp_path, agent, *args, *SHORT)[0] == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and says in err, err
+
+
+def test_an_sb3_agent_of_another_env_is_refused_by_its_saved_spaces(tmp_path, capsys):
+    """A DQN made (untrained) on CartPole's Box(4) observation and Discrete(2) actions, certified in a Dict env."""
+    path = tmp_path / "cartpole_dqn.zip"
+    sb3.DQN("MlpPolicy", gymnasium.make("CartPole-v1"), learning_starts=0, seed=0).save(path)
+    code, _ = certify(tmp_path, path, "--env", f"native_kit:{native_kit.WALK}", "--unsafe-if", "fell", *SHORT)
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert f"{path}: the agent observes Box(" in err and "(4,), float32), but the env observes Dict(" in err, err
