@@ -131,6 +131,11 @@ class Hesitant:
         return 0.7 * self.rng.dirichlet(np.ones(3), 8) + 0.3 * np.eye(3)[action]
 
 
+def push(obs: np.ndarray) -> int:
+    """A plain function agent of CartPole: push toward where the pole leans."""
+    return int(obs[2] > 0)
+
+
 def stays_near(obs: Any, info: dict) -> bool:
     """A predicate (safe_when): the walker within 2 of the centre."""
     return abs(float(obs["pos"][0])) < 2.0

@@ -269,3 +269,13 @@ def test_an_sb3_agent_of_another_env_is_refused_by_its_saved_spaces(tmp_path, ca
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert f"{path}: the agent observes Box(" in err and "(4,), float32), but the env observes Dict(" in err, err
+
+
+@pytest.mark.slow  # PyDSMC's and uqdrive's runs
+def test_the_peer_bench_takes_an_agent_file_and_an_env_id(tmp_path, capsys):
+    pytest.importorskip("pydsmc")
+    agent = function_yaml(tmp_path, "native_kit.push")
+    argv = ["bench", "peer", "--policy", str(agent), "--env", "CartPole-v1", "--terminated", "unsafe"]
+    assert main([*argv, "--eta", "0.5", "--theta", "0.2", "--horizon", "40"]) == 0
+    out = capsys.readouterr().out
+    assert "RESULT peer episodes_ratio=" in out and "uqdrive_verdict=refuted" in out, out
