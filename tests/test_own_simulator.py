@@ -178,10 +178,10 @@ def test_a_hooks_option_it_does_not_know_is_refused_before_any_work(drift, stage
         (f"{PACKAGE}.hooks:Nope", f"gym_world.hooks='{PACKAGE}.hooks:Nope': module {PACKAGE}.hooks has no Nope"),
         (
             f"{PACKAGE}.policies:Straight",
-            f"gym_world.hooks='{PACKAGE}.policies:Straight': expected info or highway, or module:Class (a subclass of "
-            f"uqdrive.sim.gym_hooks.WorldHooks), got <class '{PACKAGE}.policies.Straight'>",
+            f"gym_world.hooks='{PACKAGE}.policies:Straight': expected info, highway or native, or module:Class "
+            f"(a subclass of uqdrive.sim.gym_hooks.WorldHooks), got <class '{PACKAGE}.policies.Straight'>",
         ),
-        ("drift", "gym_world.hooks='drift': expected info or highway, or module:Class"),
+        ("drift", "gym_world.hooks='drift': expected info, highway or native, or module:Class"),
     ],
 )
 def test_hooks_that_cannot_be_loaded_are_refused_in_one_line(drift, stage_config, tmp_path, hooks, message):

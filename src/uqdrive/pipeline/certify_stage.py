@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from omegaconf import DictConfig
@@ -63,9 +64,10 @@ def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
     from uqdrive.policy.policy_files import load_policy
     from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
 
-    spec = load_policy(stage.certify.policy)
+    where = stage.condition()
+    spec = load_policy(stage.certify.policy, native=where.native)
     world = job_world(stage.gym_world, stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
-    job = RolloutJob(spec, stage.condition(), stage.certify.base_seed, **world)
+    job = RolloutJob(spec, where, stage.certify.base_seed, **world)
     probe_policy(job)
     return spec, job
 
@@ -237,9 +239,11 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--policy", required=True, help=kinds)
     p.add_argument(
         "--world",
-        default="roundabout",
-        help="a location in conf/scenario/, a Gymnasium world in conf/gym_world/, or a file DIR/gym_world/NAME.yaml",
+        default=None,
+        help="a location in conf/scenario/, a Gymnasium world in conf/gym_world/, or a file DIR/gym_world/NAME.yaml "
+        "(default: roundabout)",
     )
+    _env_flags(p)
     p.add_argument(
         "--weather", default="clear_noon", help="weather in conf/weather/, pybullet only (default: clear_noon)"
     )
@@ -291,6 +295,26 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def _env_flags(p: argparse.ArgumentParser) -> None:
+    """A world from a plain env id, judged by its own signals (`uqdrive.sim.gym_world`, hooks: native)."""
+    g = p.add_argument_group("a world from a plain Gymnasium env id (the agent sees its observation, acts in it)")
+    g.add_argument("--env", help="a registered env id, or module:Id (the module is imported: it registers Id)")
+    g.add_argument("--env-kwargs", default="{}", help="gymnasium.make keyword arguments as a JSON object")
+    g.add_argument("--unsafe-if", action="append", default=[], metavar="KEY", help="info KEY true: unsafe (repeat)")
+    g.add_argument(
+        "--safe-if", action="append", default=[], metavar="KEY=VALUE", help="info KEY must be VALUE (true/false) always"
+    )
+    g.add_argument(
+        "--terminated",
+        choices=("end", "unsafe"),
+        default="end",
+        help="a termination: the episode's end, judged by the other signals (default), or a failure; a truncation is "
+        "always the end of time",
+    )
+    g.add_argument("--safe-when", default="", metavar="MOD:FUNC", help="predicate(obs, info) -> bool; False: unsafe")
+    g.add_argument("--steps", type=int, default=1000, help="most steps of an episode (default: 1000, or the env's own)")
+
+
 def _quoted(value: object) -> str:
     return json.dumps(str(value))  # a Hydra quoted string: paths with '=', ',' or spaces stay one value
 
@@ -298,6 +322,7 @@ def _quoted(value: object) -> str:
 def compose_certify(a: argparse.Namespace) -> DictConfig:
     """conf/certify.yaml with the flags as overrides (a world or weather that is not there: one line)."""
     from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
 
     from uqdrive.resolvers import register_resolvers
     from uqdrive.sim.config import find_conf, register_schemas
@@ -317,16 +342,51 @@ def compose_certify(a: argparse.Namespace) -> DictConfig:
         f"executor.workers={a.workers}", f"paths.root={_quoted(root)}", f"progress={str(not a.no_progress).lower()}",
         *a.overrides,
     ]  # fmt: skip
+    values = _env_world(a) if a.env is not None else {}
     with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
-        return compose("certify", overrides=overrides)
+        cfg = compose("certify", overrides=overrides)
+    for key, value in values.items():  # after composing: JSON values need no Hydra quoting
+        OmegaConf.update(cfg, f"gym_world.{key}", value, merge=False)
+    return cfg
+
+
+def _env_world(a: argparse.Namespace) -> dict[str, Any]:
+    """``--env`` and its safe set: the values of conf/gym_world/env.yaml's keys they set."""
+    from uqdrive.schema import ConfigError
+
+    if a.world is not None:
+        raise ConfigError(f"--world={a.world!r} beside --env={a.env!r}: the env is the world; give one of them")
+    try:
+        kwargs = json.loads(a.env_kwargs)
+        if not isinstance(kwargs, dict):
+            raise ValueError(f"a JSON object, got {type(kwargs).__name__}")
+    except ValueError as err:
+        raise ConfigError(f"--env-kwargs={a.env_kwargs!r}: expected a JSON object ({err})") from None
+    safe_if = {}
+    for pair in a.safe_if:
+        key, sep, value = pair.partition("=")
+        if not (sep and key and value.lower() in ("true", "false")):
+            raise ConfigError(f"--safe-if={pair!r}: expected KEY=true or KEY=false")
+        safe_if[key] = value.lower() == "true"
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", a.env.rpartition(":")[2]).lstrip(".-") or "env"
+    values = {
+        "env_id": a.env, "name": name, "env_kwargs": kwargs, "unsafe_if": a.unsafe_if, "safe_if": safe_if,
+        "terminated": a.terminated, "safe_when": a.safe_when, "horizon_steps": a.steps,
+    }  # fmt: skip
+    return values
 
 
 def _world_overrides(a: argparse.Namespace, conf: Path) -> list[str]:
-    """Where ``--world`` and ``--weather`` put the policy, as overrides: a location of conf/scenario/ in a weather
-    of conf/weather/, a Gymnasium world of conf/gym_world/, or a world file of the user's own in a folder named
-    ``gym_world`` (its parent joins Hydra's search path). Anything else: one line saying what there is."""
+    """Where ``--world`` (or ``--env``) and ``--weather`` put the policy, as overrides: a location of
+    conf/scenario/ in a weather of conf/weather/, a Gymnasium world of conf/gym_world/, a world file of the user's
+    own in a folder named ``gym_world`` (its parent joins Hydra's search path), or a plain env id (`_env_world`).
+    Anything else: one line saying what there is."""
     from uqdrive.schema import ConfigError
 
+    if a.env is not None:
+        return ["gym_world=env"]  # its keys: set after composing (`_env_world`)
+    if a.world is None:
+        a.world = "roundabout"
     if a.world.endswith(".yaml"):
         path = Path(a.world).resolve()
         if not path.is_file() or path.parent.name != "gym_world":

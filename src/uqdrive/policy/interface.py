@@ -33,11 +33,14 @@ class Action:
     """One decision: ``steer`` in [-1, 1] (+1 full left); ``speed`` in m/s (None: the configured cruise speed);
     ``draws``: n draws of the decision (class probabilities [n, C] over the configured steering classes, or steering
     values [n]) for η2 (the share of draws within ε of ``steer``) and, from probabilities, mutual information. For
-    η̂2 to be an exact binomial mean given ``steer``, draw them apart from those that chose ``steer``."""
+    η̂2 to be an exact binomial mean given ``steer``, draw them apart from those that chose ``steer``.
+    ``env_action``: an agent's action in the env's own action space, where the world takes it as it is (a native
+    Gymnasium world, `uqdrive.policy.native`; ``steer`` is then NaN): an int of a Discrete, an array of a Box."""
 
-    steer: float
+    steer: float = math.nan
     speed: float | None = None
     draws: np.ndarray | None = None
+    env_action: Any = None
 
 
 @dataclass(frozen=True)

@@ -45,9 +45,17 @@ from pydantic import Field
 from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import file_digest, source_digest
 from uqdrive.policy.interface import Policy
-from uqdrive.policy.sb3_policy import SB3Policy
+from uqdrive.policy.sb3_policy import SB3Policy, load_sb3
 from uqdrive.policy.slots import PolicyFailure, PolicySlots, UserWarnings
-from uqdrive.policy.tensor_policies import FrameInput, OnnxPolicy, Output, TorchScriptPolicy, first_line
+from uqdrive.policy.tensor_policies import (
+    FrameInput,
+    OnnxPolicy,
+    Output,
+    TorchScriptPolicy,
+    first_line,
+    load_onnx,
+    load_torchscript,
+)
 from uqdrive.policy.warnings import WarningConfig
 from uqdrive.schema import ConfigError, Positive, Str, schema, validate
 
@@ -97,9 +105,15 @@ class UserPolicySpec:
     mc_draws: int = 0
     search_path: str = ""  # a class's YAML's folder: its package may lie beside it, uninstalled
     warnings: WarningConfig | None = None
+    native: bool = False  # over the env's own spaces (`uqdrive.policy.native`), not uqdrive's frame → steer
 
-    def build(self, control_hz: float) -> PolicySlots:
-        """The policy, one instance per lockstep slot, made by the loader of its kind (`LOADERS`)."""
+    def build(self, control_hz: float) -> PolicySlots | Any:
+        """The policy, one instance per lockstep slot, made by the loader of its kind (`LOADERS`); a native agent's
+        by its kind's native loader."""
+        if self.native:
+            from uqdrive.policy.native import NativeSlots
+
+            return NativeSlots(self.name, LOADERS[self.kind].native(self), self.eps, self.warnings)
         centres = np.asarray(self.bins.centres)
         make = LOADERS[self.kind].factory(self, centres)
         warnings = UserWarnings(self.warnings, control_hz) if self.warnings is not None else None
@@ -114,9 +128,11 @@ LoaderFactory = Callable[[UserPolicySpec, np.ndarray], Callable[[], Policy]]
 class Loader:
     """How one kind of policy becomes instances: ``factory(spec, centres)`` makes them; ``suffixes``: the network
     files of this kind (none: a class by its YAML); ``draws``: whether ``mc_draws`` applies (a stable-baselines3
-    agent acts deterministically)."""
+    agent acts deterministically); ``native(spec)``: what makes an instance of an agent over the env's own spaces
+    (`uqdrive.policy.native`)."""
 
     factory: LoaderFactory
+    native: Callable[[UserPolicySpec], Callable[[], Any]]
     suffixes: tuple[str, ...] = ()
     draws: bool = True
 
@@ -133,11 +149,54 @@ def _network_loader(network: type[TorchScriptPolicy | OnnxPolicy]) -> LoaderFact
     return factory
 
 
+def _native_class(spec: UserPolicySpec) -> Callable[[], Any]:
+    """A class by ``_target_`` made per slot, or a function by ``_target_`` (its other keys bound as settings)."""
+    _search(spec.search_path)
+    target = json.loads(spec.target)
+    found = _resolve(target["_target_"])
+    if inspect.isclass(found):
+        return _class_factory(spec.name, target)
+    from uqdrive.policy.native import FunctionAgent
+
+    settings = {k: v for k, v in target.items() if k != "_target_"}
+    return lambda: FunctionAgent(found, settings)
+
+
+def _native_torchscript(spec: UserPolicySpec) -> Callable[[], Any]:
+    import torch
+
+    from uqdrive.policy.native import TensorAgent
+
+    module = load_torchscript(spec.path)
+    module.eval()
+
+    def run(x: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return module(torch.from_numpy(x)).numpy()
+
+    return lambda: TensorAgent(spec.name, run)
+
+
+def _native_onnx(spec: UserPolicySpec) -> Callable[[], Any]:
+    from uqdrive.policy.native import TensorAgent
+
+    session = load_onnx(spec.path)
+    name = session.get_inputs()[0].name
+    return lambda: TensorAgent(spec.name, lambda x: session.run(None, {name: x})[0])
+
+
+def _native_sb3(spec: UserPolicySpec) -> Callable[[], Any]:
+    from uqdrive.policy.native import PredictAgent
+
+    policy = load_sb3(spec.path)
+    return lambda: PredictAgent(policy)
+
+
 LOADERS: dict[str, Loader] = {
-    "class": Loader(_class_loader),
-    "torchscript": Loader(_network_loader(TorchScriptPolicy), (".pt", ".ts", ".pth", ".jit")),
-    "onnx": Loader(_network_loader(OnnxPolicy), (".onnx",)),
-    "sb3": Loader(lambda spec, centres: SB3Policy.loader(spec.path, centres), (".zip",), draws=False),
+    "class": Loader(_class_loader, _native_class),
+    "torchscript": Loader(_network_loader(TorchScriptPolicy), _native_torchscript, (".pt", ".ts", ".pth", ".jit")),
+    "onnx": Loader(_network_loader(OnnxPolicy), _native_onnx, (".onnx",)),
+    "sb3": Loader(lambda spec, centres: SB3Policy.loader(spec.path, centres), _native_sb3, (".zip",), draws=False),
 }
 """Each kind of policy a spec may be (its ``kind``, recorded with a certificate) and how it is loaded."""
 NETWORK_KINDS = {suffix: kind for kind, loader in LOADERS.items() for suffix in loader.suffixes}
@@ -162,10 +221,17 @@ def _class_factory(name: str, target: dict[str, Any]):
     return make
 
 
-def load_policy(source: str | Path, **settings: Any) -> UserPolicySpec:
-    """``source`` (a network file or a policy YAML) as a spec; ``settings``: keys a YAML would set (speed, eps, bins,
-    …), under the YAML's own. Fails in one line naming the file: missing, of another kind, not a valid YAML."""
-    path = Path(source)
+def load_policy(source: str | Path, native: bool = False, **settings: Any) -> UserPolicySpec:
+    """``source`` (a network file or a policy YAML) as a spec; ``native``: an agent over the env's own spaces (a
+    ``_target_`` may then name a function too); ``settings``: keys a YAML would set (speed, eps, bins, …), under the
+    YAML's own. Fails in one line naming the file: missing, of another kind, not a valid YAML."""
+    spec = _load_policy(Path(source), native, settings)
+    if native and spec.mc_draws:
+        raise PolicyFailure(f"{source}: mc_draws={spec.mc_draws}: an agent over the env's own spaces gives its draws")
+    return dataclasses.replace(spec, native=True) if native else spec
+
+
+def _load_policy(path: Path, native: bool, settings: dict[str, Any]) -> UserPolicySpec:
     if not path.is_file():
         raise PolicyFailure(f"{path}: no such file; expected {KINDS}")
     suffix = path.suffix.lower()
@@ -179,7 +245,7 @@ def load_policy(source: str | Path, **settings: Any) -> UserPolicySpec:
         config = _validated(path, {**settings, **data})
         if config.file is not None:
             return _network_spec(path.parent / config.file, config)
-        return _class_spec(config, path.parent.resolve())
+        return _class_spec(config, path.parent.resolve(), native)
     if suffix in NETWORK_KINDS:
         return _network_spec(path, _validated(path, {**settings, "file": str(path)}))
     raise PolicyFailure(f"{path}: expected {KINDS}, got a {suffix or 'suffix-less'} file")
@@ -205,16 +271,20 @@ def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
     return UserPolicySpec(kind, file_digest(path), str(path), path=str(path), **_common(config), **settings)
 
 
-def _class_spec(config: PolicyConfig, folder: Path) -> UserPolicySpec:
+def _resolve(name: str) -> Any:
+    module, _, attribute = name.rpartition(".")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def _class_spec(config: PolicyConfig, folder: Path, native: bool = False) -> UserPolicySpec:
     """A class's spec (imported here, so a typo in ``_target_`` fails before any rollout; its package is looked for
     beside its YAML, ``folder``, too). Its identity: the source of the package its class is in, and the bytes of
     every file its settings name (weights it loads), so that editing either makes a new cell."""
     _search(str(folder))
     name = config.policy["_target_"]
-    module, _, attribute = name.rpartition(".")
     try:
-        cls = getattr(importlib.import_module(module), attribute)
-        if not inspect.isclass(cls):
+        cls = _resolve(name)
+        if not (inspect.isclass(cls) or native and inspect.isfunction(cls)):
             raise TypeError(f"{name} is a {type(cls).__name__}")
         digest = hashlib.sha256(source_digest(cls.__module__).encode())
     except Exception as err:  # ImportError, AttributeError, a class without a source file

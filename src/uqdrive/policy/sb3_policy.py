@@ -37,7 +37,8 @@ class SB3Policy:
         if getattr(space, "dtype", None) != np.uint8 or not (shape in GREY or (len(shape) == 3 and shape[2] == 3)):
             raise PolicyFailure(
                 f"{path}: expected an agent observing uqdrive's frame (uint8 grey [48, 64], [1, 48, 64], [48, 64, 1] "
-                f"or RGB [H, W, 3]), got observation space {space}"
+                f"or RGB [H, W, 3]), got observation space {space} (an agent of an env's own observation: certify it "
+                "in that env, --env ID)"
             )
         discrete = getattr(actions, "n", None)
         box = discrete is None and getattr(actions, "shape", None) in ((1,), (2,))

@@ -174,17 +174,23 @@ class PolicySlots(LockstepPolicy):
 
     def _call(self, slot: int, what: str, call: Callable[[], Any]) -> Any:
         """``call()``; an exception from the policy as one line with the seed and step it was raised at."""
-        try:
-            return call()
-        except PolicyFailure:
-            raise
-        except Exception as err:  # the user's code: any exception is its failure
-            seed, step = self.episodes.get(slot, [None, 0])
-            reason = str(err).strip().splitlines()[0] if str(err).strip() else ""
-            raise PolicyFailure(
-                f"{self.name} raised {type(err).__name__} in {what}() at seed {seed}, step {step}"
-                + (f": {reason}" if reason else "")
-            ) from None
+        return guarded(self.name, self.episodes.get(slot, [None, 0]), what, call)
+
+
+def guarded(name: str, episode: Sequence[Any], what: str, call: Callable[[], Any]) -> Any:
+    """``call()`` of a user's policy ``name`` in its ``episode`` ([seed, step]); an exception as one
+    `PolicyFailure` line with the seed and step it was raised at."""
+    try:
+        return call()
+    except PolicyFailure:
+        raise
+    except Exception as err:  # the user's code: any exception is its failure
+        seed, step = episode
+        reason = str(err).strip().splitlines()[0] if str(err).strip() else ""
+        raise PolicyFailure(
+            f"{name} raised {type(err).__name__} in {what}() at seed {seed}, step {step}"
+            + (f": {reason}" if reason else "")
+        ) from None
 
 
 def in_lockstep(policy: Policy) -> LockstepPolicy:

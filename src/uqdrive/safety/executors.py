@@ -186,16 +186,20 @@ class RolloutWorker:
 
 
 def probe_policy(job: RolloutJob) -> Command:
-    """Build the job's policy here and decide rollout 0's first frame in the job's own kind of world, so that a
-    policy that cannot be made or answers in the wrong shape or range fails in one line before any rollout; the
-    frame's command (what it gives: its draws, for one)."""
+    """Build the job's policy here, decide rollout 0's first frame in the job's own kind of world and step it once,
+    so that a policy that cannot be made or answers in the wrong shape, space or range, or a world that does not
+    report what its safe set reads at its first step, fails in one line before any rollout; the frame's command
+    (what it gives: its draws, for one)."""
     policy = in_lockstep(job.policy.build(job.control_hz))
     where, envs = job.condition(0), WorkerEnvs(job, 1)
     try:
         (env,) = envs.first(1)
         frame = env.reset(job.base_seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
         policy.reset(job.base_seed, slot=0, world=env)
-        return policy.act(frame, env.last_info)
+        command = policy.act(frame, env.last_info)
+        if not env.done:
+            env.apply(command)  # the world takes it (an action outside its space fails here) and reports its first step
+        return command
     finally:
         envs.close()  # the env is left to the next job of this process (an in-process worker's)
 

@@ -1,7 +1,9 @@
 """The safe set of a Gymnasium world (`uqdrive.sim.gym_world`): a predicate over every step's info.
 
 A path is safe when every recorded step (the reset's included) has each ``safe_if`` key at its required value
-(e.g. HighwayEnv: ``crashed: false, on_road: true``) and the episode did not end in a collision or off the road.
+(e.g. HighwayEnv: ``crashed: false, on_road: true``), no step is ``unsafe`` by the env's own signals (the world's
+``unsafe_if`` keys, ``safe_when`` predicate, a termination that is a failure: `uqdrive.sim.gym_world`) and the
+episode did not end in a collision or off the road.
 There is no goal beyond staying safe to the horizon, so ``reached_goal`` says the run was safe and drove to its end
 (the horizon, or the env ended it otherwise), not stopped by a hand-over; there is no corridor: ``left_corridor``
 says the predicate failed at some step, ``corridor_use`` is NaN.
@@ -36,6 +38,7 @@ class InfoSafeSet:
         """The verdict on the episode ``lane`` records (a Gymnasium world's lane); the poses are not needed."""
         infos = lane.infos
         held = all(bool(info[key]) == value for info in infos for key, value in self.safe_if.items())
+        held = held and not any(info.get("unsafe", False) for info in infos)  # the env's own signals (gym_world)
         collision = termination == "collision" or any(info["collision"] for info in infos)
         off_road = termination == "off_road" or any(info["off_road"] for info in infos)
         safe = held and not (collision or off_road)

@@ -138,7 +138,7 @@ def run_rollouts(
         commands = policy.act_batch(slots, [e.obs for e in episodes], [e.info for e in episodes])
         for slot, episode, command in zip(slots, episodes, commands):
             episode.commands.append(command)
-            episode.obs, episode.info = episode.env.step(command.steer, command.speed)
+            episode.obs, episode.info = episode.env.apply(command)
             episode.termination = episode.info["termination"]
             stopped = (
                 not episode.termination and command.handover and episode.info["speed"] <= episode.env.stopped_speed

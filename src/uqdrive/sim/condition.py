@@ -50,6 +50,12 @@ class Condition:
         return self.scenario if isinstance(self.scenario, GymWorldConfig) else None
 
     @property
+    def native(self) -> bool:
+        """Whether rollouts here drive an env as it is: the agent sees its observation and acts in its action space."""
+        world = self.gym_world
+        return world is not None and world.native
+
+    @property
     def location(self) -> str:
         return self.scenario.name
 

@@ -271,6 +271,12 @@ class GymWorldConfig(Section):
     ``stopped_speed``: m/s at or below which a car braking for a hand-over has stopped: by default uqdrive's car's
     (it tracks 0 exactly); an env's car may approach 0 only asymptotically (HighwayEnv's, tracking a speed of 0,
     takes longer than its 15 s episode to reach 1e-6: conf/gym_world/highway_roundabout.yaml sets 0.1).
+    The env's own safety signals (any hooks; ``hooks: native`` drives the env as it is, its observation and action
+    the agent's own): ``unsafe_if``: info keys of which a true value at any step makes the path unsafe (checked on
+    the first step: a key the env never reports is refused); ``terminated``: ``end`` (a termination ends the
+    episode, judged by the other signals) or ``unsafe`` (a termination is a failure; a truncation is the end of
+    time); ``safe_when``: ``module:function(obs, info) -> bool``, False at a step makes the path unsafe. The episode
+    ends at the first unsafe step (termination ``unsafe``).
     """
 
     section: ClassVar[str] = "gym_world"
@@ -284,9 +290,17 @@ class GymWorldConfig(Section):
     horizon_steps: Count = 600
     control_hz: Positive = 15.0
     stopped_speed: NonNegative = STOPPED_SPEED
+    unsafe_if: list[Str] = Field(default_factory=list)
+    terminated: Literal["end", "unsafe"] = "end"
+    safe_when: Annotated[str, Strict(), Field(pattern=r"^([A-Za-z_][\w.]*:[A-Za-z_]\w*)?$")] = ""
 
     def __post_init__(self) -> None:
         hooks_class(self.hooks, "hooks").check_options(self.hooks_options)  # before any work: the class and options
+
+    @property
+    def native(self) -> bool:
+        """Whether the env is driven as it is: its own observation to the agent, the agent's action to the env."""
+        return hooks_class(self.hooks).native
 
     def changed(self, changes: Mapping[str, Any], name: str, key: str) -> GymWorldConfig:
         """This world with each key of ``changes`` set (dotted, e.g. ``env_kwargs.config.other_vehicles_type``, or

@@ -21,7 +21,11 @@ import numpy as np
 from uqdrive.schema import ConfigError
 
 STATE_KEYS = ("x", "y", "yaw", "speed", "collision", "off_road", "lateral_deviation")
-HOOKS = {"info": "uqdrive.sim.gym_hooks:InfoHooks", "highway": "uqdrive.sim.gym_highway:HighwayHooks"}
+HOOKS = {
+    "info": "uqdrive.sim.gym_hooks:InfoHooks",
+    "highway": "uqdrive.sim.gym_highway:HighwayHooks",
+    "native": "uqdrive.sim.gym_hooks:NativeHooks",
+}
 EXTRAS = {"highway": "highway"}  # uqdrive's hooks whose package is an optional extra: `pip install 'uqdrive[...]'`
 
 
@@ -41,6 +45,7 @@ class WorldHooks(abc.ABC):
 
     OPTIONS: ClassVar[Mapping[str, Any]] = {}
     packages: ClassVar[tuple[str, ...]] = ()
+    native: ClassVar[bool] = False  # True: the env's observation and action pass as they are (`NativeHooks`)
 
     def __init__(self, env: Any, config: Any):
         self.env, self.env_id = env, config.env_id
@@ -111,11 +116,31 @@ class InfoHooks(WorldHooks):
         return np.array([steer, speed][: self.action_size], dtype=self.dtype)
 
 
+class NativeHooks(WorldHooks):
+    """The env as it is (``hooks: native``): the agent observes what the env returns and acts in its action space
+    (the world passes both through: `frame` and `action` are never asked). uqdrive knows no pose of the env: the
+    state is NaN, with no collision or off-road of its own; the env's own signals (``unsafe_if``, ``terminated``,
+    ``safe_when``) make a path unsafe."""
+
+    native = True
+
+    def frame(self, obs: Any) -> np.ndarray:
+        raise ConfigError(f"gym_world.hooks='native': {self.env_id}'s observation is the agent's own, not a frame")
+
+    def state(self, info: Mapping[str, Any]) -> dict[str, Any]:
+        nan = float("nan")
+        return {"x": nan, "y": nan, "yaw": nan, "speed": nan, "lateral_deviation": nan, "collision": 0, "off_road": 0}
+
+    def action(self, steer: float, speed: float) -> Any:
+        raise ConfigError(f"gym_world.hooks='native': {self.env_id} takes the agent's own action, not a steer")
+
+
 def hooks_class(name: str, key: str = "gym_world.hooks") -> type[WorldHooks]:
     """The hooks class ``name`` names (one of `HOOKS`, or ``module:Class``), or one `ConfigError` line naming
     ``key``, the value and what is allowed."""
     module, sep, attr = HOOKS.get(name, name).partition(":")
-    allowed = f"expected {' or '.join(HOOKS)}, or module:Class (a subclass of uqdrive.sim.gym_hooks.WorldHooks)"
+    names = ", ".join(list(HOOKS)[:-1]) + f" or {list(HOOKS)[-1]}"
+    allowed = f"expected {names}, or module:Class (a subclass of uqdrive.sim.gym_hooks.WorldHooks)"
     if not (sep and module and attr.isidentifier()):
         raise ConfigError(f"{key}={name!r}: {allowed}")
     try:

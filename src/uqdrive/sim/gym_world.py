@@ -24,6 +24,7 @@ when the config differs (as `DrivingEnv` rebuilds its world for another scenario
 from __future__ import annotations
 
 import importlib
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -38,6 +39,7 @@ from uqdrive.schema import ConfigError
 from .camera import add_noise
 from .config import AutopilotConfig, GymWorldConfig, VehicleConfig, WeatherConfig, check_noise, refuse_conditions
 from .gym_hooks import HOOKS, WorldFailure, WorldHooks, hooks_class
+from .gym_native import in_space, predicate, short
 from .world import TRAJECTORY_KEYS, Expert, R, World, WorldVisitor
 
 Returned = TypeVar("Returned")
@@ -110,6 +112,7 @@ class GymWorld(World):
             raise ConfigError(f"gym_world.env_id={config.env_id!r}: {err}") from None
         self.env = env
         self.hooks: WorldHooks = self._user("hooks", "__init__", hooks_cls, env, config)
+        self.safe_when = predicate(config.safe_when)
         self.control_hz = float(config.control_hz)
         self.dt = 1.0 / self.control_hz
 
@@ -131,14 +134,16 @@ class GymWorld(World):
             self.env.close()
             self._make(world)
         self.noise = check_noise(noise)
-        self.render_enabled = bool(render)
+        if self.noise and self.hooks.native:
+            raise ConfigError(f"noise={noise!r}: {world.env_id} is driven as it is (hooks: native), with no camera")
+        self.render_enabled = bool(render) or self.hooks.native
         self._seed, self._steps, self._applied, self._done = int(seed), 0, 0.0, False
         obs, env_info = self._user("env_id", "reset", self.env.reset, seed=int(seed))
         self._noise_rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
         self._user("hooks", "begin", self.hooks.begin)
         self._path = DrivenPath()
         self._start_log()
-        self._record(env_info, terminated=False, truncated=False)
+        self._record(obs, env_info, terminated=False, truncated=False)
         return self._frame(obs)
 
     def step(self, steer: float, speed: float) -> tuple[np.ndarray | None, dict[str, Any]]:
@@ -149,8 +154,35 @@ class GymWorld(World):
         action = self._user("hooks", "action", self.hooks.action, self._applied, float(speed))
         obs, _, terminated, truncated, env_info = self._user("env_id", "step", self.env.step, action)
         self._steps += 1
-        info = self._record(env_info, bool(terminated), bool(truncated))
+        info = self._record(obs, env_info, bool(terminated), bool(truncated))
         return self._frame(obs), info
+
+    def apply(self, command: Any) -> tuple[Any, dict[str, Any]]:
+        """A command's (steer, speed), or, driven as it is (hooks: native), its ``env_action``: in the env's action
+        space (an action outside it is one line with the seed and step, before the env sees it)."""
+        if not self.hooks.native:
+            return self.step(command.steer, command.speed)
+        if self._done:
+            raise RuntimeError("episode is over (or was never started); call reset() first")
+        given, space = getattr(command, "env_action", None), self.env.action_space
+        action = in_space(given, space)
+        if action is None:
+            raise WorldFailure(
+                f"{self.config.env_id} at seed {self._seed}, step {self._steps}: the agent's action {short(given)} "
+                f"is outside the env's action space {space}"
+            )
+        self._applied = math.nan
+        obs, _, terminated, truncated, env_info = self._user("env_id", "step", self.env.step, action)
+        self._steps += 1
+        return self._frame(obs), self._record(obs, env_info, bool(terminated), bool(truncated))
+
+    @property
+    def observation_space(self) -> Any:
+        return self.env.observation_space if self.hooks.native else None
+
+    @property
+    def action_space(self) -> Any:
+        return self.env.action_space if self.hooks.native else None
 
     def expert_command(self) -> tuple[float, float]:
         """(steer, speed) the env's own expert would command in the current state (a collect stage's label)."""
@@ -171,9 +203,12 @@ class GymWorld(World):
                 + (f": {text[0][:200]}" if text else "")
             ) from None
 
-    def _record(self, env_info: Mapping[str, Any], terminated: bool, truncated: bool) -> dict[str, Any]:
+    def _record(self, obs: Any, env_info: Mapping[str, Any], terminated: bool, truncated: bool) -> dict[str, Any]:
         state = self._user("hooks", "state", self.hooks.state, env_info)
-        if state["collision"]:
+        unsafe = self._unsafe(obs, env_info, terminated)
+        if unsafe:
+            termination = "unsafe"
+        elif state["collision"]:
             termination = "collision"
         elif state["off_road"]:
             termination = "off_road"
@@ -184,8 +219,10 @@ class GymWorld(World):
         else:
             termination = ""
         self._done = termination != ""
-        info = {**_scalars(env_info), **{k: _plain(v) for k, v in state.items()}}
+        own, env = {k: _plain(v) for k, v in state.items()}, _scalars(env_info)
+        info = {**own, **env} if self.hooks.native else {**env, **own}  # native: the env's own keys win
         info.update(t=self._steps * self.dt, steering=self._applied, done=self._done, termination=termination)
+        info.update(unsafe=bool(unsafe), unsafe_because=unsafe)
         missing = [key for key in self.config.safe_if if key not in info]
         if missing:
             raise ConfigError(
@@ -197,7 +234,30 @@ class GymWorld(World):
         self.last_info = info
         return info
 
-    def _frame(self, obs: Any) -> np.ndarray | None:
+    def _unsafe(self, obs: Any, env_info: Mapping[str, Any], terminated: bool) -> str:
+        """Why this step is unsafe by the env's own signals (``unsafe_if``, ``safe_when``, ``terminated``), "" if
+        it is not. An ``unsafe_if`` key the env's info lacks at its first step is refused, listing the keys it has."""
+        config = self.config
+        if self._steps == 1 and (missing := [k for k in config.unsafe_if if k not in env_info]):
+            raise ConfigError(
+                f"gym_world.unsafe_if: {missing[0]!r} is not in the info of {config.env_id!r} at its first step "
+                f"(it reports {sorted(env_info)})"
+            )
+        for key in config.unsafe_if:
+            if bool(env_info.get(key, False)):
+                return key
+        if self.safe_when is not None:
+            name = config.safe_when.partition(":")[2]
+            verdict = self._user("safe_when", name, self.safe_when, obs, dict(env_info))
+            if not isinstance(verdict, (bool, np.bool_)):
+                raise WorldFailure(f"gym_world.safe_when={config.safe_when!r}: expected a bool, got {short(verdict)}")
+            if not verdict:
+                return "safe_when"
+        return "terminated" if terminated and config.terminated == "unsafe" else ""
+
+    def _frame(self, obs: Any) -> Any:
+        if self.hooks.native:
+            return obs
         if not self.render_enabled:
             return None
         grey = self._user("hooks", "frame", self.hooks.frame, obs)
@@ -271,7 +331,8 @@ def _world_modules(config: GymWorldConfig) -> list[str]:
     """The modules a world loads by name: its hooks', the one its env id names (``module:Id``) and its env's."""
     named = config.env_id.rpartition(":")[0]
     hooks = HOOKS.get(config.hooks, config.hooks).partition(":")[0]
-    return [m for m in dict.fromkeys([hooks, named, _entry_module(config)]) if m]
+    judge = config.safe_when.partition(":")[0]  # a user's predicate: its source is in the cell's identity
+    return [m for m in dict.fromkeys([hooks, named, _entry_module(config), judge]) if m]
 
 
 def _entry_module(config: GymWorldConfig) -> str:

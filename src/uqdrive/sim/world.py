@@ -99,6 +99,21 @@ class World(abc.ABC):
         """Advance one control period: ``steer`` in [-1, 1] (clipped; + = left), ``speed`` the commanded m/s.
         Returns the frame and the step's info (pose, speed, collision, off_road, lateral_deviation, termination …)."""
 
+    def apply(self, command: Any) -> tuple[Any, dict[str, Any]]:
+        """Advance one control period by a policy's ``command`` (its ``steer`` and ``speed``; a world that takes the
+        agent's own action, a native Gymnasium world, reads its ``env_action``)."""
+        return self.step(command.steer, command.speed)
+
+    @property
+    def observation_space(self) -> Any:
+        """The observation's Gymnasium space where the agent sees the env's own (None: uqdrive's camera frame)."""
+        return None
+
+    @property
+    def action_space(self) -> Any:
+        """The action's Gymnasium space where the agent acts in the env's own (None: a (steer, speed) command)."""
+        return None
+
     @property
     @abc.abstractmethod
     def lane(self) -> Lane:
