@@ -6,15 +6,14 @@ from pathlib import Path
 
 import yaml
 
-from uqdrive.records import read_record
-from uqdrive.report.headline import Headline, headline_table
+from uqdrive.report.headline import headline_table, read_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = yaml.safe_load((ROOT / "params.yaml").read_text())
 
 
 def test_the_readme_table_is_the_one_generated_from_the_summary():
-    headline = read_record(Headline, ROOT / "metrics/summary.json", "report")
+    headline = read_summary(ROOT / "metrics/summary.json")
     table = headline_table(headline, PARAMS)
     readme = (ROOT / "README.md").read_text()
     assert table in readme, "README's results table is stale: paste `uqdrive headline` into it"
