@@ -47,10 +47,12 @@ lint: $(TEST_STAMP)
 chromium:
 	command -v chromium >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium; }
 
+# `make ui PORT=5001` where 5000 is taken
+PORT ?= 5000
 ui: $(STAMP)
 	$(BIN)/python -c 'from uqdrive.tracking import follow_project; follow_project(".")'
-	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
-	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port 5000
+	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:$(PORT)/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
+	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port $(PORT)
 
 frames: $(STAMP)
 	uqdrive frames --out docs/frames

@@ -32,7 +32,7 @@ from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, Str, Unit, invali
 from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig, find_conf
 from uqdrive.stage_schemas import ExecutorSettings, Stage
-from uqdrive.tracking import numeric_metrics, stage_run
+from uqdrive.tracking import numeric_metrics, register_certified, stage_run
 from uqdrive.uq import ThresholdTest, clopper_pearson_interval
 
 CertifyVerdict = Literal["certified", "refuted", "undecided"]
@@ -165,6 +165,7 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
     """One MLflow run in `<prefix>/certify`: the `certify` section and the world (location, weather, noise) as params,
     the verdict as a tag and metrics."""
     tags = {"verdict": record.verdict, "policy_digest": record.policy_digest, "cell_key": record.cell_key}
+    tags["guarantee"] = describe(record)  # what the verdict proves, at which γ (θ)
     name = f"{Path(record.policy).name} · {record.world} · {record.verdict}"
     with stage_run(stage.paths.root, "certify", cfg, run_name=name, tags=tags):
         summaries = {k: getattr(record, k) for k in (*SUMMARIES, "warning_share")}
@@ -174,6 +175,7 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
             **numeric_metrics(summaries),
         })  # fmt: skip
         mlflow.log_artifact(stage.certify.out)
+        register_certified(record.policy, tags, certified=record.verdict == "certified")  # a model version
 
 
 def describe(record: CertifyRecord) -> str:
