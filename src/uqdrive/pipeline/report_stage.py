@@ -37,6 +37,7 @@ class ReportSection:
 @schema(root=True)
 class ReportStage(SafetyGrid):
     profile_name: Str
+    profile_note: str = ""  # the report's first line: what the profile's sizes can and cannot show
     experiments: NonEmptyNames
     train_weather: Str
     posteriors: NonEmptyNames
@@ -111,6 +112,7 @@ def run_report(cfg: DictConfig) -> ReportFiles:
         stage.train_weather,
         tuple(stage.posteriors),
         stage,
+        stage.profile_note,
     )
     records = read_records(Path(stage.paths.metrics), scope)
     out_dir = Path(stage.report.out_dir)
