@@ -20,7 +20,8 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet uv==0.13.9
 	$(UV_INSTALL) -e .
-	$(BIN)/uqdrive plots-page --out .dvc/plots_page.html
+	$(BIN)/uqdrive plots-page --out .dvc/plots_page.html  # Vega inlined: `dvc plots show` draws offline
+	$(BIN)/dvc config --local plots.html_template plots_page.html  # this checkout's (.dvc/config.local); without it DVC's own page
 	touch $(STAMP)
 
 $(TEST_STAMP): $(STAMP)
