@@ -494,7 +494,7 @@ def register_certified(policy: str | Path, tags: Mapping[str, str], certified: b
         version = client.create_model_version(name, source, run_id=run.info.run_id, tags=dict(tags)).version
         if certified:
             client.set_registered_model_alias(name, CERTIFIED_ALIAS, version)
-    except LOGGING_ERRORS as err:
+    except LOGGING_ERRORS as err:  # the block's own failure warns, its run ends FAILED: this one only warns
         warnings.warn(f"MLflow: {policy} not registered ({err}); the verdict on disk is complete", stacklevel=2)
         return None
     return str(version)

@@ -175,7 +175,7 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
             **numeric_metrics(summaries),
         })  # fmt: skip
         mlflow.log_artifact(stage.certify.out)
-        register_certified(record.policy, tags, certified=record.verdict == "certified")  # a model version
+        register_certified(stage.certify.policy, tags, certified=record.verdict == "certified")  # a model version
 
 
 def describe(record: CertifyRecord) -> str:
