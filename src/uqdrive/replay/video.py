@@ -210,12 +210,12 @@ def _background(title: str, series, placer: FailurePlacer, to_pixel) -> np.ndarr
     x, y, w, h = TOP_DOWN
     cv2.rectangle(picture, (x, y), (x + w - 1, y + h - 1), GREY, 1)
     cv2.putText(picture, "top-down view", (x + 4, y + 16), FONT, SMALL, INK, 1, cv2.LINE_AA)
-    _legend(picture)
     if len(placer.route):
         line = np.stack(to_pixel(placer.route[:, 0], placer.route[:, 1]), axis=1).astype(np.int32)
         cv2.polylines(picture, [line], False, GREY, 1, cv2.LINE_AA)
     for edge in placer.edges:
         cv2.polylines(picture, [np.stack(to_pixel(edge[:, 0], edge[:, 1]), axis=1).astype(np.int32)], False, INK, 1)
+    _legend(picture)  # over the route and edges where they pass under it
     for i, (values, low, high) in enumerate(series):
         top = TITLE_H + VIEW_H + 8 + i * STRIP_H
         cv2.putText(picture, STRIP_LABELS[i], (8, top + 16), FONT, SMALL, INK, 1, cv2.LINE_AA)
