@@ -455,4 +455,5 @@ def test_a_sweep_without_the_training_condition_says_so_in_the_headline(stage_co
     assert read_summary(tmp_path / "metrics/summary.json").eta1_training_condition == {m: None for m in METHODS}
     assert flat["eta1.loc.vi"] is not None
     text = (tmp_path / "reports/report.md").read_text()
+    assert text.startswith("# uqdrive report\n\n**Profile tiny (the tests' sizes): shows that every stage runs")
     assert "**At the training condition** (roundabout-clear_noon-noise0.0): mcd – (not swept)" in text
