@@ -20,7 +20,8 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet uv==0.13.9
 	$(UV_INSTALL) -e .
-	$(BIN)/uqdrive plots-page --out .dvc/plots_page.html
+	$(BIN)/uqdrive plots-page --out .dvc/plots_page.html  # Vega inlined: `dvc plots show` draws offline
+	$(BIN)/dvc config --local plots.html_template plots_page.html  # this checkout's (.dvc/config.local); without it DVC's own page
 	touch $(STAMP)
 
 $(TEST_STAMP): $(STAMP)
@@ -47,10 +48,12 @@ lint: $(TEST_STAMP)
 chromium:
 	command -v chromium >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium; }
 
+# `make ui PORT=5001` where 5000 is taken
+PORT ?= 5000
 ui: $(STAMP)
 	$(BIN)/python -c 'from uqdrive.tracking import follow_project; follow_project(".")'
-	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:5000/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
-	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port 5000
+	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:$(PORT)/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
+	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port $(PORT)
 
 frames: $(STAMP)
 	uqdrive frames --out docs/frames

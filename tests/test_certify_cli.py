@@ -72,6 +72,13 @@ def test_certify_exits_0_for_a_safe_policy_and_1_for_one_that_steers_off_the_roa
     runs = client.search_runs([experiment.experiment_id])
     assert sorted(r.data.tags["verdict"] for r in runs) == ["certified", "refuted"]
     assert sorted(r.data.metrics["certified"] for r in runs) == [0.0, 1.0]
+    assert all(r.data.tags["guarantee"].startswith(r.data.tags["verdict"].upper()) for r in runs)
+    # each decided policy is a model version carrying its certificate; only the certified one has the alias
+    passed = client.get_model_version_by_alias("keeper", "certified")
+    assert passed.tags["verdict"] == "certified" and passed.tags["guarantee"].startswith("CERTIFIED: eta1 >= 0.9")
+    (failed,) = client.search_model_versions("name='hard_left'")
+    assert failed.tags["verdict"] == "refuted" and not failed.aliases
+    assert [e.name for e in client.search_experiments()] == [experiment.name]  # no empty `Default` beside it
 
 
 @pytest.mark.slow  # whole certify runs, MLflow included

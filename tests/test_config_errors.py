@@ -30,11 +30,15 @@ ROOT = Path(__file__).resolve().parents[1]
             ["scenario=straight", "outputs=x"],
             "error: outputs='x' is not known; choose one of ['auto', 'pipeline']",
         ),
-        (  # Hydra refuses it while composing: a key no config has (a typo), said in one line too
-            "collect",
-            ["collect.episodez=3"],
-            "error: Could not override 'collect.episodez'; To append to your config use +collect.episodez=3; "
-            "Key 'episodez' is not in struct",
+        *(  # a key no config has (a typo): Hydra refuses the plain form while composing, the schema the `+` form;
+            # either way one line with the key it resembles
+            (
+                "collect",
+                [override],
+                "error: collect.episodez: unknown key; did you mean 'episodes'? known keys: out, name, metrics, "
+                "mosaic, episodes, base_seed, workers, mosaic_rows, mosaic_columns",
+            )
+            for override in ("collect.episodez=3", "+collect.episodez=3")
         ),
         (
             "collect",

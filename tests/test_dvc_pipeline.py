@@ -170,4 +170,4 @@ def test_dvc_repro_builds_every_stage_then_is_up_to_date(tmp_path):
     assert len(list((project / "cache/rollouts/safety").glob("*-afternoon-*.jsonl"))) == 2
     summaries = _metrics_of_experiments(json.loads(dvc(project, "exp", "show", "--json")))
     assert len(summaries) >= 2  # the baseline and the experiment
-    assert all(isinstance(m["eta1_all_sweep_cells"]["mcd"]["value"], float) for m in summaries)  # no clear_noon here
+    assert all(isinstance(m["eta1.sweep.mcd"], float) for m in summaries)  # no clear_noon here

@@ -115,8 +115,22 @@ def test_replay_re_drives_the_logged_rollout_exactly_and_writes_one_picture_per_
     mp4 = tmp_path / "clips" / f"{cell.name}-seed{worst.seed}.mp4"
     assert clip_frames(mp4) == worst.steps == logged.steps
     with Image.open(mp4.with_suffix(".gif")) as gif:
-        assert gif.n_frames == worst.steps
+        assert gif.n_frames == worst.steps and gif.size[0] >= 640  # labels at least 10 px high: full size
+        assert [_failure_marked(gif, k) for k in (worst.step - 1, worst.step)] == [False, True]
     assert main([str(record), "--seed", str(cell.failures[-1].seed), "--out", "clips"]) == 0
+
+
+def _failure_marked(gif: Image.Image, step: int) -> bool:
+    """Whether picture ``step`` (counted from 0, as the record counts steps) shows the failure's banner: the
+    banner's pale red fill above the top-down view."""
+    from uqdrive.replay.video import BANNER, TOP_DOWN
+
+    gif.seek(step)
+    picture = np.asarray(gif.convert("RGB"))
+    x, y, w, _ = TOP_DOWN
+    banner = picture[y + 24 : y + 42, x + 4 : x + w - 4].reshape(-1, 3).astype(int)
+    pale_red = (np.abs(banner - BANNER[::-1]) <= 8).all(axis=1)  # BGR → RGB
+    return bool(pale_red.mean() > 0.3)
 
 
 def test_a_replay_that_differs_from_its_record_says_so_and_fails(pybullet_cell, tmp_path, capsys):

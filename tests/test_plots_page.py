@@ -130,3 +130,8 @@ def test_plots_show_each_learning_curve_once_titled_the_eta1_chart_the_envelope_
     for name in ("tradeoff.csv", "signals.csv"):
         plot = next(v[0]["content"] for p, v in shown.items() if p.endswith(f"mcd-seed0/{name}"))
         assert all(plot["encoding"][axis]["scale"]["padding"] > 0 for axis in ("x", "y")), name
+    # every chart titled in words, not by its file's path; the η̂1 chart fits a 1400-px window, its legend on top
+    titles = {p: v[0]["content"].get("title") for p, v in shown.items() if v[0].get("type") == "vega"}
+    untitled = [p for p, t in titles.items() if not t or ".csv" in str(t) or str(t) == p]
+    assert titles and not untitled, untitled
+    assert eta1["width"] <= 1100 and eta1["encoding"]["color"]["legend"]["orient"] == "top"

@@ -6,15 +6,14 @@ from pathlib import Path
 
 import yaml
 
-from uqdrive.records import read_record
-from uqdrive.report.headline import Headline, headline_table
+from uqdrive.report.headline import headline_table, read_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = yaml.safe_load((ROOT / "params.yaml").read_text())
 
 
 def test_the_readme_table_is_the_one_generated_from_the_summary():
-    headline = read_record(Headline, ROOT / "metrics/summary.json", "report")
+    headline = read_summary(ROOT / "metrics/summary.json")
     table = headline_table(headline, PARAMS)
     readme = (ROOT / "README.md").read_text()
     assert table in readme, "README's results table is stale: paste `uqdrive headline` into it"
@@ -30,3 +29,23 @@ def test_the_readme_is_short_defines_eta1_first_and_links_only_files_that_exist(
     assert readme.index("## Try it in two minutes") < readme.index("## Results of the committed run")
     for target in re.findall(r"\]\((docs/[^)#]+)", readme):
         assert (ROOT / target).exists(), target
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a markdown heading: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_every_link_of_the_readme_and_docs_points_at_a_file_and_heading_that_exist():
+    broken = []
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            if target.startswith(("http://", "https://", "mailto:")):
+                continue
+            path, _, anchor = target.partition("#")
+            found = page.parent / path if path else page
+            markdown = found.suffix == ".md" and found.exists()
+            headings = re.findall(r"^#+\s+(.*)$", found.read_text(), re.M) if markdown else []
+            if not found.exists() or (anchor and anchor not in {_anchor(h) for h in headings}):
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+    assert not broken, broken

@@ -36,6 +36,7 @@ from uqdrive.policy.draws import DrawSettings
 from uqdrive.records import write_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import claims_markdown, findings_markdown
+from uqdrive.report.headline import read_summary
 from uqdrive.safety.acquisition import AcquiredAt, Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.uq.verdict import Verdict
@@ -340,31 +341,30 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert len(controller_rows) == len(METHODS) * len(SEEDS) * 2
     assert sum("(training)" in r["check cell"] for r in controller_rows) == len(METHODS) * len(SEEDS)
 
-    headline = json.loads((tmp_path / "metrics/summary.json").read_text())
-    first = ["eta1_training_condition", "eta1_training_location", "eta1_all_sweep_cells"]
-    assert list(headline)[:3] == first  # `dvc exp show`'s first columns
-    assert (headline["theta"], headline["gamma"], headline["n_replicates"]) == (0.25, 0.05, len(SEEDS))
+    flat = json.loads((tmp_path / "metrics/summary.json").read_text())  # short names: `dvc exp show`'s columns
+    assert list(flat)[:4] == ["eta1.train.mcd", "eta1.train.mcd.low", "eta1.train.mcd.high", "eta1.train.vi"]
+    headline = read_summary(tmp_path / "metrics/summary.json")
+    assert (headline.theta, headline.gamma, headline.n_replicates) == (0.25, 0.05, len(SEEDS))
     trained_here = safety.answer("vi", "roundabout", "clear_noon", 0.0)
-    assert headline["eta1_training_condition"]["vi"] == {
-        "value": trained_here.value,
-        "low": trained_here.low,
-        "high": trained_here.high,
-    }
+    assert (flat["eta1.train.vi"], flat["eta1.train.vi.low"], flat["eta1.train.vi.high"]) == (
+        trained_here.value,
+        trained_here.low,
+        trained_here.high,
+    )
     every = [a for a in safety.answers if a.method == "vi"]
     assert len(every) == len(LOCATIONS) * len(WEATHERS) * len(NOISES)  # the sweep's mean leaves no cell out
     per_replicate = [np.mean([a.estimates[r] for a in every]) for r in range(len(SEEDS))]
-    assert headline["eta1_all_sweep_cells"]["vi"]["value"] == pytest.approx(np.mean(per_replicate))
+    assert headline.eta1_all_sweep_cells["vi"].value == pytest.approx(np.mean(per_replicate))
     at_roundabout = [a for a in every if a.condition.startswith("roundabout-")]
     per_replicate = [np.mean([a.estimates[r] for a in at_roundabout]) for r in range(len(SEEDS))]
-    assert headline["eta1_training_location"]["vi"]["value"] == pytest.approx(np.mean(per_replicate))
-    assert headline["avoid_unknown_on"]["mcd"]["value"] == avoid.answer("mcd", "unknown mixture", "on").value
-    assert headline["avoid_unknown_off"]["mcd"]["low"] == avoid.answer("mcd", "unknown mixture", "off").low
-    assert headline["val_accuracy"]["avoid"]["vi"] == pytest.approx(np.mean(accuracy))
-    per_method = [k for k, v in headline.items() if isinstance(v, dict) and k != "val_accuracy"]
-    assert per_method == [*first, "avoid_unknown_off", "avoid_unknown_on", "avoid_unknown_calibrated"]
-    assert all(list(headline[k]) == list(METHODS) for k in per_method)
-    assert list(headline["val_accuracy"]) == list(EXPERIMENTS)
-    assert headline["findings_supported"] == findings.supported
+    assert headline.eta1_training_location["vi"].value == pytest.approx(np.mean(per_replicate))
+    assert flat["avoid.on.mcd"] == avoid.answer("mcd", "unknown mixture", "on").value
+    assert flat["avoid.off.mcd.low"] == avoid.answer("mcd", "unknown mixture", "off").low
+    assert flat["val_acc.avoid.vi"] == pytest.approx(np.mean(accuracy))
+    per_method = [headline.eta1_training_location, headline.avoid_unknown_off, headline.avoid_unknown_calibrated]
+    assert all(list(values) == list(METHODS) for values in per_method)
+    assert list(headline.val_accuracy) == list(EXPERIMENTS)
+    assert flat["findings"] == headline.findings_supported == findings.supported
 
     curves = (tmp_path / "plots/report/learning_curves.csv").read_text().splitlines()
     assert curves[0] == "panel,replicate,step,val_accuracy" and "offline · vi,seed1,2,0.75" in curves
@@ -457,8 +457,11 @@ def test_a_sweep_without_the_training_condition_says_so_in_the_headline(stage_co
     """`dvc exp run -S weathers=[rain]` sweeps no training weather: its headline is null there, printed '–'."""
     write_run(tmp_path)
     run_report(stage_config("report", "weathers=[rain]"))
-    headline = json.loads((tmp_path / "metrics/summary.json").read_text())
-    assert headline["eta1_training_condition"] == {m: None for m in METHODS}
-    assert headline["eta1_training_location"]["vi"]["value"] is not None
+    flat = json.loads((tmp_path / "metrics/summary.json").read_text())
+    assert [flat[f"eta1.train.{m}"] for m in METHODS] == [None] * len(METHODS)
+    assert f"eta1.train.{METHODS[0]}.low" not in flat
+    assert read_summary(tmp_path / "metrics/summary.json").eta1_training_condition == {m: None for m in METHODS}
+    assert flat["eta1.loc.vi"] is not None
     text = (tmp_path / "reports/report.md").read_text()
+    assert text.startswith("# uqdrive report\n\n**Profile tiny (the tests' sizes): shows that every stage runs")
     assert "**At the training condition** (roundabout-clear_noon-noise0.0): mcd – (not swept)" in text

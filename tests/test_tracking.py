@@ -106,12 +106,13 @@ def test_runs_say_their_commit_dvc_experiment_and_whether_the_pipeline_ran_them(
             mlflow.log_metrics({"eta1": 0.93, "eta1_low": 0.881, "eta1_high": 0.96, "n": 40})
         logged = client.get_run(run.info.run_id)
         assert logged.data.tags["mlflow.source.git.commit"] == commit
+        assert f"git commit `{commit}`" in logged.data.tags["mlflow.note.content"]  # shown on the run page
         assert logged.data.tags["uqdrive.dvc_experiment"] == "rainy-days"
         assert logged.data.tags["uqdrive.origin"] == {"pipeline": "pipeline", "auto": "adhoc"}[outputs]
         assert logged.data.metrics["eta1_low"] == 0.881  # short names: the table's columns
         shown = "rain σ0.1 · η1=0.93 [0.88, 0.96]"
         assert logged.info.run_name == {"pipeline": shown, "auto": f"adhoc · {shown}"}[outputs]
-    assert [e.name for e in client.search_experiments() if e.name != "Default"] == ["uqdrive/safety"]
+    assert [e.name for e in client.search_experiments()] == ["uqdrive/safety"]  # no empty `Default`
 
 
 def test_the_experiment_prefix_is_the_configs_else_the_environments(tmp_path, monkeypatch):

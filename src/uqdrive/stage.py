@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
+import difflib
 import functools
 import itertools
 import os
@@ -104,7 +105,7 @@ def run_stage(main: Callable[[], object], *register_schemas: Callable[[], None])
     except (HydraException, OmegaConfBaseException) as err:
         if _task_started:
             raise
-        print(f"error: {one_line(err)}", file=sys.stderr, flush=True)
+        print(f"error: {unknown_key(err) or one_line(err)}", file=sys.stderr, flush=True)
         raise SystemExit(2) from None
     threading._shutdown()  # what the interpreter's exit does first (so does multiprocessing's): executors shut down
     atexit._run_exitfuncs()
@@ -112,6 +113,23 @@ def run_stage(main: Callable[[], object], *register_schemas: Callable[[], None])
     sys.stderr.flush()
     ctypes.CDLL(None).fflush(None)  # C libraries' buffered output (pybullet's), which os._exit would drop
     os._exit(0)
+
+
+def unknown_key(err: BaseException | None) -> str | None:
+    """An override of a key no config has (``safety.thet=0.1``) as the schema check words the ``+safety.thet=0.1``
+    form: ``safety.thet: unknown key; did you mean 'theta'? known keys: …`` (None for any other error). OmegaConf's
+    error behind Hydra's names the key and the section it is missing from."""
+    from omegaconf import DictConfig
+
+    while err is not None:
+        parent, key = getattr(err, "parent_node", None), getattr(err, "key", None)
+        if isinstance(parent, DictConfig) and isinstance(key, str) and key not in parent:
+            known = [k for k in parent.keys() if k != "hydra"]
+            close = difflib.get_close_matches(key, known, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            return f"{getattr(err, 'full_key', None) or key}: unknown key; {hint}known keys: {', '.join(known)}"
+        err = err.__cause__
+    return None
 
 
 def one_line(err: BaseException) -> str:

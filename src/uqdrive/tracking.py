@@ -87,11 +87,14 @@ KEY_METRICS = {
 }
 # Where the block's logging calls go when the store could not be opened: nowhere (every call fails and is
 # skipped), rather than a fresh store made outside the lock.
+DEFAULT_EXPERIMENT_ID = "0"
 UNTRACKED_URI = "file:///dev/null/uqdrive-untracked"
 # MLflow 3's UI opens an experiment of no declared kind on its GenAI traces page (empty here): ours are model runs.
 EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
 LOGGING_ERRORS = (MlflowException, SQLAlchemyError, sqlite3.Error, OSError, LockTimeout)
 ARTEFACTS = "mlartifacts"  # the artefact folder, beside mlflow.db
+NOTE_TAG = "mlflow.note.content"  # the run page's Description
+CERTIFIED_ALIAS = "certified"  # the registered model's alias on the last version `uqdrive certify` certified
 
 
 def numeric_metrics(values: Mapping[str, Any]) -> dict[str, float]:
@@ -135,8 +138,18 @@ def open_store(root: str | Path) -> MlflowClient:
     project was copied, cloned or moved; call it holding `store_lock`."""
     client = MlflowClient(store_uris(root)[0])  # opening a new store migrates its schema
     client.search_experiments(max_results=1)
+    _drop_empty_default(client)
     _follow_moved_project(root)
     return client
+
+
+def _drop_empty_default(client: MlflowClient) -> None:
+    """Delete the experiment `Default` (id 0) MLflow makes in every new store while it holds no run: no run of ours
+    goes there, and the UI would list it first, empty."""
+    with suppress(*LOGGING_ERRORS):
+        default = client.get_experiment(DEFAULT_EXPERIMENT_ID)
+        if default.lifecycle_stage == "active" and not client.search_runs([default.experiment_id], max_results=1):
+            client.delete_experiment(DEFAULT_EXPERIMENT_ID)
 
 
 def _follow_moved_project(root: str | Path) -> None:
@@ -292,7 +305,19 @@ def provenance_tags(root: str | Path, config: DictConfig | Mapping[str, Any]) ->
         tags["mlflow.source.git.commit"] = commit
     if os.environ.get(DVC_EXPERIMENT_ENV):
         tags["uqdrive.dvc_experiment"] = os.environ[DVC_EXPERIMENT_ENV]
+    tags[NOTE_TAG] = run_note(tags)
     return tags
+
+
+def run_note(tags: Mapping[str, str]) -> str:
+    """The run page's Description (MLflow shows the `mlflow.note.content` tag there, and the git commit tag
+    nowhere): the commit, the DVC experiment and whether the pipeline ran it."""
+    commit = tags.get("mlflow.source.git.commit")
+    parts = [f"git commit `{commit}`" if commit else "not a git checkout (no commit)"]
+    if tags.get("uqdrive.dvc_experiment"):
+        parts.append(f"DVC experiment `{tags['uqdrive.dvc_experiment']}`")
+    parts.append("a pipeline stage (dvc.yaml)" if tags.get(ORIGIN_TAG) == "pipeline" else "an ad-hoc run")
+    return "; ".join(parts)
 
 
 def _origin_prefix(tags: Mapping[str, str]) -> str:
@@ -449,3 +474,27 @@ def _project_root(config: DictConfig) -> str:
     if not HydraConfig.initialized():
         HydraConfig.instance().set_config(config)
     return str(config.paths.root)
+
+
+def register_certified(policy: str | Path, tags: Mapping[str, str], certified: bool) -> str | None:
+    """Log the policy file in the active run and make it a version of the registered model named after the file
+    (`<stem>`), the certificate as the version's tags; a certified version takes the alias `certified`, so the
+    registry says which version passed. Returns the version (None when logging failed: a warning, the verdict on
+    disk stands)."""
+    run = mlflow.active_run()
+    if run is None:
+        return None
+    name = Path(policy).stem
+    try:
+        mlflow.log_artifact(str(policy), artifact_path="policy")
+        client = mlflow.MlflowClient()
+        with suppress(MlflowException):  # it exists already
+            client.create_registered_model(name, description="policies `uqdrive certify` decided on")
+        source = f"{run.info.artifact_uri}/policy/{Path(policy).name}"
+        version = client.create_model_version(name, source, run_id=run.info.run_id, tags=dict(tags)).version
+        if certified:
+            client.set_registered_model_alias(name, CERTIFIED_ALIAS, version)
+    except LOGGING_ERRORS as err:  # the block's own failure warns, its run ends FAILED: this one only warns
+        warnings.warn(f"MLflow: {policy} not registered ({err}); the verdict on disk is complete", stacklevel=2)
+        return None
+    return str(version)

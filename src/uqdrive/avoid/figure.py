@@ -44,9 +44,9 @@ def avoid_trajectories(ax: plt.Axes, panel: dict, title: str, vmax: float = 1.0)
     else:
         ax.autoscale_view()
         ax.set_aspect("equal", adjustable="datalim")
-        ax.set_ylabel("y (m)", fontsize=8)
+    ax.set_ylabel("y across the road (m)" if road.size else "y (m)", fontsize=8)
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("x (m)", fontsize=8)
+    ax.set_xlabel("x along the road (m)" if road.size else "x (m)", fontsize=8)
     return plt.cm.ScalarMappable(norm=norm, cmap="plasma")
 
 
@@ -61,12 +61,30 @@ def avoid_trajectories_figure(
     for ax, row, column, panel in panel_grid(axes, panels, rows, columns):
         mappable = avoid_trajectories(ax, panel, f"{row} · {column}: {panel['title']}")
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.legend(handles=_trajectory_legend(), loc="lower center", ncol=5, fontsize=8, frameon=False)
     if mappable is not None:
         fig.colorbar(
             mappable, ax=axes.ravel().tolist(), label="mutual information (nats)", extend="max", fraction=0.02, pad=0.01
         )
     return fig
+
+
+def _trajectory_legend() -> list:
+    """What each mark of `avoid_trajectories` is (the colour bar gives the paths' colours)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    def mark(marker: str, colour: str) -> dict:
+        return dict(color="none", marker=marker, markerfacecolor=colour, markeredgecolor="k", markersize=6, mew=0.5)
+
+    return [
+        Line2D([], [], color=plt.cm.plasma(0.6), lw=1.5, label="a run's path (colour: mutual information)"),
+        Line2D([], [], **mark("x", "tab:red"), label="collision"),
+        Line2D([], [], **mark("s", "orange"), label="hand-over (stopped)"),
+        Patch(color="tab:red", label="obstacle"),
+        Patch(color="0.35", label="road (dashed: centre line)"),
+    ]
 
 
 def avoid_signals_figure(

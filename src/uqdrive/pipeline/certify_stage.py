@@ -189,9 +189,10 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
     the verdict as a tag and metrics."""
     import mlflow
 
-    from uqdrive.tracking import numeric_metrics, stage_run
+    from uqdrive.tracking import numeric_metrics, register_certified, stage_run
 
     tags = {"verdict": record.verdict, "policy_digest": record.policy_digest, "cell_key": record.cell_key}
+    tags["guarantee"] = record.guarantee  # what the verdict proves, at which γ (θ)
     name = f"{Path(record.policy).name} · {record.world} · {record.verdict}"
     with stage_run(stage.paths.root, "certify", cfg, run_name=name, tags=tags):
         summaries = {k: getattr(record, k) for k in (*SUMMARIES, "warning_share")}
@@ -201,6 +202,7 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
             **numeric_metrics(summaries),
         })  # fmt: skip
         mlflow.log_artifact(stage.certify.out)
+        register_certified(stage.certify.policy, tags, certified=record.verdict == "certified")  # a model version
 
 
 def guarantee(verdict: str, section, gamma: float) -> str:

@@ -122,8 +122,9 @@ def replay(path: str | Path, seed: int | None, out: str | Path) -> tuple[str, bo
         return f"{summary}; DIFFERS from the record: {'; '.join(differences)}", False
     title = f"{cell.method} {cell.location} {cell.weather} noise {cell.noise:g} - seed {r.seed}"
     clip = write_clip(
-        watched, title, placer_for(plan.job, index), out, f"{cell.name}-seed{r.seed}", plan.job.control_hz
-    )
+        watched, title, placer_for(plan.job, index), out, f"{cell.name}-seed{r.seed}", plan.job.control_hz,
+        failure=failure,
+    )  # fmt: skip
     return f"{summary}; matches the record -> {clip.mp4}, {clip.gif} ({clip.frames} frames)", True
 
 

@@ -18,11 +18,10 @@ from omegaconf import DictConfig
 
 from uqdrive.analysis.method_answers import SafetySummary
 from uqdrive.figures import save_figure
-from uqdrive.files import atomic_path, write_csv
-from uqdrive.records import write_record
+from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.report.assemble import build_report, read_records
 from uqdrive.report.figure import eta1_intervals_figure
-from uqdrive.report.headline import Headline, headline_metrics
+from uqdrive.report.headline import Headline, headline_metrics, summary_keys
 from uqdrive.report.overview import Scope
 from uqdrive.schema import Str, schema, validate
 from uqdrive.stage_schemas import NonEmptyNames, SafetyGrid, training_stage
@@ -38,6 +37,7 @@ class ReportSection:
 @schema(root=True)
 class ReportStage(SafetyGrid):
     profile_name: Str
+    profile_note: str = ""  # the report's first line: what the profile's sizes can and cannot show
     experiments: NonEmptyNames
     train_weather: Str
     posteriors: NonEmptyNames
@@ -112,6 +112,7 @@ def run_report(cfg: DictConfig) -> ReportFiles:
         stage.train_weather,
         tuple(stage.posteriors),
         stage,
+        stage.profile_note,
     )
     records = read_records(Path(stage.paths.metrics), scope)
     out_dir = Path(stage.report.out_dir)
@@ -126,7 +127,7 @@ def run_report(cfg: DictConfig) -> ReportFiles:
         tmp.write_text(report.markdown)
     with atomic_path(html_path) as tmp:
         tmp.write_text(report.html())
-    write_record(stage.report.summary, headline, sort_keys=False)  # the comparison keys first in `dvc exp show`
+    write_json(stage.report.summary, summary_keys(headline), sort_keys=False)  # the answer first in `dvc exp show`
     with stage_run(stage.paths.root, "report", cfg, run_name="report"):
         mlflow.log_artifact(str(md_path))
         mlflow.log_artifact(str(html_path))

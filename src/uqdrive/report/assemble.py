@@ -78,7 +78,7 @@ def build_report(root: Path, out_dir: Path, scope: Scope, records: Records, head
     grid = scope.grid
     run, methods, training = records.run, list(grid.methods), (grid.locations[0], scope.train_weather, 0.0)
     report = Report(root, out_dir)
-    title_section(report)
+    title_section(report, scope.note)
     report.add(
         "## The answer\n\n"
         + answer_markdown(headline, run.safety, records.findings, methods, condition_label(*training))

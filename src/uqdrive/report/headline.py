@@ -9,16 +9,19 @@ ring, where every controller fails, once read as the roundabout's safety.
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import yaml
+from pydantic import TypeAdapter, ValidationError
 
 from uqdrive.analysis.comparisons import Findings
 from uqdrive.analysis.method_answers import UNKNOWN, MethodAnswer, pooled_answer
 from uqdrive.avoid.results import Mode
-from uqdrive.records import read_record, record
+from uqdrive.records import record
 from uqdrive.report.document import fmt, table
 from uqdrive.resolvers import condition_label
+from uqdrive.schema import ConfigError, describe
 
 
 @record
@@ -49,6 +52,76 @@ class Headline:
     n_replicates: int
     val_accuracy: dict[str, dict[str, float]]  # experiment → method
     findings_supported: int
+
+
+# metrics/summary.json's short names (`dvc exp show` gives each a column): a Headline field → its key's prefix
+SHORT_NAMES = {
+    "eta1_training_condition": "eta1.train",
+    "eta1_training_location": "eta1.loc",
+    "eta1_all_sweep_cells": "eta1.sweep",
+    "avoid_unknown_off": "avoid.off",
+    "avoid_unknown_on": "avoid.on",
+    "avoid_unknown_calibrated": "avoid.calib",
+    "findings_supported": "findings",
+    "theta": "theta",
+    "gamma": "gamma",
+    "n_replicates": "replicates",
+    "val_accuracy": "val_acc",
+}
+_HEADLINE_FIRST = ("eta1_training_condition", "findings_supported")  # the answer, then how many findings hold
+
+
+def summary_keys(headline: Headline) -> dict[str, float | int | None]:
+    """The headline as metrics/summary.json holds it: one flat key per number, short enough that `dvc exp show`
+    shows the answer in 200 columns: ``eta1.train.mcd`` (η̂1) with ``eta1.train.mcd.low`` and ``.high`` (its
+    interval for the method; only the value, null, where the sweep lacks the condition), ``findings``,
+    ``val_acc.<experiment>.<method>``…"""
+    out: dict[str, float | int | None] = {}
+    order = [*_HEADLINE_FIRST, *(f for f in SHORT_NAMES if f not in _HEADLINE_FIRST)]
+    for field in order:
+        value, prefix = getattr(headline, field), SHORT_NAMES[field]
+        if not isinstance(value, dict):
+            out[prefix] = value
+            continue
+        for name, inner in value.items():
+            if isinstance(inner, dict):  # val_accuracy: experiment → method → accuracy
+                out.update({f"{prefix}.{name}.{m}": v for m, v in inner.items()})
+            elif inner is None:
+                out[f"{prefix}.{name}"] = None
+            else:
+                out.update({f"{prefix}.{name}": inner.value, f"{prefix}.{name}.low": inner.low})
+                out[f"{prefix}.{name}.high"] = inner.high
+    return out
+
+
+def read_summary(path: str | Path) -> Headline:
+    """metrics/summary.json (`summary_keys`' flat short names) back as the `Headline` record; a missing file names
+    the stage that writes it, a stale one (a key it lacks) the key."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path} is missing; run the stage that writes it first: dvc repro report")
+    flat = json.loads(path.read_text())
+    data: dict = {}
+    for field, prefix in SHORT_NAMES.items():
+        if prefix in flat:
+            data[field] = flat[prefix]
+            continue
+        nested: dict = {}
+        for key, value in flat.items():  # the file's order: the methods' as the run listed them
+            if not key.startswith(prefix + "."):
+                continue
+            name, _, rest = key[len(prefix) + 1 :].partition(".")
+            if field == "val_accuracy":
+                nested.setdefault(name, {})[rest] = value
+            elif not rest:
+                nested[name] = None if value is None else {"value": value}
+            else:
+                nested[name][rest] = value
+        data[field] = nested
+    try:
+        return TypeAdapter(Headline).validate_python(data)
+    except ValidationError as err:
+        raise ConfigError(f"{path}: {describe(err.errors()[0], Headline)}; rerun dvc repro report") from None
 
 
 def _eta1(answer: MethodAnswer) -> Eta1:
@@ -148,6 +221,6 @@ def main(argv: list[str] | None = None) -> int:
         "--params", type=Path, default=Path("params.yaml"), help="the run's params (what each row averages)"
     )
     args = parser.parse_args(argv)
-    headline = read_record(Headline, args.summary, "report")
+    headline = read_summary(args.summary)
     print(headline_table(headline, yaml.safe_load(args.params.read_text())))
     return 0

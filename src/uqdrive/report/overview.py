@@ -38,6 +38,7 @@ class Scope:
     train_weather: str
     posteriors: tuple[str, ...]  # trained and evaluated
     grid: SafetyGrid  # the offline-safety sweep: methods driven in closed loop × replicates × conditions
+    note: str = ""  # what the profile's sizes can and cannot show (conf/profile/<name>.yaml: profile_note)
 
 
 def _git_commit(root: Path) -> str:
@@ -60,10 +61,10 @@ def _versions() -> str:
     return ", ".join(found)
 
 
-def title_section(report: Report) -> None:
+def title_section(report: Report, note: str = "") -> None:
+    """The title, then what the run's profile can and cannot show (its sizes), then what the report is."""
+    report.add("# uqdrive report" + (f"\n\n**{note}**" if note else ""))
     report.add("""
-# uqdrive report
-
 Bayesian end-to-end driving controllers in pybullet and how safe they are, beside *Uncertainty Quantification with
 Statistical Guarantees in End-to-End Autonomous Driving Control* (Michelmore et al., ICRA 2020; CARLA). Every
 number and sentence below is generated from this run's metrics files.""")

@@ -2,8 +2,10 @@
 
 DVC's own page loads those libraries from a CDN, so on a machine without internet access (ours reach only the
 package registries) every CSV plot stays blank. The page written here carries them (vl-convert's bundle, about
-0.9 MB), and `.dvc/config` names it (`plots.html_template`), so `dvc plots show` draws offline; `make install`
-writes it. A figure wider than the window is shrunk to its panel, not cut off (DVC's panels hide what overflows).
+0.9 MB); `make install` writes it and names it in the checkout's own `.dvc/config.local` (`plots.html_template`),
+so `dvc plots show` draws offline there, and a checkout without it (a fresh clone) gets DVC's own page, not an
+error about a template that is not there. A figure wider than the window is shrunk to its panel, not cut off (DVC's
+panels hide what overflows).
 """
 
 from __future__ import annotations
