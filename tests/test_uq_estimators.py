@@ -19,13 +19,13 @@ from uqdrive.uq import (
     clopper_pearson_n,
     massart,
     massart_n,
-    sequential,
     sequential_scheme,
     simulate_sprt,
     sprt,
     wilson,
 )
 from uqdrive.uq.bounds import massart_h
+from uqdrive.uq.estimators import sequential
 
 THETA = GAMMA = 0.05
 REPS = 2000

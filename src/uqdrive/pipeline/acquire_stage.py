@@ -239,10 +239,10 @@ def retrain(train_overrides: Sequence[str], method: str, processed: Path, models
     for name in ("mcd",) if method == "mcd" else ("mcd", method):
         cell = {"model": name, "paths.processed": str(processed), **({"train.base_model": str(trunk)} if trunk else {})}
         stage = validate(TrainStage, compose_cell("train", train_overrides, cell))
-        fits, scores, _, _ = fit([stage])
-        metrics = {f"val_{k}": v for k, v in scores[0].items()}
-        trunk = save_posterior(fits[0].posterior, models / name / f"{stage.replicate}.pt", {"metrics": metrics})
-        accuracy = scores[0]["accuracy"]
+        (result,) = fit([stage])
+        metrics = {f"val_{k}": v for k, v in result.scores.items()}
+        trunk = save_posterior(result.fitted.posterior, models / name / f"{stage.replicate}.pt", {"metrics": metrics})
+        accuracy = result.scores["accuracy"]
     return trunk, accuracy
 
 

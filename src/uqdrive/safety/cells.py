@@ -18,7 +18,8 @@ from uqdrive.safety.executors import Executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, schema
-from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential, sequential_scheme
+from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential_scheme
+from uqdrive.uq.estimators import sequential
 
 Scheme = Literal["chernoff", "clopper_pearson", "sequential"]
 _PLANNED: dict[str, tuple[Callable[[float, float], int], Callable[[int, int, float, float], Estimate]]] = {

@@ -10,7 +10,9 @@ Learn-then-Test (`ltt`); rare events over an operating domain — refutation by 
 at any stopping time, certification at the zero-failure floor (`rare`, `rare_proposal`).
 
 Names are imported from their modules when first asked for (`__getattr__`): a command that needs one part — the
-certify gate's floor, a bound — does not pay for the rest (torch, which the per-frame measures import).
+certify gate's floor, a bound — does not pay for the rest (torch, which the per-frame measures import). The
+sequential estimator is `uqdrive.uq.estimators.sequential`: here ``sequential`` is its scheme's module, which
+importing it binds on the package, so no name here can mean both.
 """
 
 from __future__ import annotations
@@ -36,7 +38,6 @@ _HOME = {  # name → the module defining it
     "chernoff": "uqdrive.uq.estimators",
     "clopper_pearson": "uqdrive.uq.estimators",
     "massart": "uqdrive.uq.estimators",
-    "sequential": "uqdrive.uq.estimators",
     "simulate_sprt": "uqdrive.uq.estimators",
     "sprt": "uqdrive.uq.estimators",
     "sprt_cap": "uqdrive.uq.estimators",
@@ -119,7 +120,6 @@ __all__ = [
     "predictive_entropy",
     "predictive_probs",
     "sample_decisions",
-    "sequential",
     "sequential_scheme",
     "simulate_sprt",
     "sprt",
