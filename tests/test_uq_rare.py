@@ -65,6 +65,22 @@ def test_certification_errs_at_most_gamma_and_needs_the_zero_failure_floor(targe
     assert zero == test.looks[0] == math.ceil(1.2 * floor)  # the later looks' share of γ costs 20 %
 
 
+def test_the_floor_is_ln_1_over_gamma_over_ln_1_over_1_minus_eps_not_ln_1_over_gamma_over_eps() -> None:
+    """ε = 0.1, γ = 0.05: "certify iff 29 of 29 safe" errs 0.9²⁹ = 0.047 ≤ γ at p = ε (a binomial sum here, the
+    worst p ≥ ε being ε) with N = 29 < ln(1/γ)/ε = 29.96, so ln(1/γ)/ε is no lower bound; the floor the project
+    uses is the least n with (1 − ε)^n ≤ γ, i.e. ln(1/γ)/ln(1/(1 − ε)) rounded up."""
+    eps, gamma, n = 0.1, 0.05, 29
+    errors = [stats.binom.pmf(0, n, p) for p in (eps, 0.15, 0.5)]
+    assert max(errors) == pytest.approx(0.0471013, abs=1e-6) and max(errors) <= gamma
+    assert n < math.log(1 / gamma) / eps and math.log(1 / gamma) / eps == pytest.approx(29.957, abs=1e-3)
+    bound = math.log(1 / gamma) / math.log(1 / (1 - eps))
+    assert bound == pytest.approx(28.433, abs=1e-3) and bound <= n
+    assert floor_rollouts(1 - eps, gamma) == n and stats.binom.pmf(0, n - 1, eps) > gamma
+    floor = floor_rollouts(1 - 1e-4, gamma)  # at ε = 10⁻⁴: 29,956, and certifying after zero failures costs 1.2×
+    zero = zero_failure_rollouts(certification_test(RareSettings(target=1 - 1e-4, certify_budget=4 * floor)))
+    assert (floor, zero) == (29_956, 35_948) and zero / floor == pytest.approx(1.2, abs=1e-4)
+
+
 @pytest.mark.parametrize(
     ("section", "message"),
     [

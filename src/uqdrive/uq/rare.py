@@ -18,7 +18,8 @@ the exact Kelly stake; validity never depends on it, only speed does.
 
 Certification: "η1 ≥ target" by the project's exact sequential threshold test (`uqdrive.uq.threshold`,
 unforced, θ = 0) on rollouts drawn from the domain itself; with zero failures it needs n with target^n ≤ γ,
-≈ ln(1/γ)/ε for ε = 1 − target, and no black-box procedure can need fewer (docs/rare.md).
+n ≥ ln(1/γ)/ln(1/target) (≈ ln(1/γ)/ε for small ε = 1 − target, but not bounded below by it), and no
+black-box procedure can need fewer in expectation (docs/rare.md); its later looks make it 1.2 × that.
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ class RareSettings:
                 "certify_budget",
                 self.certify_budget,
                 f"cannot certify eta1 >= {self.target} at gamma={self.gamma} even with zero failures: that needs "
-                f"{need} rollouts (the least n with target^n <= gamma, ~ ln(1/gamma)/(1 - target))",
+                f"{need} rollouts (the least n with target^n <= gamma: ln(1/gamma)/ln(1/target) rounded up)",
             )
 
     @property
