@@ -22,6 +22,7 @@ from uqdrive.uq.rare import (
     certification_test,
     failure_lower_bound,
     floor_rollouts,
+    refutation_floor,
     refute,
     zero_failure_rollouts,
 )
@@ -87,6 +88,11 @@ def test_the_floor_is_ln_1_over_gamma_over_ln_1_over_1_minus_eps_not_ln_1_over_g
         ({"defensive": 0.0}, "rare.defensive=0.0"),
         ({"defensive": 1.5}, "rare.defensive=1.5"),
         (
+            {"refute_budget": 6, "target": 0.5, "defensive": 1.0},
+            "rare.refute_budget=6 no run can refute eta1 >= 0.5 at gamma=0.05 with defensive=1.0 in fewer than 7 "
+            "rollouts",
+        ),
+        (
             {"certify_budget": 1_000},
             "rare.certify_budget=1000 cannot certify eta1 >= 0.9999 at gamma=0.05 even "
             "with zero failures: that needs 29956 rollouts",
@@ -135,6 +141,25 @@ def test_the_domain_is_a_density_over_the_envelopes_condition_space() -> None:
 
 def _no_world(points: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     raise AssertionError("a rollout ran before the input was checked")
+
+
+class ConstantMargin:
+    """A world whose margin never varies: nothing for the cross-entropy step to adapt on."""
+
+    margin = "constant"
+
+    def __call__(self, points: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return _no_world(points, seeds)
+
+
+def test_a_constant_margin_is_refused_before_any_rollout_and_the_budget_floor_is_exact() -> None:
+    with pytest.raises(ValueError, match=r"^world.margin=constant: the cross-entropy step has nothing to adapt on; "):
+        refute(ConstantMargin(), DOMAIN, RareSettings(), np.random.default_rng(0))
+    # a lower bound on any run: even a failure at every rollout (half-Kelly stakes, not the cap) refutes no sooner
+    settings = RareSettings(target=0.5, defensive=1.0, refute_budget=50)
+    always = lambda points, seeds: (np.ones(seeds.shape, bool), -np.ones(seeds.shape))  # noqa: E731
+    run = refute(always, DOMAIN, settings, np.random.default_rng(0), adapt=False)
+    assert run.refuted[0] and run.rollouts[0] >= refutation_floor(0.5, 0.05, 1.0) == 7
 
 
 def test_failures_come_back_as_records_that_re_drive_them_and_the_bound_is_below_p() -> None:

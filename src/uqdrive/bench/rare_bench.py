@@ -1,17 +1,22 @@
 """`uqdrive bench rare`: rollouts needed to refute "η1 ≥ 1 − 10⁻⁴ over a domain" when the true failure probability
-is 10⁻³, by importance sampling against plain Monte Carlo, on every world of the suite (`rare_suite`: the corner
-the sampler was built for and the worlds it was not), each with its failure probability known exactly.
+is 10⁻³, against plain Monte Carlo, on every world of the suite (`rare_suite`: the corner the importance sampler
+was built for and the worlds it was not), each with its failure probability known exactly.
 
 Same settings, budget (5,000 rollouts) and baseline for every world, γ = 0.05. Baseline: plain Monte Carlo with
 the project's exact sequential Clopper–Pearson test (`ThresholdTest`, looks 5 % apart from 0.01/ε, its error
-computed exactly): its expected rollouts depend on p alone, so one number serves every world. Importance
-sampling: the defensive mixture with a cross-entropy proposal and the betting bound (`uqdrive.uq.rare`), a look at
-every rollout. Per world: E[rollouts] (a run that hits the budget counts the budget), P(refuted), the saving
-(Monte Carlo's E[rollouts] / importance sampling's) and the error at the null boundary — the same world with its
-failure probability put at exactly m = 10⁻⁴, every run to the budget, an error being a refutation at any look —
-with its Clopper–Pearson 95 % upper limit. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures against
-the floor. Last line: RESULT rare saving_min=… saving_median=… coverage_worst=<1 − the largest null error>
-error_cp_worst=<the largest upper limit> certify_rollouts_at_0=… certify_over_floor=….
+computed exactly): its expected rollouts depend on p alone, so one number serves every world. Methods:
+importance sampling (IS), the defensive mixture with a cross-entropy proposal and the betting bound
+(`uqdrive.uq.rare`), a look at every rollout; and where a world can be stepped and copied and scores the margin
+along a rollout, fixed splitting on that margin with the same betting bound over trees
+(`uqdrive.uq.rare_splitting`), which is then the world's method (`splits`: a rule fixed before any rollout;
+both rows are printed). A line shows plain Monte Carlo with the betting bound: the price of the test, not of
+a proposal. Per world and method: E[rollouts] (a run that hits the budget counts the budget), P(refuted), the
+saving (the exact test's E[rollouts] / the method's) and the error at the null boundary — the same world with
+its failure probability put at exactly m = 10⁻⁴, every run to the budget, an error being a refutation at any
+look — with its Clopper–Pearson 95 % upper limit. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero
+failures against the floor. Last line: RESULT rare saving_min=… saving_median=… (over the worlds, each by its
+method) coverage_worst=<1 − the largest null error of any row> error_cp_worst=<its upper limit>
+certify_rollouts_at_0=… certify_over_floor=….
 """
 
 from __future__ import annotations
@@ -25,11 +30,14 @@ from scipy import stats
 
 from uqdrive.bench.rare_suite import World, suite
 from uqdrive.uq.rare import RareSettings, certification_test, floor_rollouts, refute, zero_failure_rollouts
+from uqdrive.uq.rare_splitting import Splitting, refute_by_splitting
 from uqdrive.uq.threshold import ThresholdTest
 
 P_TRUE, EPS = 1e-3, 1e-4  # the true failure probability; the claim refuted is η1 ≥ 1 − ε
 IS_BUDGET = 5_000  # importance sampling: most rollouts per run
 MC_CAP = 2.0  # the exact test's last look, × 1/ε (20 × the 1/p a failure takes)
+MC_BETTING_BUDGET = 20_000  # plain Monte Carlo with the betting bound: most rollouts per run (20 / p)
+SPLITTING = Splitting((0.2, 0.4, 0.6, 0.8), 4)  # chosen on the walk world at p = 10⁻³ among 3-5 levels, ×3-5
 CHUNK = 1_000  # runs simulated at once (the observations are runs × budget floats)
 CERTIFY_BUDGET = 4  # certification: most rollouts, × the zero-failure floor (the test's later looks share γ)
 LOOKS_FROM, LOOK_RATIO = 0.01, 1.05  # the exact test's looks: from 0.01/ε (at least 10) on, 5 % apart
@@ -49,29 +57,49 @@ def cp_upper(errors: int, runs: int) -> float:
     return float(stats.beta.ppf(0.975, errors + 1, runs - errors)) if errors < runs else 1.0
 
 
-def _refute(world: World, p: float, runs: int, seed: int, gamma: float) -> tuple[np.ndarray, np.ndarray]:
-    """(rollouts, refuted) per run of the default importance sampler on ``world`` put at failure probability p."""
-    settings = RareSettings(target=1 - EPS, gamma=gamma, refute_budget=IS_BUDGET, certify_budget=10**8)
+def splits(world: World) -> bool:
+    """The method rule, fixed before any rollout: splitting where the world can be stepped and copied and its
+    score is the margin along the rollout, importance sampling on the conditions elsewhere."""
+    return hasattr(world, "advance") and world.margin == "exact"
+
+
+def _refute(
+    world: World, p: float, runs: int, seed: int, gamma: float, split: bool = False, adapt: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """(rollouts, refuted) per run on ``world`` put at failure probability p: the default importance sampler,
+    ``split``: fixed splitting on the margin along the rollout; ``adapt`` False: plain Monte Carlo, betting."""
+    settings = RareSettings(
+        target=1 - EPS,
+        gamma=gamma,
+        refute_budget=IS_BUDGET if adapt else MC_BETTING_BUDGET,
+        defensive=RareSettings.__dataclass_fields__["defensive"].default if adapt else 1.0,
+        certify_budget=10**8,
+    )
     placed, rng = world.at(p), np.random.default_rng(seed)
     rollouts, refuted = [], []
     for start in range(0, runs, CHUNK):
         size = min(CHUNK, runs - start)
-        run = refute(placed, placed.domain, settings, rng, runs=size, seed=seed * 10**13 + start, record_runs=0)
+        if split:
+            run = refute_by_splitting(placed, placed.domain, settings, SPLITTING, rng, runs=size)
+        else:
+            keywords = {"seed": seed * 10**13 + start, "record_runs": 0, "adapt": adapt}
+            run = refute(placed, placed.domain, settings, rng, runs=size, **keywords)
         rollouts.append(run.rollouts)
         refuted.append(run.refuted)
     return np.concatenate(rollouts), np.concatenate(refuted)
 
 
-def _world_row(world: World, baseline: float, args: argparse.Namespace, index: int) -> tuple[float, int]:
-    """Print one world's row; return (saving, false refutations at the null boundary)."""
+def _world_row(world: World, baseline: float, args: argparse.Namespace, index: int, split: bool) -> tuple[float, int]:
+    """Print one world's row for one method; return (saving, false refutations at the null boundary)."""
     start = time.perf_counter()
-    rollouts, refuted = _refute(world, P_TRUE, args.runs, args.seed + 2 * index, args.gamma)
-    _, null = _refute(world, EPS, args.null_runs, args.seed + 2 * index + 1, args.gamma)
+    rollouts, refuted = _refute(world, P_TRUE, args.runs, args.seed + 2 * index, args.gamma, split)
+    _, null = _refute(world, EPS, args.null_runs, args.seed + 2 * index + 1, args.gamma, split)
     saving, errors = baseline / rollouts.mean(), int(null.sum())
+    method = "split" if split else "IS"
     print(
-        f"  {world.name:<36} {world.margin:>7} {rollouts.mean():>11.1f} {refuted.mean():>10.3f} {saving:>7.1f} "
-        f"{errors / args.null_runs:>10.4f} {cp_upper(errors, args.null_runs):>8.4f} {args.null_runs:>6}  "
-        f"{time.perf_counter() - start:.1f} s"
+        f"  {world.name:<36} {world.margin:>7} {method:>6} {rollouts.mean():>11.1f} {refuted.mean():>10.3f} "
+        f"{saving:>7.1f} {errors / args.null_runs:>10.4f} {cp_upper(errors, args.null_runs):>8.4f} "
+        f"{args.null_runs:>6}  {time.perf_counter() - start:.1f} s"
     )
     return saving, errors
 
@@ -117,10 +145,22 @@ def main(argv: list[str]) -> int:
         f"sampling (budget {IS_BUDGET}) against plain MC with the exact sequential Clopper-Pearson test: "
         f"E[rollouts] {baseline:.1f}, P(refuted) {refuted[0]:.4f}, exact null error {exact.worst_errors()[1]:.4f}"
     )
-    head = f"  {'world':<36} {'margin':>7} {'E[rollouts]':>11} {'P(refuted)':>10} {'saving':>7} {'null error':>10}"
-    print(f"{head} {'CP upper':>8} {'runs':>6}  time")
-    rows = [_world_row(world, baseline, args, i) for i, world in enumerate(suite())]
-    savings, errors = np.array([s for s, _ in rows]), max(e for _, e in rows)
+    mc_rollouts, mc_refuted = _refute(suite()[0], P_TRUE, args.runs, args.seed + 99, args.gamma, adapt=False)
+    print(
+        f"plain MC with the betting bound (the importance sampler's test, a look every rollout, {args.runs} runs, "
+        f"budget {MC_BETTING_BUDGET}; any world: it sees Bernoulli(p) outcomes): E[rollouts] {mc_rollouts.mean():.1f}"
+        f", P(refuted) {mc_refuted.mean():.3f}, {baseline / mc_rollouts.mean():.2f} x the exact test's saving"
+    )
+    head = f"  {'world':<36} {'margin':>7} {'method':>6} {'E[rollouts]':>11} {'P(refuted)':>10} {'saving':>7}"
+    print(f"{head} {'null error':>10} {'CP upper':>8} {'runs':>6}  time")
+    rows, errors = [], 0
+    for i, world in enumerate(suite()):
+        for split in (False, True) if splits(world) else (False,):
+            saving, wrong = _world_row(world, baseline, args, 2 * i + split, split)
+            errors = max(errors, wrong)
+            if split == splits(world):  # the method the rule picks for this world: its saving counts
+                rows.append(saving)
+    savings = np.array(rows)
     zero, ratio = _certify_line(args.gamma)
     print(
         f"RESULT rare saving_min={savings.min():.1f} saving_median={np.median(savings):.1f} "

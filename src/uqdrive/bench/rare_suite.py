@@ -28,7 +28,6 @@ from uqdrive.bench.rare_world import seed_uniform
 from uqdrive.uq.rare_proposal import ProductBeta
 
 NOISE_SD = 0.05  # the noisy margin's standard deviation, unit coordinates (the corner's own scale is ~0.3)
-MARGINS = ("exact", "noisy", "outcome")
 QUADRATURE = 64  # Gauss–Legendre nodes for the walk world: exact for polynomials of degree < 128
 
 
@@ -41,6 +40,8 @@ def _feed(margin: str, distance: np.ndarray, failed: np.ndarray, seeds: np.ndarr
     """The margin the sampler sees: ≤ 0 where the rollout failed, whatever the kind."""
     if margin == "outcome":
         return np.where(failed, -1.0, 1.0)
+    if margin == "constant":  # nothing to adapt on: refused by `refute` before any rollout
+        return np.zeros(np.shape(failed))
     if margin == "noisy":
         z = stats.norm.ppf(np.clip(seed_uniform(np.asarray(seeds) ^ 0x5DEECE66D), 1e-12, 1 - 1e-12))
         distance = distance + NOISE_SD * z
@@ -208,6 +209,24 @@ class WalkWorld:
         return float(
             weights @ (stats.beta.pdf(x, a, b) * walk_failure(self.low + self.size * x, self.steps, self.level)) / 2
         )
+
+    @property
+    def horizon(self) -> int:
+        return self.steps
+
+    def begin(self, points: np.ndarray) -> np.ndarray:
+        """States [k, 4] (position, step, running maximum, up-probability) at step 0: copyable, so splittable."""
+        states = np.zeros((points.shape[0], 4))
+        states[:, 3] = self.low + self.size * points[:, 0]
+        return states
+
+    def advance(self, states: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One step of each walk (drawn from ``rng``: splitting's copies must differ): (states, running maximum /
+        level (≥ 1: failed), done)."""
+        position = states[:, 0] + np.where(rng.random(states.shape[0]) < states[:, 3], 1.0, -1.0)
+        highest = np.maximum(states[:, 2], position)
+        states = np.column_stack([position, states[:, 1] + 1, highest, states[:, 3]])
+        return states, highest / self.level, states[:, 1] >= self.steps
 
     def __call__(self, points: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         up = self.low + self.size * points[..., 0]

@@ -40,7 +40,8 @@ from uqdrive.uq.threshold import ThresholdDecision, ThresholdTest
 Defensive = Annotated[float, Strict(), Field(gt=0, le=1)]
 Rollouts = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 """``world(points [runs, n, d], seeds [runs, n]) -> (failed [runs, n] bool, margins [runs, n])``: one rollout at
-each condition (a point of the unit cube) on its seed; a margin ≤ 0 where it failed."""
+each condition (a point of the unit cube) on its seed; a margin ≤ 0 where it failed. A world may say what its
+margin is (attribute ``margin``); ``"constant"`` is refused before any rollout when the proposal is to adapt."""
 RUN_STRIDE = 1_000_000  # run r's rollout i drives seed base + r·1,000,000 + i, as a replicate's do
 LOOK_FIRST, LOOK_GROWTH = 1.2, 1.5  # certification looks: 1.2 × the zero-failure floor, then ×1.5 up to the budget
 # Later looks (certifying with a failure or two) take their share of γ, so zero failures no longer certify at the
@@ -52,6 +53,15 @@ LOOK_FIRST, LOOK_GROWTH = 1.2, 1.5  # certification looks: 1.2 × the zero-failu
 def floor_rollouts(target: float, gamma: float) -> int:
     """The fewest rollouts certifying η1 ≥ target at γ even with zero failures: the least n with target^n ≤ γ."""
     return math.ceil(math.log(gamma) / math.log(target) - 1e-9)
+
+
+def refutation_floor(target: float, gamma: float, defensive: float) -> int:
+    """The fewest rollouts any run of `refute` can refute "η1 ≥ target" in: the first failure only sets the stake
+    (none is bet before a failure has been seen), and each later rollout multiplies the capital by at most
+    1 + (c/m)(1/λ − m) (X ≤ 1/λ, stake ≤ c/m), which must reach 1/γ."""
+    m = 1.0 - target
+    growth = math.log1p(CAP / m * (1.0 / defensive - m))
+    return 1 + math.ceil(math.log(1 / gamma) / growth - 1e-12)
 
 
 @schema(frozen=True)
@@ -71,6 +81,15 @@ class RareSettings:
     certify_budget: Count = 100_000
 
     def __post_init__(self) -> None:
+        least = refutation_floor(self.target, self.gamma, self.defensive)
+        if self.refute_budget < least:
+            raise invalid(
+                "refute_budget",
+                self.refute_budget,
+                f"no run can refute eta1 >= {self.target} at gamma={self.gamma} with defensive={self.defensive} "
+                f"in fewer than {least} rollouts (the first failure sets the stake, each later one multiplies the "
+                f"capital by at most 1 + 0.75/m (1/defensive - m)): raise refute_budget to {least} or more",
+            )
         need = floor_rollouts(self.target, self.gamma)
         if self.certify_budget < need:
             raise invalid(
@@ -186,6 +205,11 @@ def refute(
     between rounds; ``evidence``: the test (default: betting). Checks the support before any rollout."""
     proposal = nominal if proposal is None else proposal
     check_support(nominal, proposal, names or tuple(f"axes[{j}]" for j in range(nominal.dim)))
+    if adapt and getattr(world, "margin", None) == "constant":
+        raise ValueError(
+            "world.margin=constant: the cross-entropy step has nothing to adapt on; feed a margin that varies "
+            "(a lane rule's, or +-1 by the outcome) or run plain Monte Carlo (defensive=1, adapt off)"
+        )
     evidence = evidence or BettingEvidence(np.full(runs, settings.null), settings.gamma)
     law, budget = proposal.runs(runs), settings.refute_budget
     stop, spent = np.full(runs, -1), 0
