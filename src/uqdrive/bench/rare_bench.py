@@ -1,22 +1,22 @@
-"""`uqdrive bench rare`: rollouts needed to refute "η1 ≥ 1 − 10⁻⁴ over a domain" when the true failure probability
-is 10⁻³, against plain Monte Carlo, on every world of the suite (`rare_suite`: the corner the importance sampler
-was built for and the worlds it was not), each with its failure probability known exactly.
+"""`uqdrive bench rare`: rollouts needed to refute "η1 ≥ 1 − 10⁻⁴ over a domain" when the true failure probability is
+10⁻³, against plain Monte Carlo, on every world of the suite (`rare_suite`: the corner the importance sampler was
+built for and the worlds it was not), each with its failure probability known exactly.
 
-Same settings, budget (5,000 rollouts) and baseline for every world, γ = 0.05. Baseline: plain Monte Carlo with
-the project's exact sequential Clopper–Pearson test (`ThresholdTest`, looks 5 % apart from 0.01/ε, its error
-computed exactly): its expected rollouts depend on p alone, so one number serves every world. Methods:
-importance sampling (IS), the defensive mixture with a cross-entropy proposal and the betting bound
-(`uqdrive.uq.rare`), a look at every rollout; and where a world can be stepped and copied and scores the margin
-along a rollout, fixed splitting on that margin with the same betting bound over trees
-(`uqdrive.uq.rare_splitting`), which is then the world's method (`splits`: a rule fixed before any rollout;
-both rows are printed). A line shows plain Monte Carlo with the betting bound: the price of the test, not of
-a proposal. Per world and method: E[rollouts] (a run that hits the budget counts the budget), P(refuted), the
-saving (the exact test's E[rollouts] / the method's) and the error at the null boundary — the same world with
-its failure probability put at exactly m = 10⁻⁴, every run to the budget, an error being a refutation at any
-look — with its Clopper–Pearson 95 % upper limit. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero
-failures against the floor. Last line: RESULT rare saving_min=… saving_median=… (over the worlds, each by its
-method) coverage_worst=<1 − the largest null error of any row> error_cp_worst=<its upper limit>
-certify_rollouts_at_0=… certify_over_floor=….
+Same settings, budget (5,000 rollouts) and baseline for every world, γ = 0.05. Baseline: plain Monte Carlo with the
+project's exact sequential Clopper–Pearson test (`ThresholdTest`, looks 5 % apart from 0.01/ε, its error computed
+exactly): its expected rollouts depend on p alone, so one number serves every world. Methods: importance sampling
+(IS), the defensive mixture with a cross-entropy proposal and the betting bound (`uqdrive.uq.rare`), a look at every
+rollout; and where a world can be stepped and copied and scores the margin along a rollout, fixed splitting on that
+margin with the same betting bound over trees (`uqdrive.uq.rare_splitting`). Each world's saving is its method's
+(`method`: a rule fixed before any rollout from what the world declares: splitting where it applies, the exact test
+itself where the margin is only the outcome, importance sampling elsewhere; the importance-sampling row is printed
+for every world). A line shows plain Monte Carlo with the betting bound: the price of the test, not of a proposal.
+Per world and method: E[rollouts] (a run that hits the budget counts the budget), P(refuted), the saving (the exact
+test's E[rollouts] / the method's) and the error at the null boundary — the same world with its failure probability
+put at exactly m = 10⁻⁴, every run to the budget, an error being a refutation at any look — with its Clopper–Pearson
+95 % upper limit. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures against the floor. Last line: RESULT
+rare saving_min=… saving_median=… (over the worlds, each by its method) coverage_worst=<1 − the largest null error
+of any row> error_cp_worst=<its upper limit> certify_rollouts_at_0=… certify_over_floor=….
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import time
 import numpy as np
 from scipy import stats
 
-from uqdrive.bench.rare_suite import World, suite
+from uqdrive.bench.rare_suite import SuiteWorld, suite
 from uqdrive.uq.rare import RareSettings, certification_test, floor_rollouts, refute, zero_failure_rollouts
 from uqdrive.uq.rare_splitting import Splitting, refute_by_splitting
 from uqdrive.uq.threshold import ThresholdTest
@@ -57,14 +57,21 @@ def cp_upper(errors: int, runs: int) -> float:
     return float(stats.beta.ppf(0.975, errors + 1, runs - errors)) if errors < runs else 1.0
 
 
-def splits(world: World) -> bool:
-    """The method rule, fixed before any rollout: splitting where the world can be stepped and copied and its
-    score is the margin along the rollout, importance sampling on the conditions elsewhere."""
+def splits(world: SuiteWorld) -> bool:
+    """Whether the world can be stepped and copied and scores the margin along the rollout (splitting applies)."""
     return hasattr(world, "advance") and world.margin == "exact"
 
 
+def method(world: SuiteWorld) -> str:
+    """The method rule, fixed before any rollout from what the world declares: ``split`` where `splits`, plain
+    Monte Carlo with the exact test (``MC``) where the margin is only the outcome (±1: nothing ranks rollouts
+    before a failure, and after one the betting bound costs more than the exact test saves), else importance
+    sampling (``IS``)."""
+    return "split" if splits(world) else "MC" if world.margin == "outcome" else "IS"
+
+
 def _refute(
-    world: World, p: float, runs: int, seed: int, gamma: float, split: bool = False, adapt: bool = True
+    world: SuiteWorld, p: float, runs: int, seed: int, gamma: float, split: bool = False, adapt: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """(rollouts, refuted) per run on ``world`` put at failure probability p: the default importance sampler,
     ``split``: fixed splitting on the margin along the rollout; ``adapt`` False: plain Monte Carlo, betting."""
@@ -89,15 +96,15 @@ def _refute(
     return np.concatenate(rollouts), np.concatenate(refuted)
 
 
-def _world_row(world: World, baseline: float, args: argparse.Namespace, index: int, split: bool) -> tuple[float, int]:
-    """Print one world's row for one method; return (saving, false refutations at the null boundary)."""
+def _world_row(world: SuiteWorld, baseline: float, args: argparse.Namespace, index: int, how: str) -> tuple[float, int]:
+    """Print one world's row for one method (``IS`` or ``split``); return (saving, false refutations at the null
+    boundary)."""
     start = time.perf_counter()
-    rollouts, refuted = _refute(world, P_TRUE, args.runs, args.seed + 2 * index, args.gamma, split)
-    _, null = _refute(world, EPS, args.null_runs, args.seed + 2 * index + 1, args.gamma, split)
+    rollouts, refuted = _refute(world, P_TRUE, args.runs, args.seed + 2 * index, args.gamma, how == "split")
+    _, null = _refute(world, EPS, args.null_runs, args.seed + 2 * index + 1, args.gamma, how == "split")
     saving, errors = baseline / rollouts.mean(), int(null.sum())
-    method = "split" if split else "IS"
     print(
-        f"  {world.name:<36} {world.margin:>7} {method:>6} {rollouts.mean():>11.1f} {refuted.mean():>10.3f} "
+        f"  {world.name:<36} {world.margin:>7} {how:>6} {rollouts.mean():>11.1f} {refuted.mean():>10.3f} "
         f"{saving:>7.1f} {errors / args.null_runs:>10.4f} {cp_upper(errors, args.null_runs):>8.4f} "
         f"{args.null_runs:>6}  {time.perf_counter() - start:.1f} s"
     )
@@ -153,18 +160,26 @@ def main(argv: list[str]) -> int:
     )
     head = f"  {'world':<36} {'margin':>7} {'method':>6} {'E[rollouts]':>11} {'P(refuted)':>10} {'saving':>7}"
     print(f"{head} {'null error':>10} {'CP upper':>8} {'runs':>6}  time")
-    rows, errors = [], 0
+    rows, errors, exact_worst = [], 0, 0.0
     for i, world in enumerate(suite()):
-        for split in (False, True) if splits(world) else (False,):
-            saving, wrong = _world_row(world, baseline, args, 2 * i + split, split)
+        for how in ("IS", "split") if splits(world) else ("IS",):
+            saving, wrong = _world_row(world, baseline, args, 2 * i + (how == "split"), how)
             errors = max(errors, wrong)
-            if split == splits(world):  # the method the rule picks for this world: its saving counts
+            if how == method(world):  # the rule's pick for this world: its saving counts
                 rows.append(saving)
+        if method(world) == "MC":  # the exact test's row: computed, its error exact
+            print(
+                f"  {world.name:<36} {world.margin:>7} {'MC':>6} {baseline:>11.1f} {refuted[0]:>10.4f} {1.0:>7.1f} "
+                f"{exact.worst_errors()[1]:>10.4f} {'exact':>8} {'-':>6}"
+            )
+            rows.append(1.0)
+            exact_worst = max(exact_worst, exact.worst_errors()[1])
     savings = np.array(rows)
     zero, ratio = _certify_line(args.gamma)
     print(
         f"RESULT rare saving_min={savings.min():.1f} saving_median={np.median(savings):.1f} "
-        f"coverage_worst={1 - errors / args.null_runs:.4f} error_cp_worst={cp_upper(errors, args.null_runs):.4f} "
+        f"coverage_worst={1 - max(errors / args.null_runs, exact_worst):.4f} "
+        f"error_cp_worst={cp_upper(errors, args.null_runs):.4f} "
         f"certify_rollouts_at_0={zero} certify_over_floor={ratio:.2f}"
     )
     return 0

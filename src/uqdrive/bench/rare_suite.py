@@ -136,7 +136,7 @@ class HalfPlane:
         return integrate.quad(slice_, low, 1, epsabs=1e-14, epsrel=1e-10, limit=200)[0]
 
 
-Region = Corner | Square | TwoBoxes | Disk | HalfPlane
+FailureRegion = Corner | Square | TwoBoxes | Disk | HalfPlane
 
 
 @dataclass(frozen=True)
@@ -144,7 +144,7 @@ class RegionWorld:
     """Fails with probability ``inside`` on ``region`` and never elsewhere; p = inside · mass(region)."""
 
     name: str
-    region: Region
+    region: FailureRegion
     domain: ProductBeta
     inside: float = 0.5
     margin: str = "exact"
@@ -239,10 +239,10 @@ class WalkWorld:
         return failed, _feed(self.margin, (self.level - highest[..., -1]) / self.level, failed, seeds)
 
 
-World = RegionWorld | WalkWorld
+SuiteWorld = RegionWorld | WalkWorld
 
 
-def suite() -> tuple[World, ...]:
+def suite() -> tuple[SuiteWorld, ...]:
     """The bench's worlds (each still to be put at its p by ``at``)."""
     two, six = beta_domain(2), beta_domain(6)
     corner = RegionWorld("corner (shipped)", Corner(0.5), two)

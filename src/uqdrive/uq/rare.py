@@ -68,8 +68,8 @@ def refutation_floor(target: float, gamma: float, defensive: float) -> int:
 class RareSettings:
     """Refute or certify "η1 ≥ ``target`` over the domain" at error ≤ ``gamma``. Refutation: rounds of
     ``round_size`` rollouts from λ = ``defensive`` × nominal + (1 − λ) × proposal, up to ``refute_budget``; the
-    proposal's cross-entropy step keeps the ``elite`` share of lowest margins and blends the fit by
-    ``smoothing``. Certification: at most ``certify_budget`` rollouts from the domain."""
+    proposal's cross-entropy step keeps the ``elite`` share of lowest margins among the last ``memory`` rounds and
+    blends the fit by ``smoothing``. Certification: at most ``certify_budget`` rollouts from the domain."""
 
     target: OpenUnit = 0.9999
     gamma: OpenUnit = 0.05
@@ -78,6 +78,7 @@ class RareSettings:
     round_size: Count = 10
     elite: OpenUnit = 0.1
     smoothing: Defensive = 1.0
+    memory: Count = 5
     certify_budget: Count = 100_000
 
     def __post_init__(self) -> None:
@@ -212,7 +213,7 @@ def refute(
         )
     evidence = evidence or BettingEvidence(np.full(runs, settings.null), settings.gamma)
     law, budget = proposal.runs(runs), settings.refute_budget
-    stop, spent = np.full(runs, -1), 0
+    stop, spent, history = np.full(runs, -1), 0, []  # history: the last rounds the cross-entropy step fits on
     observations, failures, records = np.zeros((runs, budget)), np.zeros(runs, int), []
     while spent < budget and (stop < 0).any():
         n = min(settings.round_size, budget - spent)
@@ -230,7 +231,9 @@ def refute(
         records += _records(np.arange(keep), seeds, points, weights, margins, (failed & counted)[:keep])
         spent += n
         if adapt:
-            law = cross_entropy_step(law, points, margins, weights, settings.elite, settings.smoothing)
+            history = [*history[1 - settings.memory :], (points, margins, weights)] if settings.memory > 1 else []
+            seen = [np.concatenate(part, 1) for part in zip(*history)] or [points, margins, weights]
+            law = cross_entropy_step(law, *seen, settings.elite, settings.smoothing)
     refuted = stop >= 0
     rollouts = np.where(refuted, stop, spent)
     return Refutation(settings.target, settings.gamma, refuted, rollouts, failures, observations, tuple(records))

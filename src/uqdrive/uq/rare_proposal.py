@@ -104,13 +104,17 @@ def cross_entropy_step(
 ) -> ProductBeta:
     """One cross-entropy update per run: the points whose margin is at most max(its ``elite`` quantile, 0) (the
     failures once they are that common), weighted by nominal/q, fitted by moments to a Beta per axis, and blended
-    with the current law by ``smoothing`` (1: take the fit). The margin orders rollouts before any fails. A run
-    whose round has every point elite (tied margins, e.g. ±1 by the outcome and no failure) keeps its law: moments
-    of an unranked sample are noise, and fitting them narrowed the proposal at random (measured on the suite's
-    outcome-only corner: 1,891 rollouts to refute without this guard, 1,170 with it)."""
+    with the current law by ``smoothing`` (1: take the fit). The margin orders rollouts before any fails. Ties:
+    where the quantile sits on a tie holding every point (±1 margins by the outcome), the elite are the points
+    strictly below it (the failures), and a run with none keeps its law: moments of an unranked sample are noise,
+    and fitting them narrowed the proposal at random (measured on the suite's outcome-only corner: 1,891 rollouts
+    to refute without this guard, 1,170 with it)."""
     level = np.maximum(np.quantile(margins, elite, axis=1), 0.0)[:, None]
-    unranked = (margins <= level).all(1)
-    w = weights * (margins <= level)
+    chosen, below = margins <= level, margins < level
+    tied = chosen.all(1, keepdims=True)  # the quantile sits on a tie that holds every point
+    chosen = np.where(tied, below, chosen)  # then only those strictly below it (a failure among ±1 margins)
+    unranked = ~chosen.any(1)
+    w = weights * chosen
     w = w / np.maximum(w.sum(1, keepdims=True), 1e-300)
     u = np.clip((points - proposal.low) / (proposal.high - proposal.low), 0, 1)
     mean = np.einsum("rn,rnd->rd", w, u)
