@@ -121,18 +121,25 @@ def test_benchmarks_drive_trained_models_of_an_experiments_class_set(
     assert re.search(r"^RESULT rollout controller=trained ", out, re.M), out[-2000:]
 
 
-def test_rare_benchmark_prints_its_result_line_with_each_designs_coverage(capsys: pytest.CaptureFixture[str]) -> None:
-    """Tiny: 20 importance-sampling runs and 2 Monte Carlo runs per case; the exact test (computed, not run) looks
-    ×1.5 apart instead of ×1.05 (its calibration over 110 looks up to 200,000 rollouts takes seconds)."""
-    assert main(["bench", "rare", "--runs", "20", "--mc-runs", "2", "--look-ratio", "1.5"]) == 0
+def test_rare_benchmark_prints_a_row_per_suite_world_and_its_result_line(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--quick``: 20 runs at p = 10⁻³ and 50 at the null boundary per world and method (the suite's coverage at
+    size is tests/test_uq_rare_suite.py's); the exact test is computed, not run."""
+    from uqdrive.bench.rare_bench import splits
+    from uqdrive.bench.rare_suite import suite
+
+    assert main(["bench", "rare", "--quick"]) == 0
     out = capsys.readouterr().out.strip().splitlines()
-    assert sum(" coverage " in line for line in out) == 2 and sum("IS cross-entropy" in line for line in out) == 2
-    coverage = r"mc_exact:[\d.]+,mc_betting:[\d.]+,is:[\d.]+,is_rounds20:[\d.]+"
+    rows = [line for line in out if re.search(r" (IS|split) +[\d.]+ +[\d.]+ +[\d.]+ +[\d.]+ +[\d.]+ +50 ", line)]
+    assert len(rows) == len(suite()) + sum(map(splits, suite())), out
+    assert all(world.name in "\n".join(rows) for world in suite())
     pattern = (
-        r"RESULT rare refute_saving_1e3=[\d.]+ refute_saving_1e4=[\d.]+ certify_rollouts_at_0=\d+ "
-        rf"coverage_1e3={coverage} coverage_1e4={coverage}"
+        r"RESULT rare saving_min=[\d.]+ saving_median=[\d.]+ coverage_worst=[\d.]+ error_cp_worst=[\d.]+ "
+        r"certify_rollouts_at_0=35948 certify_over_floor=1.20"
     )
     assert re.fullmatch(pattern, out[-1]), out[-1]
+    with pytest.raises(SystemExit) as bad:
+        main(["bench", "rare", "--runs", "0"])
+    assert bad.value.code == 2 and "--runs=0 is out of range" in capsys.readouterr().err
 
 
 def test_the_peer_grid_compares_both_tools_over_every_eta1(capsys: pytest.CaptureFixture[str]) -> None:

@@ -22,6 +22,7 @@ from uqdrive.uq.rare import (
     certification_test,
     failure_lower_bound,
     floor_rollouts,
+    refutation_floor,
     refute,
     zero_failure_rollouts,
 )
@@ -65,11 +66,32 @@ def test_certification_errs_at_most_gamma_and_needs_the_zero_failure_floor(targe
     assert zero == test.looks[0] == math.ceil(1.2 * floor)  # the later looks' share of γ costs 20 %
 
 
+def test_the_floor_is_ln_1_over_gamma_over_ln_1_over_1_minus_eps_not_ln_1_over_gamma_over_eps() -> None:
+    """ε = 0.1, γ = 0.05: "certify iff 29 of 29 safe" errs 0.9²⁹ = 0.047 ≤ γ at p = ε (a binomial sum here, the
+    worst p ≥ ε being ε) with N = 29 < ln(1/γ)/ε = 29.96, so ln(1/γ)/ε is no lower bound; the floor the project
+    uses is the least n with (1 − ε)^n ≤ γ, i.e. ln(1/γ)/ln(1/(1 − ε)) rounded up."""
+    eps, gamma, n = 0.1, 0.05, 29
+    errors = [stats.binom.pmf(0, n, p) for p in (eps, 0.15, 0.5)]
+    assert max(errors) == pytest.approx(0.0471013, abs=1e-6) and max(errors) <= gamma
+    assert n < math.log(1 / gamma) / eps and math.log(1 / gamma) / eps == pytest.approx(29.957, abs=1e-3)
+    bound = math.log(1 / gamma) / math.log(1 / (1 - eps))
+    assert bound == pytest.approx(28.433, abs=1e-3) and bound <= n
+    assert floor_rollouts(1 - eps, gamma) == n and stats.binom.pmf(0, n - 1, eps) > gamma
+    floor = floor_rollouts(1 - 1e-4, gamma)  # at ε = 10⁻⁴: 29,956, and certifying after zero failures costs 1.2×
+    zero = zero_failure_rollouts(certification_test(RareSettings(target=1 - 1e-4, certify_budget=4 * floor)))
+    assert (floor, zero) == (29_956, 35_948) and zero / floor == pytest.approx(1.2, abs=1e-4)
+
+
 @pytest.mark.parametrize(
     ("section", "message"),
     [
         ({"defensive": 0.0}, "rare.defensive=0.0"),
         ({"defensive": 1.5}, "rare.defensive=1.5"),
+        (
+            {"refute_budget": 6, "target": 0.5, "defensive": 1.0},
+            "rare.refute_budget=6 no run can refute eta1 >= 0.5 at gamma=0.05 with defensive=1.0 in fewer than 7 "
+            "rollouts",
+        ),
         (
             {"certify_budget": 1_000},
             "rare.certify_budget=1000 cannot certify eta1 >= 0.9999 at gamma=0.05 even "
@@ -119,6 +141,25 @@ def test_the_domain_is_a_density_over_the_envelopes_condition_space() -> None:
 
 def _no_world(points: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     raise AssertionError("a rollout ran before the input was checked")
+
+
+class ConstantMargin:
+    """A world whose margin never varies: nothing for the cross-entropy step to adapt on."""
+
+    margin = "constant"
+
+    def __call__(self, points: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return _no_world(points, seeds)
+
+
+def test_a_constant_margin_is_refused_before_any_rollout_and_the_budget_floor_is_exact() -> None:
+    with pytest.raises(ValueError, match=r"^world.margin=constant: the cross-entropy step has nothing to adapt on; "):
+        refute(ConstantMargin(), DOMAIN, RareSettings(), np.random.default_rng(0))
+    # a lower bound on any run: even a failure at every rollout (half-Kelly stakes, not the cap) refutes no sooner
+    settings = RareSettings(target=0.5, defensive=1.0, refute_budget=50)
+    always = lambda points, seeds: (np.ones(seeds.shape, bool), -np.ones(seeds.shape))  # noqa: E731
+    run = refute(always, DOMAIN, settings, np.random.default_rng(0), adapt=False)
+    assert run.refuted[0] and run.rollouts[0] >= refutation_floor(0.5, 0.05, 1.0) == 7
 
 
 def test_failures_come_back_as_records_that_re_drive_them_and_the_bound_is_below_p() -> None:

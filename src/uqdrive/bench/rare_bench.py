@@ -1,17 +1,22 @@
-"""`uqdrive bench rare`: rollouts needed to refute "η1 ≥ target over a domain" by importance sampling against plain
-Monte Carlo, on a synthetic world whose failure probability over the domain is known exactly (`rare_world`).
+"""`uqdrive bench rare`: rollouts needed to refute "η1 ≥ 1 − 10⁻⁴ over a domain" when the true failure probability is
+10⁻³, against plain Monte Carlo, on every world of the suite (`rare_suite`: the corner the importance sampler was
+built for and the worlds it was not), each with its failure probability known exactly.
 
-Cases: refute η1 ≥ 1 − 10⁻⁴ when the true failure probability is 10⁻³, and η1 ≥ 1 − 10⁻⁵ when it is 10⁻⁴, all
-at γ = 0.05 with the same optional stopping treatment — a look at every rollout for the betting bounds, and for
-exact Clopper–Pearson the project's sequential threshold test, calibrated by exact computation over its looks
-(×1.05 apart) so that stopping at any of them keeps its error ≤ γ. Importance sampling: the defensive mixture with
-a cross-entropy proposal and the betting bound (`uqdrive.uq.rare`). Monte Carlo: the exact sequential test
-(E[n] exact) and the same betting bound on nominal draws (simulated); the saving is against the better of the two
-and for the default settings (a second importance-sampling row, rounds of 20, shows one knob's effect).
-Each design's error at the null boundary (true failure probability = 1 − target) is printed beside it: exact for
-the exact test, simulated for the others. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures. Last
-line: RESULT rare refute_saving_1e3=… refute_saving_1e4=… (Monte Carlo rollouts / importance sampling's)
-certify_rollouts_at_0=… coverage_1e3=<design>:<1 − error at the null boundary>,… coverage_1e4=….
+Same settings, budget (5,000 rollouts) and baseline for every world, γ = 0.05. Baseline: plain Monte Carlo with the
+project's exact sequential Clopper–Pearson test (`ThresholdTest`, looks 5 % apart from 0.01/ε, its error computed
+exactly): its expected rollouts depend on p alone, so one number serves every world. Methods: importance sampling
+(IS), the defensive mixture with a cross-entropy proposal and the betting bound (`uqdrive.uq.rare`), a look at every
+rollout; and where a world can be stepped and copied and scores the margin along a rollout, fixed splitting on that
+margin with the same betting bound over trees (`uqdrive.uq.rare_splitting`). Each world's saving is its method's
+(`method`: a rule fixed before any rollout from what the world declares: splitting where it applies, the exact test
+itself where the margin is only the outcome, importance sampling elsewhere; the importance-sampling row is printed
+for every world). A line shows plain Monte Carlo with the betting bound: the price of the test, not of a proposal.
+Per world and method: E[rollouts] (a run that hits the budget counts the budget), P(refuted), the saving (the exact
+test's E[rollouts] / the method's) and the error at the null boundary — the same world with its failure probability
+put at exactly m = 10⁻⁴, every run to the budget, an error being a refutation at any look — with its Clopper–Pearson
+95 % upper limit. Then the rollouts certifying η1 ≥ 1 − 10⁻⁴ with zero failures against the floor. Last line: RESULT
+rare saving_min=… saving_median=… (over the worlds, each by its method) coverage_worst=<1 − the largest null error
+of any row> error_cp_worst=<its upper limit> certify_rollouts_at_0=… certify_over_floor=….
 """
 
 from __future__ import annotations
@@ -21,22 +26,19 @@ import math
 import time
 
 import numpy as np
+from scipy import stats
 
-from uqdrive.bench.rare_world import DOMAIN, CornerWorld
+from uqdrive.bench.rare_suite import SuiteWorld, suite
 from uqdrive.uq.rare import RareSettings, certification_test, floor_rollouts, refute, zero_failure_rollouts
+from uqdrive.uq.rare_splitting import Splitting, refute_by_splitting
 from uqdrive.uq.threshold import ThresholdTest
 
-CASES = ((1e-3, 1e-4), (1e-4, 1e-5))  # (true failure probability, ε = 1 − target)
+P_TRUE, EPS = 1e-3, 1e-4  # the true failure probability; the claim refuted is η1 ≥ 1 − ε
 IS_BUDGET = 5_000  # importance sampling: most rollouts per run
-MC_CAP = 2.0  # Monte Carlo: most rollouts per run, × 1/ε (20 × the 1/p a failure takes)
-IS_DEFAULT = "IS cross-entropy + betting"  # the default settings: the RESULT's saving is theirs
-LONG_ROUNDS = 20  # a second importance-sampling row: longer rounds run more in parallel but adapt later
-SHORT = {  # a design's name in the RESULT line's coverage fields
-    "MC exact sequential Clopper-Pearson": "mc_exact",
-    "MC betting bound": "mc_betting",
-    IS_DEFAULT: "is",
-    f"IS, rounds of {LONG_ROUNDS} (not the default)": f"is_rounds{LONG_ROUNDS}",
-}
+MC_CAP = 2.0  # the exact test's last look, × 1/ε (20 × the 1/p a failure takes)
+MC_BETTING_BUDGET = 20_000  # plain Monte Carlo with the betting bound: most rollouts per run (20 / p)
+SPLITTING = Splitting((0.2, 0.4, 0.6, 0.8), 4)  # chosen on the walk world at p = 10⁻³ among 3-5 levels, ×3-5
+CHUNK = 1_000  # runs simulated at once (the observations are runs × budget floats)
 CERTIFY_BUDGET = 4  # certification: most rollouts, × the zero-failure floor (the test's later looks share γ)
 LOOKS_FROM, LOOK_RATIO = 0.01, 1.05  # the exact test's looks: from 0.01/ε (at least 10) on, 5 % apart
 
@@ -50,83 +52,134 @@ def exact_looks(eps: float, ratio: float = LOOK_RATIO) -> tuple[int, ...]:
     return (*looks, cap)
 
 
-def _simulated(p: float, eps: float, runs: int, seed: int, round_size: int | None) -> tuple[float, float, float]:
-    """(mean rollouts, share refuted, error at the null boundary) of a betting design: plain Monte Carlo where
-    ``round_size`` is None, else importance sampling with rounds of that many rollouts."""
-    monte_carlo = round_size is None
-    if monte_carlo:
-        budget = round(MC_CAP / eps)
-        settings = RareSettings(
-            target=1 - eps, defensive=1.0, refute_budget=budget, round_size=1_000, certify_budget=10**8
-        )
-    else:
-        settings = RareSettings(target=1 - eps, refute_budget=IS_BUDGET, round_size=round_size, certify_budget=10**8)
-    rng, keywords = np.random.default_rng(seed), {"adapt": not monte_carlo, "record_runs": 0}
-    run = refute(CornerWorld.at(p, DOMAIN), DOMAIN, settings, rng, runs=runs, **keywords)
-    null = refute(CornerWorld.at(eps, DOMAIN), DOMAIN, settings, rng, runs=runs, seed=10**12, **keywords)
-    return float(run.rollouts.mean()), float(run.refuted.mean()), float(null.refuted.mean())
+def cp_upper(errors: int, runs: int) -> float:
+    """The exact Clopper–Pearson 95 % (two-sided) upper limit of an error rate."""
+    return float(stats.beta.ppf(0.975, errors + 1, runs - errors)) if errors < runs else 1.0
 
 
-def _designs(args: argparse.Namespace) -> tuple[tuple[str, int, int | None], ...]:
-    """The simulated designs: (name, runs, rounds of importance sampling; None: plain Monte Carlo)."""
-    default = RareSettings.__dataclass_fields__["round_size"].default
-    return (
-        ("MC betting bound", args.mc_runs, None),
-        (IS_DEFAULT, args.runs, default),
-        (f"IS, rounds of {LONG_ROUNDS} (not the default)", args.runs, LONG_ROUNDS),
+def splits(world: SuiteWorld) -> bool:
+    """Whether the world can be stepped and copied and scores the margin along the rollout (splitting applies)."""
+    return hasattr(world, "advance") and world.margin == "exact"
+
+
+def method(world: SuiteWorld) -> str:
+    """The method rule, fixed before any rollout from what the world declares: ``split`` where `splits`, plain
+    Monte Carlo with the exact test (``MC``) where the margin is only the outcome (±1: nothing ranks rollouts
+    before a failure, and after one the betting bound costs more than the exact test saves), else importance
+    sampling (``IS``)."""
+    return "split" if splits(world) else "MC" if world.margin == "outcome" else "IS"
+
+
+def _refute(
+    world: SuiteWorld, p: float, runs: int, seed: int, gamma: float, split: bool = False, adapt: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """(rollouts, refuted) per run on ``world`` put at failure probability p: the default importance sampler,
+    ``split``: fixed splitting on the margin along the rollout; ``adapt`` False: plain Monte Carlo, betting."""
+    settings = RareSettings(
+        target=1 - EPS,
+        gamma=gamma,
+        refute_budget=IS_BUDGET if adapt else MC_BETTING_BUDGET,
+        defensive=RareSettings.__dataclass_fields__["defensive"].default if adapt else 1.0,
+        certify_budget=10**8,
     )
+    placed, rng = world.at(p), np.random.default_rng(seed)
+    rollouts, refuted = [], []
+    for start in range(0, runs, CHUNK):
+        size = min(CHUNK, runs - start)
+        if split:
+            run = refute_by_splitting(placed, placed.domain, settings, SPLITTING, rng, runs=size)
+        else:
+            keywords = {"seed": seed * 10**13 + start, "record_runs": 0, "adapt": adapt}
+            run = refute(placed, placed.domain, settings, rng, runs=size, **keywords)
+        rollouts.append(run.rollouts)
+        refuted.append(run.refuted)
+    return np.concatenate(rollouts), np.concatenate(refuted)
 
 
-def _case(p: float, eps: float, args: argparse.Namespace) -> tuple[float, str]:
-    """Print one case's designs; return the saving (better Monte Carlo's rollouts / importance sampling's) and
-    each design's coverage at the null boundary, as RESULT fields."""
+def _world_row(world: SuiteWorld, baseline: float, args: argparse.Namespace, index: int, how: str) -> tuple[float, int]:
+    """Print one world's row for one method (``IS`` or ``split``); return (saving, false refutations at the null
+    boundary)."""
     start = time.perf_counter()
-    exact = ThresholdTest(1 - eps, args.gamma, exact_looks(eps, args.look_ratio), theta=0.0, forced=False)
-    _, refuted, mean_n = exact.operating_characteristics(np.array([1 - p]))
-    exact_error = exact.worst_errors()[1]
-    built = time.perf_counter() - start
-    rows = {
-        "MC exact sequential Clopper-Pearson": (mean_n[0], refuted[0], exact_error, "exact", built),
-    }
-    for name, runs, rounds in _designs(args):
-        start = time.perf_counter()
-        mean, share, error = _simulated(p, eps, runs, args.seed, rounds)
-        rows[name] = (mean, share, error, f"{runs} runs", time.perf_counter() - start)
-    print(f"refute eta1 >= 1 - {eps:g} at true failure probability {p:g} (gamma={args.gamma}):")
-    print(f"  {'design':<36} {'E[rollouts]':>11} {'P(refuted)':>10} {'null error':>10} {'coverage':>8}  how")
-    for name, (mean, share, error, how, seconds) in rows.items():
-        print(f"  {name:<36} {mean:>11.1f} {share:>10.4f} {error:>10.4f} {1 - error:>8.4f}  {how}, {seconds:.1f} s")
-    monte_carlo = min(rows["MC exact sequential Clopper-Pearson"][0], rows["MC betting bound"][0])
-    coverage = ",".join(f"{SHORT[name]}:{1 - error:.4f}" for name, (_, _, error, _, _) in rows.items())
-    return monte_carlo / rows[IS_DEFAULT][0], coverage
+    rollouts, refuted = _refute(world, P_TRUE, args.runs, args.seed + 2 * index, args.gamma, how == "split")
+    _, null = _refute(world, EPS, args.null_runs, args.seed + 2 * index + 1, args.gamma, how == "split")
+    saving, errors = baseline / rollouts.mean(), int(null.sum())
+    print(
+        f"  {world.name:<36} {world.margin:>7} {how:>6} {rollouts.mean():>11.1f} {refuted.mean():>10.3f} "
+        f"{saving:>7.1f} {errors / args.null_runs:>10.4f} {cp_upper(errors, args.null_runs):>8.4f} "
+        f"{args.null_runs:>6}  {time.perf_counter() - start:.1f} s"
+    )
+    return saving, errors
+
+
+def _certify_line(gamma: float) -> tuple[int, float]:
+    budget = CERTIFY_BUDGET * floor_rollouts(1 - EPS, gamma)
+    test = certification_test(RareSettings(target=1 - EPS, gamma=gamma, certify_budget=budget))
+    zero, floor = zero_failure_rollouts(test), floor_rollouts(1 - EPS, gamma)
+    print(
+        f"certify eta1 >= 1 - {EPS:g}: {zero} rollouts with zero failures, {zero / floor:.2f} x the floor "
+        f"ln(1/gamma)/ln(1/(1 - eps)) = {floor} that no black-box method beats; looks {test.looks}; "
+        f"exact worst error {max(test.worst_errors()):.4f}"
+    )
+    return zero, zero / floor
 
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench rare", description=__doc__)
-    ap.add_argument("--runs", type=int, default=1_000, help="importance-sampling runs per case (and at the null)")
-    ap.add_argument("--mc-runs", type=int, default=100, help="Monte Carlo betting runs per case (and at the null)")
+    ap.add_argument("--runs", type=int, default=200, help="importance-sampling runs per world at p = 1e-3")
+    ap.add_argument("--null-runs", type=int, default=2_000, help="runs per world at the null boundary p = 1e-4")
+    ap.add_argument("--quick", action="store_true", help="20 runs and 50 null runs per world (a smoke test)")
     ap.add_argument("--gamma", type=float, default=0.05, help="allowed error of a refutation, in (0, 1)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the simulated runs")
     ap.add_argument(
         "--look-ratio", type=float, default=LOOK_RATIO, help="exact test: each look this many times the last (> 1)"
     )
     args = ap.parse_args(argv)
-    if not args.look_ratio > 1:
-        ap.error(f"--look-ratio={args.look_ratio} must be > 1")
-    (saving_3, coverage_3), (saving_4, coverage_4) = (_case(p, eps, args) for p, eps in CASES)
-    zero = {}
-    for _, eps in CASES[:1]:  # the floor scales as 1/ε: 10⁻⁵ needs ten times the rollouts of 10⁻⁴
-        budget = CERTIFY_BUDGET * floor_rollouts(1 - eps, args.gamma)
-        settings = RareSettings(target=1 - eps, gamma=args.gamma, certify_budget=budget)
-        test = certification_test(settings)
-        zero[eps] = zero_failure_rollouts(test)
-        print(
-            f"certify eta1 >= 1 - {eps:g}: {zero[eps]} rollouts with zero failures (ln(1/gamma)/eps = "
-            f"{math.log(1 / args.gamma) / eps:.0f}), looks {test.looks}; "
-            f"exact worst error {max(test.worst_errors()):.4f}"
-        )
+    if args.quick:
+        args.runs, args.null_runs = 20, 50
+    for key, value, ok in (
+        ("--look-ratio", args.look_ratio, args.look_ratio > 1),
+        ("--runs", args.runs, args.runs >= 1),
+        ("--null-runs", args.null_runs, args.null_runs >= 1),
+        ("--gamma", args.gamma, 0 < args.gamma < 1),
+    ):
+        if not ok:
+            ap.error(f"{key}={value} is out of range")
+    exact = ThresholdTest(1 - EPS, args.gamma, exact_looks(EPS, args.look_ratio), theta=0.0, forced=False)
+    _, refuted, mean_n = exact.operating_characteristics(np.array([1 - P_TRUE]))
+    baseline = float(mean_n[0])
     print(
-        f"RESULT rare refute_saving_1e3={saving_3:.1f} refute_saving_1e4={saving_4:.1f} "
-        f"certify_rollouts_at_0={zero[CASES[0][1]]} coverage_1e3={coverage_3} coverage_1e4={coverage_4}"
+        f"refute eta1 >= 1 - {EPS:g} at true failure probability {P_TRUE:g} (gamma={args.gamma}), importance "
+        f"sampling (budget {IS_BUDGET}) against plain MC with the exact sequential Clopper-Pearson test: "
+        f"E[rollouts] {baseline:.1f}, P(refuted) {refuted[0]:.4f}, exact null error {exact.worst_errors()[1]:.4f}"
+    )
+    mc_rollouts, mc_refuted = _refute(suite()[0], P_TRUE, args.runs, args.seed + 99, args.gamma, adapt=False)
+    print(
+        f"plain MC with the betting bound (the importance sampler's test, a look every rollout, {args.runs} runs, "
+        f"budget {MC_BETTING_BUDGET}; any world: it sees Bernoulli(p) outcomes): E[rollouts] {mc_rollouts.mean():.1f}"
+        f", P(refuted) {mc_refuted.mean():.3f}, {baseline / mc_rollouts.mean():.2f} x the exact test's saving"
+    )
+    head = f"  {'world':<36} {'margin':>7} {'method':>6} {'E[rollouts]':>11} {'P(refuted)':>10} {'saving':>7}"
+    print(f"{head} {'null error':>10} {'CP upper':>8} {'runs':>6}  time")
+    rows, errors, exact_worst = [], 0, 0.0
+    for i, world in enumerate(suite()):
+        for how in ("IS", "split") if splits(world) else ("IS",):
+            saving, wrong = _world_row(world, baseline, args, 2 * i + (how == "split"), how)
+            errors = max(errors, wrong)
+            if how == method(world):  # the rule's pick for this world: its saving counts
+                rows.append(saving)
+        if method(world) == "MC":  # the exact test's row: computed, its error exact
+            print(
+                f"  {world.name:<36} {world.margin:>7} {'MC':>6} {baseline:>11.1f} {refuted[0]:>10.4f} {1.0:>7.1f} "
+                f"{exact.worst_errors()[1]:>10.4f} {'exact':>8} {'-':>6}"
+            )
+            rows.append(1.0)
+            exact_worst = max(exact_worst, exact.worst_errors()[1])
+    savings = np.array(rows)
+    zero, ratio = _certify_line(args.gamma)
+    print(
+        f"RESULT rare saving_min={savings.min():.1f} saving_median={np.median(savings):.1f} "
+        f"coverage_worst={1 - max(errors / args.null_runs, exact_worst):.4f} "
+        f"error_cp_worst={cp_upper(errors, args.null_runs):.4f} "
+        f"certify_rollouts_at_0={zero} certify_over_floor={ratio:.2f}"
     )
     return 0

@@ -1,5 +1,5 @@
 """The `rare` stage: "η1 ≥ target over the operating domain" for one controller, refuted by importance sampling
-with a bound valid at any stopping time and, if asked, certified at the zero-failure floor (`uqdrive.uq.rare`,
+with a bound valid at any stopping time and, if asked, certified by the exact sequential test (`uqdrive.uq.rare`,
 docs/rare.md). The domain is a density over the envelope's condition space (`uqdrive.envelope.domain`); the
 world, controller and executor are the envelope stage's. Every round of the refutation and every look of the
 certification is a cell of the one cell runner (`uqdrive.safety.runner`): logged, and replayed on a rerun (the

@@ -18,7 +18,8 @@ the exact Kelly stake; validity never depends on it, only speed does.
 
 Certification: "η1 ≥ target" by the project's exact sequential threshold test (`uqdrive.uq.threshold`,
 unforced, θ = 0) on rollouts drawn from the domain itself; with zero failures it needs n with target^n ≤ γ,
-≈ ln(1/γ)/ε for ε = 1 − target, and no black-box procedure can need fewer (docs/rare.md).
+n ≥ ln(1/γ)/ln(1/target) (≈ ln(1/γ)/ε for small ε = 1 − target, but not bounded below by it), and no
+black-box procedure can need fewer in expectation (docs/rare.md); its later looks make it 1.2 × that.
 """
 
 from __future__ import annotations
@@ -39,7 +40,8 @@ from uqdrive.uq.threshold import ThresholdDecision, ThresholdTest
 Defensive = Annotated[float, Strict(), Field(gt=0, le=1)]
 Rollouts = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 """``world(points [runs, n, d], seeds [runs, n]) -> (failed [runs, n] bool, margins [runs, n])``: one rollout at
-each condition (a point of the unit cube) on its seed; a margin ≤ 0 where it failed."""
+each condition (a point of the unit cube) on its seed; a margin ≤ 0 where it failed. A world may say what its
+margin is (attribute ``margin``); ``"constant"`` is refused before any rollout when the proposal is to adapt."""
 RUN_STRIDE = 1_000_000  # run r's rollout i drives seed base + r·1,000,000 + i, as a replicate's do
 LOOK_FIRST, LOOK_GROWTH = 1.2, 1.5  # certification looks: 1.2 × the zero-failure floor, then ×1.5 up to the budget
 # Later looks (certifying with a failure or two) take their share of γ, so zero failures no longer certify at the
@@ -53,12 +55,21 @@ def floor_rollouts(target: float, gamma: float) -> int:
     return math.ceil(math.log(gamma) / math.log(target) - 1e-9)
 
 
+def refutation_floor(target: float, gamma: float, defensive: float) -> int:
+    """The fewest rollouts any run of `refute` can refute "η1 ≥ target" in: the first failure only sets the stake
+    (none is bet before a failure has been seen), and each later rollout multiplies the capital by at most
+    1 + (c/m)(1/λ − m) (X ≤ 1/λ, stake ≤ c/m), which must reach 1/γ."""
+    m = 1.0 - target
+    growth = math.log1p(CAP / m * (1.0 / defensive - m))
+    return 1 + math.ceil(math.log(1 / gamma) / growth - 1e-12)
+
+
 @schema(frozen=True)
 class RareSettings:
     """Refute or certify "η1 ≥ ``target`` over the domain" at error ≤ ``gamma``. Refutation: rounds of
     ``round_size`` rollouts from λ = ``defensive`` × nominal + (1 − λ) × proposal, up to ``refute_budget``; the
-    proposal's cross-entropy step keeps the ``elite`` share of lowest margins and blends the fit by
-    ``smoothing``. Certification: at most ``certify_budget`` rollouts from the domain."""
+    proposal's cross-entropy step keeps the ``elite`` share of lowest margins among the last ``memory`` rounds and
+    blends the fit by ``smoothing``. Certification: at most ``certify_budget`` rollouts from the domain."""
 
     target: OpenUnit = 0.9999
     gamma: OpenUnit = 0.05
@@ -67,16 +78,26 @@ class RareSettings:
     round_size: Count = 10
     elite: OpenUnit = 0.1
     smoothing: Defensive = 1.0
+    memory: Count = 5
     certify_budget: Count = 100_000
 
     def __post_init__(self) -> None:
+        least = refutation_floor(self.target, self.gamma, self.defensive)
+        if self.refute_budget < least:
+            raise invalid(
+                "refute_budget",
+                self.refute_budget,
+                f"no run can refute eta1 >= {self.target} at gamma={self.gamma} with defensive={self.defensive} "
+                f"in fewer than {least} rollouts (the first failure sets the stake, each later one multiplies the "
+                f"capital by at most 1 + 0.75/m (1/defensive - m)): raise refute_budget to {least} or more",
+            )
         need = floor_rollouts(self.target, self.gamma)
         if self.certify_budget < need:
             raise invalid(
                 "certify_budget",
                 self.certify_budget,
                 f"cannot certify eta1 >= {self.target} at gamma={self.gamma} even with zero failures: that needs "
-                f"{need} rollouts (the least n with target^n <= gamma, ~ ln(1/gamma)/(1 - target))",
+                f"{need} rollouts (the least n with target^n <= gamma: ln(1/gamma)/ln(1/target) rounded up)",
             )
 
     @property
@@ -185,9 +206,14 @@ def refute(
     between rounds; ``evidence``: the test (default: betting). Checks the support before any rollout."""
     proposal = nominal if proposal is None else proposal
     check_support(nominal, proposal, names or tuple(f"axes[{j}]" for j in range(nominal.dim)))
+    if adapt and getattr(world, "margin", None) == "constant":
+        raise ValueError(
+            "world.margin=constant: the cross-entropy step has nothing to adapt on; feed a margin that varies "
+            "(a lane rule's, or +-1 by the outcome) or run plain Monte Carlo (defensive=1, adapt off)"
+        )
     evidence = evidence or BettingEvidence(np.full(runs, settings.null), settings.gamma)
     law, budget = proposal.runs(runs), settings.refute_budget
-    stop, spent = np.full(runs, -1), 0
+    stop, spent, history = np.full(runs, -1), 0, []  # history: the last rounds the cross-entropy step fits on
     observations, failures, records = np.zeros((runs, budget)), np.zeros(runs, int), []
     while spent < budget and (stop < 0).any():
         n = min(settings.round_size, budget - spent)
@@ -205,7 +231,9 @@ def refute(
         records += _records(np.arange(keep), seeds, points, weights, margins, (failed & counted)[:keep])
         spent += n
         if adapt:
-            law = cross_entropy_step(law, points, margins, weights, settings.elite, settings.smoothing)
+            history = [*history[1 - settings.memory :], (points, margins, weights)] if settings.memory > 1 else []
+            seen = [np.concatenate(part, 1) for part in zip(*history)] or [points, margins, weights]
+            law = cross_entropy_step(law, *seen, settings.elite, settings.smoothing)
     refuted = stop >= 0
     rollouts = np.where(refuted, stop, spent)
     return Refutation(settings.target, settings.gamma, refuted, rollouts, failures, observations, tuple(records))
