@@ -423,6 +423,11 @@ def main(argv: list[str] | None = None) -> int:
             f"uqdrive certify: --out={a.out!r} exists; give another path, or --force to overwrite it", file=sys.stderr
         )
         return BAD_INPUT
+    from uqdrive.policy.policy_path import missing
+
+    if (refusal := missing(Path(a.policy).resolve())) is not None:  # before anything heavy is imported
+        print(f"uqdrive certify: {refusal}", file=sys.stderr)
+        return BAD_INPUT
     try:
         cfg = compose_certify(a)
         record = run_certify(cfg)

@@ -45,6 +45,7 @@ from pydantic import Field
 from uqdrive.data.binning import SteeringBins
 from uqdrive.deps import file_digest, source_digest
 from uqdrive.policy.interface import Policy
+from uqdrive.policy.policy_path import KINDS, YAML, missing
 from uqdrive.policy.sb3_policy import SB3Policy, load_sb3
 from uqdrive.policy.slots import PolicyFailure, PolicySlots, UserWarnings
 from uqdrive.policy.tensor_policies import (
@@ -58,9 +59,6 @@ from uqdrive.policy.tensor_policies import (
 )
 from uqdrive.policy.warnings import WarningConfig
 from uqdrive.schema import ConfigError, Positive, Str, schema, validate
-
-YAML = (".yaml", ".yml")
-KINDS = "a TorchScript (.pt, .ts), ONNX (.onnx), stable-baselines3 (.zip) or policy YAML (.yaml) file"
 
 
 @schema(frozen=True)
@@ -232,8 +230,8 @@ def load_policy(source: str | Path, native: bool = False, **settings: Any) -> Us
 
 
 def _load_policy(path: Path, native: bool, settings: dict[str, Any]) -> UserPolicySpec:
-    if not path.is_file():
-        raise PolicyFailure(f"{path}: no such file; expected {KINDS}")
+    if (refusal := missing(path)) is not None:
+        raise PolicyFailure(refusal)
     suffix = path.suffix.lower()
     if suffix in YAML:
         try:
@@ -259,8 +257,8 @@ def _validated(path: Path, data: dict[str, Any]) -> PolicyConfig:
 
 
 def _network_spec(path: Path, config: PolicyConfig) -> UserPolicySpec:
-    if not path.is_file():
-        raise PolicyFailure(f"{path}: no such file; expected {KINDS}")
+    if (refusal := missing(path)) is not None:
+        raise PolicyFailure(refusal)
     suffix = path.suffix.lower()
     if suffix not in NETWORK_KINDS:
         raise PolicyFailure(f"{path}: expected a TorchScript (.pt, .ts), ONNX (.onnx) or SB3 (.zip) file, got {suffix}")
