@@ -151,17 +151,29 @@ def plain_outcomes(
     seeds: range,
     unsafe: Callable[[Any, dict, bool], bool],
     steps: int = 1000,
+    view: bool = False,
     **kwargs: Any,
 ) -> str:
     """'1' (safe) or '0' per seed by a plain Gymnasium loop: reset with the seed, act until the env ends the episode
-    or ``steps``; unsafe if ``unsafe(obs, info, terminated)`` holds at any step (the reset's included)."""
+    or ``steps``; unsafe if ``unsafe(obs, info, terminated)`` holds at any step (the reset's included). ``view``: the
+    agent acts on the env's RGB rendering instead of its observation."""
     out = []
-    with gymnasium.make(env_id, **kwargs) as env:
+    with gymnasium.make(env_id, **kwargs, **({"render_mode": "rgb_array"} if view else {})) as env:
         for seed in seeds:
             obs, info = env.reset(seed=seed)
             safe, done, n = not unsafe(obs, info, False), False, 0
             while safe and not done and n < steps:
-                obs, _, terminated, truncated, info = env.step(act(obs))
+                obs, _, terminated, truncated, info = env.step(act(env.render() if view else obs))
                 safe, done, n = not unsafe(obs, info, terminated), terminated or truncated, n + 1
             out.append("1" if safe else "0")
     return "".join(out)
+
+
+def lean_from_picture(image: Any) -> int:
+    """An image agent: push toward the side the pole leans to, read off the rendered RGB frame alone (CartPole draws
+    its pole in tan: the top row of those pixels against the bottom one)."""
+    pole = (image[..., 0] > 150) & (image[..., 1] > 100) & (image[..., 1] < 180) & (image[..., 2] < 120)
+    rows = np.nonzero(pole.any(axis=1))[0]
+    if not len(rows):
+        return 0
+    return int(np.nonzero(pole[rows[0]])[0].mean() > np.nonzero(pole[rows[-1]])[0].mean())

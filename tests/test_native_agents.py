@@ -116,6 +116,25 @@ def test_an_onnx_mlp_over_a_vector_observation(tmp_path):
     assert record["policy_kind"] == "onnx" and code in (0, 1, 3)
 
 
+def test_an_image_agent_in_a_vector_env_sees_the_envs_rendering(tmp_path, capsys):
+    """`--observe view`: a function over CartPole's RGB rendering (its observation is a vector), outcomes per seed
+    those of a plain loop that hands the agent `env.render()`; without it, the same agent is refused in one line."""
+    agent = function_yaml(tmp_path, "native_kit.lean_from_picture")
+    kwargs = {"max_episode_steps": 40}
+    args = ("--env", "CartPole-v1", "--terminated", "unsafe", "--env-kwargs", json.dumps(kwargs), *SHORT)
+    code, record = certify(tmp_path, agent, *args, "--observe", "view")
+    plain = native_kit.plain_outcomes(
+        "CartPole-v1", native_kit.lean_from_picture, SEEDS, lambda o, i, t: t, view=True, **kwargs
+    )
+    assert record["outcomes"] == plain and code in (0, 1, 3)
+    blind = native_kit.plain_outcomes("CartPole-v1", lambda obs: 0, SEEDS, lambda o, i, t: t, **kwargs)
+    assert plain != blind  # the picture steers it: a test that can fail
+    capsys.readouterr()
+    assert certify(tmp_path, agent, *args, "--out-dir", str(tmp_path / "vector"))[0] == 2  # it sees the vector
+    err = capsys.readouterr().err
+    assert err.startswith("uqdrive certify: ") and err.count("\n") == 1, err
+
+
 def test_a_torchscript_policy_on_a_box_action_env(tmp_path):
     net = Policy(2, 1, box=True, seed=1)
     path = tmp_path / "slide.pt"

@@ -315,6 +315,12 @@ def _env_flags(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--safe-when", default="", metavar="MOD:FUNC", help="predicate(obs, info) -> bool; False: unsafe")
     g.add_argument("--steps", type=int, default=1000, help="most steps of an episode (default: 1000, or the env's own)")
+    g.add_argument(
+        "--observe",
+        choices=("obs", "view"),
+        default="obs",
+        help="what the agent sees: the env's observation (default), or its RGB rendering (an image agent)",
+    )
 
 
 def _quoted(value: object) -> str:
@@ -373,7 +379,7 @@ def _env_world(a: argparse.Namespace) -> dict[str, Any]:
     name = re.sub(r"[^A-Za-z0-9_.-]", "_", a.env.rpartition(":")[2]).lstrip(".-") or "env"
     values = {
         "env_id": a.env, "name": name, "env_kwargs": kwargs, "unsafe_if": a.unsafe_if, "safe_if": safe_if,
-        "terminated": a.terminated, "safe_when": a.safe_when, "horizon_steps": a.steps,
+        "terminated": a.terminated, "safe_when": a.safe_when, "horizon_steps": a.steps, "observe": a.observe,
     }  # fmt: skip
     return values
 

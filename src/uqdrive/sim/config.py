@@ -276,7 +276,9 @@ class GymWorldConfig(Section):
     the first step: a key the env never reports is refused); ``terminated``: ``end`` (a termination ends the
     episode, judged by the other signals) or ``unsafe`` (a termination is a failure; a truncation is the end of
     time); ``safe_when``: ``module:function(obs, info) -> bool``, False at a step makes the path unsafe. The episode
-    ends at the first unsafe step (termination ``unsafe``).
+    ends at the first unsafe step (termination ``unsafe``). ``observe`` (``hooks: native``): ``obs``, the env's own
+    observation, or ``view``, the env's RGB rendering (uint8 [H, W, 3], ``render_mode="rgb_array"``): an image agent
+    in an env whose observation is a vector.
     """
 
     section: ClassVar[str] = "gym_world"
@@ -293,9 +295,12 @@ class GymWorldConfig(Section):
     unsafe_if: list[Str] = Field(default_factory=list)
     terminated: Literal["end", "unsafe"] = "end"
     safe_when: Annotated[str, Strict(), Field(pattern=r"^([A-Za-z_][\w.]*:[A-Za-z_]\w*)?$")] = ""
+    observe: Literal["obs", "view"] = "obs"
 
     def __post_init__(self) -> None:
         hooks_class(self.hooks, "hooks").check_options(self.hooks_options)  # before any work: the class and options
+        if self.observe == "view" and not self.native:
+            raise ConfigError(f"gym_world.observe='view': applies to hooks: native, not hooks: {self.hooks!r}")
 
     @property
     def native(self) -> bool:

@@ -106,6 +106,9 @@ class GymWorld(World):
         hooks_cls = hooks_class(config.hooks)
         self.config, self._seed = config, None  # no episode of this env yet (a failure here says so)
         kwargs = self._user("hooks", "env_kwargs", hooks_cls.env_kwargs, config.env_kwargs)
+        if config.observe == "view":
+            kwargs = {**kwargs, "render_mode": "rgb_array"}
+        self._view_space: Any = None
         try:
             env = gymnasium.make(config.env_id, **kwargs)
         except gymnasium.error.Error as err:
@@ -178,7 +181,11 @@ class GymWorld(World):
 
     @property
     def observation_space(self) -> Any:
-        return self.env.observation_space if self.hooks.native else None
+        """What a native agent observes: the env's observation space, or its rendering's (``observe: view``, known
+        from the first reset on)."""
+        if not self.hooks.native:
+            return None
+        return self._view_space if self.config.observe == "view" else self.env.observation_space
 
     @property
     def action_space(self) -> Any:
@@ -257,7 +264,7 @@ class GymWorld(World):
 
     def _frame(self, obs: Any) -> Any:
         if self.hooks.native:
-            return obs
+            return obs if self.config.observe == "obs" else self._rendered()
         if not self.render_enabled:
             return None
         grey = self._user("hooks", "frame", self.hooks.frame, obs)
@@ -305,6 +312,16 @@ class GymWorld(World):
             return None
         image = self.env.render()
         return np.asarray(image) if isinstance(image, np.ndarray) and image.ndim == 3 else None
+
+    def _rendered(self) -> np.ndarray:
+        """The env's RGB rendering as a native agent observes it (``observe: view``), with the space it lies in."""
+        image = self.view()
+        if image is None:
+            raise ConfigError(f"gym_world.observe='view': {self.config.env_id} renders no RGB image (rgb_array)")
+        image = np.ascontiguousarray(image, dtype=np.uint8)
+        if self._view_space is None or self._view_space.shape != image.shape:
+            self._view_space = _gymnasium().spaces.Box(0, 255, image.shape, np.uint8)
+        return image
 
     def close(self) -> None:
         self.env.close()
