@@ -97,6 +97,7 @@ def ray_nodes(cpus: tuple[int, ...]) -> Iterator[dict]:
     or hangs). Yields the environment a driver joins it with; every node is stopped after."""
     from ray.cluster_utils import Cluster
 
+    before = {k: v for k, v in os.environ.items() if k.startswith("RAY_")}  # the cluster sets RAY_ADDRESS here
     os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
     head, *others = cpus
     common = {"node_ip_address": "127.0.0.1"}
@@ -108,3 +109,6 @@ def ray_nodes(cpus: tuple[int, ...]) -> Iterator[dict]:
         yield _environment(cluster.address)
     finally:
         cluster.shutdown()
+        for key in [k for k in os.environ if k.startswith("RAY_")]:  # a later local Ray must not join a dead cluster
+            del os.environ[key]
+        os.environ.update(before)

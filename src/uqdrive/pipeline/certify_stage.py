@@ -192,7 +192,7 @@ def log_certify(cfg: DictConfig, stage: CertifyStage, record: CertifyRecord) -> 
     from uqdrive.tracking import numeric_metrics, register_certified, stage_run
 
     tags = {"verdict": record.verdict, "policy_digest": record.policy_digest, "cell_key": record.cell_key}
-    tags["guarantee"] = record.guarantee  # what the verdict proves, at which γ (θ)
+    tags["guarantee"] = f"{record.verdict.upper()}: {record.guarantee}"  # what the verdict proves, at which γ (θ)
     name = f"{Path(record.policy).name} · {record.world} · {record.verdict}"
     with stage_run(stage.paths.root, "certify", cfg, run_name=name, tags=tags):
         summaries = {k: getattr(record, k) for k in (*SUMMARIES, "warning_share")}

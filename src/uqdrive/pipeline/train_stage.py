@@ -67,17 +67,12 @@ def run_train(cfg: DictConfig) -> TrainMetrics:
 
 @dataclass(frozen=True)
 class FitResult:
-    """One replicate fitted and scored on validation, what its record needs of the data beside it: what a worker
-    (a process, or a Ray actor on another node) hands back to be written here. ``seconds``: its share of its batch."""
+    """One replicate fitted and scored on validation (``scores``), with its metrics: what a worker (a process, or a
+    Ray actor on another node) hands back to be written where the stage runs."""
 
     fitted: Fitted
     scores: dict[str, float]
-    seconds: float
-    majority_baseline_accuracy: float
-    train_frames: int
-    val_frames: int
-    eval_samples: int
-    batched_replicates: int
+    metrics: TrainMetrics
 
 
 def fit(stages: list[TrainStage]) -> list[FitResult]:
@@ -108,8 +103,29 @@ def fit(stages: list[TrainStage]) -> list[FitResult]:
     finally:
         torch.set_num_threads(previous_threads)
     baseline = majority_accuracy(train.labels, val.labels, bins.num_classes)
-    sizes = (len(train), len(val), first.train.eval_samples, len(fits))
-    return [FitResult(f, score, seconds, baseline, *sizes) for f, score in zip(fits, scores)]
+    return [
+        FitResult(f, score, _metrics(f, score, stage, seconds, baseline, (len(train), len(val), len(fits))))
+        for f, score, stage in zip(fits, scores, stages)
+    ]
+
+
+def _metrics(
+    fitted: Fitted, scores: dict, stage: TrainStage, seconds: float, baseline: float, sizes: tuple[int, int, int]
+) -> TrainMetrics:
+    """A replicate's record: its validation scores, the data's sizes, its seed and its share of the batch's time."""
+    train_frames, val_frames, batched = sizes
+    return TrainMetrics(
+        method=fitted.posterior.method,
+        **{f"val_{k}": v for k, v in scores.items()},
+        majority_baseline_accuracy=baseline,
+        train_frames=train_frames,
+        val_frames=val_frames,
+        eval_samples=stage.train.eval_samples,
+        seed=stage.seed,
+        train_seconds=seconds,
+        batched_replicates=batched,
+        **fitted.extra,
+    )
 
 
 def train_replicates(configs: Sequence[DictConfig]) -> list[TrainMetrics]:
@@ -120,22 +136,9 @@ def train_replicates(configs: Sequence[DictConfig]) -> list[TrainMetrics]:
 
 
 def record(cfg: DictConfig, stage: TrainStage, result: FitResult) -> TrainMetrics:
-    """A fitted replicate's metrics, written and logged (`write_replicate`)."""
-    fitted = result.fitted
-    metrics = TrainMetrics(
-        method=fitted.posterior.method,
-        **{f"val_{k}": v for k, v in result.scores.items()},
-        majority_baseline_accuracy=result.majority_baseline_accuracy,
-        train_frames=result.train_frames,
-        val_frames=result.val_frames,
-        eval_samples=result.eval_samples,
-        seed=stage.seed,
-        train_seconds=result.seconds,
-        batched_replicates=result.batched_replicates,
-        **fitted.extra,
-    )
-    write_replicate(cfg, stage, fitted, metrics)
-    return metrics
+    """A fitted replicate written and logged (`write_replicate`); its metrics."""
+    write_replicate(cfg, stage, result.fitted, result.metrics)
+    return result.metrics
 
 
 def write_replicate(cfg: DictConfig, stage: TrainStage, fitted: Fitted, metrics: TrainMetrics) -> None:
