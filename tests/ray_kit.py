@@ -99,6 +99,7 @@ def ray_nodes(cpus: tuple[int, ...]) -> Iterator[dict]:
 
     before = {k: v for k, v in os.environ.items() if k.startswith("RAY_")}  # the cluster sets RAY_ADDRESS here
     os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+    os.environ["RAY_AUTH_MODE"] = "disabled"  # as its drivers join it (`_environment`): a fresh HOME turns a token on
     head, *others = cpus
     common = {"node_ip_address": "127.0.0.1"}
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": head, "include_dashboard": False, **common})
