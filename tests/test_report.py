@@ -397,7 +397,7 @@ def test_a_missing_or_stale_metrics_file_is_one_line_naming_it(stage_config, tmp
 
 def test_an_undecided_claim_shows_both_estimands_and_the_runs_that_would_decide_it():
     """Every replicate at 1.00 on both sides: no run differs, the mean's betting interval is wide; the mean's row
-    says how many training runs would decide it (simulated, the study's spread / the worst), q's row its own words."""
+    says how many training runs would decide it (simulated, these runs' spread / the worst), q's row its own words."""
     result = SimpleNamespace(
         name="hmc safer than mcd offline", estimate=0.0, low=-0.9, high=0.9, ahead=0, behind=0, rollouts=14,
         verdict=Verdict.UNDECIDED, sign_verdict=Verdict.UNDECIDED, margin=0.1, differing_runs_needed=19,
@@ -408,7 +408,7 @@ def test_an_undecided_claim_shows_both_estimands_and_the_runs_that_would_decide_
     text = claims_markdown(SimpleNamespace(claims=[claim], margin=0.1, alpha=0.05))
     row = markdown_rows(text, "claim (A safer than B), for the mean")[0]
     assert row["mean Δ̂ [interval]"] == "+0.00 [-0.90, +0.90]" and row["verdict (mean)"] == "undecided"
-    assert row["runs needed: study's spread / worst"] == "61 / > 20,000"
+    assert row["runs needed: these runs' spread / worst"] == "61 / > 20,000"
     sign = markdown_rows(text, "claim, for q")[0]
     assert (
         sign["runs that differ"]

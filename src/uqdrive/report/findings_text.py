@@ -105,7 +105,7 @@ def claims_markdown(findings) -> str:
                 "ours: mean η̂1, A vs B",
                 "mean Δ̂ [interval]",
                 "verdict (mean)",
-                "runs needed: study's spread / worst",
+                "runs needed: these runs' spread / worst",
             ],
             mean_rows,
         ),
