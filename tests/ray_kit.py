@@ -113,3 +113,17 @@ def ray_nodes(cpus: tuple[int, ...]) -> Iterator[dict]:
         for key in [k for k in os.environ if k.startswith("RAY_")]:  # a later local Ray must not join a dead cluster
             del os.environ[key]
         os.environ.update(before)
+
+
+def run_stage(env: dict, cwd: Path, script: str, *args: str) -> None:
+    """``python stages/<script> <args> outputs=pipeline`` in ``cwd`` as a driver of the cluster ``env`` names; fails
+    the test with the stage's own error output."""
+    run = subprocess.run(
+        [sys.executable, str(ROOT / "stages" / script), *args, "outputs=pipeline"],
+        cwd=cwd,
+        env={**env, "PYTHONWARNINGS": "ignore"},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]

@@ -1,7 +1,6 @@
 """Same seeds ⇒ same η̂1 and the same per-rollout outcomes, whatever the backend and worker count."""
 
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -120,22 +119,7 @@ def test_the_readme_ray_path_on_a_ray_cluster_agrees_with_the_process_backend(
     env, cluster_dir = ray_cluster
     on_ray = tmp_path / "ray"
     on_ray.mkdir()
-    run = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "stages/safety.py"),
-            *cell,
-            "executor=ray",
-            "executor.address=auto",
-            "outputs=pipeline",
-        ],
-        cwd=on_ray,
-        env={**env, "PYTHONWARNINGS": "ignore"},
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert run.returncode == 0, run.stderr[-3000:]
+    ray_kit.run_stage(env, on_ray, "safety.py", *cell, "executor=ray", "executor.address=auto")
     name = "vi-seed0-roundabout-rain-noise0.05"
     from uqdrive.pipeline.safety_stage import run_safety
     from uqdrive.records import as_dict

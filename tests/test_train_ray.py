@@ -3,8 +3,6 @@ machine; a tiny study (trunk, heads, safety cells) runs on a two-node Ray cluste
 an address nobody answers at stops the stage before any training."""
 
 import json
-import subprocess
-import sys
 
 import pytest
 import ray_kit
@@ -27,15 +25,7 @@ def train_here(root, method: str, *overrides: str):
 
 
 def stage(env, root, script: str, *args: str) -> None:
-    run = subprocess.run(
-        [sys.executable, str(ROOT / "stages" / script), f"paths.root={root}", *args, "outputs=pipeline"],
-        cwd=root,
-        env={**env, "PYTHONWARNINGS": "ignore"},
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert run.returncode == 0, run.stderr[-3000:]
+    ray_kit.run_stage(env, root, script, f"paths.root={root}", *args)
 
 
 def states(root, method: str) -> list[dict]:
