@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from uqdrive.analysis.acquisition_summary import summarise_acquisition
 from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_comparisons
@@ -342,7 +343,8 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
     assert sum("(training)" in r["check cell"] for r in controller_rows) == len(METHODS) * len(SEEDS)
 
     flat = json.loads((tmp_path / "metrics/summary.json").read_text())  # short names: `dvc exp show`'s columns
-    assert list(flat)[:4] == ["eta1.train.mcd", "eta1.train.mcd.low", "eta1.train.mcd.high", "eta1.train.vi"]
+    ends = ("", ".low", ".high", ".ctl_low", ".ctl_high")
+    assert list(flat)[:6] == [*(f"eta1.train.mcd{end}" for end in ends), "eta1.train.vi"]
     headline = read_summary(tmp_path / "metrics/summary.json")
     assert (headline.theta, headline.gamma, headline.n_replicates) == (0.25, 0.05, len(SEEDS))
     trained_here = safety.answer("vi", "roundabout", "clear_noon", 0.0)
@@ -350,6 +352,11 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         trained_here.value,
         trained_here.low,
         trained_here.high,
+    )
+    pooled = sum(round(e * trained_here.rollouts) for e in trained_here.estimates)  # these controllers' safe runs
+    exact = stats.binomtest(pooled, trained_here.rollouts * len(SEEDS)).proportion_ci(1 - trained_here.gamma, "exact")
+    assert (flat["eta1.train.vi.ctl_low"], flat["eta1.train.vi.ctl_high"]) == pytest.approx(
+        (exact.low, exact.high), abs=1e-9
     )
     every = [a for a in safety.answers if a.method == "vi"]
     assert len(every) == len(LOCATIONS) * len(WEATHERS) * len(NOISES)  # the sweep's mean leaves no cell out

@@ -22,7 +22,7 @@ from uqdrive.paper import PaperNumbers
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.uq.replicates import replicate_bounded_interval
+from uqdrive.uq.replicates import controllers_interval, replicate_bounded_interval
 
 INTERVAL = "hoeffding over replicates (independent training runs; nothing else assumed)"
 
@@ -106,6 +106,15 @@ def pooled_answer(method: str, condition: str, answers: Sequence[MethodAnswer]) 
         first.gamma,
         first.interval,
     )
+
+
+def controllers_bounds(answers: Sequence[MethodAnswer]) -> tuple[float, float]:
+    """The interval for the mean η1 of these trained controllers over ``answers``' conditions (one method's; their
+    uniform mixture, as `pooled_answer`), from the first-k runs each answer averages (``estimates`` × ``rollouts``
+    are whole counts): the answer the rollouts support where the method's interval, bounded by the training runs,
+    says little."""
+    safe = [[round(e * a.rollouts) for e in a.estimates] for a in answers]
+    return controllers_interval(safe, [a.rollouts for a in answers], answers[0].gamma)
 
 
 UNKNOWN = "unknown mixture"

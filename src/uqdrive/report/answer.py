@@ -90,7 +90,8 @@ def answer_markdown(
     h, by = headline, _by_method
     lines = [
         f"Each η̂1 is the mean over {headline.n_replicates} training replicates with an interval for the method's η1 "
-        "(η1: the probability that a rollout stays in its safe set); with few replicates that interval is wide.",
+        "(η1: the probability that a rollout stays in its safe set); with few replicates that interval is wide. "
+        '"these:" is the interval for the mean η1 of these trained controllers, what their rollouts do support.',
         "",
         f"- **At the training condition** ({training}): {by(h.eta1_training_condition)}.",
         f"- **Over the training location's weathers × noises**: {by(h.eta1_training_location)}; "

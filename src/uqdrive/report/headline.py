@@ -16,7 +16,7 @@ import yaml
 from pydantic import TypeAdapter, ValidationError
 
 from uqdrive.analysis.comparisons import Findings
-from uqdrive.analysis.method_answers import UNKNOWN, MethodAnswer, pooled_answer
+from uqdrive.analysis.method_answers import UNKNOWN, MethodAnswer, controllers_bounds, pooled_answer
 from uqdrive.avoid.results import Mode
 from uqdrive.records import record
 from uqdrive.report.document import fmt, table
@@ -26,11 +26,15 @@ from uqdrive.schema import ConfigError, describe
 
 @record
 class Eta1:
-    """A method's η̂1 (the mean over its replicates) and the interval for its η1 (`method_answers`)."""
+    """A method's η̂1 (the mean over its replicates), the interval for its η1 over training runs (``low``, ``high``)
+    and the interval for the mean η1 of these trained controllers (``ctl_low``, ``ctl_high``:
+    `method_answers.controllers_bounds`; None in a summary written before it was recorded)."""
 
     value: float
     low: float
     high: float
+    ctl_low: float | None = None
+    ctl_high: float | None = None
 
 
 @record
@@ -74,8 +78,8 @@ _HEADLINE_FIRST = ("eta1_training_condition", "findings_supported")  # the answe
 def summary_keys(headline: Headline) -> dict[str, float | int | None]:
     """The headline as metrics/summary.json holds it: one flat key per number, short enough that `dvc exp show`
     shows the answer in 200 columns: ``eta1.train.mcd`` (η̂1) with ``eta1.train.mcd.low`` and ``.high`` (its
-    interval for the method; only the value, null, where the sweep lacks the condition), ``findings``,
-    ``val_acc.<experiment>.<method>``…"""
+    interval for the method), ``.ctl_low`` and ``.ctl_high`` (for these trained controllers; only the value, null,
+    where the sweep lacks the condition), ``findings``, ``val_acc.<experiment>.<method>``…"""
     out: dict[str, float | int | None] = {}
     order = [*_HEADLINE_FIRST, *(f for f in SHORT_NAMES if f not in _HEADLINE_FIRST)]
     for field in order:
@@ -89,9 +93,13 @@ def summary_keys(headline: Headline) -> dict[str, float | int | None]:
             elif inner is None:
                 out[f"{prefix}.{name}"] = None
             else:
-                out.update({f"{prefix}.{name}": inner.value, f"{prefix}.{name}.low": inner.low})
-                out[f"{prefix}.{name}.high"] = inner.high
+                out.update({f"{prefix}.{name}{end}": v for end, v in _ends(inner)})
     return out
+
+
+def _ends(value: Eta1) -> list[tuple[str, float | None]]:
+    ends = [("", value.value), (".low", value.low), (".high", value.high)]
+    return ends + [(".ctl_low", value.ctl_low), (".ctl_high", value.ctl_high)]
 
 
 def read_summary(path: str | Path) -> Headline:
@@ -124,13 +132,20 @@ def read_summary(path: str | Path) -> Headline:
         raise ConfigError(f"{path}: {describe(err.errors()[0], Headline)}; rerun dvc repro report") from None
 
 
-def _eta1(answer: MethodAnswer) -> Eta1:
-    return Eta1(answer.value, answer.low, answer.high)
+def _eta1(answer: MethodAnswer, conditions: list[MethodAnswer]) -> Eta1:
+    """``answer`` over ``conditions`` (itself, or the conditions it pools)."""
+    return Eta1(answer.value, answer.low, answer.high, *controllers_bounds(conditions))
 
 
 def eta1_text(value: Eta1 | None) -> str:
-    """η̂1 [low, high] as the report and the README print it; '–' where the sweep has no such condition."""
-    return "– (not swept)" if value is None else f"{fmt(value.value, 2)} [{fmt(value.low, 2)}, {fmt(value.high, 2)}]"
+    """η̂1 [method's interval] and, where recorded, "these: [interval]" for these trained controllers, as the report
+    and the README print it; '–' where the sweep has no such condition."""
+    if value is None:
+        return "– (not swept)"
+    text = f"{fmt(value.value, 2)} [{fmt(value.low, 2)}, {fmt(value.high, 2)}]"
+    if value.ctl_low is None or value.ctl_high is None:
+        return text
+    return f"{text}, these: [{fmt(value.ctl_low, 2)}, {fmt(value.ctl_high, 2)}]"
 
 
 def headline_metrics(scope, run, findings: Findings) -> Headline:
@@ -142,7 +157,7 @@ def headline_metrics(scope, run, findings: Findings) -> Headline:
     ]
 
     def pooled(method: str, where: str, answers: list[MethodAnswer]) -> Eta1:
-        return _eta1(pooled_answer(method, where, answers))
+        return _eta1(pooled_answer(method, where, answers), answers)
 
     swept = {
         (loc, w, x): condition_label(loc, w, x)
@@ -160,10 +175,14 @@ def headline_metrics(scope, run, findings: Findings) -> Headline:
         return found
 
     def at_training(method: str) -> Eta1 | None:
-        return None if training is None else _eta1(mine(method, {training})[0])
+        if training is None:
+            return None
+        found = mine(method, {training})
+        return _eta1(found[0], found)
 
     def avoid_unknown(mode: Mode) -> dict[str, Eta1]:
-        return {m: _eta1(run.avoid.answer(m, UNKNOWN, mode)) for m in methods}
+        answers = {m: run.avoid.answer(m, UNKNOWN, mode) for m in methods}
+        return {m: _eta1(a, [a]) for m, a in answers.items()}
 
     return Headline(
         eta1_training_condition={m: at_training(m) for m in methods},
@@ -208,6 +227,8 @@ def headline_table(headline: Headline, params: dict) -> str:
         [f"validation accuracy, `{e}`", *(fmt(v[m], 3) for m in methods)] for e, v in headline.val_accuracy.items()
     ]
     header = f"mean over {headline.n_replicates} training replicates [interval for the method]"
+    if any(v is not None and v.ctl_low is not None for _, row in rows for v in row.values()):
+        header += ", these: [for these trained controllers]"
     return table([header, *methods], body)
 
 

@@ -10,7 +10,9 @@ rollout noise within each are both in them. Two intervals, by what they assume:
 - `replicate_bounded_interval`: Hoeffding's (1963) relative-entropy bound for the mean of independent
   variables in [0, 1]; assumes nothing else, and is correspondingly wide with few replicates.
 
-With two or three replicates either is wide: that is how much the training runs leave unknown.
+With two or three replicates either is wide: that is how much the training runs leave unknown. What the same
+rollouts do support is an answer for *these* trained controllers (`controllers_interval`): the mean of the R fixed
+networks' rates, which the rollout noise alone leaves unknown.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import optimize, special
 
-from uqdrive.uq.bounds import check_unit
+from uqdrive.uq.bounds import check_unit, clopper_pearson_interval
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,3 +80,24 @@ def replicate_bounded_interval(estimates: Sequence[float] | np.ndarray, gamma: f
     low = _kl_lower(mean, x.size, gamma / 2)
     high = 1 - _kl_lower(1 - mean, x.size, gamma / 2)
     return ReplicateInterval(mean, low, high, int(x.size), gamma, "hoeffding-kl")
+
+
+def controllers_interval(safe: Sequence[Sequence[int]], rollouts: Sequence[int], gamma: float) -> tuple[float, float]:
+    """An interval at level 1 − γ for the mean η1 of these trained controllers (each a fixed network with its own
+    rate; over several conditions, the uniform mixture of the conditions): ``safe[c][r]`` is how many of controller
+    r's first ``rollouts[c]`` runs (fixed in advance) at condition c were safe.
+
+    Every condition with the same rollouts: Clopper–Pearson on the pooled count. The count is a sum of independent
+    Bernoullis with unequal rates, which is at least as concentrated as the binomial of the same mean (Hoeffding
+    1956), so the binomial's exact interval keeps its level for the mean rate (checked exactly over spreads of
+    rates in tests/test_uq_replicates.py). Unequal rollouts: each condition's interval at γ/C, averaged (Bonferroni).
+    """
+    gamma = check_unit("gamma", gamma)
+    if len(safe) != len(rollouts) or not safe or any(not s for s in safe):
+        raise ValueError(f"need one non-empty list of safe counts per condition, got {len(safe)} for {len(rollouts)}")
+    if len(set(rollouts)) == 1:
+        n = rollouts[0] * sum(len(s) for s in safe)
+        low, high = clopper_pearson_interval(sum(sum(s) for s in safe), n, gamma)
+        return float(low), float(high)
+    bounds = [clopper_pearson_interval(sum(s), n * len(s), gamma / len(safe)) for s, n in zip(safe, rollouts)]
+    return float(np.mean([b[0] for b in bounds])), float(np.mean([b[1] for b in bounds]))
