@@ -26,7 +26,7 @@ from uqdrive.uq.rare import (
     refute,
     zero_failure_rollouts,
 )
-from uqdrive.uq.rare_proposal import ProductBeta
+from uqdrive.uq.rare_proposal import BetaMixture, ProductBeta, mixture_sample, mixture_step
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -97,6 +97,7 @@ def test_the_floor_is_ln_1_over_gamma_over_ln_1_over_1_minus_eps_not_ln_1_over_g
             "rare.certify_budget=1000 cannot certify eta1 >= 0.9999 at gamma=0.05 even "
             "with zero failures: that needs 29956 rollouts",
         ),
+        ({"components": 4, "smoothing": 0.7}, "rare.smoothing=0.7 must be 1 with components=4"),
     ],
 )
 def test_bad_settings_are_one_line_naming_the_key_and_value(section: dict, message: str) -> None:
@@ -180,3 +181,52 @@ def _runs(world: CornerWorld, runs: int) -> tuple[np.ndarray, np.ndarray]:
     settings = RareSettings(target=1 - 1e-3, refute_budget=200)  # at the boundary: the bound is tested hardest
     run = refute(world, DOMAIN, settings, np.random.default_rng(9), runs=runs, record_runs=0)
     return run.observations, run.rollouts
+
+
+def two_modes() -> BetaMixture:
+    """Two components on [0, 1]² (weights 0.3 / 0.7) for one run."""
+    a = np.array([[[20.0, 2.0], [2.0, 20.0]]])
+    b = np.array([[[2.0, 20.0], [20.0, 2.0]]])
+    return BetaMixture(a, b, np.array([[0.3, 0.7]]), np.zeros(2), np.ones(2))
+
+
+def test_a_mixture_proposals_density_is_its_samplers_so_the_weights_are_unbiased() -> None:
+    """The refutation's validity rests on w = nominal/q with q the density the points were drawn from. Here q's
+    log-density against the components' Beta pdfs summed by scipy, and by simulation E_q[w · 1{c ∈ A}] = the
+    nominal's mass of A (exact by scipy's CDFs) for the defensive mixture with a two-component proposal."""
+    mixture, nominal = two_modes(), ProductBeta.of([2.0, 2.0], [5.0, 5.0])
+    points = np.array([[[0.9, 0.1], [0.2, 0.8], [0.5, 0.5]]])
+    by_hand = sum(
+        mixture.weights[0, k]
+        * stats.beta.pdf(points[0, :, 0], mixture.a[0, k, 0], mixture.b[0, k, 0])
+        * stats.beta.pdf(points[0, :, 1], mixture.a[0, k, 1], mixture.b[0, k, 1])
+        for k in range(2)
+    )
+    assert np.exp(mixture.log_pdf(points))[0] == pytest.approx(by_hand, rel=1e-9)
+    drawn, weights = mixture_sample(nominal, mixture, 0.1, np.random.default_rng(5), 1, 400_000)
+    inside = (drawn[0, :, 0] > 0.6) & (drawn[0, :, 1] < 0.3)  # where the first component sits, the nominal rarely
+    x = weights[0] * inside
+    exact = stats.beta.sf(0.6, 2, 5) * stats.beta.cdf(0.3, 2, 5)
+    assert abs(x.mean() - exact) < 4.5 * x.std() / np.sqrt(x.size), (x.mean(), exact)
+    assert weights.max() <= 1 / 0.1 + 1e-9 and abs(weights.mean() - 1) < 4.5 * weights.std() / np.sqrt(weights.size)
+    share = (drawn[0, :, 0] > drawn[0, :, 1]).mean()  # the first component's points, and λ's nominal ones
+    assert abs(share - (0.9 * 0.3 + 0.1 * 0.5)) < 0.01
+
+
+def test_the_mixture_step_puts_a_component_on_each_separate_failure_mode() -> None:
+    """Elite points in two far clusters (30 % near (0.9, 0.1), 70 % near (0.1, 0.9)): two components, one on each,
+    weighted by the clusters' shares; a run with no elite keeps its law."""
+    rng = np.random.default_rng(2)
+    near = lambda c, k: np.clip(c + 0.02 * rng.standard_normal((k, 2)), 0, 1)  # noqa: E731
+    points = np.concatenate([near([0.9, 0.1], 30), near([0.1, 0.9], 70), rng.random((100, 2)) * 0.2 + 0.4])[None]
+    margins = np.concatenate([-np.ones(100), np.ones(100)])[None]  # the clusters failed, the middle did not
+    start = BetaMixture.copies(ProductBeta.of([2.0, 2.0], [2.0, 2.0]), 2, 1)
+    fitted = mixture_step(start, points, margins, np.ones((1, 200)), elite=0.1)
+    means = fitted.a[0] / (fitted.a[0] + fitted.b[0])
+    order = np.argsort(means[:, 0])  # the (0.1, 0.9) component first
+    assert means[order[0]] == pytest.approx([0.1, 0.9], abs=0.03) and means[order[1]] == pytest.approx(
+        [0.9, 0.1], abs=0.03
+    )
+    assert fitted.weights[0, order] == pytest.approx([0.7, 0.3])
+    kept = mixture_step(start, points, np.ones((1, 200)), np.ones((1, 200)), elite=0.1)  # ±1 tie, no failure
+    assert np.array_equal(kept.a, start.a) and np.array_equal(kept.weights, start.weights)

@@ -38,6 +38,8 @@ IS_BUDGET = 5_000  # importance sampling: most rollouts per run
 MC_CAP = 2.0  # the exact test's last look, × 1/ε (20 × the 1/p a failure takes)
 MC_BETTING_BUDGET = 20_000  # plain Monte Carlo with the betting bound: most rollouts per run (20 / p)
 SPLITTING = Splitting((0.2, 0.4, 0.6, 0.8), 4)  # chosen on the walk world at p = 10⁻³ among 3-5 levels, ×3-5
+MIXTURE = {"components": 16, "elite": 0.5, "memory": 50}  # chosen on the 16-mode world (docs/rare.md)
+MIX_SEEDS = 1_000  # the mixture rows' seed indices start here, apart from the other rows'
 CHUNK = 1_000  # runs simulated at once (the observations are runs × budget floats)
 CERTIFY_BUDGET = 4  # certification: most rollouts, × the zero-failure floor (the test's later looks share γ)
 LOOKS_FROM, LOOK_RATIO = 0.01, 1.05  # the exact test's looks: from 0.01/ε (at least 10) on, 5 % apart
@@ -71,16 +73,25 @@ def method(world: SuiteWorld) -> str:
 
 
 def _refute(
-    world: SuiteWorld, p: float, runs: int, seed: int, gamma: float, split: bool = False, adapt: bool = True
+    world: SuiteWorld,
+    p: float,
+    runs: int,
+    seed: int,
+    gamma: float,
+    split: bool = False,
+    adapt: bool = True,
+    mixture: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(rollouts, refuted) per run on ``world`` put at failure probability p: the default importance sampler,
-    ``split``: fixed splitting on the margin along the rollout; ``adapt`` False: plain Monte Carlo, betting."""
+    ``mixture``: its proposal a mixture (`MIXTURE`), ``split``: fixed splitting on the margin along the rollout;
+    ``adapt`` False: plain Monte Carlo, betting."""
     settings = RareSettings(
         target=1 - EPS,
         gamma=gamma,
         refute_budget=IS_BUDGET if adapt else MC_BETTING_BUDGET,
         defensive=RareSettings.__dataclass_fields__["defensive"].default if adapt else 1.0,
         certify_budget=10**8,
+        **(MIXTURE if mixture else {}),
     )
     placed, rng = world.at(p), np.random.default_rng(seed)
     rollouts, refuted = [], []
@@ -97,11 +108,12 @@ def _refute(
 
 
 def _world_row(world: SuiteWorld, baseline: float, args: argparse.Namespace, index: int, how: str) -> tuple[float, int]:
-    """Print one world's row for one method (``IS`` or ``split``); return (saving, false refutations at the null
-    boundary)."""
+    """Print one world's row for one method (``IS``, ``mix`` or ``split``); return (saving, false refutations at the
+    null boundary)."""
     start = time.perf_counter()
-    rollouts, refuted = _refute(world, P_TRUE, args.runs, args.seed + 2 * index, args.gamma, how == "split")
-    _, null = _refute(world, EPS, args.null_runs, args.seed + 2 * index + 1, args.gamma, how == "split")
+    how_of = {"split": how == "split", "mixture": how == "mix"}
+    rollouts, refuted = _refute(world, P_TRUE, args.runs, args.seed + 2 * index, args.gamma, **how_of)
+    _, null = _refute(world, EPS, args.null_runs, args.seed + 2 * index + 1, args.gamma, **how_of)
     saving, errors = baseline / rollouts.mean(), int(null.sum())
     print(
         f"  {world.name:<36} {world.margin:>7} {how:>6} {rollouts.mean():>11.1f} {refuted.mean():>10.3f} "
@@ -130,6 +142,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--quick", action="store_true", help="20 runs and 50 null runs per world (a smoke test)")
     ap.add_argument("--gamma", type=float, default=0.05, help="allowed error of a refutation, in (0, 1)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the simulated runs")
+    ap.add_argument(
+        "--mixture", action="store_true", help="also a row per world for a 16-component mixture proposal (slow)"
+    )
     ap.add_argument(
         "--look-ratio", type=float, default=LOOK_RATIO, help="exact test: each look this many times the last (> 1)"
     )
@@ -162,8 +177,10 @@ def main(argv: list[str]) -> int:
     print(f"{head} {'null error':>10} {'CP upper':>8} {'runs':>6}  time")
     rows, errors, exact_worst = [], 0, 0.0
     for i, world in enumerate(suite()):
-        for how in ("IS", "split") if splits(world) else ("IS",):
-            saving, wrong = _world_row(world, baseline, args, 2 * i + (how == "split"), how)
+        hows = ("IS", *(("mix",) if args.mixture else ()), *(("split",) if splits(world) else ()))
+        for how in hows:
+            index = MIX_SEEDS + i if how == "mix" else 2 * i + (how == "split")  # the mix rows' own seeds
+            saving, wrong = _world_row(world, baseline, args, index, how)
             errors = max(errors, wrong)
             if how == method(world):  # the rule's pick for this world: its saving counts
                 rows.append(saving)

@@ -136,7 +136,31 @@ class HalfPlane:
         return integrate.quad(slice_, low, 1, epsabs=1e-14, epsrel=1e-10, limit=200)[0]
 
 
-FailureRegion = Corner | Square | TwoBoxes | Disk | HalfPlane
+@dataclass(frozen=True)
+class ModeGrid:
+    """``per_axis``² boxes of half-width ``size`` in the domain's own quantile coordinates u_j = F_j(c_j) (its
+    Beta(``shape``) CDF on each of the first two axes), centred on a grid: failure modes of equal mass (2·size)²
+    each, spread over the domain, so one mode alone can hold less than m while all together hold p."""
+
+    size: float
+    shape: tuple[float, float] = (2.0, 5.0)
+    per_axis: int = 4
+
+    @property
+    def bracket(self) -> tuple[float, float]:
+        return 1e-9, 0.5 / self.per_axis - 1e-9  # the boxes stay apart
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        u = stats.beta.cdf(points[..., :2], *self.shape)
+        centres = (np.arange(self.per_axis) + 0.5) / self.per_axis
+        per_axis = np.min(np.abs(u[..., None] - centres), axis=-1) - self.size  # to the nearest grid line's box
+        return np.max(per_axis, axis=-1)
+
+    def mass(self, domain: ProductBeta) -> float:
+        return float((self.per_axis * 2 * self.size) ** 2)
+
+
+FailureRegion = Corner | Square | TwoBoxes | Disk | HalfPlane | ModeGrid
 
 
 @dataclass(frozen=True)
@@ -257,6 +281,7 @@ def suite() -> tuple[SuiteWorld, ...]:
         RegionWorld("interior square at (0.5, 0.5)", Square(0.1), two),
         RegionWorld("corner on 2 of 6 axes", Corner(0.5), six),
         RegionWorld("two disconnected boxes", TwoBoxes(0.5), two),
+        RegionWorld("16 modes, each alone below m", ModeGrid(0.01), two),
         RegionWorld("disk about (1, 1), curved", Disk(0.5), two),
         RegionWorld("half-plane c1 + c2 > s, rotated", HalfPlane(1.0), two),
         walk,

@@ -34,7 +34,7 @@ from pydantic import Field, Strict
 
 from uqdrive.schema import Count, OpenUnit, invalid, schema
 from uqdrive.uq.betting import CAP, mean_interval
-from uqdrive.uq.rare_proposal import ProductBeta, check_support, cross_entropy_step, mixture_sample
+from uqdrive.uq.rare_proposal import BetaMixture, ProductBeta, check_support, mixture_sample
 from uqdrive.uq.threshold import ThresholdDecision, ThresholdTest
 
 Defensive = Annotated[float, Strict(), Field(gt=0, le=1)]
@@ -69,7 +69,9 @@ class RareSettings:
     """Refute or certify "η1 ≥ ``target`` over the domain" at error ≤ ``gamma``. Refutation: rounds of
     ``round_size`` rollouts from λ = ``defensive`` × nominal + (1 − λ) × proposal, up to ``refute_budget``; the
     proposal's cross-entropy step keeps the ``elite`` share of lowest margins among the last ``memory`` rounds and
-    blends the fit by ``smoothing``. Certification: at most ``certify_budget`` rollouts from the domain."""
+    blends the fit by ``smoothing``; ``components`` > 1 makes the proposal a mixture of that many products of
+    Betas, one per failure mode it finds (`rare_proposal.mixture_step`; smoothing must then be 1). Certification:
+    at most ``certify_budget`` rollouts from the domain."""
 
     target: OpenUnit = 0.9999
     gamma: OpenUnit = 0.05
@@ -79,9 +81,17 @@ class RareSettings:
     elite: OpenUnit = 0.1
     smoothing: Defensive = 1.0
     memory: Count = 5
+    components: Count = 1
     certify_budget: Count = 100_000
 
     def __post_init__(self) -> None:
+        if self.components > 1 and self.smoothing != 1:
+            raise invalid(
+                "smoothing",
+                self.smoothing,
+                f"must be 1 with components={self.components} (a mixture's components "
+                "are found afresh each step, so there is no earlier one to blend with)",
+            )
         least = refutation_floor(self.target, self.gamma, self.defensive)
         if self.refute_budget < least:
             raise invalid(
@@ -212,7 +222,8 @@ def refute(
             "(a lane rule's, or +-1 by the outcome) or run plain Monte Carlo (defensive=1, adapt off)"
         )
     evidence = evidence or BettingEvidence(np.full(runs, settings.null), settings.gamma)
-    law, budget = proposal.runs(runs), settings.refute_budget
+    k, budget = settings.components, settings.refute_budget
+    law = proposal.runs(runs) if k == 1 else BetaMixture.copies(proposal, k, runs)
     stop, spent, history = np.full(runs, -1), 0, []  # history: the last rounds the cross-entropy step fits on
     observations, failures, records = np.zeros((runs, budget)), np.zeros(runs, int), []
     while spent < budget and (stop < 0).any():
@@ -233,7 +244,7 @@ def refute(
         if adapt:
             history = [*history[1 - settings.memory :], (points, margins, weights)] if settings.memory > 1 else []
             seen = [np.concatenate(part, 1) for part in zip(*history)] or [points, margins, weights]
-            law = cross_entropy_step(law, *seen, settings.elite, settings.smoothing)
+            law = law.step(*seen, settings.elite, settings.smoothing)
     refuted = stop >= 0
     rollouts = np.where(refuted, stop, spent)
     return Refutation(settings.target, settings.gamma, refuted, rollouts, failures, observations, tuple(records))
