@@ -28,50 +28,36 @@ from pydantic import Field
 
 from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
-from uqdrive.models.posterior import posterior_from_config
-from uqdrive.policy.draws import DrawSettings
-from uqdrive.policy.policy_files import load_policy
-from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.records import as_dict, read_record, write_record
 from uqdrive.replay.video import worst_clips
-from uqdrive.resolvers import driver, world_location
+from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
-from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
+from uqdrive.safety.cells import EstimatorSettings, rates
+from uqdrive.safety.drive import CorridorDrive, Driver, resolve_driver
+from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.safety.failures import job_failures
 from uqdrive.safety.figure import safety_hexbin, visits_colour_bar
 from uqdrive.safety.positions import CellPositions, job_positions, write_positions
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
-from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
+from uqdrive.schema import Bool, Count, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import SimConfig, names_gym_world
+from uqdrive.sim.config import SimConfig
 from uqdrive.stage import cell_overrides, grid, run_cells
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
 from uqdrive.uq import Estimate
 from uqdrive.uq.multiplicity import split_gamma
 
 
 @schema(frozen=True, kw_only=True)
-class SafetySection(EstimatorSettings):
-    """conf/safety.yaml's `safety`: one cell's estimator (scheme, theta, gamma, look_size, base_seed), controller
-    and outputs."""
+class SafetySection(CorridorDrive, EstimatorSettings):
+    """conf/safety.yaml's `safety`: one cell's estimator (scheme, theta, gamma, look_size, base_seed), what drives it
+    (`CorridorDrive`: model_path or policy, speed, samples, draws, eps, horizon_s, half_width) and outputs."""
 
-    model_path: Str
-    policy: Str | None = None  # a user's policy file or YAML (`load_policy`), driving in place of model_path
-    horizon_s: Positive  # T
-    speed: Positive  # m/s, at most vehicle.max_speed
-    samples: Count  # posterior draws per frame (the cap, with sequential draws)
-    draws: DrawSettings  # fixed (the paper's) or sequential draws per frame
-    eps: Positive  # η2's ball, steering units
     family_wise: Bool  # the sweep spends γ over its cells: every cell within ±θ at once with probability ≥ 1 − γ
     family_size: Count  # cells γ is spread over (the sweep sets it to its cell count); 1 unless family_wise
-    half_width: Positive | None  # corridor half-width (m); None = the lane (a gym_world: its safe_if, no corridor)
     cell: Str
-    out: Str
     positions: Str
-    rollout_log: Str
-    plots_dir: Str
     clips: Annotated[int, Field(ge=0, strict=True)]  # the worst failures re-driven as clips and logged (0: none)
     clips_dir: Str
 
@@ -175,33 +161,30 @@ class CellPlan:
     key: str
 
 
+def cell_driver(stage: SafetyStage) -> Driver:
+    """What drives the cell (`resolve_driver`): the trained model, loaded as its method's with the experiment's
+    classes (a missing or mismatched file is one line naming the key and the stage that trains it), or a user's
+    policy (``safety.policy``), its own method, named by its file."""
+    s = stage.safety
+    return resolve_driver("safety", s, stage, s.samples, stage.condition().native)
+
+
 def check_model(stage: SafetyStage) -> str:
-    """The cell's method, its model file loaded as that method's with the experiment's classes; a missing or
-    mismatched file is one line naming the key and the stage that trains it. A user's policy (``safety.policy``)
-    is its own method, named by its file."""
-    if stage.safety.policy is not None:
-        return driver(stage.safety.policy, "")
-    method = posterior_from_config(stage.model).method
-    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
-    cell_posterior("safety.model_path", Path(stage.safety.model_path), method, stage.experiment.bins, trained_by)
-    return method
+    """The cell's method, its driver resolved (`cell_driver`): every cell of a sweep is checked before any runs."""
+    return cell_driver(stage).method
 
 
 def plan_cell(cfg: DictConfig) -> CellPlan:
-    """Validate the cell's config and load its model once, before any rollout: a bad config value is one line
-    naming the key, the value and what is allowed; a missing or mismatched model file names the stage to run."""
+    """Validate the cell's config and resolve what drives it once, before any rollout: a bad config value is one line
+    naming the key, the value and what is allowed; a missing or mismatched model file names the stage to run; a
+    user's policy is run on the cell's first frame (its file's bytes or its class's source in the cell's key)."""
     stage = validate(SafetyStage, cfg)
     s = stage.safety
-    method = check_model(stage)
-    if s.policy is not None:  # a user's: its file's bytes or its class's source in the cell's key
-        spec = load_policy(s.policy, speed=s.speed, eps=s.eps)
-    else:
-        spec = ControllerSpec(s.speed, s.model_path, method, stage.experiment.bins, s.samples, s.eps, draws=s.draws)
+    drive = cell_driver(stage)
     world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
-    job = RolloutJob(spec, stage.condition(), stage.estimator.base_seed, **world)
-    if s.policy is not None:
-        probe_policy(job)
-    return CellPlan(stage, method, job, estimate_key(job, stage.estimator, __name__))
+    job = RolloutJob(drive.spec, stage.condition(), stage.estimator.base_seed, **world)
+    drive.probe(job)
+    return CellPlan(stage, drive.method, job, estimate_key(job, stage.estimator, __name__))
 
 
 def reusable_result(path: str | Path, key: str) -> SafetyCell | None:
