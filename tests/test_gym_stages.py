@@ -16,7 +16,7 @@ from test_gym_world import COIN_ID, CRASH_RATE, coin_crash_step
 from test_stage_sweeps import sweep
 
 import uqdrive.safety.runner as runner
-import uqdrive.sim.condition as sim_condition
+import uqdrive.sim.location as sim_location
 from uqdrive.avoid.plan import build_settings
 from uqdrive.avoid.results import Mode
 from uqdrive.pipeline.avoid_stage import run_avoid
@@ -106,8 +106,8 @@ def test_the_cell_identity_covers_the_envs_kwargs_its_packages_and_the_modules_i
     assert plan_cell(gym_safety(*COIN, "gym_world.safe_if.off_road=true")).key != key
     job = plan_cell(gym_safety(*COIN)).job
     assert runner.job_identity(job)["where"]["gym_world"]["packages"]["gymnasium"] == "1.4.0"
-    real = sim_condition.world_identity
-    monkeypatch.setattr(sim_condition, "world_identity", lambda c: {**real(c), "packages": {"gymnasium": "9.9"}})
+    real = sim_location.world_identity
+    monkeypatch.setattr(sim_location, "world_identity", lambda c: {**real(c), "packages": {"gymnasium": "9.9"}})
     assert plan_cell(gym_safety(*COIN)).key != key  # another Gymnasium: another cell
     digested: list = []
     monkeypatch.setattr(runner, "code_digest", lambda modules: digested.append(modules) or "digest")

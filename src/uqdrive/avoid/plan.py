@@ -14,6 +14,7 @@ n draws a frame, the warnings read at once by the paper's fixed tier rule, n = w
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -46,6 +47,7 @@ from uqdrive.schema import (
 from uqdrive.sim import CameraConfig, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, Mixture, WorldChoice
 from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.sim.location import ByWorld
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage
 from uqdrive.uq.multiplicity import split_gamma
 
@@ -154,14 +156,15 @@ class AvoidStage(WorldChoice, SimConfig, ModelStage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.gym_world is not None:
-            self._check_gym_unknown()
-            return
+        self.choose(ByWorld(road=self._check_road, gym=self._check_gym_unknown))
+
+    def _check_road(self, scenario: ScenarioConfig) -> None:
+        """On our obstacle road: unknown conditions of our weathers and scenario changes, each checked here."""
         for i, condition in enumerate(self.avoid.unknown):
             if condition.world:
                 raise invalid(f"avoid.unknown[{i}].world", condition.world, "changes a gym_world; name one or drop it")
-        if self.scenario.kind != "obstacle":
-            raise invalid("scenario.kind", self.scenario.kind, "must be 'obstacle' for the avoid stage")
+        if not scenario.has_obstacle:
+            raise invalid("scenario.kind", scenario.kind, "must be 'obstacle' for the avoid stage")
         if self.avoid.speed > self.vehicle.max_speed:
             raise invalid("avoid.speed", self.avoid.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         loaded = {self.weather.name, *self.weathers}
@@ -175,7 +178,7 @@ class AvoidStage(WorldChoice, SimConfig, ModelStage):
                 )
             validate(ScenarioConfig, {**self.scenario.to_dict(), **condition.scenario}, f"avoid.unknown[{i}].scenario")
 
-    def _check_gym_unknown(self) -> None:
+    def _check_gym_unknown(self, world: GymWorldConfig) -> None:
         """A Gymnasium world's unknown conditions change its own config or noise; a weather or scenario of ours is
         refused (the env has none), and each changed world is checked here, before any rollout."""
         for i, condition in enumerate(self.avoid.unknown):
@@ -184,9 +187,9 @@ class AvoidStage(WorldChoice, SimConfig, ModelStage):
                     raise invalid(
                         f"avoid.unknown[{i}].{key}",
                         getattr(condition, key),
-                        f"is uqdrive's: {self.gym_world.env_id} has no {key} condition (change its config: world)",
+                        f"is uqdrive's: {world.env_id} has no {key} condition (change its config: world)",
                     )
-            unknown_world(self.gym_world, condition, f"avoid.unknown[{i}].world")
+            unknown_world(world, condition, f"avoid.unknown[{i}].world")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -262,22 +265,25 @@ def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...] | tuple[Mixt
     """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather (a
     Gymnasium world: the world with the condition's changes); with ``unknown_as: mixture``, one mixture whose
     rollouts draw among them (roads and obstacle places alike)."""
-    if stage.gym_world is not None:
-        each = tuple(
-            Condition(unknown_world(stage.gym_world, item, "avoid.unknown.world"), None, item.noise, item.name)
-            for item in stage.avoid.unknown
-        )
-    else:
+    unknown = stage.avoid.unknown
+
+    def in_world(world: GymWorldConfig) -> tuple[Condition, ...]:
+        key = "avoid.unknown.world"
+        return tuple(Condition(unknown_world(world, item, key), None, item.noise, item.name) for item in unknown)
+
+    def on_road(scenario: ScenarioConfig) -> tuple[Condition, ...]:
         weathers = {stage.weather.name: stage.weather, **stage.weathers}
-        each = tuple(
+        return tuple(
             Condition(
-                ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
+                ScenarioConfig.from_config({**scenario.to_dict(), **item.scenario}),
                 weathers[item.weather or stage.weather.name],
                 item.noise,
                 item.name,
             )
-            for item in stage.avoid.unknown
+            for item in unknown
         )
+
+    each = stage.choose(ByWorld(road=on_road, gym=in_world))
     return each if stage.avoid.unknown_as == "cells" else (Mixture(UNKNOWN, each),)
 
 
@@ -313,13 +319,9 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     estimator = dataclasses.replace(
         avoid.estimator, gamma=split_gamma(avoid.gamma, family_size), base_seed=stage.rollout_seeds(avoid.base_seed)
     )
-    world = stage.gym_world
-    horizon = (
-        avoid.horizon_s
-        if world
-        else check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
-    )
-    car = job_world(world, stage.camera, stage.vehicle, float(stage.control_hz), horizon)
+    passes = partial(check_horizon, avoid.horizon_s, warning, avoid.speed, vehicle=stage.vehicle)
+    horizon = stage.choose(ByWorld(road=passes, gym=lambda world: avoid.horizon_s))  # a Gymnasium world's own
+    car = job_world(stage.condition(KNOWN), stage.camera, stage.vehicle, float(stage.control_hz), horizon)
     calibration = avoid.calibration
     needed = min_calibration_runs(calibration.autonomy_target, calibration.gamma, calibration.calibration_fraction)
     fixed = max(estimator.fixed_rollouts(), avoid.min_rollouts)

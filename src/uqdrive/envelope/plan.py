@@ -20,7 +20,8 @@ from uqdrive.safety.drive import CorridorDrive, resolve_driver
 from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.schema import ConfigError, Seed, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import SimConfig, WeatherConfig
+from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.sim.location import ByWorld, nothing
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage
 from uqdrive.uq.multiplicity import split_gamma
 
@@ -52,9 +53,11 @@ class EnvelopeStage(WorldChoice, SimConfig, ModelStage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        self.choose(ByWorld(road=self._check_road, gym=nothing))  # a Gymnasium world's axes: `ConditionSpace`'s
+
+    def _check_road(self, scenario: ScenarioConfig) -> None:
+        """The speed our car can reach, and the weathers a blend axis names, loaded."""
         env = self.envelope
-        if self.gym_world is not None:
-            return  # its axes are checked against the world (`ConditionSpace`)
         if env.speed > self.vehicle.max_speed:
             raise invalid("envelope.speed", env.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         if any(a.key == BLEND for a in env.axes):
@@ -92,7 +95,7 @@ class Envelope:
     def job(self, source: Listed | UniformIn, base_seed: int) -> RolloutJob:
         s = self.stage
         env = s.envelope
-        world = job_world(s.gym_world, s.camera, s.vehicle, s.control_hz, env.horizon_s, env.half_width)
+        world = job_world(s.condition(), s.camera, s.vehicle, s.control_hz, env.horizon_s, env.half_width)
         return RolloutJob(policy=self.policy, where=source, base_seed=base_seed, **world)
 
 
@@ -103,8 +106,9 @@ def build_envelope(cfg: DictConfig) -> Envelope:
     env = stage.envelope
     base = stage.condition()
     blend = None
-    if any(a.key == BLEND for a in env.axes) and stage.gym_world is None:
-        blend = (stage.weathers[env.blend.start], stage.weathers[env.blend.to])
+    if any(a.key == BLEND for a in env.axes):  # between two of our weathers (a Gymnasium world has none)
+        blend = stage.choose(ByWorld(road=lambda _: (stage.weathers[env.blend.start], stage.weathers[env.blend.to]),
+                                     gym=nothing))  # fmt: skip
     try:
         space = ConditionSpace(tuple(Axis.of(a, base) for a in env.axes), base, blend)
     except ValueError as err:
@@ -120,7 +124,7 @@ def _driver(stage: EnvelopeStage) -> tuple[str, PolicyRecipe]:
     mismatched file naming the stage that trains it; or a user's policy, run on a first frame here)."""
     env, where = stage.envelope, stage.condition()
     drive = resolve_driver("envelope", env, stage, env.samples, where.native)
-    world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, env.horizon_s, env.half_width)
+    world = job_world(where, stage.camera, stage.vehicle, stage.control_hz, env.horizon_s, env.half_width)
     drive.probe(RolloutJob(drive.spec, where, env.base_seed, **world))
     return drive.method, drive.spec
 

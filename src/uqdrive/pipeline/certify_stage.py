@@ -67,7 +67,7 @@ def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
 
     where = stage.condition()
     drive = user_driver("certify.policy", stage.certify.policy, where.native)
-    world = job_world(stage.gym_world, stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
+    world = job_world(where, stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
     job = RolloutJob(drive.spec, where, stage.certify.base_seed, **world)
     drive.probe(job)
     return drive.spec, job

@@ -41,7 +41,8 @@ from uqdrive.safety.positions import CellPositions, job_positions, write_positio
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
 from uqdrive.schema import Bool, Count, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import SimConfig
+from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig
+from uqdrive.sim.location import ByWorld, nothing
 from uqdrive.stage import cell_overrides, grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
@@ -77,10 +78,11 @@ class SafetyStage(WorldChoice, SimConfig, ModelStage):
             raise invalid("safety.speed", self.safety.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         if self.safety.family_size != 1 and not self.safety.family_wise:
             raise invalid("safety.family_size", self.safety.family_size, "must be 1 unless safety.family_wise")
-        if self.gym_world is not None and self.safety.half_width is not None:
-            raise invalid(
-                "safety.half_width", self.safety.half_width, "is a lane's: a gym_world is judged by its safe_if"
-            )
+        if self.safety.half_width is not None:
+            self.choose(ByWorld(road=nothing, gym=self._refuse_corridor))
+
+    def _refuse_corridor(self, world: GymWorldConfig) -> None:
+        raise invalid("safety.half_width", self.safety.half_width, "is a lane's: a gym_world is judged by its safe_if")
 
     @property
     def estimator(self) -> EstimatorSettings:
@@ -119,25 +121,42 @@ class SafetySweepStage(SafetyStage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        s = self.sweep
-        if self.gym_world is None and not s.weathers:
-            raise invalid("sweep.weathers", [], "must name at least one weather (conf/weather/)")
-        if self.gym_world is None and s.world_axis is not None:
-            raise invalid("sweep.world_axis", s.world_axis.key, "varies a gym_world; name one (conf/gym_world/)")
-        if self.gym_world is not None:
-            for key, names in (("locations", s.locations), ("weathers", s.weathers)):
-                if names:
-                    raise invalid(f"sweep.{key}", list(names), f"must be empty: {self.gym_world.env_id} is the world")
-            for label, value in s.world_axis.values.items() if s.world_axis else ():  # a key the world sets
-                self.gym_world.changed({s.world_axis.key: value}, label, "sweep.world_axis")
+        self.choose(SweepCells(self.sweep))  # each world's sweep checked
 
-    def world_variants(self) -> list[dict[str, Any]]:
+
+@dataclasses.dataclass(frozen=True)
+class SweepCells:
+    """The sweep's cells as overrides, the last axis varying fastest, each world's axes checked: on a road, methods ×
+    replicates × locations × weathers × noises; in a Gymnasium world, methods × replicates × the world's variants
+    (the values of ``world_axis``, each a location of its own) × noises."""
+
+    sweep: SafetySweep
+
+    def road(self, scenario: ScenarioConfig) -> list[dict[str, Any]]:
+        s = self.sweep
+        if not s.weathers:
+            raise invalid("sweep.weathers", [], "must name at least one weather (conf/weather/)")
+        if s.world_axis is not None:
+            raise invalid("sweep.world_axis", s.world_axis.key, "varies a gym_world; name one (conf/gym_world/)")
+        return grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
+
+    def gym(self, world: GymWorldConfig) -> list[dict[str, Any]]:
+        s = self.sweep
+        for key, names in (("locations", s.locations), ("weathers", s.weathers)):
+            if names:
+                raise invalid(f"sweep.{key}", list(names), f"must be empty: {world.env_id} is the world")
+        for label, value in s.world_axis.values.items() if s.world_axis else ():  # a key the world sets
+            world.changed({s.world_axis.key: value}, label, "sweep.world_axis")
+        cells = grid(model=s.methods, seed=s.replicates, world=self.variants(world), noise=s.noises)
+        return [{"model": c["model"], "seed": c["seed"], **c["world"], "noise": c["noise"]} for c in cells]
+
+    def variants(self, world: GymWorldConfig) -> list[dict[str, Any]]:
         """Each location of a Gymnasium sweep as a cell's overrides (one empty set: the named world alone)."""
-        axis, name = self.sweep.world_axis, self.gym_world.name
+        axis = self.sweep.world_axis
         if axis is None:
             return [{}]
         return [
-            {f"++gym_world.{axis.key}": value, "gym_world.name": world_location(name, label)}
+            {f"++gym_world.{axis.key}": value, "gym_world.name": world_location(world.name, label)}
             for label, value in axis.values.items()
         ]
 
@@ -181,8 +200,9 @@ def plan_cell(cfg: DictConfig) -> CellPlan:
     stage = validate(SafetyStage, cfg)
     s = stage.safety
     drive = cell_driver(stage)
-    world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
-    job = RolloutJob(drive.spec, stage.condition(), stage.estimator.base_seed, **world)
+    where = stage.condition()
+    world = job_world(where, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
+    job = RolloutJob(drive.spec, where, stage.estimator.base_seed, **world)
     drive.probe(job)
     return CellPlan(stage, drive.method, job, estimate_key(job, stage.estimator, __name__))
 
@@ -286,13 +306,8 @@ def draw_clips(plan: CellPlan, cell: SafetyCell, only_missing: bool) -> float:
 
 
 def sweep_cells(stage: SafetySweepStage) -> list[dict[str, Any]]:
-    """The sweep's cells as overrides, the last axis varying fastest: methods × replicates × locations × weathers ×
-    noises, or in a Gymnasium world methods × replicates × the world's variants × noises."""
-    s = stage.sweep
-    if stage.gym_world is None:
-        return grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
-    cells = grid(model=s.methods, seed=s.replicates, world=stage.world_variants(), noise=s.noises)
-    return [{"model": c["model"], "seed": c["seed"], **c["world"], "noise": c["noise"]} for c in cells]
+    """The sweep's cells as overrides (`SweepCells`)."""
+    return stage.choose(SweepCells(stage.sweep))
 
 
 def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, SafetyRun]]:

@@ -112,6 +112,11 @@ class ScenarioConfig(Section):
         ((0.72, 0.66, 0.58), (0.58, 0.60, 0.66), (0.78, 0.52, 0.40), (0.85, 0.82, 0.72)), min_length=1
     )
 
+    @property
+    def has_obstacle(self) -> bool:
+        """Whether the road has a stationary car to avoid (kind ``obstacle``)."""
+        return self.kind == "obstacle"
+
     def __post_init__(self) -> None:
         if self.kind == "obstacle" and self.num_lanes < 2:
             raise invalid("num_lanes", self.num_lanes, "must be >= 2 for kind 'obstacle' (it passes on the left)")
