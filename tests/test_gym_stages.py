@@ -136,7 +136,7 @@ def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and
         assert cell["outcomes"] == "".join("0" if coin_crash_step(s, rate) else "1" for s in seeds)
     assert cells[0][1]["config_hash"] != cells[1][1]["config_hash"]
 
-    unknown = stage_config("gym_avoid", "gym_world=highway_roundabout").avoid.unknown  # gym_axis' values but the first
+    unknown = stage_config("gym_avoid", "gym_world=highway_roundabout").avoid.unknown  # its axis' values but the first
     assert [(u["name"], u["world"]) for u in unknown] == [
         ("aggressive", {"env_kwargs.config.other_vehicles_type": "highway_env.vehicle.behavior.AggressiveVehicle"})
     ]
@@ -187,7 +187,7 @@ def test_highway_roundabouts_warning_system_runs_end_to_end_with_aggressive_driv
     stage_config, random_models, tmp_path
 ):
     pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
-    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")  # gym_axis: IDM as collected, then aggressive
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")  # its axis: IDM as collected, then aggressive
     model = f"avoid.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
     world = ("gym_world=highway_roundabout", "gym_world.horizon_steps=15")
     cfg = stage_config("gym_avoid", model, *ALL_TENTHS, *world)

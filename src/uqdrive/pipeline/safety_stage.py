@@ -41,7 +41,7 @@ from uqdrive.safety.positions import CellPositions, job_positions, write_positio
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
 from uqdrive.schema import Bool, Count, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig
+from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WorldAxis
 from uqdrive.sim.location import ByWorld, nothing
 from uqdrive.stage import cell_overrides, grid, run_cells
 from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep
@@ -94,23 +94,13 @@ class SafetyStage(WorldChoice, SimConfig, ModelStage):
         )
 
 
-@schema
-class WorldAxis:
-    """A condition of a Gymnasium world that a sweep varies: ``key`` under `gym_world` (e.g.
-    ``env_kwargs.config.other_vehicles_type``) and its value per label; each value is a location of its own, named
-    ``<gym_world.name>-<label>``."""
-
-    key: Str
-    values: Annotated[dict[Annotated[str, Field(pattern=r"^[A-Za-z0-9_.]+$")], Any], Field(min_length=1)]
-
-
 @schema(kw_only=True)
 class SafetySweep(Sweep):
     """The offline-safety sweep's cells: in the pybullet world, methods × replicates × locations × weathers × noises;
     in a Gymnasium world, methods × replicates × the values of ``world_axis`` (or the one world) × noises."""
 
     weathers: Names = ()  # conf/weather/: at least one in the pybullet world, none in a Gymnasium world
-    world_axis: WorldAxis | None = None
+    world_axis: WorldAxis | None = None  # conf/gym_safety_sweep.yaml: the world's own (gym_world.axis)
 
 
 @schema(root=True)

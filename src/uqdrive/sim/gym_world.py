@@ -330,7 +330,8 @@ def world_identity(config: GymWorldConfig) -> dict[str, Any]:
     found = metadata.packages_distributions()
     owners = {name for module in _world_modules(config) for name in found.get(module.partition(".")[0], [])}
     names = sorted({"gymnasium", *owners, *hooks_class(config.hooks).packages})
-    return {"config": config.to_dict(), "packages": {name: metadata.version(name) for name in names}}
+    own = {k: v for k, v in config.to_dict().items() if k != "axis"}  # what its sweeps vary: not a rollout's
+    return {"config": own, "packages": {name: metadata.version(name) for name in names}}
 
 
 def world_modules(config: GymWorldConfig) -> list[str]:
