@@ -249,8 +249,7 @@ class AvoidSettings:
         distances are then along each run's path, `OwnPath`)."""
 
         def geometry(where: Condition | Mixture) -> Course:  # a mixture's road: the known one's
-            condition = where if isinstance(where, Condition) else self.known
-            return condition.visit(CourseOf())
+            return (where.single or self.known).visit(CourseOf())
 
         return {c.name: geometry(c) for c in self.conditions}
 

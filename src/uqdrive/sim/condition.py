@@ -26,7 +26,16 @@ from uqdrive.sim.config import (
 )
 from uqdrive.sim.location import NO_WEATHER, Location, LocationVisitor, location_of
 
-__all__ = ["NO_WEATHER", "Condition", "ConditionSource", "Mixture", "WorldChoice", "variant_of"]
+__all__ = [
+    "NO_WEATHER",
+    "Condition",
+    "ConditionSource",
+    "Mixture",
+    "WorldChoice",
+    "source_conditions",
+    "source_identity",
+    "variant_of",
+]
 from uqdrive.sim.world import R, World, WorldVisitor
 
 VARIANT_STREAM = 0xA401D  # a mixture's variant draw: its own random stream of a rollout seed, apart from the episode's
@@ -77,6 +86,11 @@ class Condition:
 
     def condition(self, index: int, seed: int) -> Condition:
         """Every rollout drives here."""
+        return self
+
+    @property
+    def single(self) -> Condition | None:
+        """The one condition every rollout drives in: this one."""
         return self
 
     def visit(self, visitor: WorldVisitor[R]) -> R:
@@ -147,6 +161,33 @@ class Mixture:
 
     def condition(self, index: int, seed: int) -> Condition:
         return self.variants[self.variant(seed)]
+
+    @property
+    def single(self) -> Condition | None:
+        """None: its rollouts drive in several conditions."""
+        return None
+
+
+def source_conditions(where: Any) -> tuple[Condition, ...]:
+    """The conditions a rollout source's identity rests on: a condition itself, a mixture's variants, an envelope
+    source's base world (its ``base``: the axes' values are the source's own fields); none for anything else."""
+    if isinstance(where, Mixture):
+        return where.variants
+    found = where if isinstance(where, Condition) else getattr(where, "base", None)
+    return (found,) if isinstance(found, Condition) else ()
+
+
+def source_identity(where: Any) -> Any:
+    """A rollout source as a cell's identity sees it: an external world by its identity (`Condition.external_identity`),
+    a mixture by its variants', an envelope's source over an external world with that world's; anything else as
+    itself."""
+    if isinstance(where, Mixture):
+        return {"mixture": where.name, "variants": [source_identity(v) for v in where.variants]}
+    if isinstance(where, Condition) and where.external:
+        return {"gym_world": where.external_identity(), "noise": where.noise, "name": where.name}
+    if any(c.external for c in source_conditions(where)):  # an envelope's source over an external world
+        return {"source": where, "gym_world": where.base.external_identity()}
+    return where
 
 
 @schema(root=True)
