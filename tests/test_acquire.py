@@ -340,7 +340,7 @@ def test_a_gymnasium_worlds_flagged_location_is_placed_by_its_axis(tmp_path):
         "gym_world.name": "highway_roundabout-aggressive",
         "noise": 0.1,
     }
-    shutil.copy(CONF.parent / "params.yaml", tmp_path / "params.yaml")  # gym_axis: idm first, as collected
+    shutil.copy(CONF.parent / "params.yaml", tmp_path / "params.yaml")  # its axis: idm first, as collected
     world = ("gym_world=highway_roundabout", "experiment=highway_roundabout")
     collected = validate(AcquireStage, compose_in(tmp_path, "gym_acquire", *world))
     assert collected.acquire.cells_dir == f"{tmp_path}/metrics/highway_roundabout/safety"

@@ -10,6 +10,8 @@ import itertools
 import typing
 from pathlib import Path
 
+from uqdrive.sim.config import SCENARIO_KINDS
+
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "uqdrive"
 BELOW_SAFETY = {"policy", "sim", "models", "uq", "data"}
 LAYERS = {  # package → the project packages it may import (root modules are open to all)
@@ -391,7 +393,8 @@ def test_no_import_circle_even_through_deferred_imports():
     assert not import_circles(), "\n".join(" → ".join([*c, c[0]]) for c in import_circles())
 
 
-WORLD_TYPES = {  # the worlds (`uqdrive.sim.world.World`), their locations' configs and their lanes, and the bodies
+WORLD_TYPES = {  # the worlds (`uqdrive.sim.world.World`), their locations' configs and their lanes, the bodies, where
+    # a rollout drives (a condition, a mixture of them) and the location types, one per world (`uqdrive.sim.location`)
     "World",
     "DrivingEnv",
     "GymWorld",
@@ -400,22 +403,105 @@ WORLD_TYPES = {  # the worlds (`uqdrive.sim.world.World`), their locations' conf
     "ScenarioGeometry",
     "DrivenPath",
     "Scene",
+    "Condition",
+    "Mixture",
+    "Location",
+    "RoadLocation",
+    "GymLocation",
 }
 
 
-def test_no_code_outside_sim_asks_which_world_it_has():
-    asked = [
+def world_questions(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every place outside `sim/` that asks which world it has: an ``isinstance``/``issubclass`` on a world type, a
+    ``gym_world is None`` / ``is not None`` check, or a switch on a scenario kind's name (`SCENARIO_KINDS`:
+    ``x.kind == "obstacle"``, ``kind != "roundabout"``, ``in (...)``)."""
+
+    def asks(node: ast.AST) -> bool:
+        if isinstance(node, ast.Call):
+            return (
+                isinstance(node.func, ast.Name)
+                and node.func.id in ("isinstance", "issubclass")
+                and len(node.args) == 2
+                and bool({n for part in ast.walk(node.args[1]) for n in _names(part)} & WORLD_TYPES)
+            )
+        if not isinstance(node, ast.Compare):
+            return False
+        left, op, right = node.left, node.ops[0], node.comparators[0]
+        if isinstance(op, ast.Is | ast.IsNot):
+            named = getattr(left, "attr", getattr(left, "id", None))
+            return named == "gym_world" and isinstance(right, ast.Constant) and right.value is None
+        if isinstance(op, ast.Eq | ast.NotEq | ast.In | ast.NotIn):
+            strings = [right, *getattr(right, "elts", [])]
+            kind = getattr(left, "attr", getattr(left, "id", None)) == "kind"
+            return kind and any(isinstance(v, ast.Constant) and v.value in SCENARIO_KINDS for v in strings)
+        return False
+
+    return [
         f"{path.relative_to(PACKAGE)}:{node.lineno} {ast.unparse(node)}"
-        for path, tree in modules().items()
+        for path, tree in trees.items()
         if path.relative_to(PACKAGE).parts[0] != "sim"
         for node in ast.walk(tree)
-        if isinstance(node, ast.Call)
-        and isinstance(node.func, ast.Name)
-        and node.func.id in ("isinstance", "issubclass")
-        and len(node.args) == 2
-        and {n.id if isinstance(n, ast.Name) else getattr(n, "attr", "") for n in ast.walk(node.args[1])} & WORLD_TYPES
+        if asks(node)
     ]
+
+
+def test_no_code_outside_sim_asks_which_world_it_has():
+    asked = world_questions(modules())
     assert not asked, "\n".join(asked)
+
+
+def test_world_questions_are_found():
+    planted = {
+        "isinstance(where, Condition)": True,
+        "isinstance(where, Mixture | Condition)": True,
+        "issubclass(kind, sim.location.GymLocation)": True,
+        "stage.gym_world is None": True,
+        "self.gym_world is not None and half_width": True,
+        "gym_world is None": True,
+        'scenario.kind == "obstacle"': True,
+        "cfg.kind != 'roundabout'": True,
+        'geometry.config.kind in ("obstacle", "straight")': True,
+        'kind == "roundabout"': True,  # the kind read into a name first
+        "stage.gym_world.env_id": False,
+        "where.single is None": False,
+        "policy.kind == kind": False,  # no string: not a switch on a kind's name
+        "kind == 'gray'": False,  # a frame's kind, not a scenario's
+        "isinstance(spec, ControllerSpec)": False,  # a policy type: the policy rule's
+    }
+    for code, caught in planted.items():
+        for folder, outside in (("safety", True), ("sim", False)):
+            found = world_questions({PACKAGE / folder / "planted.py": ast.parse(code)})
+            assert bool(found) == (caught and outside), (folder, code, found)
+
+
+DRIVING = {"pipeline", "avoid", "envelope"}  # the stages that drive, and the wings whose plans they call
+
+
+def driver_questions(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every ``….policy is None`` / ``is not None`` in a driving stage or wing: what drives is resolved once
+    (`uqdrive.safety.drive.resolve_driver`), never branched on."""
+    return [
+        f"{path.relative_to(PACKAGE)}:{node.lineno} {ast.unparse(node)}"
+        for path, tree in trees.items()
+        if path.relative_to(PACKAGE).parts[0] in DRIVING
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Compare)
+        and isinstance(node.ops[0], ast.Is | ast.IsNot)
+        and isinstance(node.left, ast.Attribute)
+        and node.left.attr == "policy"
+        and isinstance(node.comparators[0], ast.Constant)
+        and node.comparators[0].value is None
+    ]
+
+
+def test_no_stage_asks_which_driver_it_has():
+    asked = driver_questions(modules())
+    assert not asked, "\n".join(asked)
+    planted = {"s.policy is not None": True, "stage.safety.policy is None": True, "policy is None": False}
+    for code, caught in planted.items():
+        for folder, driving in (("pipeline", True), ("safety", False)):
+            found = driver_questions({PACKAGE / folder / "planted.py": ast.parse(code)})
+            assert bool(found) == (caught and driving), (folder, code, found)
 
 
 def policy_and_recipe_classes(trees: dict[Path, ast.Module]) -> tuple[dict[str, Path], dict[str, Path]]:

@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 from uqdrive.network_input import preprocess_frame
 from uqdrive.schema import ConfigError
 from uqdrive.sim import DrivingEnv, ScenarioConfig
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import WeatherConfig, find_conf
 from uqdrive.sim.gym_env import ENV_IDS
 
@@ -48,7 +49,8 @@ def test_reset_seed_is_the_rollout_seed_of_driving_env_and_unseeded_resets_follo
     obs, info = env.reset(seed=7)
     with DrivingEnv() as driving:
         weather = WeatherConfig.from_yaml(find_conf() / "weather" / "rain.yaml")
-        frame = driving.reset(7, ScenarioConfig.from_yaml(find_conf() / "scenario" / "roundabout.yaml"), weather, 0.05)
+        roundabout = ScenarioConfig.from_yaml(find_conf() / "scenario" / "roundabout.yaml")
+        frame = driving.reset(7, Condition(roundabout, weather, 0.05))
     assert np.array_equal(obs, preprocess_frame(frame))  # gymnasium's seed 7 is the pipeline's rollout seed 7
     first, second = env.reset()[1]["seed"], env.reset()[1]["seed"]
     env.reset(seed=7)

@@ -16,7 +16,7 @@ from test_gym_world import COIN_ID, CRASH_RATE, coin_crash_step
 from test_stage_sweeps import sweep
 
 import uqdrive.safety.runner as runner
-import uqdrive.sim.condition as sim_condition
+import uqdrive.sim.location as sim_location
 from uqdrive.avoid.plan import build_settings
 from uqdrive.avoid.results import Mode
 from uqdrive.pipeline.avoid_stage import run_avoid
@@ -106,8 +106,8 @@ def test_the_cell_identity_covers_the_envs_kwargs_its_packages_and_the_modules_i
     assert plan_cell(gym_safety(*COIN, "gym_world.safe_if.off_road=true")).key != key
     job = plan_cell(gym_safety(*COIN)).job
     assert runner.job_identity(job)["where"]["gym_world"]["packages"]["gymnasium"] == "1.4.0"
-    real = sim_condition.world_identity
-    monkeypatch.setattr(sim_condition, "world_identity", lambda c: {**real(c), "packages": {"gymnasium": "9.9"}})
+    real = sim_location.world_identity
+    monkeypatch.setattr(sim_location, "world_identity", lambda c: {**real(c), "packages": {"gymnasium": "9.9"}})
     assert plan_cell(gym_safety(*COIN)).key != key  # another Gymnasium: another cell
     digested: list = []
     monkeypatch.setattr(runner, "code_digest", lambda modules: digested.append(modules) or "digest")
@@ -136,7 +136,7 @@ def test_a_sweep_over_one_of_the_envs_conditions_makes_each_value_a_location_and
         assert cell["outcomes"] == "".join("0" if coin_crash_step(s, rate) else "1" for s in seeds)
     assert cells[0][1]["config_hash"] != cells[1][1]["config_hash"]
 
-    unknown = stage_config("gym_avoid", "gym_world=highway_roundabout").avoid.unknown  # gym_axis' values but the first
+    unknown = stage_config("gym_avoid", "gym_world=highway_roundabout").avoid.unknown  # its axis' values but the first
     assert [(u["name"], u["world"]) for u in unknown] == [
         ("aggressive", {"env_kwargs.config.other_vehicles_type": "highway_env.vehicle.behavior.AggressiveVehicle"})
     ]
@@ -187,7 +187,7 @@ def test_highway_roundabouts_warning_system_runs_end_to_end_with_aggressive_driv
     stage_config, random_models, tmp_path
 ):
     pytest.importorskip("highway_env", reason="highway-env is not installed (pip install 'uqdrive[highway]')")
-    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")  # gym_axis: IDM as collected, then aggressive
+    shutil.copy(ROOT / "params.yaml", tmp_path / "params.yaml")  # its axis: IDM as collected, then aggressive
     model = f"avoid.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
     world = ("gym_world=highway_roundabout", "gym_world.horizon_steps=15")
     cfg = stage_config("gym_avoid", model, *ALL_TENTHS, *world)

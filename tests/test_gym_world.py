@@ -115,7 +115,7 @@ def test_uqdrive_env_through_the_adapter_drives_the_paths_driving_env_drives() -
     policy, seeds = ConstantPolicy(0.0625, 6.0), [3, 4]  # a steer float32 holds exactly: the action space's dtype
     with GymWorld(config) as world:
         through = run_rollouts([world], policy, seeds, conditions(seeds, 0.0), safe_set=InfoSafeSet.of(config))
-        first = world.reset(3, noise=0.0)
+        first = world.reset(3, Condition(config, None, 0.0))
         with gymnasium.make("uqdrive/Roundabout-v0") as env:
             assert np.array_equal(preprocess_frame(first), env.reset(seed=3)[0])  # the grey frame, exactly
     with DrivingEnv() as env:
@@ -153,7 +153,7 @@ def test_a_gymnasium_runs_lane_is_the_path_it_drove_with_what_the_env_reported()
 def test_frames_are_the_network_size_in_rgb_and_the_noise_is_the_seeds() -> None:
     with coin_world() as world:
         clean = world.reset(5)
-        noisy, again, other = (world.reset(seed, noise=0.1) for seed in (5, 5, 6))
+        noisy, again, other = (world.reset(seed, Condition(world.config, None, 0.1)) for seed in (5, 5, 6))
         assert world.reset(5, render=False) is None
     assert clean.shape == (48, 64, 3) and clean.dtype == np.uint8
     assert np.array_equal(clean[..., 0], clean[..., 2]) and np.array_equal(preprocess_frame(clean), clean[..., 1])
@@ -165,7 +165,7 @@ def test_frames_are_the_network_size_in_rgb_and_the_noise_is_the_seeds() -> None
 def test_a_condition_the_env_lacks_is_refused_naming_the_key(key: str) -> None:
     value = ScenarioConfig() if key == "scenario" else "rain"
     with coin_world() as world, pytest.raises(ConfigError) as err:
-        world.reset(0, **{key: value})
+        world.reset(0, Condition(value, None) if key == "scenario" else Condition(world.config, value))
     assert str(err.value).startswith(f"{key}=") and f"{COIN_ID} has no {key} condition" in str(err.value)
 
 
@@ -249,7 +249,7 @@ def test_asking_highways_expert_leaves_the_episode_as_it_was(highway_config: Gym
 
 def test_highway_refuses_weather_and_a_two_component_action(highway_config: GymWorldConfig) -> None:
     with GymWorld(highway_config) as world, pytest.raises(ConfigError, match=r"^weather='rain': roundabout-v0 has no"):
-        world.reset(0, weather="rain")
+        world.reset(0, Condition(world.config, "rain"))
     kwargs = {"config": {**highway_config.env_kwargs["config"], "action": {"type": "ContinuousAction"}}}
     bad = GymWorldConfig.from_config({**highway_config.to_dict(), "env_kwargs": kwargs})
     with pytest.raises(ConfigError, match=r"^gym_world.env_kwargs.config.action: must be \{type: ContinuousAction"):

@@ -34,7 +34,8 @@ def test_outcomes_come_in_seed_order_whichever_worker_finishes_first(tmp_path):
         "env_kwargs": {"delay": 0.05, "slow_below": 2, "log_dir": str(finished)},
     })  # fmt: skip
     spec = load_policy(write_yaml(tmp_path / "a.yaml", "policy:\n  _target_: native_kit.toward_centre\n"), native=True)
-    job = RolloutJob(spec, Condition(world, None), 0, **job_world(world, CameraConfig(), VehicleConfig(), 15.0, 1.0))
+    where = Condition(world, None)
+    job = RolloutJob(spec, where, 0, **job_world(where, CameraConfig(), VehicleConfig(), 15.0, 1.0))
     parallel = outcomes(job, 2)
     ended = {int(p.name): float(p.read_text()) for p in finished.iterdir()}
     assert ended[2] < ended[3] < ended[0] < ended[1]  # the second worker's chunk (seeds 2, 3) ended first

@@ -88,7 +88,7 @@ WEATHER = WeatherConfig.from_yaml(CONF / "weather" / "clear_noon.yaml")
 @pytest.fixture(scope="module")
 def frame():
     with DrivingEnv() as env:
-        return env.reset(0, ScenarioConfig.from_yaml(CONF / "scenario" / "obstacle.yaml"), WEATHER)
+        return env.reset(0, Condition(ScenarioConfig.from_yaml(CONF / "scenario" / "obstacle.yaml"), WEATHER))
 
 
 def decisions(controller: Controller, frame, frames: int) -> list:

@@ -7,6 +7,7 @@ from omegaconf import OmegaConf
 
 from uqdrive.schema import ConfigError
 from uqdrive.sim import AutopilotConfig, CameraConfig, DrivingEnv, ScenarioConfig, VehicleConfig, WeatherConfig
+from uqdrive.sim.condition import Condition
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -79,12 +80,12 @@ def test_inconsistent_geometry_is_rejected():
         VehicleConfig.from_config(wheelbase=5.0)
     with pytest.raises(ValueError, match="scenario.route_fillet=30"):
         with DrivingEnv() as env:
-            env.reset(0, ScenarioConfig(kind="roundabout", route_fillet=30.0), render=False)
+            env.reset(0, Condition(ScenarioConfig(kind="roundabout", route_fillet=30.0), None), render=False)
 
 
 def test_negative_noise_is_rejected():
     with DrivingEnv() as env, pytest.raises(ConfigError, match=r"^noise=-0.1: input should be greater than or equal"):
-        env.reset(0, ScenarioConfig(), noise=-0.1)
+        env.reset(0, Condition(ScenarioConfig(), None, -0.1))
 
 
 def test_every_scenario_kind_has_a_layout_builder():

@@ -11,6 +11,7 @@ import pytest
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH, preprocess_frame
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig, build_geometry
 from uqdrive.sim.camera import _rain_cover
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.scene import Scene
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -27,7 +28,7 @@ def env():
 
 
 def run(env, seed, weather, noise=0.0, steps=4, scenario=OBSTACLE, render=True):
-    frames = [env.reset(seed, scenario, weather, noise=noise, render=render)]
+    frames = [env.reset(seed, Condition(scenario, weather, noise), render=render)]
     for k in range(steps):
         obs, _ = env.step(0.1 * np.sin(k), 8.0)
         frames.append(obs)
@@ -63,8 +64,10 @@ def test_same_path_in_a_fresh_process_and_with_render_off(env, tmp_path):
     out = tmp_path / "trajectory.json"  # a file, not stdout: the child's output is not ours to parse
     code = (
         "import json, sys, numpy as np\nfrom uqdrive.sim import DrivingEnv, ScenarioConfig\n"
+        "from uqdrive.sim.condition import Condition\n"
         "print('before', flush=True)\n"
-        "with DrivingEnv() as env:\n    env.reset(5, ScenarioConfig(kind='obstacle', name='obstacle'), render=False)\n"
+        "with DrivingEnv() as env:\n"
+        "    env.reset(5, Condition(ScenarioConfig(kind='obstacle', name='obstacle'), None), render=False)\n"
         "    for k in range(4): env.step(0.1 * np.sin(k), 8.0)\n"
         "    open(sys.argv[1], 'w').write(json.dumps({k: v.tolist() for k, v in env.trajectory.items()}))\n"
         "print('after')\n"
@@ -80,7 +83,7 @@ def test_same_path_in_a_fresh_process_and_with_render_off(env, tmp_path):
 
 def test_collision_driving_straight_into_the_obstacle(env):
     scenario = dataclasses.replace(OBSTACLE, start_jitter_lateral=0.0, start_jitter_yaw_deg=0.0)
-    env.reset(0, scenario, render=False)
+    env.reset(0, Condition(scenario, None), render=False)
     info = env.last_info
     while not info["done"]:
         _, info = env.step(0.0, env.vehicle_config.max_speed)
@@ -93,7 +96,7 @@ def test_collision_driving_straight_into_the_obstacle(env):
 
 
 def test_off_road_with_full_left_steering(env):
-    env.reset(0, ScenarioConfig(kind="straight"), render=False)
+    env.reset(0, Condition(ScenarioConfig(kind="straight"), None), render=False)
     info = env.last_info
     while not info["done"]:
         _, info = env.step(1.0, 8.0)
@@ -104,7 +107,7 @@ def test_off_road_with_full_left_steering(env):
 
 def test_timeout(env):
     with DrivingEnv(horizon_s=1.0) as short:
-        short.reset(0, ScenarioConfig(kind="straight"), render=False)
+        short.reset(0, Condition(ScenarioConfig(kind="straight"), None), render=False)
         info = short.last_info
         while not info["done"]:
             _, info = short.step(0.0, 8.0)
@@ -157,7 +160,7 @@ def test_culling_hides_bodies_but_never_changes_the_image(env, scenario):
     culled, _ = run(env, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
     hidden = int((~env.scene._shown).sum())
     with DrivingEnv() as every_body:
-        every_body.reset(2, config, render=False)  # builds the world
+        every_body.reset(2, Condition(config, None), render=False)  # builds the world
         world = every_body.scene
         world.cull = lambda x, y, yaw, half_angle: Scene.cull(world, x, y, yaw, np.pi)  # a wedge hiding nothing
         shown, _ = run(every_body, 2, WEATHERS["rain"], noise=0.05, steps=12, scenario=config)
@@ -176,16 +179,16 @@ def test_rain_covers_the_same_share_of_the_image_at_every_resolution():
 
 
 def test_world_is_cached_per_scenario(env):
-    env.reset(0, OBSTACLE, render=False)
+    env.reset(0, Condition(OBSTACLE, None), render=False)
     world = env.scene
-    env.reset(1, ScenarioConfig(kind="obstacle", name="obstacle"), render=False)
+    env.reset(1, Condition(ScenarioConfig(kind="obstacle", name="obstacle"), None), render=False)
     assert env.scene is world
-    env.reset(1, ScenarioConfig(kind="straight"), render=False)
+    env.reset(1, Condition(ScenarioConfig(kind="straight"), None), render=False)
     assert env.scene is not world
 
 
 def test_paved_area_and_route_geometry(env):
-    env.reset(0, ScenarioConfig(kind="roundabout"), render=False)
+    env.reset(0, Condition(ScenarioConfig(kind="roundabout"), None), render=False)
     geo = env.geometry
     cfg = geo.config
     r_in, r_out = cfg.ring_radius - cfg.ring_width / 2, cfg.ring_radius + cfg.ring_width / 2

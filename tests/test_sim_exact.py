@@ -10,6 +10,7 @@ import pytest
 
 from uqdrive.sim import DrivingEnv, Route, ScenarioConfig, WeatherConfig, build_geometry
 from uqdrive.sim.camera import _rain_cover, add_noise
+from uqdrive.sim.condition import Condition
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -94,7 +95,7 @@ def test_covers_is_contains_all():
 @pytest.mark.parametrize("kind", ["obstacle", "roundabout_town"])
 def test_ego_is_placed_before_every_query_that_needs_it(kind):
     with DrivingEnv() as env:
-        env.reset(0, ScenarioConfig.from_yaml(CONF / "scenario" / f"{kind}.yaml"), render=False)
+        env.reset(0, Condition(ScenarioConfig.from_yaml(CONF / "scenario" / f"{kind}.yaml"), None), render=False)
         world, client = env.scene, env.client
         rng = np.random.default_rng(3)
         hits = 0

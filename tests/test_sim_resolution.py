@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from uqdrive.sim import CameraConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.condition import Condition
 from uqdrive.tools.frame_gallery import main as frames_main
 from uqdrive.tools.resolution import marking_contrast, project, render_at
 
@@ -17,7 +18,7 @@ STRAIGHT = ScenarioConfig.from_yaml(CONF / "scenario" / "straight.yaml")
 @pytest.fixture(scope="module")
 def env():
     with DrivingEnv(CameraConfig(width=160, height=120)) as e:
-        e.reset(0, STRAIGHT, render=False)
+        e.reset(0, Condition(STRAIGHT, None), render=False)
         yield e
 
 

@@ -72,7 +72,7 @@ def obstacle():
 @pytest.fixture(scope="module")
 def frame(obstacle):
     with DrivingEnv() as env:
-        return env.reset(0, *obstacle)
+        return env.reset(0, Condition(*obstacle))
 
 
 def controller(probs: np.ndarray, config: WarningConfig = FAST) -> WarningController:

@@ -10,6 +10,8 @@
   value of its condition axis (``sweep.world_axis``), or the world alone (AXIS null).
 - `${world_unknown:AXIS,NOISES}` is a Gymnasium world's unknown conditions for the avoid stage: the axis' other
   values and the noisier frames (conf/gym_avoid.yaml).
+- `${world_axis:WORLD}` is a Gymnasium world's condition axis, as its own config has it (conf/gym_world/<world>.yaml's
+  ``axis``; null: none), for a config that names the world without composing it (conf/gym_findings.yaml).
 - `${driver:POLICY,MODEL}` names what drives a cell: a user's policy file's stem (`safety.policy`), else the model.
 - `${output_root:ROOT,OUTPUTS}` is where a run writes: the project's pipeline folders when asked
   (`outputs=pipeline`, what `dvc.yaml`'s commands pass), else the run's own Hydra folder (`outputs/<date>/<time>`,
@@ -78,6 +80,24 @@ def world_unknown(axis: object, noises: object) -> list[dict]:
     return changed + noisier
 
 
+def find_conf(start: Path | None = None) -> Path:
+    """The repo's ``conf/`` directory: searched upwards from the working directory, then from this file."""
+    for base in (start or Path.cwd(), Path(__file__).resolve()):
+        for d in (base, *base.parents):
+            if (d / "conf" / "weather").is_dir():
+                return d / "conf"
+    raise FileNotFoundError("no conf/weather directory above the working directory or this package")
+
+
+def world_axis(world: str) -> object:
+    """The condition axis of the Gymnasium world ``world`` (its conf/gym_world/<world>.yaml's ``axis``: ``{key,
+    values: {label: value}}``), or None where it has none."""
+    path = find_conf() / "gym_world" / f"{world}.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"world={world!r}: no {path}; choose one of conf/gym_world/")
+    return (yaml.safe_load(path.read_text()) or {}).get("axis")
+
+
 def driver(policy: object, model: str) -> str:
     """A cell's driver in its name: ``steer`` for ``policy=path/steer.onnx``, else the trained model's name."""
     return model if policy in (None, "") else Path(str(policy)).stem
@@ -107,6 +127,7 @@ def register_resolvers() -> None:
         ("noise_label", noise_label),
         ("world_locations", world_locations),
         ("world_unknown", world_unknown),
+        ("world_axis", world_axis),
         ("driver", driver),
         ("output_root", output_root),
     ):

@@ -120,7 +120,7 @@ def unknown_mixture(
     """η̂1 of the unknown conditions as one uniform mixture: of their cells (Hoeffding interval, fixed n), or the
     mixture cell's own estimate (its rollouts drew their variant: ``mixture``, the first unknown condition) with
     each variant's share of its ``fixed_rollouts``."""
-    if isinstance(mixture, Mixture):
+    if mixture.single is None:  # a mixture cell: its rollouts drew their variant
         (cell,), est, variants = cells, cells[0].estimate, mixture.variants
         first = cell.results[:fixed_rollouts]
         drawn = [mixture.variant(cell.base_seed + i) for i in range(len(first))]

@@ -14,8 +14,7 @@ n draws a frame, the warnings read at once by the paper's fixed tier rule, n = w
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from pathlib import Path
+from functools import partial
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -25,14 +24,12 @@ from pydantic import Field
 from uqdrive.avoid.calibration import fresh_check_runs, min_calibration_runs
 from uqdrive.avoid.course import Course, CourseOf
 from uqdrive.avoid.results import Mode
-from uqdrive.models.posterior import posterior_from_config
-from uqdrive.policy.draws import DrawSettings
-from uqdrive.policy.policy_files import UserPolicySpec, load_policy
-from uqdrive.policy.recipes import ControllerSpec, PolicyRecipe
+from uqdrive.policy.recipes import PolicyRecipe
 from uqdrive.policy.warnings import WarningConfig, WarningRule
-from uqdrive.resolvers import driver, world_location
-from uqdrive.safety.cells import EstimatorSettings, cell_posterior
-from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
+from uqdrive.resolvers import world_location
+from uqdrive.safety.cells import EstimatorSettings
+from uqdrive.safety.drive import Driver, DriveSection, resolve_driver
+from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.safety.safe_sets import obstacle_pass_progress
 from uqdrive.schema import (
     Bool,
@@ -40,7 +37,6 @@ from uqdrive.schema import (
     Count,
     NonNegative,
     OpenUnit,
-    Positive,
     Seed,
     Str,
     Unit,
@@ -50,8 +46,9 @@ from uqdrive.schema import (
 )
 from uqdrive.sim import CameraConfig, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, Mixture, WorldChoice
-from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WeatherConfig, names_gym_world
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
+from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.sim.location import ByWorld
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage
 from uqdrive.uq.multiplicity import split_gamma
 
 KNOWN = "known"
@@ -123,27 +120,20 @@ class CalibrationSettings:
 
 
 @schema(frozen=True, kw_only=True)
-class AvoidSection(EstimatorSettings):
-    """conf/avoid.yaml's `avoid`: every cell's estimator (scheme, theta, gamma, look_size, base_seed), the world and
-    the calibration."""
+class AvoidSection(DriveSection, EstimatorSettings):
+    """conf/avoid.yaml's `avoid`: every cell's estimator (scheme, theta, gamma, look_size, base_seed), what drives
+    (`DriveSection`: the trained model, or a user's policy that gives draws, its own n a frame; the controller draws
+    warning.samples; T long enough for a run slowed by warnings to pass the obstacle, checked), the world and the
+    calibration. Warnings-off cells record what calibration replays."""
 
-    model_path: Str
-    policy: Str | None = None  # a user's policy file or YAML (`load_policy`) that gives draws, driving in its place
     name: Str  # <method>-<replicate>: the stage's cells, files and runs
-    horizon_s: Positive  # T; long enough for a run slowed by warnings to pass the obstacle (checked); a gym world's own
-    speed: Positive  # cruise speed (m/s), at most vehicle.max_speed (a gym world: its car's own limits)
-    eps: Positive
-    draws: DrawSettings  # fixed (the paper's) or sequential; warnings-off cells record what calibration replays
     validation_seed: Seed
     family_wise: Bool  # spend γ over this controller's cells (conditions × modes): all of them at once
     unknown: Annotated[tuple[UnknownCondition, ...], Field(min_length=1)]
     unknown_as: Literal["cells", "mixture"]  # a cell per variant, or one whose rollouts draw theirs (avoid_mixture)
     min_rollouts: Seed  # every cell runs at least this many (the sample paired tests and the calibration use)
     calibration: CalibrationSettings
-    out: Str
     data_dir: Str
-    rollout_log: Str
-    plots_dir: Str
     clips: Annotated[int, Field(ge=0, strict=True)]  # the worst failures of each cell drawn as clips (0: none)
 
     def __post_init__(self) -> None:
@@ -166,14 +156,15 @@ class AvoidStage(WorldChoice, SimConfig, ModelStage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.gym_world is not None:
-            self._check_gym_unknown()
-            return
+        self.choose(ByWorld(road=self._check_road, gym=self._check_gym_unknown))
+
+    def _check_road(self, scenario: ScenarioConfig) -> None:
+        """On our obstacle road: unknown conditions of our weathers and scenario changes, each checked here."""
         for i, condition in enumerate(self.avoid.unknown):
             if condition.world:
                 raise invalid(f"avoid.unknown[{i}].world", condition.world, "changes a gym_world; name one or drop it")
-        if self.scenario.kind != "obstacle":
-            raise invalid("scenario.kind", self.scenario.kind, "must be 'obstacle' for the avoid stage")
+        if not scenario.has_obstacle:
+            raise invalid("scenario.kind", scenario.kind, "must be 'obstacle' for the avoid stage")
         if self.avoid.speed > self.vehicle.max_speed:
             raise invalid("avoid.speed", self.avoid.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         loaded = {self.weather.name, *self.weathers}
@@ -187,7 +178,7 @@ class AvoidStage(WorldChoice, SimConfig, ModelStage):
                 )
             validate(ScenarioConfig, {**self.scenario.to_dict(), **condition.scenario}, f"avoid.unknown[{i}].scenario")
 
-    def _check_gym_unknown(self) -> None:
+    def _check_gym_unknown(self, world: GymWorldConfig) -> None:
         """A Gymnasium world's unknown conditions change its own config or noise; a weather or scenario of ours is
         refused (the env has none), and each changed world is checked here, before any rollout."""
         for i, condition in enumerate(self.avoid.unknown):
@@ -196,15 +187,15 @@ class AvoidStage(WorldChoice, SimConfig, ModelStage):
                     raise invalid(
                         f"avoid.unknown[{i}].{key}",
                         getattr(condition, key),
-                        f"is uqdrive's: {self.gym_world.env_id} has no {key} condition (change its config: world)",
+                        f"is uqdrive's: {world.env_id} has no {key} condition (change its config: world)",
                     )
-            unknown_world(self.gym_world, condition, f"avoid.unknown[{i}].world")
+            unknown_world(world, condition, f"avoid.unknown[{i}].world")
 
 
 @dataclasses.dataclass(frozen=True)
 class AvoidSettings:
     """Everything a stage run needs, validated (``stage``: the whole config, its paths among it); ``spec`` is the
-    warnings-off policy (uqdrive's trained controller or a user's policy), ``deploy`` it acting on a rule."""
+    warnings-off policy (uqdrive's trained controller or a user's policy), ``driver.warned`` it acting on a rule."""
 
     stage: AvoidStage
     method: str  # the trained model's method, or a user's policy's name
@@ -212,7 +203,7 @@ class AvoidSettings:
     name: str  # <method>-<replicate>
     spec: PolicyRecipe
     rule: WarningRule  # the configured warnings, as the controller deploys them and the calibration replays them
-    deploy: Callable[[PolicyRecipe, WarningRule], PolicyRecipe]  # ``spec`` acting on a rule's warnings
+    driver: Driver  # what drives (`resolve_driver`): ``spec`` acting on a rule's warnings (`Driver.warned`)
     estimator: EstimatorSettings
     validation_seed: int
     known: Condition
@@ -237,7 +228,7 @@ class AvoidSettings:
 
     def job(self, where: Condition | Mixture, rule: WarningRule | None, base_seed: int) -> RolloutJob:
         """The rollouts of one cell: ``rule`` None drives without the warning system (on the same draws)."""
-        policy = self.spec if rule is None else self.deploy(self.spec, rule)
+        policy = self.spec if rule is None else self.driver.warned(rule)
         return RolloutJob(policy, where, base_seed, self.camera, self.vehicle, self.control_hz, self.horizon_s)
 
     def replay_args(self) -> dict[str, float]:
@@ -258,8 +249,7 @@ class AvoidSettings:
         distances are then along each run's path, `OwnPath`)."""
 
         def geometry(where: Condition | Mixture) -> Course:  # a mixture's road: the known one's
-            condition = where if isinstance(where, Condition) else self.known
-            return condition.visit(CourseOf())
+            return (where.single or self.known).visit(CourseOf())
 
         return {c.name: geometry(c) for c in self.conditions}
 
@@ -274,22 +264,25 @@ def _unknown_conditions(stage: AvoidStage) -> tuple[Condition, ...] | tuple[Mixt
     """The unknown conditions, each a world: the known scenario with the condition's changes, a loaded weather (a
     Gymnasium world: the world with the condition's changes); with ``unknown_as: mixture``, one mixture whose
     rollouts draw among them (roads and obstacle places alike)."""
-    if stage.gym_world is not None:
-        each = tuple(
-            Condition(unknown_world(stage.gym_world, item, "avoid.unknown.world"), None, item.noise, item.name)
-            for item in stage.avoid.unknown
-        )
-    else:
+    unknown = stage.avoid.unknown
+
+    def in_world(world: GymWorldConfig) -> tuple[Condition, ...]:
+        key = "avoid.unknown.world"
+        return tuple(Condition(unknown_world(world, item, key), None, item.noise, item.name) for item in unknown)
+
+    def on_road(scenario: ScenarioConfig) -> tuple[Condition, ...]:
         weathers = {stage.weather.name: stage.weather, **stage.weathers}
-        each = tuple(
+        return tuple(
             Condition(
-                ScenarioConfig.from_config({**stage.scenario.to_dict(), **item.scenario}),
+                ScenarioConfig.from_config({**scenario.to_dict(), **item.scenario}),
                 weathers[item.weather or stage.weather.name],
                 item.noise,
                 item.name,
             )
-            for item in stage.avoid.unknown
+            for item in unknown
         )
+
+    each = stage.choose(ByWorld(road=on_road, gym=in_world))
     return each if stage.avoid.unknown_as == "cells" else (Mixture(UNKNOWN, each),)
 
 
@@ -325,13 +318,9 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     estimator = dataclasses.replace(
         avoid.estimator, gamma=split_gamma(avoid.gamma, family_size), base_seed=stage.rollout_seeds(avoid.base_seed)
     )
-    world = stage.gym_world
-    horizon = (
-        avoid.horizon_s
-        if world
-        else check_horizon(avoid.horizon_s, warning, avoid.speed, stage.scenario, stage.vehicle)
-    )
-    car = job_world(world, stage.camera, stage.vehicle, float(stage.control_hz), horizon)
+    passes = partial(check_horizon, avoid.horizon_s, warning, avoid.speed, vehicle=stage.vehicle)
+    horizon = stage.choose(ByWorld(road=passes, gym=lambda world: avoid.horizon_s))  # a Gymnasium world's own
+    car = job_world(stage.condition(KNOWN), stage.camera, stage.vehicle, float(stage.control_hz), horizon)
     calibration = avoid.calibration
     needed = min_calibration_runs(calibration.autonomy_target, calibration.gamma, calibration.calibration_fraction)
     fixed = max(estimator.fixed_rollouts(), avoid.min_rollouts)
@@ -343,18 +332,15 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
         )
     if calibration.order == "learned" and calibration.calibration_fraction == 1:
         raise ConfigError("avoid.calibration.order='learned' needs avoid.calibration.calibration_fraction < 1")
-    if avoid.policy is not None:  # a user's policy drives in place of the trained model
-        method, spec, rule, deploy = _user_policy(stage, car, estimator.base_seed)
-    else:
-        method, spec, rule, deploy = _trained_model(stage, car, estimator.base_seed)
+    drive, rule = _driver(stage, car, estimator.base_seed)
     return AvoidSettings(
         stage,
-        method,
+        drive.method,
         stage.seed,
         avoid.name,
-        spec,
+        drive.spec,
         rule,
-        deploy,
+        drive,
         estimator,
         stage.rollout_seeds(avoid.validation_seed),
         stage.condition(KNOWN),
@@ -371,49 +357,24 @@ def build_settings(cfg: DictConfig) -> AvoidSettings:
     )
 
 
-Driver = tuple[str, PolicyRecipe, WarningRule, Callable[[PolicyRecipe, WarningRule], PolicyRecipe]]
-
-
-def _trained_model(stage: AvoidStage, car: dict[str, Any], base_seed: int) -> Driver:
-    """The trained model (its file checked here: a missing or mismatched one names the stage that trains it) as a
-    controller drawing as ``avoid.draws`` says, and the rule its warnings act by."""
-    avoid, warning, bins = stage.avoid, stage.warning, stage.experiment.bins
-    method = posterior_from_config(stage.model).method
-    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
-    cell_posterior("avoid.model_path", Path(avoid.model_path), method, bins, trained_by)
-    rule = WarningRule(warning, avoid.draws)  # refused here, before any rollout, if its tier rule errs above γ
-    path = str(Path(avoid.model_path))
-    spec = ControllerSpec(avoid.speed, path, method, bins, warning.samples, avoid.eps, draws=avoid.draws)
-    return method, spec, rule, _acting_by_rule
-
-
-def _acting_by_rule(spec: ControllerSpec, rule: WarningRule) -> ControllerSpec:
-    """uqdrive's warning controller: its draws and their tiers by the rule itself."""
-    return dataclasses.replace(spec, warnings=rule)
-
-
-def _user_policy(stage: AvoidStage, car: dict[str, Any], base_seed: int) -> Driver:
-    """A user's policy (``avoid.policy``), run on a first frame here: its own n draws a frame, read at once (the
-    paper's fixed tier rule at warning.theta, warning.gamma, with n = warning.samples). One line, before any rollout,
-    if it gives no draws (its warnings and their calibration read them) or another number of them."""
+def _driver(stage: AvoidStage, car: dict[str, Any], base_seed: int) -> tuple[Driver, WarningRule]:
+    """What drives (`resolve_driver`: the trained model, its file checked here, a controller drawing warning.samples
+    a frame as ``avoid.draws`` says; or a user's policy, run on a first frame here, its own n draws a frame read at
+    once by the paper's fixed tier rule at warning.theta, warning.gamma) and the rule its warnings act by (refused
+    here, before any rollout, if its tier rule errs above γ). One line, before any rollout, if the policy gives no
+    draws (its warnings and their calibration read them) or another number of them than the rule reads."""
     avoid, warning = stage.avoid, stage.warning
-    spec = load_policy(avoid.policy, speed=avoid.speed, eps=avoid.eps)
-    rule = WarningRule(warning, DrawSettings(scheme="fixed"))
-    command = probe_policy(RolloutJob(spec, stage.condition(KNOWN), base_seed, **car))
-    if not command.draw_count:
+    drive = resolve_driver("avoid", avoid, stage, warning.samples, stage.condition(KNOWN).native)
+    rule = WarningRule(warning, drive.warning_draws)
+    draws = drive.probe(RolloutJob(drive.spec, stage.condition(KNOWN), base_seed, **car))
+    if not draws:
         raise ConfigError(
-            f"avoid.policy={avoid.policy}: the avoid stage needs a policy that gives draws (Action.draws: its "
-            f"warnings and their calibration read them); {spec.name} gave none"
+            f"{drive.source}: the avoid stage needs a policy that gives draws (Action.draws: its warnings and their "
+            f"calibration read them); {drive.name} gave none"
         )
-    if command.draw_count != rule.cap:
+    if draws != rule.cap:
         raise ConfigError(
-            f"avoid.policy={avoid.policy}: {spec.name} gives {command.draw_count} draws a frame; the warning rule "
-            f"reads {rule.cap} (warning.samples: Chernoff's n for warning.theta, warning.gamma)"
+            f"{drive.source}: {drive.name} gives {draws} draws a frame; the warning rule reads {rule.cap} "
+            "(warning.samples: Chernoff's n for warning.theta, warning.gamma)"
         )
-    return driver(avoid.policy, ""), spec, rule, _acting_on_thresholds
-
-
-def _acting_on_thresholds(spec: UserPolicySpec, rule: WarningRule) -> UserPolicySpec:
-    """A user's policy with the paper's warning system on its own draws (`uqdrive.policy.slots.UserWarnings`:
-    the levels ``rule`` gives on them, its fixed tier being η̂2's)."""
-    return dataclasses.replace(spec, warnings=rule.config)
+    return drive, rule

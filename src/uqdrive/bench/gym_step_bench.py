@@ -16,6 +16,7 @@ import math
 import statistics
 import time
 
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import GymWorldConfig, find_conf
 from uqdrive.sim.gym_world import GymWorld
 
@@ -34,7 +35,7 @@ def record_commands(world: GymWorld, steps: int, seed: int, noise: float, expert
     total = 0
     while total < steps:
         episode_seed = seed + len(episodes)
-        world.reset(episode_seed, noise=noise)
+        world.reset(episode_seed, Condition(world.config, None, noise))
         commands: list[tuple[float, float]] = []
         while not world.done and total < steps:
             command = world.expert_command() if expert else (0.3 * math.sin(0.2 * total), 6.0)
@@ -59,7 +60,7 @@ def time_adapter(world: GymWorld, episodes: Commands, noise: float) -> float:
     """CPU seconds of the adapter's reset and step, frames rendered (the network's input) with sensor noise."""
     start = time.process_time()
     for episode_seed, commands in episodes:
-        world.reset(episode_seed, noise=noise)
+        world.reset(episode_seed, Condition(world.config, None, noise))
         for steer, speed in commands:
             world.step(steer, speed)
     return time.process_time() - start

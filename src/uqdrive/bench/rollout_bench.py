@@ -76,8 +76,7 @@ def drive(envs: Sequence[DrivingEnv], policy: LockstepPolicy, job: RolloutJob, s
 
     def begin(slot: int) -> None:
         episode = next(seeds)
-        where = job.condition(0)
-        frames[slot] = envs[slot].reset(episode, where.scenario, where.weather, where.noise)
+        frames[slot] = envs[slot].reset(episode, job.condition(0))
         policy.reset(episode, slot, envs[slot])
         infos[slot] = envs[slot].last_info
 
@@ -144,7 +143,7 @@ def recorded_frames(scenario: ScenarioConfig, camera: CameraConfig, per_conditio
             weather = WeatherConfig.from_yaml(CONF / "weather" / f"{weather_name}.yaml")
             count, episode = 0, 0
             while count < per_condition:
-                frame, pilot = env.reset(episode, scenario, weather, noise), ExpertPolicy()
+                frame, pilot = env.reset(episode, Condition(scenario, weather, noise)), ExpertPolicy()
                 pilot.reset(episode, world=env)
                 info, step = env.last_info, 0
                 while not env.done and count < per_condition:

@@ -21,6 +21,7 @@ import numpy as np
 
 from uqdrive.sim import Autopilot, DrivingEnv, ScenarioConfig, WeatherConfig
 from uqdrive.sim.bullet import pybullet as p
+from uqdrive.sim.condition import Condition
 
 CONF = Path(__file__).resolve().parents[3] / "conf"
 
@@ -32,7 +33,7 @@ def autopilot_commands(
     out: list[tuple[float, float, float, float, float]] = []
     episode = 0
     while len(out) < steps:
-        env.reset(seed + episode, scenario, weather, noise, render=False)
+        env.reset(seed + episode, Condition(scenario, weather, noise), render=False)
         pilot = Autopilot(env.route, env.vehicle_config, control_hz=env.control_hz, seed=seed + episode)
         info = env.last_info
         while not env.done and len(out) < steps:
@@ -47,11 +48,11 @@ def time_env_steps(env: DrivingEnv, commands, scenario, weather, noise: float, s
     """CPU seconds for the env to replay ``commands`` with the camera on (episodes restart as recorded)."""
     start = time.process_time()
     episode = 0
-    env.reset(seed, scenario, weather, noise)
+    env.reset(seed, Condition(scenario, weather, noise))
     for steer, speed, *_ in commands:
         if env.done:
             episode += 1
-            env.reset(seed + episode, scenario, weather, noise)
+            env.reset(seed + episode, Condition(scenario, weather, noise))
         env.step(steer, speed)
     return time.process_time() - start
 

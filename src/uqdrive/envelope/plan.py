@@ -5,7 +5,6 @@ Gymnasium world (``gym_world=…``: its axes are noise and numbers of its own co
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 from typing import Annotated
 
 from omegaconf import DictConfig
@@ -16,43 +15,29 @@ from uqdrive.envelope.partition import PartitionSettings
 from uqdrive.envelope.search import SearchSettings
 from uqdrive.envelope.sources import Listed, UniformIn
 from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, ConditionSpace
-from uqdrive.models.posterior import posterior_from_config
-from uqdrive.policy.draws import DrawSettings
-from uqdrive.policy.policy_files import load_policy
-from uqdrive.policy.recipes import ControllerSpec, PolicyRecipe
-from uqdrive.resolvers import driver
-from uqdrive.safety.cells import cell_posterior
-from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
-from uqdrive.schema import ConfigError, Count, Positive, Seed, Str, invalid, schema, validate
+from uqdrive.policy.recipes import PolicyRecipe
+from uqdrive.safety.drive import CorridorDrive, resolve_driver
+from uqdrive.safety.executors import RolloutJob, job_world
+from uqdrive.schema import ConfigError, Seed, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import SimConfig, WeatherConfig, names_gym_world
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, training_stage
+from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
+from uqdrive.sim.location import ByWorld, nothing
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage
 from uqdrive.uq.multiplicity import split_gamma
 
 Axes = Annotated[tuple[AxisSettings, ...], Field(min_length=2, max_length=3)]
 
 
 @schema(frozen=True, kw_only=True)
-class EnvelopeSection(CertifySettings):
+class EnvelopeSection(CorridorDrive, CertifySettings):
     """conf/envelope.yaml's `envelope`: the axes, the target and guarantee (threshold, gamma, theta, look_size,
-    region_budget), both phases' settings, the controller and the outputs."""
+    region_budget), both phases' settings, what drives the map (`CorridorDrive`) and the outputs."""
 
     axes: Axes
     blend: BlendSettings
     base_seed: Seed  # phase one's rollouts use base_seed + 0 … budget − 1; region r's the next region_budget after
     search: SearchSettings
     partition: PartitionSettings
-    model_path: Str
-    policy: Str | None = None  # a user's policy file or YAML (`load_policy`), driving in place of model_path
-    horizon_s: Positive
-    speed: Positive
-    samples: Count
-    draws: DrawSettings
-    eps: Positive
-    half_width: Positive | None
-    out: Str
-    plots_dir: Str
-    rollout_log: Str
 
 
 @schema(root=True)
@@ -68,9 +53,11 @@ class EnvelopeStage(WorldChoice, SimConfig, ModelStage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        self.choose(ByWorld(road=self._check_road, gym=nothing))  # a Gymnasium world's axes: `ConditionSpace`'s
+
+    def _check_road(self, scenario: ScenarioConfig) -> None:
+        """The speed our car can reach, and the weathers a blend axis names, loaded."""
         env = self.envelope
-        if self.gym_world is not None:
-            return  # its axes are checked against the world (`ConditionSpace`)
         if env.speed > self.vehicle.max_speed:
             raise invalid("envelope.speed", env.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         if any(a.key == BLEND for a in env.axes):
@@ -108,7 +95,7 @@ class Envelope:
     def job(self, source: Listed | UniformIn, base_seed: int) -> RolloutJob:
         s = self.stage
         env = s.envelope
-        world = job_world(s.gym_world, s.camera, s.vehicle, s.control_hz, env.horizon_s, env.half_width)
+        world = job_world(s.condition(), s.camera, s.vehicle, s.control_hz, env.horizon_s, env.half_width)
         return RolloutJob(policy=self.policy, where=source, base_seed=base_seed, **world)
 
 
@@ -119,8 +106,9 @@ def build_envelope(cfg: DictConfig) -> Envelope:
     env = stage.envelope
     base = stage.condition()
     blend = None
-    if any(a.key == BLEND for a in env.axes) and stage.gym_world is None:
-        blend = (stage.weathers[env.blend.start], stage.weathers[env.blend.to])
+    if any(a.key == BLEND for a in env.axes):  # between two of our weathers (a Gymnasium world has none)
+        blend = stage.choose(ByWorld(road=lambda _: (stage.weathers[env.blend.start], stage.weathers[env.blend.to]),
+                                     gym=nothing))  # fmt: skip
     try:
         space = ConditionSpace(tuple(Axis.of(a, base) for a in env.axes), base, blend)
     except ValueError as err:
@@ -132,18 +120,13 @@ def build_envelope(cfg: DictConfig) -> Envelope:
 
 
 def _driver(stage: EnvelopeStage) -> tuple[str, PolicyRecipe]:
-    """What drives the map's rollouts and its name: a user's policy (``envelope.policy``, run on a first frame
-    here) or the trained model (loaded here: a missing or mismatched file names the stage that trains it)."""
-    env = stage.envelope
-    if env.policy is not None:
-        spec = load_policy(env.policy, speed=env.speed, eps=env.eps)
-        world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, env.horizon_s, env.half_width)
-        probe_policy(RolloutJob(spec, stage.condition(), env.base_seed, **world))
-        return driver(env.policy, ""), spec
-    method, bins = posterior_from_config(stage.model).method, stage.experiment.bins
-    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
-    cell_posterior("envelope.model_path", Path(env.model_path), method, bins, trained_by)
-    return method, ControllerSpec(env.speed, env.model_path, method, bins, env.samples, env.eps, draws=env.draws)
+    """What drives the map's rollouts and its name (`resolve_driver`: the trained model loaded here, a missing or
+    mismatched file naming the stage that trains it; or a user's policy, run on a first frame here)."""
+    env, where = stage.envelope, stage.condition()
+    drive = resolve_driver("envelope", env, stage, env.samples, where.native)
+    world = job_world(where, stage.camera, stage.vehicle, stage.control_hz, env.horizon_s, env.half_width)
+    drive.probe(RolloutJob(drive.spec, where, env.base_seed, **world))
+    return drive.method, drive.spec
 
 
 def _check_budget(env: EnvelopeSection, dim: int) -> None:

@@ -19,7 +19,8 @@ from pydantic import Field
 
 from uqdrive.schema import ConfigError, Float, Str, invalid, schema
 from uqdrive.sim.condition import Condition
-from uqdrive.sim.config import ScenarioConfig, WeatherConfig, blend_weather, check_noise
+from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, WeatherConfig, blend_weather, check_noise
+from uqdrive.sim.location import ByWorld, nothing
 
 NOISE = "noise"
 BLEND = "weather.blend"
@@ -94,10 +95,14 @@ class Axis:
 def gym_number(base: Condition, key: str) -> float | int:
     """The number an axis ``gym_world.env_kwargs.<…>`` varies, as ``base``'s Gymnasium world sets it; one line
     where the world is ours, or the key is not a number the world sets (`GymWorldConfig.condition_slot`)."""
-    world = base.gym_world
-    if world is None:
+
+    def ours(scenario: ScenarioConfig) -> float | int:
         raise ConfigError(f"envelope.axes: {key} varies a gym_world; name one (conf/gym_world/) or drop the axis")
-    value = world.condition_value(key.removeprefix(GYM), f"envelope.axes: {key}")
+
+    def number(world: GymWorldConfig) -> float | int:
+        return world.condition_value(key.removeprefix(GYM), f"envelope.axes: {key}")
+
+    value = base.choose(ByWorld(road=ours, gym=number))
     if type(value) not in (int, float):
         raise ConfigError(f"envelope.axes: {key}={value!r} is not a number")
     return value
@@ -120,11 +125,15 @@ class ConditionSpace:
             if key.startswith(GYM):
                 gym_number(self.base, key)
         ours = [k for k in keys if k != NOISE and not k.startswith(GYM)]
-        if self.base.gym_world is not None and ours:
+
+        def refuse_ours(world: GymWorldConfig) -> None:
             raise ConfigError(
-                f"envelope.axes: {ours[0]} is uqdrive's world; {self.base.gym_world.env_id} is the world: "
+                f"envelope.axes: {ours[0]} is uqdrive's world; {world.env_id} is the world: "
                 "vary noise or a number of gym_world (gym_world.<key>)"
             )
+
+        if ours:
+            self.base.choose(ByWorld(road=nothing, gym=refuse_ours))
         if (BLEND in keys) != (self.blend is not None):
             raise ValueError("a weather.blend axis needs the two weathers it blends, and only it")
 
@@ -146,10 +155,15 @@ class ConditionSpace:
         """The condition at a point of the unit cube, each part checked by its schema (`ConfigError` if invalid)."""
         values = self.values(unit)
         noise = check_noise(values[NOISE]) if NOISE in values else self.base.noise
-        world = self.base.gym_world
-        if world is not None:
+
+        def in_world(world: GymWorldConfig) -> Condition:
             changes = {k.removeprefix(GYM): v for k, v in values.items() if k.startswith(GYM)}
             return Condition(world.changed(changes, world.name, "envelope.axes"), None, noise)
+
+        return self.base.choose(ByWorld(road=lambda scenario: self._on_road(scenario, values, noise), gym=in_world))
+
+    def _on_road(self, scenario: ScenarioConfig, values: dict[str, float | int], noise: float) -> Condition:
+        """The condition at these axis values on our road: the base's scenario and weather with their changes."""
         weather = self.base.weather
         if self.blend is not None:
             weather = blend_weather(*self.blend, float(values[BLEND]))
@@ -158,7 +172,6 @@ class ConditionSpace:
             section, _, name = key.partition(".")
             if section in changes and key != BLEND:
                 changes[section][name] = value
-        scenario = self.base.scenario
         if changes["scenario"]:
             scenario = ScenarioConfig.from_config({**scenario.to_dict(), **changes["scenario"]})
         if changes["weather"]:

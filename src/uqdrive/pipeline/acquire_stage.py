@@ -92,7 +92,7 @@ class AcquireSection:
     cells_dir: Str  # the previous offline-safety sweep's cells (metrics/safety/<method>-seed<r>-<condition>.json)
     training: Where  # the condition the training data was collected at: acquired at and checked every round
     checks: tuple[Where, ...]  # further check cells, never acquired at (e.g. an untouched location)
-    world_axis: WorldAxis | None  # a Gymnasium world's swept condition, to place its flagged cells (params gym_axis)
+    world_axis: WorldAxis | None  # a Gymnasium world's swept condition, to place its flagged cells (gym_world.axis)
     expert_logs: Str  # the expert's check rollouts, by condition
     out_dir: Str
     out: Str
@@ -133,7 +133,7 @@ def placed(stage: AcquireStage, where: Where, key: str = "acquire") -> dict[str,
 
 def as_swept(stage: AcquireStage, where: Where) -> Where:
     """``where`` as the sweep named it: a Gymnasium world as collected is its axis' first location (the convention
-    of `params.yaml`'s gym_axis), so the training cell pairs with the sweep's own cell there."""
+    of the world's own axis, gym_world.axis), so the training cell pairs with the sweep's own cell there."""
     world, axis = stage.gym_world, stage.acquire.world_axis
     if world is None or axis is None or where.location != world.name:
         return where

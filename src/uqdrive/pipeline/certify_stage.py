@@ -60,16 +60,17 @@ def __getattr__(name: str):
 
 
 def plan(stage: CertifyStage) -> tuple[UserPolicySpec, RolloutJob]:
-    """The policy's spec and the rollout job, checked: the policy built and run on rollout 0's first frame."""
-    from uqdrive.policy.policy_files import load_policy
-    from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
+    """The policy's spec and the rollout job, checked: the policy resolved (`uqdrive.safety.drive.user_driver`: a
+    user's, over the env's own spaces where the world is driven as it is) and run on rollout 0's first frame."""
+    from uqdrive.safety.drive import user_driver
+    from uqdrive.safety.executors import RolloutJob, job_world
 
     where = stage.condition()
-    spec = load_policy(stage.certify.policy, native=where.native)
-    world = job_world(stage.gym_world, stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
-    job = RolloutJob(spec, where, stage.certify.base_seed, **world)
-    probe_policy(job)
-    return spec, job
+    drive = user_driver("certify.policy", stage.certify.policy, where.native)
+    world = job_world(where, stage.camera, stage.vehicle, float(stage.control_hz), float(stage.horizon_s))
+    job = RolloutJob(drive.spec, where, stage.certify.base_seed, **world)
+    drive.probe(job)
+    return drive.spec, job
 
 
 def run_certify(cfg: DictConfig) -> CertifyRecord:

@@ -27,6 +27,7 @@ from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import SimConfig
 from uqdrive.sim.episodes import EpisodeJob
 from uqdrive.sim.gym_hooks import require_expert
+from uqdrive.sim.location import ByWorld, nothing
 from uqdrive.stage_schemas import Stage
 from uqdrive.tracking import stage_run
 
@@ -55,8 +56,7 @@ class CollectStage(WorldChoice, SimConfig, Stage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.gym_world is not None:
-            require_expert(self.gym_world.hooks, self.gym_world.env_id)
+        self.choose(ByWorld(road=nothing, gym=lambda world: require_expert(world.hooks, world.env_id)))
 
 
 @record

@@ -28,50 +28,37 @@ from pydantic import Field
 
 from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
-from uqdrive.models.posterior import posterior_from_config
-from uqdrive.policy.draws import DrawSettings
-from uqdrive.policy.policy_files import load_policy
-from uqdrive.policy.recipes import ControllerSpec
 from uqdrive.records import as_dict, read_record, write_record
 from uqdrive.replay.video import worst_clips
-from uqdrive.resolvers import driver, world_location
+from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.cells import EstimatorSettings, cell_posterior, rates
-from uqdrive.safety.executors import RolloutJob, job_world, probe_policy
+from uqdrive.safety.cells import EstimatorSettings, rates
+from uqdrive.safety.drive import CorridorDrive, Driver, resolve_driver
+from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.safety.failures import job_failures
 from uqdrive.safety.figure import safety_hexbin, visits_colour_bar
 from uqdrive.safety.positions import CellPositions, job_positions, write_positions
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
-from uqdrive.schema import Bool, Count, Positive, Str, invalid, schema, validate
+from uqdrive.schema import Bool, Count, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
-from uqdrive.sim.config import SimConfig, names_gym_world
+from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WorldAxis
+from uqdrive.sim.location import ByWorld, nothing
 from uqdrive.stage import cell_overrides, grid, run_cells
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep, training_stage
+from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_parent_run, stage_run
 from uqdrive.uq import Estimate
 from uqdrive.uq.multiplicity import split_gamma
 
 
 @schema(frozen=True, kw_only=True)
-class SafetySection(EstimatorSettings):
-    """conf/safety.yaml's `safety`: one cell's estimator (scheme, theta, gamma, look_size, base_seed), controller
-    and outputs."""
+class SafetySection(CorridorDrive, EstimatorSettings):
+    """conf/safety.yaml's `safety`: one cell's estimator (scheme, theta, gamma, look_size, base_seed), what drives it
+    (`CorridorDrive`: model_path or policy, speed, samples, draws, eps, horizon_s, half_width) and outputs."""
 
-    model_path: Str
-    policy: Str | None = None  # a user's policy file or YAML (`load_policy`), driving in place of model_path
-    horizon_s: Positive  # T
-    speed: Positive  # m/s, at most vehicle.max_speed
-    samples: Count  # posterior draws per frame (the cap, with sequential draws)
-    draws: DrawSettings  # fixed (the paper's) or sequential draws per frame
-    eps: Positive  # η2's ball, steering units
     family_wise: Bool  # the sweep spends γ over its cells: every cell within ±θ at once with probability ≥ 1 − γ
     family_size: Count  # cells γ is spread over (the sweep sets it to its cell count); 1 unless family_wise
-    half_width: Positive | None  # corridor half-width (m); None = the lane (a gym_world: its safe_if, no corridor)
     cell: Str
-    out: Str
     positions: Str
-    rollout_log: Str
-    plots_dir: Str
     clips: Annotated[int, Field(ge=0, strict=True)]  # the worst failures re-driven as clips and logged (0: none)
     clips_dir: Str
 
@@ -91,10 +78,11 @@ class SafetyStage(WorldChoice, SimConfig, ModelStage):
             raise invalid("safety.speed", self.safety.speed, f"must be <= vehicle.max_speed={self.vehicle.max_speed}")
         if self.safety.family_size != 1 and not self.safety.family_wise:
             raise invalid("safety.family_size", self.safety.family_size, "must be 1 unless safety.family_wise")
-        if self.gym_world is not None and self.safety.half_width is not None:
-            raise invalid(
-                "safety.half_width", self.safety.half_width, "is a lane's: a gym_world is judged by its safe_if"
-            )
+        if self.safety.half_width is not None:
+            self.choose(ByWorld(road=nothing, gym=self._refuse_corridor))
+
+    def _refuse_corridor(self, world: GymWorldConfig) -> None:
+        raise invalid("safety.half_width", self.safety.half_width, "is a lane's: a gym_world is judged by its safe_if")
 
     @property
     def estimator(self) -> EstimatorSettings:
@@ -106,23 +94,13 @@ class SafetyStage(WorldChoice, SimConfig, ModelStage):
         )
 
 
-@schema
-class WorldAxis:
-    """A condition of a Gymnasium world that a sweep varies: ``key`` under `gym_world` (e.g.
-    ``env_kwargs.config.other_vehicles_type``) and its value per label; each value is a location of its own, named
-    ``<gym_world.name>-<label>``."""
-
-    key: Str
-    values: Annotated[dict[Annotated[str, Field(pattern=r"^[A-Za-z0-9_.]+$")], Any], Field(min_length=1)]
-
-
 @schema(kw_only=True)
 class SafetySweep(Sweep):
     """The offline-safety sweep's cells: in the pybullet world, methods × replicates × locations × weathers × noises;
     in a Gymnasium world, methods × replicates × the values of ``world_axis`` (or the one world) × noises."""
 
     weathers: Names = ()  # conf/weather/: at least one in the pybullet world, none in a Gymnasium world
-    world_axis: WorldAxis | None = None
+    world_axis: WorldAxis | None = None  # conf/gym_safety_sweep.yaml: the world's own (gym_world.axis)
 
 
 @schema(root=True)
@@ -133,25 +111,42 @@ class SafetySweepStage(SafetyStage):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        s = self.sweep
-        if self.gym_world is None and not s.weathers:
-            raise invalid("sweep.weathers", [], "must name at least one weather (conf/weather/)")
-        if self.gym_world is None and s.world_axis is not None:
-            raise invalid("sweep.world_axis", s.world_axis.key, "varies a gym_world; name one (conf/gym_world/)")
-        if self.gym_world is not None:
-            for key, names in (("locations", s.locations), ("weathers", s.weathers)):
-                if names:
-                    raise invalid(f"sweep.{key}", list(names), f"must be empty: {self.gym_world.env_id} is the world")
-            for label, value in s.world_axis.values.items() if s.world_axis else ():  # a key the world sets
-                self.gym_world.changed({s.world_axis.key: value}, label, "sweep.world_axis")
+        self.choose(SweepCells(self.sweep))  # each world's sweep checked
 
-    def world_variants(self) -> list[dict[str, Any]]:
+
+@dataclasses.dataclass(frozen=True)
+class SweepCells:
+    """The sweep's cells as overrides, the last axis varying fastest, each world's axes checked: on a road, methods ×
+    replicates × locations × weathers × noises; in a Gymnasium world, methods × replicates × the world's variants
+    (the values of ``world_axis``, each a location of its own) × noises."""
+
+    sweep: SafetySweep
+
+    def road(self, scenario: ScenarioConfig) -> list[dict[str, Any]]:
+        s = self.sweep
+        if not s.weathers:
+            raise invalid("sweep.weathers", [], "must name at least one weather (conf/weather/)")
+        if s.world_axis is not None:
+            raise invalid("sweep.world_axis", s.world_axis.key, "varies a gym_world; name one (conf/gym_world/)")
+        return grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
+
+    def gym(self, world: GymWorldConfig) -> list[dict[str, Any]]:
+        s = self.sweep
+        for key, names in (("locations", s.locations), ("weathers", s.weathers)):
+            if names:
+                raise invalid(f"sweep.{key}", list(names), f"must be empty: {world.env_id} is the world")
+        for label, value in s.world_axis.values.items() if s.world_axis else ():  # a key the world sets
+            world.changed({s.world_axis.key: value}, label, "sweep.world_axis")
+        cells = grid(model=s.methods, seed=s.replicates, world=self.variants(world), noise=s.noises)
+        return [{"model": c["model"], "seed": c["seed"], **c["world"], "noise": c["noise"]} for c in cells]
+
+    def variants(self, world: GymWorldConfig) -> list[dict[str, Any]]:
         """Each location of a Gymnasium sweep as a cell's overrides (one empty set: the named world alone)."""
-        axis, name = self.sweep.world_axis, self.gym_world.name
+        axis = self.sweep.world_axis
         if axis is None:
             return [{}]
         return [
-            {f"++gym_world.{axis.key}": value, "gym_world.name": world_location(name, label)}
+            {f"++gym_world.{axis.key}": value, "gym_world.name": world_location(world.name, label)}
             for label, value in axis.values.items()
         ]
 
@@ -175,33 +170,31 @@ class CellPlan:
     key: str
 
 
+def cell_driver(stage: SafetyStage) -> Driver:
+    """What drives the cell (`resolve_driver`): the trained model, loaded as its method's with the experiment's
+    classes (a missing or mismatched file is one line naming the key and the stage that trains it), or a user's
+    policy (``safety.policy``), its own method, named by its file."""
+    s = stage.safety
+    return resolve_driver("safety", s, stage, s.samples, stage.condition().native)
+
+
 def check_model(stage: SafetyStage) -> str:
-    """The cell's method, its model file loaded as that method's with the experiment's classes; a missing or
-    mismatched file is one line naming the key and the stage that trains it. A user's policy (``safety.policy``)
-    is its own method, named by its file."""
-    if stage.safety.policy is not None:
-        return driver(stage.safety.policy, "")
-    method = posterior_from_config(stage.model).method
-    trained_by = training_stage(stage.experiment.name, method, names_gym_world(stage.experiment.name))
-    cell_posterior("safety.model_path", Path(stage.safety.model_path), method, stage.experiment.bins, trained_by)
-    return method
+    """The cell's method, its driver resolved (`cell_driver`): every cell of a sweep is checked before any runs."""
+    return cell_driver(stage).method
 
 
 def plan_cell(cfg: DictConfig) -> CellPlan:
-    """Validate the cell's config and load its model once, before any rollout: a bad config value is one line
-    naming the key, the value and what is allowed; a missing or mismatched model file names the stage to run."""
+    """Validate the cell's config and resolve what drives it once, before any rollout: a bad config value is one line
+    naming the key, the value and what is allowed; a missing or mismatched model file names the stage to run; a
+    user's policy is run on the cell's first frame (its file's bytes or its class's source in the cell's key)."""
     stage = validate(SafetyStage, cfg)
     s = stage.safety
-    method = check_model(stage)
-    if s.policy is not None:  # a user's: its file's bytes or its class's source in the cell's key
-        spec = load_policy(s.policy, speed=s.speed, eps=s.eps)
-    else:
-        spec = ControllerSpec(s.speed, s.model_path, method, stage.experiment.bins, s.samples, s.eps, draws=s.draws)
-    world = job_world(stage.gym_world, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
-    job = RolloutJob(spec, stage.condition(), stage.estimator.base_seed, **world)
-    if s.policy is not None:
-        probe_policy(job)
-    return CellPlan(stage, method, job, estimate_key(job, stage.estimator, __name__))
+    drive = cell_driver(stage)
+    where = stage.condition()
+    world = job_world(where, stage.camera, stage.vehicle, stage.control_hz, s.horizon_s, s.half_width)
+    job = RolloutJob(drive.spec, where, stage.estimator.base_seed, **world)
+    drive.probe(job)
+    return CellPlan(stage, drive.method, job, estimate_key(job, stage.estimator, __name__))
 
 
 def reusable_result(path: str | Path, key: str) -> SafetyCell | None:
@@ -303,13 +296,8 @@ def draw_clips(plan: CellPlan, cell: SafetyCell, only_missing: bool) -> float:
 
 
 def sweep_cells(stage: SafetySweepStage) -> list[dict[str, Any]]:
-    """The sweep's cells as overrides, the last axis varying fastest: methods × replicates × locations × weathers ×
-    noises, or in a Gymnasium world methods × replicates × the world's variants × noises."""
-    s = stage.sweep
-    if stage.gym_world is None:
-        return grid(model=s.methods, seed=s.replicates, scenario=s.locations, weather=s.weathers, noise=s.noises)
-    cells = grid(model=s.methods, seed=s.replicates, world=stage.world_variants(), noise=s.noises)
-    return [{"model": c["model"], "seed": c["seed"], **c["world"], "noise": c["noise"]} for c in cells]
+    """The sweep's cells as overrides (`SweepCells`)."""
+    return stage.choose(SweepCells(stage.sweep))
 
 
 def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, SafetyRun]]:

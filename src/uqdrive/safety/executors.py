@@ -62,32 +62,17 @@ class RolloutJob:
 
 
 def job_world(
-    world: GymWorldConfig | None,
+    where: Condition,
     camera: CameraConfig,
     vehicle: VehicleConfig,
     control_hz: float,
     horizon_s: float,
     half_width: float | None = None,
 ) -> dict[str, Any]:
-    """A `RolloutJob`'s car, camera, control rate, horizon and corridor: the pybullet world's as given; a Gymnasium
-    world's rate and horizon are its own (``horizon_steps``), and it has no car, camera or corridor of ours
-    (defaults, so that no setting its rollouts do not read enters a cell's identity)."""
-    if world is not None:
-        hz = float(world.control_hz)
-        return {
-            "camera": CameraConfig(),
-            "vehicle": VehicleConfig(),
-            "control_hz": hz,
-            "horizon_s": world.horizon_steps / hz,
-            "half_width": None,
-        }
-    return {
-        "camera": camera,
-        "vehicle": vehicle,
-        "control_hz": control_hz,
-        "horizon_s": horizon_s,
-        "half_width": half_width,
-    }
+    """A `RolloutJob`'s car, camera, control rate, horizon and corridor where ``where`` drives, from a stage's
+    settings (`uqdrive.sim.location.Location.drive`: the pybullet world's as given; a Gymnasium world's rate and
+    horizon are its own, and it has no car, camera or corridor of ours)."""
+    return where.place.drive(camera, vehicle, control_hz, horizon_s, half_width)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,7 +179,7 @@ def probe_policy(job: RolloutJob) -> Command:
     where, envs = job.condition(0), WorkerEnvs(job, 1)
     try:
         (env,) = envs.first(1)
-        frame = env.reset(job.base_seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
+        frame = env.reset(job.base_seed, where, render=policy.needs_camera)
         policy.reset(job.base_seed, slot=0, world=env)
         command = policy.act(frame, env.last_info)
         if not env.done:

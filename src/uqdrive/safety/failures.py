@@ -20,7 +20,7 @@ import numpy as np
 from uqdrive.records import record
 from uqdrive.safety.executors import RolloutJob
 from uqdrive.safety.rollout import RolloutResult
-from uqdrive.safety.safe_sets import SafeSet, obstacle_pass_progress, safe_set_for
+from uqdrive.safety.safe_sets import SafeSet, safe_set_for
 from uqdrive.sim import ScenarioGeometry
 from uqdrive.sim.config import GymWorldConfig
 
@@ -126,20 +126,10 @@ class EpisodePlacer(FailurePlacer):
 
 
 def route_segments(geometry: ScenarioGeometry, safe_set: SafeSet | None) -> list[tuple[str, float]]:
-    """The route's named parts as (name, start in metres), in order: the roundabout's approach, ring and exit arm;
-    the obstacle road before and past the obstacle; a straight road whole."""
-    kind, route = geometry.config.kind, geometry.route
-    if kind == "roundabout":
-        cx, cy, _ = geometry.island
-        reach = geometry.config.ring_radius + geometry.config.ring_width / 2  # as `safe_set_for` finds the exit
-        on_ring = np.flatnonzero(np.hypot(route.x - cx, route.y - cy) <= reach)
-        entry = float(route.s[on_ring[0]]) if len(on_ring) else 0.0
-        exit_ = float(route.s[on_ring[-1]]) if len(on_ring) else float(route.s[-1])
-        return [("approach", 0.0), ("ring", entry), ("exit arm", exit_)]
-    if kind == "obstacle" and safe_set is not None:
-        passed = obstacle_pass_progress(geometry, safe_set.car_size[0])
-        return [("before the obstacle", 0.0), ("past the obstacle", passed)]
-    return [("road", 0.0)]
+    """The route's named parts as (name, start in metres), in order (`ScenarioGeometry.parts`: the roundabout's
+    approach, ring and exit arm; the obstacle road before and past the obstacle, for the safe set's car; a straight
+    road whole)."""
+    return geometry.parts(None if safe_set is None else safe_set.car_size[0])
 
 
 def failure_records(

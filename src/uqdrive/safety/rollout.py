@@ -121,7 +121,7 @@ def run_rollouts(
         env = envs[slot]
         for index, seed in queue:
             where = conditions[index]
-            obs = env.reset(seed, where.scenario, where.weather, where.noise, render=policy.needs_camera)
+            obs = env.reset(seed, where, render=policy.needs_camera)
             policy.reset(seed, slot=slot, world=env)
             episode = _Episode(index, seed, env, obs, env.last_info, env.last_info["termination"])
             if not env.done:

@@ -32,7 +32,7 @@ from uqdrive.safety.cells import EstimatorSettings, OutcomeStream
 from uqdrive.safety.executors import LOCKSTEP, RolloutJob, make_executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
-from uqdrive.sim.condition import Condition, Mixture
+from uqdrive.sim.condition import Condition, source_conditions, source_identity
 from uqdrive.uq import Estimate
 
 Outcome = TypeVar("Outcome")
@@ -51,29 +51,14 @@ def model_module(model_path: str | Path) -> str:
     return str(read_checkpoint(model_path)["target"]).rpartition(".")[0]
 
 
-def _conditions(where: Any) -> tuple[Any, ...]:
-    """The conditions a source's identity rests on: a condition, a mixture's variants, an envelope source's base
-    world (its ``base``: the axes' values are the source's own fields)."""
-    if isinstance(where, Mixture):
-        return where.variants
-    return (where,) if isinstance(where, Condition) else (getattr(where, "base", None),)
-
-
 def external(where: Any) -> list[Condition]:
     """The conditions of a job's source whose world is more than uqdrive's code and config (`Condition.external`)."""
-    return [c for c in _conditions(where) if isinstance(c, Condition) and c.external]
+    return [c for c in source_conditions(where) if c.external]
 
 
 def where_identity(where: Any) -> Any:
-    """A condition source as its identity sees it: an external world by its identity (`Condition.external_identity`);
-    anything else as itself."""
-    if isinstance(where, Mixture):
-        return {"mixture": where.name, "variants": [where_identity(v) for v in where.variants]}
-    if isinstance(where, Condition) and where.external:
-        return {"gym_world": where.external_identity(), "noise": where.noise, "name": where.name}
-    if external(where):  # an envelope's source over an external world
-        return {"source": where, "gym_world": where.base.external_identity()}
-    return where
+    """A condition source as its identity sees it (`uqdrive.sim.condition.source_identity`)."""
+    return source_identity(where)
 
 
 def job_identity(job: Any) -> dict:

@@ -124,24 +124,15 @@ def body_corners(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: float, w
 
 def obstacle_pass_progress(geometry: ScenarioGeometry, vehicle_length: float) -> float:
     """Metres along the route at which the car's centre is a full car length past the obstacle's centre."""
-    obstacle = geometry.obstacles[0]
-    s, _ = geometry.route.project(np.array([[obstacle.x, obstacle.y]]))
-    return float(s[0]) + (obstacle.size[0] + vehicle_length) / 2
+    return geometry.obstacle_passed(vehicle_length)
 
 
 def safe_set_for(
     geometry: ScenarioGeometry, vehicle_width: float, vehicle_length: float, half_width: float | None = None
 ) -> SafeSet:
-    """The safe set of ``geometry``'s scenario for a car of the given size; ``half_width`` (m) replaces the
-    lane's half-width at the roundabout."""
-    route, cfg = geometry.route, geometry.config
-    car = (float(vehicle_length), float(vehicle_width))
-    if cfg.kind == "obstacle":
-        return SafeSet(cfg.kind, route.x, route.y, None, obstacle_pass_progress(geometry, vehicle_length), car)
-    if cfg.kind != "roundabout":
-        return SafeSet(cfg.kind, route.x, route.y, None, None, car)
-    cx, cy, _ = geometry.island
-    on_ring = np.flatnonzero(np.hypot(route.x - cx, route.y - cy) <= cfg.ring_radius + cfg.ring_width / 2)
-    exit_progress = float(route.s[on_ring[-1]])  # where the route leaves the ring: the first exit
-    widths = geometry.width_at(route.s) / 2 if half_width is None else np.full(len(route.s), half_width)
-    return SafeSet("roundabout", route.x, route.y, widths, exit_progress, car)
+    """The safe set of ``geometry``'s scenario for a car of the given size: its corridor and goal as its kind has
+    them (`ScenarioGeometry.corridor_half_widths`, `.goal_progress`); ``half_width`` (m) replaces the lane's
+    half-width at the roundabout."""
+    route, car = geometry.route, (float(vehicle_length), float(vehicle_width))
+    widths, goal = geometry.corridor_half_widths(half_width), geometry.goal_progress(vehicle_length)
+    return SafeSet(geometry.config.kind, route.x, route.y, widths, goal, car)

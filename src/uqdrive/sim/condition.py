@@ -24,13 +24,21 @@ from uqdrive.sim.config import (
     WeatherConfig,
     refuse_conditions,
 )
-from uqdrive.sim.env import DrivingEnv
-from uqdrive.sim.geometry import build_geometry
-from uqdrive.sim.gym_world import GymWorld, world_identity, world_modules
+from uqdrive.sim.location import NO_WEATHER, Location, LocationVisitor, location_of
+
+__all__ = [
+    "NO_WEATHER",
+    "Condition",
+    "ConditionSource",
+    "Mixture",
+    "WorldChoice",
+    "source_conditions",
+    "source_identity",
+    "variant_of",
+]
 from uqdrive.sim.world import R, World, WorldVisitor
 
 VARIANT_STREAM = 0xA401D  # a mixture's variant draw: its own random stream of a rollout seed, apart from the episode's
-NO_WEATHER = "env"  # a Gymnasium world's weather in cell names and records: the env's own, none of ours
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,15 +53,19 @@ class Condition:
     name: str = ""
 
     @property
+    def place(self) -> Location:
+        """The location, as its world's type (`uqdrive.sim.location`): every answer that differs by world."""
+        return location_of(self.scenario)
+
+    @property
     def gym_world(self) -> GymWorldConfig | None:
-        """The Gymnasium world this condition drives in (None: the pybullet world)."""
+        """The Gymnasium world this condition drives in (None: the pybullet world); inside `uqdrive.sim` only."""
         return self.scenario if isinstance(self.scenario, GymWorldConfig) else None
 
     @property
     def native(self) -> bool:
         """Whether rollouts here drive an env as it is: the agent sees its observation and acts in its action space."""
-        world = self.gym_world
-        return world is not None and world.native
+        return self.place.native
 
     @property
     def location(self) -> str:
@@ -61,7 +73,7 @@ class Condition:
 
     @property
     def weather_name(self) -> str:
-        return NO_WEATHER if self.weather is None else self.weather.name
+        return self.place.weather_name(self.weather)
 
     @property
     def label(self) -> str:
@@ -76,38 +88,41 @@ class Condition:
         """Every rollout drives here."""
         return self
 
+    @property
+    def single(self) -> Condition | None:
+        """The one condition every rollout drives in: this one."""
+        return self
+
     def visit(self, visitor: WorldVisitor[R]) -> R:
         """``visitor``'s answer where this condition drives: on its scenario's road (built here), or in its
         Gymnasium world."""
-        world = self.gym_world
-        return visitor.gym(world) if world is not None else visitor.road(build_geometry(self.scenario))
+        return self.place.visit(visitor)
+
+    def choose(self, visitor: LocationVisitor[R]) -> R:
+        """``visitor``'s answer for this condition's location config (`Location.choose`)."""
+        return self.place.choose(visitor)
 
     @property
     def external(self) -> bool:
         """Whether rollouts here run code and config beyond uqdrive's and this condition's fields (a Gymnasium
         world's env and hooks), which a cell's identity then records (`external_identity`, `loaded_modules`)."""
-        return self.gym_world is not None
+        return self.place.external
 
     def external_identity(self) -> dict[str, Any] | None:
         """The world's identity beyond uqdrive's code (`uqdrive.sim.gym_world.world_identity`); None: nothing."""
-        world = self.gym_world
-        return None if world is None else world_identity(world)
+        return self.place.external_identity()
 
     def loaded_modules(self) -> list[str]:
         """The modules rollouts here load by name, which no static import reaches (`world_modules`)."""
-        world = self.gym_world
-        return [] if world is None else world_modules(world)
+        return self.place.loaded_modules()
 
     def make_world(self, camera: CameraConfig, vehicle: VehicleConfig, control_hz: float, horizon_s: float) -> World:
-        """A new world to drive this condition in: its Gymnasium world, else the pybullet world with this camera,
-        car, control rate and horizon."""
-        world = self.gym_world
-        return GymWorld(world) if world is not None else DrivingEnv(camera, vehicle, control_hz, horizon_s)
+        """A new world to drive this condition in (`Location.make_world`)."""
+        return self.place.make_world(camera, vehicle, control_hz, horizon_s)
 
     def world_key(self, camera: CameraConfig, vehicle: VehicleConfig, control_hz: float, horizon_s: float) -> str:
-        """The worlds `make_world` makes with one key interchange (a reset sets everything else): every Gymnasium
-        world (a reset remakes its env for another config), the pybullet worlds of one camera, car, rate and horizon."""
-        return "gym" if self.gym_world is not None else repr((camera, vehicle, control_hz, horizon_s))
+        """The worlds `make_world` makes with one key interchange (`Location.world_key`)."""
+        return self.place.world_key(camera, vehicle, control_hz, horizon_s)
 
 
 class ConditionSource(Protocol):
@@ -147,6 +162,33 @@ class Mixture:
     def condition(self, index: int, seed: int) -> Condition:
         return self.variants[self.variant(seed)]
 
+    @property
+    def single(self) -> Condition | None:
+        """None: its rollouts drive in several conditions."""
+        return None
+
+
+def source_conditions(where: Any) -> tuple[Condition, ...]:
+    """The conditions a rollout source's identity rests on: a condition itself, a mixture's variants, an envelope
+    source's base world (its ``base``: the axes' values are the source's own fields); none for anything else."""
+    if isinstance(where, Mixture):
+        return where.variants
+    found = where if isinstance(where, Condition) else getattr(where, "base", None)
+    return (found,) if isinstance(found, Condition) else ()
+
+
+def source_identity(where: Any) -> Any:
+    """A rollout source as a cell's identity sees it: an external world by its identity (`Condition.external_identity`),
+    a mixture by its variants', an envelope's source over an external world with that world's; anything else as
+    itself."""
+    if isinstance(where, Mixture):
+        return {"mixture": where.name, "variants": [source_identity(v) for v in where.variants]}
+    if isinstance(where, Condition) and where.external:
+        return {"gym_world": where.external_identity(), "noise": where.noise, "name": where.name}
+    if any(c.external for c in source_conditions(where)):  # an envelope's source over an external world
+        return {"source": where, "gym_world": where.base.external_identity()}
+    return where
+
 
 @schema(root=True)
 class WorldChoice:
@@ -183,3 +225,8 @@ class WorldChoice:
     def condition(self, name: str = "") -> Condition:
         """Where the stage drives."""
         return Condition(self.gym_world or self.scenario, self.weather, self.noise, name)
+
+    def choose(self, visitor: LocationVisitor[R]) -> R:
+        """``visitor``'s answer for the stage's location (`Location.choose`): a stage's check or choice that differs
+        by world."""
+        return self.condition().choose(visitor)

@@ -10,6 +10,7 @@ from typing import Annotated, Any, ClassVar, Literal, TypeVar, get_args
 
 from pydantic import Field, Strict
 
+from uqdrive.resolvers import find_conf
 from uqdrive.schema import (
     Bool,
     Color,
@@ -111,6 +112,11 @@ class ScenarioConfig(Section):
     building_colors: tuple[Color, ...] = Field(
         ((0.72, 0.66, 0.58), (0.58, 0.60, 0.66), (0.78, 0.52, 0.40), (0.85, 0.82, 0.72)), min_length=1
     )
+
+    @property
+    def has_obstacle(self) -> bool:
+        """Whether the road has a stationary car to avoid (kind ``obstacle``)."""
+        return self.kind == "obstacle"
 
     def __post_init__(self) -> None:
         if self.kind == "obstacle" and self.num_lanes < 2:
@@ -260,6 +266,16 @@ class SimConfig(Section):
 
 
 @schema
+class WorldAxis:
+    """A condition of a Gymnasium world that a sweep varies: ``key`` under `gym_world` (e.g.
+    ``env_kwargs.config.other_vehicles_type``) and its value per label, the first the world as collected; each value
+    is a location of its own, named ``<gym_world.name>-<label>``."""
+
+    key: Str
+    values: Annotated[dict[Annotated[str, Field(pattern=r"^[A-Za-z0-9_.]+$")], Any], Field(min_length=1)]
+
+
+@schema
 class GymWorldConfig(Section):
     """A Gymnasium env as a world: ``gymnasium.make(env_id, **env_kwargs)``, read through ``hooks``.
 
@@ -296,6 +312,7 @@ class GymWorldConfig(Section):
     terminated: Literal["end", "unsafe"] = "end"
     safe_when: Annotated[str, Strict(), Field(pattern=r"^([A-Za-z_][\w.]*:[A-Za-z_]\w*)?$")] = ""
     observe: Literal["obs", "view"] = "obs"
+    axis: WorldAxis | None = None  # the condition its sweeps vary (safety sweep, avoid's unknown, acquire, findings)
 
     def __post_init__(self) -> None:
         hooks_class(self.hooks, "hooks").check_options(self.hooks_options)  # before any work: the class and options
@@ -373,15 +390,6 @@ def register_schemas() -> None:
 def check_noise(noise: float) -> float:
     """Sensor noise σ in units of full intensity (0.05 = 5 % of 255)."""
     return validate(NonNegative, noise, "noise")
-
-
-def find_conf(start: Path | None = None) -> Path:
-    """The repo's ``conf/`` directory: searched upwards from the working directory, then from this file."""
-    for base in (start or Path.cwd(), Path(__file__).resolve()):
-        for d in (base, *base.parents):
-            if (d / "conf" / "weather").is_dir():
-                return d / "conf"
-    raise FileNotFoundError("no conf/weather directory above the working directory or this package")
 
 
 def names_gym_world(name: str) -> bool:

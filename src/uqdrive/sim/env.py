@@ -25,7 +25,7 @@ from .geometry import ScenarioGeometry, build_geometry
 from .route import Route
 from .scene import Scene
 from .vehicle import KinematicBicycle, VehicleState
-from .world import Expert, R, World, WorldVisitor
+from .world import Expert, R, ResetCondition, World, WorldVisitor
 
 TERMINATIONS = ("", "collision", "off_road", "route_complete", "timeout")
 
@@ -65,22 +65,15 @@ class DrivingEnv(World):
         self._state: VehicleState | None = None
 
     # -- lifecycle ------------------------------------------------------------------------
-    def reset(
-        self,
-        seed: int,
-        scenario: ScenarioConfig,
-        weather: WeatherConfig | None = None,
-        noise: float = 0.0,
-        render: bool = True,
-    ) -> np.ndarray | None:
-        """Start an episode; returns the first observation (None when ``render`` is False).
-
-        ``noise`` is the Gaussian pixel-noise sigma in units of full intensity.
-        """
+    def reset(self, seed: int, where: ResetCondition | None = None, render: bool = True) -> np.ndarray | None:
+        """Start an episode at ``where`` (a road's scenario, a weather, none: the default one, and ``noise``, the
+        Gaussian pixel-noise sigma in units of full intensity); returns the first observation (None when ``render``
+        is False)."""
+        scenario = getattr(where, "scenario", None)
         if not isinstance(scenario, ScenarioConfig):
             raise TypeError(f"scenario must be a ScenarioConfig, got {type(scenario).__name__}")
-        self.noise = check_noise(noise)
-        self.weather = weather or WeatherConfig()
+        self.noise = check_noise(where.noise)
+        self.weather = where.weather or WeatherConfig()
         self.render_enabled = bool(render)
         if self._scenario != scenario:
             self._geometry = build_geometry(scenario)

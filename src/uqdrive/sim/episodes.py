@@ -25,7 +25,7 @@ def record_episode(
     Returns the columns, the termination and the raw frames."""
     rows: dict[str, list] = {key: [] for key in (*RECORDED, "step", "steering", "applied_steering", "image")}
     frames: list[np.ndarray] = []
-    obs = env.reset(seed, where.scenario, where.weather, where.noise)
+    obs = env.reset(seed, where)
     autopilot = Autopilot(env.route, env.vehicle_config, sim.autopilot, env.control_hz, seed=seed)
     info = env.last_info
     step = 0
@@ -51,7 +51,7 @@ def record_expert_episode(
     shows how to come back; the commanded speed is the expert's."""
     rows: dict[str, list] = {key: [] for key in (*RECORDED, "step", "steering", "applied_steering", "image")}
     frames: list[np.ndarray] = []
-    obs = world.reset(seed, where.scenario, where.weather, where.noise)
+    obs = world.reset(seed, where)
     perturbation = SteeringPerturbation(sim.autopilot, world.control_hz, seed)
     info = world.last_info
     step = 0

@@ -54,6 +54,50 @@ class ScenarioGeometry(Layout):
         inside = (longitudinal >= 0) & (longitudinal <= self.route.length)
         return inside & (np.abs(lateral) <= self.width_at(longitudinal) / 2)
 
+    # what a scenario's kind says about its route: the one place that asks the kind (`uqdrive.safety.safe_sets` and
+    # `uqdrive.safety.failures` read these)
+    def obstacle_passed(self, vehicle_length: float) -> float:
+        """Metres along the route at which the car's centre is a full car length past the first obstacle's centre."""
+        obstacle = self.obstacles[0]
+        s, _ = self.route.project(np.array([[obstacle.x, obstacle.y]]))
+        return float(s[0]) + (obstacle.size[0] + vehicle_length) / 2
+
+    def _on_ring(self) -> np.ndarray:
+        """The route's sample indices on a roundabout's ring."""
+        cx, cy, _ = self.island
+        reach = self.config.ring_radius + self.config.ring_width / 2
+        return np.flatnonzero(np.hypot(self.route.x - cx, self.route.y - cy) <= reach)
+
+    def goal_progress(self, vehicle_length: float) -> float | None:
+        """Metres along the route a run must reach to have done its task: past the obstacle (an obstacle road),
+        where the route leaves the ring (a roundabout: its first exit); None on a straight road (its end)."""
+        if self.config.kind == "obstacle":
+            return self.obstacle_passed(vehicle_length)
+        if self.config.kind == "roundabout":
+            return float(self.route.s[self._on_ring()[-1]])
+        return None
+
+    def corridor_half_widths(self, half_width: float | None) -> np.ndarray | None:
+        """Per route sample, the half-width a run must keep to: a roundabout's lane (``half_width`` in its place);
+        None elsewhere (no corridor but the paved road)."""
+        if self.config.kind != "roundabout":
+            return None
+        s = self.route.s
+        return self.width_at(s) / 2 if half_width is None else np.full(len(s), half_width)
+
+    def parts(self, vehicle_length: float | None) -> list[tuple[str, float]]:
+        """The route's named parts as (name, start in metres), in order: a roundabout's approach, ring and exit arm;
+        an obstacle road before and past the obstacle (for a car of ``vehicle_length``; None: whole); a road whole."""
+        kind, route = self.config.kind, self.route
+        if kind == "roundabout":
+            on_ring = self._on_ring()
+            entry = float(route.s[on_ring[0]]) if len(on_ring) else 0.0
+            exit_ = float(route.s[on_ring[-1]]) if len(on_ring) else float(route.s[-1])
+            return [("approach", 0.0), ("ring", entry), ("exit arm", exit_)]
+        if kind == "obstacle" and vehicle_length is not None:
+            return [("before the obstacle", 0.0), ("past the obstacle", self.obstacle_passed(vehicle_length))]
+        return [("road", 0.0)]
+
 
 def _place_scenery(cfg: ScenarioConfig, paved: PavedArea, bounds, island) -> list[Prop]:
     rng = np.random.default_rng(cfg.scenery_seed)

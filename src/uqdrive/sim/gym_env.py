@@ -93,7 +93,7 @@ class UqdriveEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         episode_seed = seed if seed is not None else int(self.np_random.integers(2**63 - 1))
-        self._frame = self.driving.reset(episode_seed, self.scenario, self.weather, self.noise)
+        self._frame = self.driving.reset(episode_seed, self)  # its scenario, weather and noise: a `ResetCondition`
         info = dict(self.driving.last_info, seed=episode_seed)
         self._progress = info["progress"]
         return preprocess_frame(self._frame), info

@@ -37,10 +37,10 @@ from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.schema import ConfigError
 
 from .camera import add_noise
-from .config import AutopilotConfig, GymWorldConfig, VehicleConfig, WeatherConfig, check_noise, refuse_conditions
+from .config import AutopilotConfig, GymWorldConfig, VehicleConfig, check_noise, refuse_conditions
 from .gym_hooks import HOOKS, WorldFailure, WorldHooks, hooks_class
 from .gym_native import in_space, predicate, short
-from .world import TRAJECTORY_KEYS, Expert, R, World, WorldVisitor
+from .world import TRAJECTORY_KEYS, Expert, R, ResetCondition, World, WorldVisitor
 
 Returned = TypeVar("Returned")
 
@@ -119,18 +119,13 @@ class GymWorld(World):
         self.control_hz = float(config.control_hz)
         self.dt = 1.0 / self.control_hz
 
-    def reset(
-        self,
-        seed: int,
-        scenario: GymWorldConfig | None = None,
-        weather: WeatherConfig | None = None,
-        noise: float = 0.0,
-        render: bool = True,
-    ) -> np.ndarray | None:
+    def reset(self, seed: int, where: ResetCondition | None = None, render: bool = True) -> np.ndarray | None:
         """Start the episode of rollout seed ``seed`` (the env's ``reset(seed=seed)``; the sensor noise drawn from
-        the same seed); returns the first frame (None when ``render`` is False). ``scenario``: this world's location,
-        a `GymWorldConfig` (the env is remade if it differs from the current one) or None (the current one); any
-        other scenario, and any ``weather``, is refused: the env is its own world, and has no weather."""
+        the same seed); returns the first frame (None when ``render`` is False). ``where``: a condition in this world
+        (its `GymWorldConfig`: the env is remade if it differs from the current one; its noise) or None (the current
+        world, noise-free); any other scenario, and any weather, is refused: the env is its own world, and has no
+        weather."""
+        scenario, weather, noise = (None, None, 0.0) if where is None else (where.scenario, where.weather, where.noise)
         world = scenario if isinstance(scenario, GymWorldConfig) else self.config
         refuse_conditions(world, None if scenario is world else scenario, weather)
         if world != self.config or type(self.hooks) is not hooks_class(world.hooks):  # or its code was reloaded
@@ -335,7 +330,8 @@ def world_identity(config: GymWorldConfig) -> dict[str, Any]:
     found = metadata.packages_distributions()
     owners = {name for module in _world_modules(config) for name in found.get(module.partition(".")[0], [])}
     names = sorted({"gymnasium", *owners, *hooks_class(config.hooks).packages})
-    return {"config": config.to_dict(), "packages": {name: metadata.version(name) for name in names}}
+    own = {k: v for k, v in config.to_dict().items() if k != "axis"}  # what its sweeps vary: not a rollout's
+    return {"config": own, "packages": {name: metadata.version(name) for name in names}}
 
 
 def world_modules(config: GymWorldConfig) -> list[str]:

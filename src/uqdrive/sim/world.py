@@ -51,6 +51,20 @@ class Lane(Protocol):
         ...
 
 
+class ResetCondition(Protocol):
+    """What a world is reset to (`uqdrive.sim.condition.Condition`): a location's config (a road's scenario or a
+    Gymnasium world), a weather of ours (None: a Gymnasium world's, or the default) and the sensor noise σ."""
+
+    @property
+    def scenario(self) -> ScenarioConfig | GymWorldConfig: ...
+
+    @property
+    def weather(self) -> WeatherConfig | None: ...
+
+    @property
+    def noise(self) -> float: ...
+
+
 class WorldVisitor(Protocol[R]):
     """An operation of an upper layer whose answer depends on the world (a safe set, a failure's placer): one method
     per world, called by the world or condition it is handed to (`World.visit`, `Condition.visit`), so that its
@@ -83,16 +97,10 @@ class World(abc.ABC):
         self.last_info = {}
 
     @abc.abstractmethod
-    def reset(
-        self,
-        seed: int,
-        scenario: ScenarioConfig | GymWorldConfig | None,
-        weather: WeatherConfig | None = None,
-        noise: float = 0.0,
-        render: bool = True,
-    ) -> np.ndarray | None:
-        """Start the episode of rollout seed ``seed`` at a condition (its location, weather and sensor noise σ);
-        returns the first frame (RGB uint8 [H, W, 3]; None when ``render`` is False)."""
+    def reset(self, seed: int, where: ResetCondition | None = None, render: bool = True) -> np.ndarray | None:
+        """Start the episode of rollout seed ``seed`` at the condition ``where`` (its location, weather and sensor
+        noise σ, `uqdrive.sim.condition.Condition`; None: a Gymnasium world's own, noise-free); returns the first
+        frame (RGB uint8 [H, W, 3]; None when ``render`` is False)."""
 
     @abc.abstractmethod
     def step(self, steer: float, speed: float) -> tuple[np.ndarray | None, dict[str, Any]]:

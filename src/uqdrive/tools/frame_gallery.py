@@ -16,6 +16,7 @@ import numpy as np
 
 from uqdrive.network_input import preprocess_frame
 from uqdrive.sim.autopilot import Autopilot
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import ScenarioConfig, WeatherConfig, find_conf
 from uqdrive.sim.env import DrivingEnv
 
@@ -63,7 +64,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 def weather_tile(env: DrivingEnv, scenario: ScenarioConfig, weather: WeatherConfig, args, out: Path) -> np.ndarray:
     """The camera frame after ``args.time`` s of autopilot driving in ``weather`` (written as <weather>.png), and
     a tile of it above the network's grey input, both shown at least 160x120."""
-    obs = env.reset(args.seed, scenario, weather, noise=args.noise)
+    obs = env.reset(args.seed, Condition(scenario, weather, args.noise))
     pilot = Autopilot(env.route, env.vehicle_config, control_hz=env.control_hz, seed=args.seed)
     info = env.last_info
     while info["t"] < args.time - 1e-9 and not info["done"]:

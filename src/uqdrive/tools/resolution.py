@@ -29,6 +29,7 @@ import numpy as np
 from uqdrive.files import atomic_path, write_json
 from uqdrive.network_input import preprocess_frame
 from uqdrive.sim.autopilot import Autopilot
+from uqdrive.sim.condition import Condition
 from uqdrive.sim.config import CameraConfig, ScenarioConfig, WeatherConfig
 from uqdrive.sim.env import DrivingEnv
 
@@ -55,7 +56,7 @@ def autopilot_poses(
     """Every ``every``-th pose of unperturbed autopilot episodes, one per seed."""
     poses = []
     for seed in seeds:
-        env.reset(seed, scenario, render=False)
+        env.reset(seed, Condition(scenario, None), render=False)
         pilot = Autopilot(env.route, env.vehicle_config, control_hz=env.control_hz, seed=seed)
         info, step = env.last_info, 0
         while not info["done"]:
@@ -123,7 +124,7 @@ def frame_differences(conf: Path, envs: dict, seeds: range, every: int) -> tuple
         scenario = ScenarioConfig.from_yaml(conf / "scenario" / f"{scenario_name}.yaml")
         poses = autopilot_poses(envs["reference"], scenario, seeds, every)
         for env in envs.values():
-            env.reset(seeds.start, scenario, render=False)
+            env.reset(seeds.start, Condition(scenario, None), render=False)
         for weather_name in WEATHERS:
             weather = WeatherConfig.from_yaml(conf / "weather" / f"{weather_name}.yaml")
             pairs = [[render_at(env, pose, weather, 0.0, k) for env in envs.values()] for k, pose in enumerate(poses)]
@@ -152,7 +153,7 @@ def marking_contrasts(conf: Path, envs: dict, seeds: range) -> dict:
         weather = WeatherConfig.from_yaml(conf / "weather" / f"{weather_name}.yaml")
         contrast = {}
         for key, env in envs.items():
-            env.reset(seeds.start, straight, render=False)
+            env.reset(seeds.start, Condition(straight, None), render=False)
             frames = [render_at(env, pose, weather, 0.0, k) for k, pose in enumerate(poses)]
             contrast[key] = marking_contrast(frames, envs["reference"], poses, lines)
         markings[weather_name] = {
@@ -175,7 +176,7 @@ def noise_seen(conf: Path, envs: dict, seeds: range, every: int, noise: float) -
     poses = autopilot_poses(envs["reference"], scenario, range(seeds.start, seeds.start + 1), every)
     seen = {}
     for key, env in envs.items():
-        env.reset(seeds.start, scenario, render=False)
+        env.reset(seeds.start, Condition(scenario, None), render=False)
         diffs = [
             render_at(env, p, rain, noise, k).astype(float) - render_at(env, p, rain, 0.0, k)
             for k, p in enumerate(poses)
