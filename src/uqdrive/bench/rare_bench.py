@@ -135,6 +135,30 @@ def _certify_line(gamma: float) -> tuple[int, float]:
     return zero, zero / floor
 
 
+def _suite_rows(
+    baseline: float, refuted: float, exact: ThresholdTest, args: argparse.Namespace
+) -> tuple[list[float], int, float]:
+    """Print every world's rows; return the savings of each world's rule, the most false refutations of any row at
+    the null boundary and the exact test's worst error where it was the rule's pick."""
+    rows, errors, exact_worst = [], 0, 0.0
+    for i, world in enumerate(suite()):
+        hows = ("IS", *(("mix",) if args.mixture else ()), *(("split",) if splits(world) else ()))
+        for how in hows:
+            index = MIX_SEEDS + i if how == "mix" else 2 * i + (how == "split")  # the mix rows' own seeds
+            saving, wrong = _world_row(world, baseline, args, index, how)
+            errors = max(errors, wrong)
+            if how == method(world):  # the rule's pick for this world: its saving counts
+                rows.append(saving)
+        if method(world) == "MC":  # the exact test's row: computed, its error exact
+            print(
+                f"  {world.name:<36} {world.margin:>7} {'MC':>6} {baseline:>11.1f} {refuted:>10.4f} {1.0:>7.1f} "
+                f"{exact.worst_errors()[1]:>10.4f} {'exact':>8} {'-':>6}"
+            )
+            rows.append(1.0)
+            exact_worst = max(exact_worst, exact.worst_errors()[1])
+    return rows, errors, exact_worst
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="uqdrive bench rare", description=__doc__)
     ap.add_argument("--runs", type=int, default=200, help="importance-sampling runs per world at p = 1e-3")
@@ -175,22 +199,7 @@ def main(argv: list[str]) -> int:
     )
     head = f"  {'world':<36} {'margin':>7} {'method':>6} {'E[rollouts]':>11} {'P(refuted)':>10} {'saving':>7}"
     print(f"{head} {'null error':>10} {'CP upper':>8} {'runs':>6}  time")
-    rows, errors, exact_worst = [], 0, 0.0
-    for i, world in enumerate(suite()):
-        hows = ("IS", *(("mix",) if args.mixture else ()), *(("split",) if splits(world) else ()))
-        for how in hows:
-            index = MIX_SEEDS + i if how == "mix" else 2 * i + (how == "split")  # the mix rows' own seeds
-            saving, wrong = _world_row(world, baseline, args, index, how)
-            errors = max(errors, wrong)
-            if how == method(world):  # the rule's pick for this world: its saving counts
-                rows.append(saving)
-        if method(world) == "MC":  # the exact test's row: computed, its error exact
-            print(
-                f"  {world.name:<36} {world.margin:>7} {'MC':>6} {baseline:>11.1f} {refuted[0]:>10.4f} {1.0:>7.1f} "
-                f"{exact.worst_errors()[1]:>10.4f} {'exact':>8} {'-':>6}"
-            )
-            rows.append(1.0)
-            exact_worst = max(exact_worst, exact.worst_errors()[1])
+    rows, errors, exact_worst = _suite_rows(baseline, float(refuted[0]), exact, args)
     savings = np.array(rows)
     zero, ratio = _certify_line(args.gamma)
     print(
