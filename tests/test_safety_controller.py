@@ -10,18 +10,15 @@ from uqdrive.models import load_posterior
 from uqdrive.network_input import preprocess_frame
 from uqdrive.policy.controller import Controller
 from uqdrive.sim import DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.condition import Condition
 from uqdrive.uq import decision_confidence, frame_measures
 
 
 @pytest.fixture(scope="module")
 def frame():
     with DrivingEnv() as env:
-        return env.reset(
-            3,
-            ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml"),
-            WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"),
-            0.05,
-        )
+        scenario = ScenarioConfig.from_yaml(CONF / "scenario" / "roundabout.yaml")
+        return env.reset(3, Condition(scenario, WeatherConfig.from_yaml(CONF / "weather" / "rain.yaml"), 0.05))
 
 
 def test_command_is_the_predictive_mode_with_its_uncertainty(random_models, frame):

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from uqdrive.sim import Autopilot, AutopilotConfig, DrivingEnv, ScenarioConfig, WeatherConfig
+from uqdrive.sim.condition import Condition
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
 def drive(env, scenario, seed, config=None):
-    env.reset(seed, scenario, WeatherConfig(), render=False)
+    env.reset(seed, Condition(scenario, WeatherConfig()), render=False)
     pilot = Autopilot(env.route, env.vehicle_config, config, control_hz=env.control_hz, seed=seed)
     info, infos, actions = env.last_info, [], []
     while not info["done"]:
@@ -50,7 +51,7 @@ def test_autopilot_is_safe_and_completes_the_route(env, kind):
 
 def test_obstacle_clearance(env):
     scenario = ScenarioConfig(kind="obstacle")
-    env.reset(0, scenario, render=False)
+    env.reset(0, Condition(scenario, WeatherConfig()), render=False)
     pilot = Autopilot(env.route, env.vehicle_config, seed=0)
     info, clearance = env.last_info, []
     while not info["done"]:
@@ -76,7 +77,7 @@ def test_perturbations_are_seeded_and_labels_stay_unperturbed(env):
 
 def test_pure_pursuit_steers_back_towards_the_route(env):
     scenario = dataclasses.replace(ScenarioConfig(kind="straight"), start_jitter_lateral=0.0, start_jitter_yaw_deg=0.0)
-    env.reset(0, scenario, render=False)
+    env.reset(0, Condition(scenario, WeatherConfig()), render=False)
     pilot = Autopilot(env.route, env.vehicle_config)
     left_of_route = dict(env.last_info, y=env.last_info["y"] + 1.0)
     right_of_route = dict(env.last_info, y=env.last_info["y"] - 1.0)
