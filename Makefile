@@ -51,8 +51,8 @@ chromium:
 # `make ui PORT=5001` where 5000 is taken
 PORT ?= 5000
 ui: $(STAMP)
-	$(BIN)/python -c 'from uqdrive.tracking import follow_project; follow_project(".")'
-	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:$(PORT)/#/experiments?workflowType=machine_learning  (Ctrl-C stops it)"
+	@echo "MLflow UI on the project's runs (mlflow.db, artefacts in mlartifacts/): http://127.0.0.1:$(PORT)/#/experiments?workflowType=machine_learning  (Ctrl-C stops it); each experiment's runs with its key metrics as columns:"
+	@$(BIN)/python -c 'from uqdrive.tracking import follow_project; follow_project(".", $(PORT))'
 	mlflow ui --host 127.0.0.1 --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --default-artifact-root $(CURDIR)/mlartifacts --port $(PORT)
 
 frames: $(STAMP)

@@ -46,6 +46,8 @@ from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 from sqlalchemy.exc import SQLAlchemyError
 
+from uqdrive.runs_view import metric_names, runs_link, view_tag
+
 MAX_PARAM_CHARS = 6000  # MLflow's limit on one param value
 LOCK_TIMEOUT_S = 600.0  # a migration takes seconds; a lock held this long is a stuck process
 INTERRUPT_GRACE_S = 20.0  # after Ctrl-C or SIGTERM, clean-up time before the signal's default action ends a sweep
@@ -71,12 +73,14 @@ COMPARED_BY = {
     "cell_theta": "{stage}.theta",  # ... and its precision
     "family_gamma": "{stage}.gamma",  # the γ a family-wise sweep splits (each cell's own: cell_gamma, its record's)
 }
+VIEW_PARAMS = ("method", "location", "weather", "noise", "replicate")  # the runs table's param columns
 RENAMED = {"{stage}.draws.": "frame_draws."}  # the posterior draws per frame: apart from the cell's θ and γ
 SECTIONS = {"train": ("train", "model", "arch")}  # a stage's own config sections, when not just its name
 # The numbers each experiment is judged by (metrics of these short names), at a fixed precision. MLflow 3.17's runs
 # table shows no metric column until a user picks one (its default columns are Created, Dataset, Duration, …), so
 # the run's name carries them, after what tells sibling runs apart (the Run Name column shows about 20 characters:
-# the condition first). A run missing one of a form's metrics keeps its name.
+# the condition first), and the experiment's shared view (`runs_view`) shows them as columns. A run missing one of a
+# form's metrics keeps its name.
 KEY_METRICS = {
     "safety": "η1={eta1:.2f} [{eta1_low:.2f}, {eta1_high:.2f}]",
     "avoid": "η1={eta1:.2f} [{eta1_low:.2f}, {eta1_high:.2f}]",
@@ -168,11 +172,22 @@ def _follow_moved_project(root: str | Path) -> None:
                 )
 
 
-def follow_project(root: str | Path) -> None:
+def follow_project(root: str | Path, port: int | str = 5000) -> None:
     """Open the project's store under its lock (`open_store`): what `make ui` does first, so the UI of a copied or
-    cloned project shows this folder's artefacts before any stage has run in it."""
+    cloned project shows this folder's artefacts before any stage has run in it; then print each experiment's link,
+    which opens its runs with the key metrics as columns."""
     with store_lock(root):
-        open_store(root)
+        client = open_store(root)
+        experiments = client.search_experiments()
+    for experiment in sorted(experiments, key=lambda e: e.name):
+        print(f"  {experiment.name}: {runs_link(experiment.experiment_id, port)}")
+
+
+def experiment_tags(name: str) -> dict[str, str]:
+    """What every experiment carries: its kind (model runs) and its shared view of its stage's key metrics and the
+    keys runs are compared by."""
+    stage = name.rsplit("/", 1)[-1]
+    return {**EXPERIMENT_KIND, **view_tag(metric_names(KEY_METRICS.get(stage, "")), VIEW_PARAMS)}
 
 
 def ensure_experiment(root: str | Path, name: str) -> str:
@@ -182,9 +197,10 @@ def ensure_experiment(root: str | Path, name: str) -> str:
     with store_lock(root):
         client = open_store(root)
         experiment = client.get_experiment_by_name(name)
+        tags = experiment_tags(name)
         if experiment is None:
-            return client.create_experiment(name, artifact_location=f"{artifact_root}/{name}", tags=EXPERIMENT_KIND)
-        for key, value in EXPERIMENT_KIND.items():  # a store made by older code
+            return client.create_experiment(name, artifact_location=f"{artifact_root}/{name}", tags=tags)
+        for key, value in tags.items():  # a store made by older code
             if experiment.tags.get(key) != value:
                 client.set_experiment_tag(experiment.experiment_id, key, value)
         return experiment.experiment_id
