@@ -179,3 +179,25 @@ def test_the_startup_benchmark_prints_its_result_line(capsys: pytest.CaptureFixt
         r"other_help_s=[\d.]+ python_s=[\d.]+ help_over_python=[\d.]+ refuse_over_python=[\d.]+",
         line,
     )
+
+
+@pytest.mark.slow
+def test_the_real_world_rare_benchmark_runs_pilot_monte_carlo_and_the_stage(tmp_path, random_models, capsys) -> None:
+    """`bench rare_real` on random-weight controllers, which leave the road: the pilot counts every rollout of its
+    fixed size as a failure, the exact test refutes at its only look, the stage within its first round."""
+    from conftest import ALL_TENTHS
+
+    (tmp_path / "conf").symlink_to(Path(__file__).parents[1] / "conf")
+    model = f"envelope.model_path={random_models['mcd'].parent}/${{model.name}}.pt"
+    tiny = ["rare.refute_budget=8", "rare.round_size=4", "rare.certify=false", model, *ALL_TENTHS]
+    argv = ["bench", "rare_real", "--root", str(tmp_path), "--profile", "tiny", "--pilot", "6", "--mc-cap", "10"]
+    assert main([*argv, *tiny]) == 0
+    out = capsys.readouterr().out
+    assert "pilot: 6 failures in 6 rollouts" in out, out[-2000:]
+    found = re.search(
+        r"^RESULT rare_real p_pilot=1 p_low=[\d.]+ p_high=1 mc_rollouts=10 mc_refuted=1 "
+        r"is_rollouts=(\d) is_refuted=1 saving=[\d.]+$",
+        out,
+        re.M,
+    )
+    assert found and int(found.group(1)) <= 4, out[-2000:]

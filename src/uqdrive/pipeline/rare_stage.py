@@ -57,13 +57,14 @@ class RareRun:
     reused: bool
 
 
-def _cell(envelope: Envelope, section: RareSection, runner: CellRunner, cells: list[CellRun], points, base: int):
-    """One cell: rollout i at the i-th point, on seed base + i; its 0/1 outcomes (1: safe) and margins."""
+def rare_cell(envelope: Envelope, log_dir: str | Path, runner: CellRunner, cells: list[CellRun], points, base: int):
+    """One cell: rollout i at the i-th point (of the unit cube), on seed base + i, logged under ``log_dir`` (and
+    appended to ``cells``); its 0/1 outcomes (1: safe) and margins."""
     listed = envelope.listed(tuple(map(tuple, np.asarray(points, float).tolist())))
     job = envelope.job(listed, base)
     name = f"cell-{len(cells)}"
     key = cell_key(job, {"phase": "rare"}, envelope.settings.model_path, __name__)
-    log = Path(section.rollout_log) / f"{name}.jsonl"
+    log = Path(log_dir) / f"{name}.jsonl"
     count = len(listed.points)
     cells.append(runner.run(f"rare {envelope.method} {name}", job, key, log, base, lambda d: d(count), count))
     safe = np.asarray(cells[-1].outcome, int)
@@ -82,7 +83,7 @@ def run_rare(cfg: DictConfig) -> RareRun:
     with CellRunner.of(envelope.stage.executor, envelope.stage.progress) as runner:
 
         def world(points: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            safe, margins = _cell(envelope, section, runner, cells, points[0], int(seeds[0, 0]))
+            safe, margins = rare_cell(envelope, section.rollout_log, runner, cells, points[0], int(seeds[0, 0]))
             return (safe == 0)[None], margins[None]
 
         found = refute(world, domain.nominal, section, rng, seed=base, names=domain.space.names)
@@ -91,7 +92,7 @@ def run_rare(cfg: DictConfig) -> RareRun:
             drawn = [base + section.refute_budget]
 
             def draw(m: int) -> np.ndarray:
-                safe, _ = _cell(envelope, section, runner, cells, domain.sample(rng, m), drawn[0])
+                safe, _ = rare_cell(envelope, section.rollout_log, runner, cells, domain.sample(rng, m), drawn[0])
                 drawn[0] += m
                 return safe
 
