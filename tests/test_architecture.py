@@ -504,6 +504,59 @@ def test_no_stage_asks_which_driver_it_has():
             assert bool(found) == (caught and driving), (folder, code, found)
 
 
+SCHEME_HOMES = {"uq/schemes.py", "policy/draws.py"}  # where a scheme's name becomes its object (a dict, no switch)
+
+
+def _named_scheme(node: ast.expr) -> bool:
+    name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else ""
+    return name == "scheme" or name.endswith("_scheme")
+
+
+def _names_a_scheme(node: ast.expr) -> bool:
+    """A string constant, or a tuple, list or set of them (``scheme in ("a", "b")``)."""
+    if isinstance(node, ast.Tuple | ast.List | ast.Set):
+        return bool(node.elts) and all(_names_a_scheme(e) for e in node.elts)
+    return isinstance(node, ast.Constant) and isinstance(node.value, str)
+
+
+def scheme_switches(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every switch on an estimator's or a draw scheme's name (``….scheme == "sequential"``, ``!=``, ``in (…)``,
+    ``match scheme: case "fixed"``) outside `SCHEME_HOMES`: each scheme is an object behind one interface
+    (`uqdrive.uq.schemes.CellEstimator`, `uqdrive.policy.draws.DrawScheme`), chosen once from its name."""
+    found = []
+    for path, tree in trees.items():
+        if str(path.relative_to(PACKAGE)) in SCHEME_HOMES:
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Compare) and len(node.ops) == 1:
+                sides = (node.left, node.comparators[0])
+                if any(_named_scheme(a) and _names_a_scheme(b) for a, b in (sides, sides[::-1])):
+                    found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {ast.unparse(node)}")
+            elif isinstance(node, ast.Match) and _named_scheme(node.subject):
+                found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} match {ast.unparse(node.subject)}")
+    return found
+
+
+def test_no_code_switches_on_a_schemes_name():
+    switched = scheme_switches(modules())
+    assert not switched, "\n".join(switched)
+    planted = {
+        'if self.scheme == "sequential":\n    pass': True,
+        'x = 1 if d.scheme != "fixed" else 2': True,
+        'ok = "fixed" == settings.draws.scheme': True,
+        'ok = scheme in ("chernoff", "clopper_pearson")': True,
+        'ok = cell_scheme == "sequential"': True,
+        'match scheme:\n    case "fixed":\n        pass': True,
+        "ok = settings.scheme == other.scheme": False,
+        'ok = method == "sequential"': False,
+        "ok = DRAW_SCHEMES[settings.scheme]": False,
+    }
+    for code, caught in planted.items():
+        for home, exempt in (("safety/planted.py", False), ("uq/schemes.py", True)):
+            found = scheme_switches({PACKAGE / home: ast.parse(code)})
+            assert bool(found) == (caught and not exempt), (home, code, found)
+
+
 def policy_and_recipe_classes(trees: dict[Path, ast.Module]) -> tuple[dict[str, Path], dict[str, Path]]:
     """The classes that drive (``reset`` with ``act`` or ``act_batch``, or a subclass of one), and the recipes (a
     ``build(self, control_hz)``: what a job builds its policy from), by name, with the file each is defined in."""
