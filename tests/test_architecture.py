@@ -189,6 +189,35 @@ def test_pipeline_holds_one_stage_module_per_stage_and_each_run_returns_a_datacl
     assert not plain, plain
 
 
+def pipeline_definitions(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every class and module-level type alias defined in `pipeline/`: a stage's schema, its plan and what its run
+    returns live in the stage's wing (`safety/plan.py`, `models/train_plan.py`, `analysis/plans.py`, …), so
+    `pipeline/` holds the stage functions only."""
+    classes = {node.name for tree in trees.values() for node in ast.walk(tree) if isinstance(node, ast.ClassDef)}
+    return [
+        f"{path.relative_to(PACKAGE)}: {name}"
+        for path, tree in trees.items()
+        if path.relative_to(PACKAGE).parts[0] == "pipeline"
+        for name in [n.name for n in ast.walk(tree) if isinstance(n, ast.ClassDef)] + type_aliases(tree, classes)
+    ]
+
+
+def test_pipeline_defines_no_schema_plan_or_record():
+    defined = pipeline_definitions(modules())
+    assert not defined, "\n".join(defined)
+    planted = {
+        "@schema(root=True)\nclass XStage(Stage):\n    x: int": True,
+        "@dataclasses.dataclass(frozen=True)\nclass XRun:\n    reused: bool": True,
+        'Name = Annotated[Str, Field(pattern="a")]': True,
+        "def run_x(cfg):\n    return plan(cfg)": False,
+        "LIMIT = 3": False,
+    }
+    for code, caught in planted.items():
+        for folder, stage in (("pipeline", True), ("safety", False)):
+            found = pipeline_definitions({PACKAGE / folder / "x_stage.py": ast.parse(code)})
+            assert bool(found) == (caught and stage), (folder, code, found)
+
+
 WHOLE_CONFIG = {"DictConfig", "AvoidStage", "AvoidSettings"}  # the avoid stage's config: composed, validated, built
 
 
