@@ -29,6 +29,21 @@ LAYERS = {  # package → the project packages it may import (root modules are o
 }
 WING_PARTS = {"plan", "cells", "figure"}  # a wing's standard parts share names: envelope/plan.py, avoid/plan.py
 TOOLS = {"bench", "tools"}  # commands and benchmarks: use any part; nothing imports them
+ROOT_MAY_IMPORT = {"data", "models"}  # stage_schemas' experiment (its class set) and a posterior's settings (deferred)
+ROOT_PLUMBING = {  # the root's modules: what every stage shares to validate, run, record and track
+    "__init__.py",
+    "deps.py",  # a stage's code closure and the digests of a cell's files
+    "figures.py",
+    "files.py",
+    "network_input.py",  # the frame the network takes: sim renders it, data and policy preprocess to it (siblings)
+    "parallel.py",
+    "records.py",
+    "resolvers.py",
+    "schema.py",
+    "stage.py",
+    "stage_schemas.py",
+    "tracking.py",
+}
 TYPE_FACTORIES = {"TypeVar", "NewType", "ParamSpec", "TypeVarTuple"}
 TYPE_STATEMENT = getattr(ast, "TypeAlias", ())  # `type X = ...` (Python ≥ 3.12; the 3.11 parser has none)
 GENERICS = (
@@ -65,18 +80,48 @@ def imported_packages(tree: ast.Module, path: Path = PACKAGE / "__init__.py") ->
     return names
 
 
-def test_packages_import_only_the_packages_below_them():
-    packages = {p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+PACKAGES = {p.name for p in PACKAGE.iterdir() if p.is_dir() and any(p.glob("*.py"))}  # namespace ones too
+
+
+def upward_imports(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every import of a package a module may not import: a layer's above its `LAYERS` entry, a root module's
+    beyond `ROOT_MAY_IMPORT` (the root sits below every wing)."""
     upward = []
-    for path, tree in modules().items():
+    for path, tree in trees.items():
         here = path.relative_to(PACKAGE).parts[0]
         if here in LAYERS:
-            for name in imported_packages(tree, path) & packages - LAYERS[here] - {here}:
-                upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
-        elif path.parent == PACKAGE:  # root utilities
-            for name in imported_packages(tree, path) & ({"pipeline", "report", "analysis"} | TOOLS):
-                upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
+            allowed = LAYERS[here] | {here}
+        elif path.parent == PACKAGE:
+            allowed = ROOT_MAY_IMPORT
+        else:
+            continue
+        upward += [
+            f"{path.relative_to(PACKAGE)} imports uqdrive.{n}"
+            for n in imported_packages(tree, path) & PACKAGES - allowed
+        ]
+    return sorted(upward)
+
+
+def test_packages_import_only_the_packages_below_them():
+    upward = upward_imports(modules())
     assert not upward, "\n".join(upward)
+    planted = {
+        ("paper.py", "from uqdrive.analysis.method_answers import x"): True,  # the root below every wing
+        ("stage.py", "from uqdrive import report"): True,
+        ("stage.py", "from uqdrive.safety.plan import SafetyStage"): True,
+        ("stage_schemas.py", "from uqdrive.data.binning import SteeringBins"): False,
+        ("sim/x.py", "from uqdrive.data import tables"): True,
+        ("analysis/x.py", "from ..avoid import results"): False,
+        ("safety/x.py", "from uqdrive.analysis import paper"): True,
+    }
+    for (where, code), caught in planted.items():
+        assert bool(upward_imports({PACKAGE / where: ast.parse(code)})) == caught, (where, code)
+
+
+def test_the_root_holds_only_plumbing():
+    """What the root may hold (`ROOT_PLUMBING`): a domain module (the paper's numbers, say) lives in its wing."""
+    root = {p.name for p in PACKAGE.glob("*.py")}
+    assert root <= ROOT_PLUMBING, sorted(root - ROOT_PLUMBING)
 
 
 def test_imports_are_found_in_every_spelling():
