@@ -17,22 +17,14 @@ from test_train import write_processed
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.tables import RAW_SCHEMA
 from uqdrive.models.checkpoint import read_checkpoint
-from uqdrive.pipeline.acquire_stage import (
-    AcquireStage,
-    Where,
-    aggregate,
-    as_swept,
-    placed,
-    retrain,
-    rounds_key,
-    run_acquire,
-    targeted_conditions,
-)
-from uqdrive.pipeline.safety_stage import SafetyStage, run_safety
+from uqdrive.pipeline.acquire_stage import aggregate, as_swept, retrain, rounds_key, run_acquire, targeted_conditions
+from uqdrive.pipeline.safety_stage import run_safety
 from uqdrive.pipeline.train_stage import run_train
 from uqdrive.records import read_record, write_record
+from uqdrive.safety.acquire_plan import AcquireStage, Where, placed
 from uqdrive.safety.acquisition import AcquisitionCheck, before_after, flagged_cells
 from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.safety.plan import SafetyStage
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import Autopilot, AutopilotConfig, build_geometry
 from uqdrive.uq.bounds import chernoff_n, clopper_pearson_n

@@ -29,6 +29,22 @@ LAYERS = {  # package → the project packages it may import (root modules are o
 }
 WING_PARTS = {"plan", "cells", "figure"}  # a wing's standard parts share names: envelope/plan.py, avoid/plan.py
 TOOLS = {"bench", "tools"}  # commands and benchmarks: use any part; nothing imports them
+ROOT_MAY_IMPORT = {"data", "models"}  # stage_schemas' experiment (its class set) and a posterior's settings (deferred)
+ROOT_PLUMBING = {  # the root's modules: what every stage shares to validate, run, record and track
+    "__init__.py",
+    "deps.py",  # a stage's code closure and the digests of a cell's files
+    "figures.py",
+    "files.py",
+    "network_input.py",  # the frame the network takes: sim renders it, data and policy preprocess to it (siblings)
+    "parallel.py",
+    "records.py",
+    "resolvers.py",
+    "schema.py",
+    "stage.py",
+    "stage_schemas.py",
+    "runs_view.py",  # the MLflow view every experiment opens with (tracking sets it)
+    "tracking.py",
+}
 TYPE_FACTORIES = {"TypeVar", "NewType", "ParamSpec", "TypeVarTuple"}
 TYPE_STATEMENT = getattr(ast, "TypeAlias", ())  # `type X = ...` (Python ≥ 3.12; the 3.11 parser has none)
 GENERICS = (
@@ -65,18 +81,48 @@ def imported_packages(tree: ast.Module, path: Path = PACKAGE / "__init__.py") ->
     return names
 
 
-def test_packages_import_only_the_packages_below_them():
-    packages = {p.name for p in PACKAGE.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+PACKAGES = {p.name for p in PACKAGE.iterdir() if p.is_dir() and any(p.glob("*.py"))}  # namespace ones too
+
+
+def upward_imports(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every import of a package a module may not import: a layer's above its `LAYERS` entry, a root module's
+    beyond `ROOT_MAY_IMPORT` (the root sits below every wing)."""
     upward = []
-    for path, tree in modules().items():
+    for path, tree in trees.items():
         here = path.relative_to(PACKAGE).parts[0]
         if here in LAYERS:
-            for name in imported_packages(tree, path) & packages - LAYERS[here] - {here}:
-                upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
-        elif path.parent == PACKAGE:  # root utilities
-            for name in imported_packages(tree, path) & ({"pipeline", "report", "analysis"} | TOOLS):
-                upward.append(f"{path.relative_to(PACKAGE)} imports uqdrive.{name}")
+            allowed = LAYERS[here] | {here}
+        elif path.parent == PACKAGE:
+            allowed = ROOT_MAY_IMPORT
+        else:
+            continue
+        upward += [
+            f"{path.relative_to(PACKAGE)} imports uqdrive.{n}"
+            for n in imported_packages(tree, path) & PACKAGES - allowed
+        ]
+    return sorted(upward)
+
+
+def test_packages_import_only_the_packages_below_them():
+    upward = upward_imports(modules())
     assert not upward, "\n".join(upward)
+    planted = {
+        ("paper.py", "from uqdrive.analysis.method_answers import x"): True,  # the root below every wing
+        ("stage.py", "from uqdrive import report"): True,
+        ("stage.py", "from uqdrive.safety.plan import SafetyStage"): True,
+        ("stage_schemas.py", "from uqdrive.data.binning import SteeringBins"): False,
+        ("sim/x.py", "from uqdrive.data import tables"): True,
+        ("analysis/x.py", "from ..avoid import results"): False,
+        ("safety/x.py", "from uqdrive.analysis import paper"): True,
+    }
+    for (where, code), caught in planted.items():
+        assert bool(upward_imports({PACKAGE / where: ast.parse(code)})) == caught, (where, code)
+
+
+def test_the_root_holds_only_plumbing():
+    """What the root may hold (`ROOT_PLUMBING`): a domain module (the paper's numbers, say) lives in its wing."""
+    root = {p.name for p in PACKAGE.glob("*.py")}
+    assert root <= ROOT_PLUMBING, sorted(root - ROOT_PLUMBING)
 
 
 def test_imports_are_found_in_every_spelling():
@@ -187,6 +233,35 @@ def test_pipeline_holds_one_stage_module_per_stage_and_each_run_returns_a_datacl
                 if returns.startswith(("dict", "list", "None")) or not returns:
                     plain.append(f"{path.name}:{node.name} -> {returns or '?'}")
     assert not plain, plain
+
+
+def pipeline_definitions(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every class and module-level type alias defined in `pipeline/`: a stage's schema, its plan and what its run
+    returns live in the stage's wing (`safety/plan.py`, `models/train_plan.py`, `analysis/plans.py`, …), so
+    `pipeline/` holds the stage functions only."""
+    classes = {node.name for tree in trees.values() for node in ast.walk(tree) if isinstance(node, ast.ClassDef)}
+    return [
+        f"{path.relative_to(PACKAGE)}: {name}"
+        for path, tree in trees.items()
+        if path.relative_to(PACKAGE).parts[0] == "pipeline"
+        for name in [n.name for n in ast.walk(tree) if isinstance(n, ast.ClassDef)] + type_aliases(tree, classes)
+    ]
+
+
+def test_pipeline_defines_no_schema_plan_or_record():
+    defined = pipeline_definitions(modules())
+    assert not defined, "\n".join(defined)
+    planted = {
+        "@schema(root=True)\nclass XStage(Stage):\n    x: int": True,
+        "@dataclasses.dataclass(frozen=True)\nclass XRun:\n    reused: bool": True,
+        'Name = Annotated[Str, Field(pattern="a")]': True,
+        "def run_x(cfg):\n    return plan(cfg)": False,
+        "LIMIT = 3": False,
+    }
+    for code, caught in planted.items():
+        for folder, stage in (("pipeline", True), ("safety", False)):
+            found = pipeline_definitions({PACKAGE / folder / "x_stage.py": ast.parse(code)})
+            assert bool(found) == (caught and stage), (folder, code, found)
 
 
 WHOLE_CONFIG = {"DictConfig", "AvoidStage", "AvoidSettings"}  # the avoid stage's config: composed, validated, built
@@ -502,6 +577,59 @@ def test_no_stage_asks_which_driver_it_has():
         for folder, driving in (("pipeline", True), ("safety", False)):
             found = driver_questions({PACKAGE / folder / "planted.py": ast.parse(code)})
             assert bool(found) == (caught and driving), (folder, code, found)
+
+
+SCHEME_HOMES = {"uq/schemes.py", "policy/draws.py"}  # where a scheme's name becomes its object (a dict, no switch)
+
+
+def _named_scheme(node: ast.expr) -> bool:
+    name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else ""
+    return name == "scheme" or name.endswith("_scheme")
+
+
+def _names_a_scheme(node: ast.expr) -> bool:
+    """A string constant, or a tuple, list or set of them (``scheme in ("a", "b")``)."""
+    if isinstance(node, ast.Tuple | ast.List | ast.Set):
+        return bool(node.elts) and all(_names_a_scheme(e) for e in node.elts)
+    return isinstance(node, ast.Constant) and isinstance(node.value, str)
+
+
+def scheme_switches(trees: dict[Path, ast.Module]) -> list[str]:
+    """Every switch on an estimator's or a draw scheme's name (``….scheme == "sequential"``, ``!=``, ``in (…)``,
+    ``match scheme: case "fixed"``) outside `SCHEME_HOMES`: each scheme is an object behind one interface
+    (`uqdrive.uq.schemes.CellEstimator`, `uqdrive.policy.draws.DrawScheme`), chosen once from its name."""
+    found = []
+    for path, tree in trees.items():
+        if str(path.relative_to(PACKAGE)) in SCHEME_HOMES:
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Compare) and len(node.ops) == 1:
+                sides = (node.left, node.comparators[0])
+                if any(_named_scheme(a) and _names_a_scheme(b) for a, b in (sides, sides[::-1])):
+                    found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {ast.unparse(node)}")
+            elif isinstance(node, ast.Match) and _named_scheme(node.subject):
+                found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} match {ast.unparse(node.subject)}")
+    return found
+
+
+def test_no_code_switches_on_a_schemes_name():
+    switched = scheme_switches(modules())
+    assert not switched, "\n".join(switched)
+    planted = {
+        'if self.scheme == "sequential":\n    pass': True,
+        'x = 1 if d.scheme != "fixed" else 2': True,
+        'ok = "fixed" == settings.draws.scheme': True,
+        'ok = scheme in ("chernoff", "clopper_pearson")': True,
+        'ok = cell_scheme == "sequential"': True,
+        'match scheme:\n    case "fixed":\n        pass': True,
+        "ok = settings.scheme == other.scheme": False,
+        'ok = method == "sequential"': False,
+        "ok = DRAW_SCHEMES[settings.scheme]": False,
+    }
+    for code, caught in planted.items():
+        for home, exempt in (("safety/planted.py", False), ("uq/schemes.py", True)):
+            found = scheme_switches({PACKAGE / home: ast.parse(code)})
+            assert bool(found) == (caught and not exempt), (home, code, found)
 
 
 def policy_and_recipe_classes(trees: dict[Path, ast.Module]) -> tuple[dict[str, Path], dict[str, Path]]:

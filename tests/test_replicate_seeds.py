@@ -5,7 +5,7 @@ every cell of a stage drives the same seeds (so its cells pair by seed)."""
 import pytest
 
 from uqdrive.avoid.plan import AvoidStage
-from uqdrive.pipeline.safety_stage import SafetyStage
+from uqdrive.safety.plan import SafetyStage
 from uqdrive.schema import validate
 from uqdrive.stage_schemas import SEED_BLOCK
 

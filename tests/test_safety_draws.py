@@ -294,3 +294,15 @@ def test_the_profiles_deployed_tier_rules_compute_their_exact_error_and_say_if_t
     assert rule.tier.error == pytest.approx(anywhere, abs=1e-9) and outside <= anywhere + 1e-12 <= 0.05 + 1e-12
     assert rule.tier.middle_guaranteed == (profile == "paper")
     assert rule.looks == {"quick": (24, 48, 96, 185), "paper": (24, 48, 96, 192, 384, 738)}[profile]
+
+
+def test_each_draw_scheme_the_config_names_is_an_object_of_that_name():
+    import typing
+
+    from uqdrive.policy.draws import DRAW_SCHEMES
+
+    names = typing.get_args(typing.get_type_hints(DrawSettings)["scheme"])
+    assert set(names) == set(DRAW_SCHEMES) and all(DrawSettings(n).method.name == n for n in names)
+    assert DrawSettings("fixed").looks(64) == (64,) and DrawSettings("fixed").records(acts_on_warnings=True)
+    assert DrawSettings("sequential", look=8).looks(96) == (24, 48, 96)
+    assert not DrawSettings("sequential").records(acts_on_warnings=True)

@@ -184,3 +184,26 @@ def test_other_bad_arguments_are_rejected() -> None:
         sequential(lambda k: np.full(k, 2), THETA, GAMMA, 1)
     with pytest.raises(ValueError, match=r"half_width must be > 0 with 0 < delta ± half_width < 1, got 0.1"):
         sprt(lambda k: np.ones(k), delta=0.95, half_width=0.1)
+
+
+def test_each_cell_estimator_is_chosen_by_its_name_and_records_it():
+    from uqdrive.uq.schemes import CELL_ESTIMATORS, cell_estimator
+
+    rng = np.random.default_rng(3)
+    outcomes = (rng.random(5000) < 0.8).astype(np.int64)
+    for name in ("chernoff", "clopper_pearson", "sequential"):
+        method, taken = cell_estimator(name), []
+
+        def draw(m, taken=taken):
+            start = sum(taken)
+            taken.append(m)
+            return outcomes[start : start + m]
+
+        est = method.estimate(draw, 0.1, 0.05, 4)
+        assert est.scheme == name and est.n == sum(taken)
+        assert method.least(0.1, 0.05, 4) <= est.n <= method.most(0.1, 0.05, 4)
+        assert abs(est.value - 0.8) <= 0.1 and est.guaranteed
+    assert cell_estimator("chernoff").most(0.1, 0.05, 4) == chernoff_n(0.1, 0.05)
+    assert set(CELL_ESTIMATORS) == {"chernoff", "clopper_pearson", "sequential"}
+    with pytest.raises(ValueError, match="scheme='wald'"):
+        cell_estimator("wald")

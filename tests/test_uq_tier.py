@@ -163,7 +163,7 @@ def test_every_threshold_pair_the_calibration_may_choose_has_a_rule_within_gamma
     checks the worst)."""
     grid = [0.0, 0.5, 0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95, 0.97, 0.98, 0.99, 0.995, 1.0]
     pairs = [(d1, d2) for d1, d2 in itertools.product(grid, grid) if d2 <= d1]
-    worst = max((tier_rule("sequential", d1, d2, 0.05, theta, 24, cap) for d1, d2 in pairs), key=lambda r: r.error)
+    worst = max((tier_rule(TierTest, d1, d2, 0.05, theta, 24, cap) for d1, d2 in pairs), key=lambda r: r.error)
     print(f"theta={theta}, cap={cap}: worst exact wrong-tier error {worst.error:.5f}, {worst.describe()}")
     assert worst.error <= 0.05 and wrong_tier_rate(worst, theta)[1] == pytest.approx(worst.error, abs=1e-9)
 

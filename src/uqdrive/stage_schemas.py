@@ -1,11 +1,11 @@
 """What the stages' configs share (`uqdrive.schema`): the top level every stage has, the experiment, the executor,
 a grid stage's sweep, a posterior's settings.
 
-Each stage's own schema lives beside its code (`CollectStage` in `pipeline/collect_stage.py`, …) and names the sections
-it reads; the values of a stage's own sections are written once, in its conf/<stage>.yaml (its schema gives them
-no defaults), and the shared groups (scenario, weather, the car, warning, model) take theirs from their
-dataclasses. The top level of a stage's config also holds the profile's keys for other stages, so it ignores the
-keys it does not name; every section rejects unknown keys.
+Each stage's own schema lives in its wing (`CollectStage` in `sim/collect_plan.py`, `SafetyStage` in `safety/plan.py`,
+…) and names the sections it reads; the values of a stage's own sections are written once, in its
+conf/<stage>.yaml (its schema gives them no defaults), and the shared groups (scenario, weather, the car, warning,
+model) take theirs from their dataclasses. The top level of a stage's config also holds the profile's keys for other
+stages, so it ignores the keys it does not name; every section rejects unknown keys.
 """
 
 from __future__ import annotations

@@ -16,9 +16,9 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from uqdrive import paper
+from uqdrive.analysis import paper
+from uqdrive.analysis.paper import PaperNumbers
 from uqdrive.avoid.results import AvoidResult, Mode, RuleRecord
-from uqdrive.paper import PaperNumbers
 from uqdrive.records import record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.cell_records import SafetyCell

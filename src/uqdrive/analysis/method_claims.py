@@ -25,7 +25,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from uqdrive import paper
+from uqdrive.analysis import paper
 from uqdrive.avoid.results import PAIRS, AvoidCell, AvoidResult, Mode
 from uqdrive.records import flattened, record
 from uqdrive.resolvers import condition_label

@@ -40,7 +40,7 @@ def main(argv: list[str]) -> int:
         rule, build_s = timed(lambda: tier.TierTest(0.7, 0.6, args.gamma, theta, 8, cap))
         _, error_s = timed(lambda: tier._exact_error(rule))
         pairs = [(d1, d2) for d1, d2 in itertools.product(GRID, GRID) if d2 <= d1]
-        rules, grid_s = timed(lambda: [tier.tier_rule("sequential", *p, args.gamma, theta, 8, cap) for p in pairs])
+        rules, grid_s = timed(lambda: [tier.tier_rule(tier.TierTest, *p, args.gamma, theta, 8, cap) for p in pairs])
         worst = max(r.error for r in rules)
         shares.append(error_s / build_s)
         print(f"{theta:>5g} {cap:>4} {build_s:>8.3f} {error_s:>8.3f} {len(rules):>10} {grid_s:>7.2f} {worst:>11.4f}")

@@ -33,8 +33,8 @@ from uqdrive.models.pilotnet import Architecture, init_weights
 from uqdrive.models.posterior import Fitted, Posterior, posterior_settings
 from uqdrive.models.schemas import register_schemas
 from uqdrive.models.stacking import adam, epoch_batches, stacked_features
+from uqdrive.models.train_plan import TrainStage
 from uqdrive.models.training import TrainingData, evaluate
-from uqdrive.pipeline.train_stage import TrainStage
 from uqdrive.resolvers import register_resolvers
 from uqdrive.schema import validate
 

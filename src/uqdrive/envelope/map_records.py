@@ -3,6 +3,7 @@ metrics/envelope/<method>-<replicate>.json, read back by ``read_record(EnvelopeR
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Literal
 
 import numpy as np
@@ -176,3 +177,11 @@ def envelope_result(
         grid=GridCost(theta=env.grid_theta, **grid_cost(space.dim, env.partition.max_depth, env.grid_theta, env.gamma)),
         seconds=seconds,
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvelopeRun:
+    """The map and whether it was ``reused``: every rollout replayed from the cells' logs (nothing simulated)."""
+
+    result: EnvelopeResult
+    reused: bool

@@ -6,25 +6,9 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 from uqdrive.analysis.acquisition_summary import AcquisitionSummary, read_acquisitions, summarise_acquisition
+from uqdrive.analysis.plans import AcquireSummaryStage
 from uqdrive.records import write_record
-from uqdrive.schema import OpenUnit, Str, schema, validate
-from uqdrive.stage_schemas import NonEmptyNames, NonEmptySeeds, Stage
-
-
-@schema
-class AcquireSummarySection:
-    experiment: Str  # whose controllers acquired
-    alpha: OpenUnit  # family-wise error of the method-level claims
-    margin: OpenUnit  # the training cell's non-inferiority margin
-    acquire_dir: Str
-    out: Str
-
-
-@schema(root=True)
-class AcquireSummaryStage(Stage):
-    methods: NonEmptyNames
-    replicates: NonEmptySeeds
-    summary: AcquireSummarySection
+from uqdrive.schema import validate
 
 
 def run_acquire_summary(cfg: DictConfig) -> AcquisitionSummary:

@@ -55,8 +55,6 @@ from uqdrive.sim import ScenarioGeometry
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.tracking import log_artifact_as, numeric_metrics, stage_run
 
-Cells = dict[tuple[str, Mode], Cell]
-
 
 def unchanged_by(rule: WarningRule, off: Cell) -> dict[int, RolloutResult]:
     """Warnings-off rollouts in which ``rule`` never fires on the recorded draws: with warnings on, the same seed
@@ -97,7 +95,10 @@ def run_cell(
 
 
 def calibration_of(
-    settings: AvoidSettings, cells: Cells, names: list[str], geometries: dict[str, ScenarioGeometry | None]
+    settings: AvoidSettings,
+    cells: dict[tuple[str, Mode], Cell],
+    names: list[str],
+    geometries: dict[str, ScenarioGeometry | None],
 ) -> tuple[Calibration, dict[str, dict[str, float]]]:
     """Learn-then-Test over the warnings-off cells' fixed sample of runs, and the replay at the configured
     thresholds (replayed with the candidates) against the warnings-on cells on the same seeds."""

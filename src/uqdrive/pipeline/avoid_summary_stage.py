@@ -10,31 +10,16 @@ import matplotlib.pyplot as plt
 from omegaconf import DictConfig
 
 from uqdrive.analysis.method_answers import UNKNOWN, AvoidSummary, summarise_avoid
+from uqdrive.analysis.plans import AvoidSummaryStage
 from uqdrive.avoid.figure import avoid_trajectories_figure
 from uqdrive.avoid.outputs import read_trace_panel
 from uqdrive.avoid.plan import KNOWN
 from uqdrive.avoid.results import AvoidResult, Mode, read_avoid_results
 from uqdrive.figures import save_figure
 from uqdrive.records import write_record
-from uqdrive.schema import Str, schema, validate
-from uqdrive.stage_schemas import NonEmptyNames, NonEmptySeeds, Stage
+from uqdrive.schema import validate
 
 COLUMNS = ((KNOWN, Mode.ON), ("unknown", Mode.OFF), ("unknown", Mode.ON), ("unknown", Mode.CALIBRATED))
-
-
-@schema
-class AvoidSummarySection:
-    results_dir: Str
-    data_dir: Str
-    out: Str
-    figures_dir: Str
-
-
-@schema(root=True)
-class AvoidSummaryStage(Stage):
-    methods: NonEmptyNames
-    replicates: NonEmptySeeds
-    summary: AvoidSummarySection
 
 
 def paths_figure(stage: AvoidSummaryStage, results: list[AvoidResult], summary: AvoidSummary) -> plt.Figure:

@@ -7,12 +7,10 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
 
 import mlflow
 import numpy as np
 from omegaconf import DictConfig
-from pydantic import Field
 from tqdm import tqdm
 
 from uqdrive.data.frames import encode_png
@@ -21,58 +19,12 @@ from uqdrive.figures import mosaic
 from uqdrive.files import atomic_path
 from uqdrive.network_input import INPUT_HEIGHT, INPUT_WIDTH
 from uqdrive.parallel import ProcessPool
-from uqdrive.records import as_dict, record, write_record
-from uqdrive.schema import Count, Seed, Str, schema, validate
-from uqdrive.sim.condition import WorldChoice
+from uqdrive.records import as_dict, write_record
+from uqdrive.schema import validate
+from uqdrive.sim.collect_plan import Collection, CollectStage
 from uqdrive.sim.config import SimConfig
 from uqdrive.sim.episodes import EpisodeJob
-from uqdrive.sim.gym_hooks import require_expert
-from uqdrive.sim.location import ByWorld, nothing
-from uqdrive.stage_schemas import Stage
 from uqdrive.tracking import stage_run
-
-FileName = Annotated[Str, Field(pattern=r"^[A-Za-z0-9_-][A-Za-z0-9_.-]*$")]  # letters, digits, _ - . (no folders)
-
-
-@schema
-class CollectSection:
-    out: Str
-    name: FileName  # the MLflow run, and file names
-    metrics: Str
-    mosaic: Str
-    episodes: Count
-    base_seed: Seed
-    workers: Count
-    mosaic_rows: Seed
-    mosaic_columns: Count
-
-
-@schema(root=True)
-class CollectStage(WorldChoice, SimConfig, Stage):
-    """`stages/collect.py` (and each condition of `stages/heldout.py`), in a pybullet location or a Gymnasium world
-    (`WorldChoice`; there the world's own control rate and horizon, and frames at the network's size)."""
-
-    collect: CollectSection
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.choose(ByWorld(road=nothing, gym=lambda world: require_expert(world.hooks, world.env_id)))
-
-
-@record
-class Collection:
-    """metrics/collect/<scenario>.json: episodes and frames recorded, how the episodes ended (a Gymnasium world has no
-    route: an episode it did not end early ends by timeout), the render size (every frame is delivered at the
-    network's 64x48)."""
-
-    episodes: int
-    frames: int
-    route_complete_fraction: float
-    episodes_collision: int
-    episodes_off_road: int
-    episodes_timeout: int
-    render_width: int
-    render_height: int
 
 
 def episode_job(stage: CollectStage) -> EpisodeJob:

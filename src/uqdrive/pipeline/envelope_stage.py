@@ -28,7 +28,7 @@ from uqdrive.envelope.certify import (
     threshold_decision,
 )
 from uqdrive.envelope.figure import envelope_figure
-from uqdrive.envelope.map_records import EnvelopeResult, envelope_result
+from uqdrive.envelope.map_records import EnvelopeResult, EnvelopeRun, envelope_result
 from uqdrive.envelope.partition import Region, partition
 from uqdrive.envelope.plan import Envelope, build_envelope
 from uqdrive.envelope.search import SearchResult, search
@@ -79,14 +79,6 @@ def _region_test(
         return cells[-1].outcome
 
     return decide
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvelopeRun:
-    """The map and whether it was ``reused``: every rollout replayed from the cells' logs (nothing simulated)."""
-
-    result: EnvelopeResult
-    reused: bool
 
 
 def map_figure(envelope: Envelope, result: EnvelopeResult, found: SearchResult, results: list[RegionResult]):

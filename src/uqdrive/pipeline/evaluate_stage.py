@@ -19,13 +19,13 @@ from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
 from uqdrive.models.agreement import agreement_with_reference
 from uqdrive.models.checkpoint import load_posterior
+from uqdrive.models.evaluate_plan import EvaluateStage, Evaluation
 from uqdrive.models.figure import condition_lines_figure, reliability_grid
 from uqdrive.models.heldout_eval import HeldoutCell, HeldoutTable, cell_generator, heldout_cell, noise_key, predict
 from uqdrive.models.metrics import reliability_bins
 from uqdrive.models.posterior import Posterior
 from uqdrive.records import write_record
-from uqdrive.schema import Count, Positive, Str, schema, validate
-from uqdrive.stage_schemas import Experiment, Named, NonEmptyMethodNames, NonEmptyNames, NonEmptyNoises, Stage
+from uqdrive.schema import validate
 from uqdrive.tracking import stage_run
 
 PLOTTED = [
@@ -42,37 +42,6 @@ AGREEMENT_PLOTTED = [
     (f"{REFERENCE}_argmax_agreement", "decision (argmax) agreement with HMC"),
     (f"{REFERENCE}_mi_spearman", "Spearman ρ of MI with HMC's"),
 ]
-
-
-@schema
-class EvaluateSection:
-    heldout_dir: Str
-    samples: Count  # posterior draws per frame
-    eps: Positive  # η2's ball, steering units
-    batch_size: Count
-    out: Str
-    plots_dir: Str
-
-
-@schema(root=True)
-class EvaluateStage(Stage):
-    experiment: Experiment
-    scenario: Named  # where the held-out frames were collected
-    methods: NonEmptyMethodNames
-    weathers: NonEmptyNames
-    noises: NonEmptyNoises
-    evaluate: EvaluateSection
-
-
-MethodCondition = tuple[str, str, float]  # method, weather, noise
-
-
-@dataclasses.dataclass(frozen=True)
-class Evaluation:
-    """The held-out table and each cell's reliability bins (for the plots)."""
-
-    table: HeldoutTable
-    reliability: dict[MethodCondition, dict[str, torch.Tensor]]
 
 
 def check_inputs(stage: EvaluateStage) -> dict[str, Path]:

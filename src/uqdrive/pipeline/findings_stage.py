@@ -12,30 +12,11 @@ from omegaconf import DictConfig
 
 from uqdrive.analysis.comparisons import Findings, avoid_comparisons, decide, safety_comparisons
 from uqdrive.analysis.method_claims import check_replicates, method_claims
+from uqdrive.analysis.plans import FindingsStage
 from uqdrive.avoid.results import read_avoid_results
 from uqdrive.records import write_record
 from uqdrive.safety.cell_records import read_safety_cells
-from uqdrive.schema import OpenUnit, Seed, Str, schema, validate
-from uqdrive.stage_schemas import SafetyGrid
-
-
-@schema
-class FindingsSection:
-    alpha: OpenUnit  # family-wise error of each family (the controller-level one; each method-level one)
-    margin: OpenUnit  # δ: two methods within ±δ of each other are equivalent (a method-level verdict)
-    experiment: Str  # whose controllers drove the cells: offline (the paper's), or a Gymnasium world's experiment
-    cells_dir: Str
-    results_dir: Str  # the avoid results
-    runs_needed_sims: Seed  # simulated studies per run count for the paper claims' runs needed (0: not computed)
-    out: Str
-
-
-@schema(root=True)
-class FindingsStage(SafetyGrid):
-    """The offline-safety grid, the training weather, and where the cells and the avoid results are."""
-
-    train_weather: Str
-    findings: FindingsSection
+from uqdrive.schema import validate
 
 
 def run_findings(cfg: DictConfig) -> Findings:

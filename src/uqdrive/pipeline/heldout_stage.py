@@ -11,15 +11,10 @@ from omegaconf import DictConfig
 
 from uqdrive.parallel import ProcessPool
 from uqdrive.pipeline.collect_stage import Collection, CollectStage, run_collect
-from uqdrive.schema import schema, validate
+from uqdrive.schema import validate
+from uqdrive.sim.collect_plan import HeldoutStage
 from uqdrive.stage import grid, run_cells
-from uqdrive.stage_schemas import Sweep
 from uqdrive.tracking import stage_parent_run
-
-
-@schema(root=True)
-class HeldoutStage(CollectStage):
-    sweep: Sweep
 
 
 def run_heldout(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tuple[DictConfig, Collection]]:

@@ -12,25 +12,13 @@ from tqdm import tqdm
 
 from uqdrive.data.figure import class_histogram_figure
 from uqdrive.data.preprocess import Preprocessed, Split, class_histogram, preprocess_raw
+from uqdrive.data.preprocess_plan import PreprocessStage
 from uqdrive.data.tables import PROCESSED_SCHEMA, RAW_SCHEMA, read_table, write_table_batches
 from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
 from uqdrive.records import as_dict, write_record
-from uqdrive.schema import OpenUnit, Seed, schema, validate
-from uqdrive.stage_schemas import Experiment, Stage
+from uqdrive.schema import validate
 from uqdrive.tracking import stage_run
-
-
-@schema
-class PreprocessSection:
-    val_fraction: OpenUnit
-    split_seed: Seed
-
-
-@schema(root=True)
-class PreprocessStage(Stage):
-    experiment: Experiment
-    preprocess: PreprocessSection
 
 
 def split_frames(stage: PreprocessStage) -> tuple[dict[str, pa.Table], np.ndarray]:

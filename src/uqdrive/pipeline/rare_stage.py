@@ -8,7 +8,6 @@ conditions come from ``rare.seed``'s stream, so a rerun asks for the same cells)
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 
@@ -18,43 +17,12 @@ from omegaconf import DictConfig
 
 from uqdrive.envelope.domain import Domain, RareSection
 from uqdrive.envelope.plan import Envelope, build_envelope
+from uqdrive.envelope.rare_plan import RareResult, RareRun
 from uqdrive.records import write_record
 from uqdrive.safety.runner import CellRun, CellRunner, cell_key
 from uqdrive.schema import validate
 from uqdrive.tracking import numeric_metrics, stage_run
 from uqdrive.uq.rare import FailureEstimate, certify, failure_estimate, failure_lower_bound, refute
-
-
-@dataclasses.dataclass(frozen=True)
-class RareResult:
-    """The stage's record: the claim, the refutation (``refuted`` shows η1 < target over the domain with error
-    ≤ γ; ``lower_bound``: on the failure probability p = 1 − η1), the importance-sampled estimate of p from the
-    same rollouts (``estimate``: `FailureEstimate`, two-sided intervals, one labelled with its assumption), the
-    certification (``certified``: above, below, undecided or not_run) and the failures found, each with its seed
-    and condition for replay."""
-
-    method: str
-    replicate: int
-    target: float
-    gamma: float
-    domain: dict[str, list[float]]
-    refuted: bool
-    refute_rollouts: int
-    failures: int
-    lower_bound: float
-    estimate: FailureEstimate
-    certified: str
-    certify_rollouts: int
-    failure_records: list[dict]
-    seconds: float
-
-
-@dataclasses.dataclass(frozen=True)
-class RareRun:
-    """The record and whether it was ``reused``: every rollout replayed from the cells' logs."""
-
-    result: RareResult
-    reused: bool
 
 
 def rare_cell(envelope: Envelope, log_dir: str | Path, runner: CellRunner, cells: list[CellRun], points, base: int):

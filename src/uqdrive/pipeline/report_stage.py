@@ -9,7 +9,6 @@ plots/report/ (η̂1 per condition, learning curves, envelope maps), and logs th
 from __future__ import annotations
 
 import csv
-import dataclasses
 import shutil
 from pathlib import Path
 
@@ -21,37 +20,12 @@ from uqdrive.figures import save_figure
 from uqdrive.files import atomic_path, write_csv, write_json
 from uqdrive.report.assemble import build_report, read_records
 from uqdrive.report.figure import eta1_intervals_figure
-from uqdrive.report.headline import Headline, headline_metrics, summary_keys
+from uqdrive.report.headline import headline_metrics, summary_keys
 from uqdrive.report.overview import Scope
-from uqdrive.schema import Str, schema, validate
-from uqdrive.stage_schemas import NonEmptyNames, SafetyGrid, training_stage
+from uqdrive.report.plan import ReportFiles, ReportStage
+from uqdrive.schema import validate
+from uqdrive.stage_schemas import training_stage
 from uqdrive.tracking import stage_run
-
-
-@schema
-class ReportSection:
-    out_dir: Str
-    summary: Str
-
-
-@schema(root=True)
-class ReportStage(SafetyGrid):
-    profile_name: Str
-    profile_note: str = ""  # the report's first line: what the profile's sizes can and cannot show
-    experiments: NonEmptyNames
-    train_weather: Str
-    posteriors: NonEmptyNames
-    report: ReportSection
-
-
-@dataclasses.dataclass(frozen=True)
-class ReportFiles:
-    """The report's files and how many figures it embeds; ``headline``: metrics/summary.json."""
-
-    markdown: Path
-    html: Path
-    figures: int
-    headline: Headline
 
 
 def write_eta1_chart(plots: Path, safety: SafetySummary, methods: list[str]) -> Path:

@@ -12,6 +12,7 @@ from omegaconf import DictConfig
 
 from uqdrive.analysis.failure_modes import failure_modes, modes_table
 from uqdrive.analysis.method_answers import SafetySummary, summarise_methods
+from uqdrive.analysis.plans import SafetySummaryStage
 from uqdrive.figures import save_figure
 from uqdrive.files import write_csv
 from uqdrive.records import write_record
@@ -19,22 +20,7 @@ from uqdrive.resolvers import noise_label
 from uqdrive.safety.cell_records import SafetyCell, read_safety_cells
 from uqdrive.safety.figure import safety_hexbin_grid
 from uqdrive.safety.positions import read_positions
-from uqdrive.schema import Str, schema, validate
-from uqdrive.stage_schemas import SafetyGrid
-
-
-@schema
-class SafetySummarySection:
-    cells_dir: Str
-    positions_dir: Str
-    out: Str
-    figures_dir: Str
-    failure_modes: Str  # the failure modes of each method at each weather, for `dvc plots`
-
-
-@schema(root=True)
-class SafetySummaryStage(SafetyGrid):
-    summary: SafetySummarySection
+from uqdrive.schema import validate
 
 
 def pooled_positions(folder: Path, cells: list[SafetyCell], eta1: float) -> dict[str, np.ndarray]:

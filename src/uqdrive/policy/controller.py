@@ -116,12 +116,14 @@ class Controller(LockstepPolicy):
         episodes = [self.slots[slot] for slot in slots]
         for episode in episodes:
             episode.next_frame()
-        if self.draws.scheme == "fixed":
-            probs = self.posterior.head_probs_each(features, 2 * self.n_samples, [e.pi for e in episodes])
-            return [fixed_frame(p, self.centres, self.eps, self.tier) for p in probs]
-        return self._sequential(features, episodes)
+        return self.draws.method.decide(self, features, episodes)
 
-    def _sequential(self, features: torch.Tensor, episodes: list[SlotDraws]) -> list[FrameDecision]:
+    def decide_fixed(self, features: torch.Tensor, episodes: list[SlotDraws]) -> list[FrameDecision]:
+        """The paper's fixed draws: 2n a frame in one head call (`uqdrive.policy.draws.fixed_frame`)."""
+        probs = self.posterior.head_probs_each(features, 2 * self.n_samples, [e.pi for e in episodes])
+        return [fixed_frame(p, self.centres, self.eps, self.tier) for p in probs]
+
+    def decide_sequential(self, features: torch.Tensor, episodes: list[SlotDraws]) -> list[FrameDecision]:
         """Sequential draws (`uqdrive.policy.draws`): π(o) settled, then η2's stream read by the tier rule and MI's
         draws made while the controller's τ is undecided, or both streams read to the cap (recorded)."""
         record = self.draws.records(acts_on_warnings=self.tier is not None)

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 import torch
@@ -47,7 +47,7 @@ from uqdrive.schema import Count, OpenUnit, schema
 from uqdrive.uq import draw_measures, frame_measures, within_ball
 from uqdrive.uq.mode import ModeTest, margins
 from uqdrive.uq.threshold import doubling_looks
-from uqdrive.uq.tier import TierRule
+from uqdrive.uq.tier import FixedTier, TierRule, TierTest
 
 
 @schema(frozen=True)
@@ -63,16 +63,90 @@ class DrawSettings:
     look: Count = 8
     unacted: Literal["record", "skip"] = "record"
 
+    @property
+    def method(self) -> DrawScheme:
+        """The scheme ``scheme`` names, as an object (`DRAW_SCHEMES`)."""
+        return DRAW_SCHEMES[self.scheme]
+
     def looks(self, cap: int) -> tuple[int, ...]:
         """Draw counts at which a frame's η2 draws are read (and their successes recorded): doubling from the
         first head call's (`first_draws`) to ``cap`` (sequential), or ``cap`` alone (fixed). They are also where
         π(o)'s draws stop for MI when the mode settles in the first call, so a recorded frame draws both streams'
         chunks in the same head calls."""
-        return doubling_looks(first_draws(self, cap), cap) if self.scheme == "sequential" else (int(cap),)
+        return self.method.looks(self, cap)
 
     def records(self, acts_on_warnings: bool) -> bool:
         """Whether a controller reads its frames' streams to the cap whatever it decides (to record them)."""
-        return self.scheme == "fixed" or (not acts_on_warnings and self.unacted == "record")
+        return self.method.records(self, acts_on_warnings)
+
+
+class FrameDecider(Protocol):
+    """What decides a batch of frames from their features, by either scheme (`uqdrive.policy.controller`)."""
+
+    def decide_fixed(self, features: torch.Tensor, episodes: list) -> list[FrameDecision]: ...
+
+    def decide_sequential(self, features: torch.Tensor, episodes: list) -> list[FrameDecision]: ...
+
+
+class DrawScheme(Protocol):
+    """How a frame's posterior draws are taken and read (module docstring): the looks its η2 stream is read at,
+    whether a controller records both streams to the cap, the tier rule its warnings use and the accuracy that
+    rule is held to (with the config keys that set it), and which of a controller's decisions runs."""
+
+    name: str
+    tier_kind: type[TierRule]
+
+    def looks(self, settings: DrawSettings, cap: int) -> tuple[int, ...]: ...
+
+    def records(self, settings: DrawSettings, acts_on_warnings: bool) -> bool: ...
+
+    def tier_accuracy(self, settings: DrawSettings, theta: float, gamma: float) -> tuple[float, float, str]:
+        """(θ, γ) of the tier rule, given the warning config's, and the keys that set them."""
+
+    def decide(self, decider: FrameDecider, features: torch.Tensor, episodes: list) -> list[FrameDecision]: ...
+
+
+@dataclass(frozen=True)
+class FixedDraws:
+    """The paper's n + n draws, read at once; its tier rule is held to the warning config's (θ, γ)."""
+
+    name: str = "fixed"
+    tier_kind: type[TierRule] = FixedTier
+
+    def looks(self, settings: DrawSettings, cap: int) -> tuple[int, ...]:
+        return (int(cap),)
+
+    def records(self, settings: DrawSettings, acts_on_warnings: bool) -> bool:
+        return True
+
+    def tier_accuracy(self, settings: DrawSettings, theta: float, gamma: float) -> tuple[float, float, str]:
+        return theta, gamma, "warning.theta, warning.gamma"
+
+    def decide(self, decider: FrameDecider, features: torch.Tensor, episodes: list) -> list[FrameDecision]:
+        return decider.decide_fixed(features, episodes)
+
+
+@dataclass(frozen=True)
+class SequentialDraws:
+    """As many draws as each decision needs, in doubling looks; its tier rule is held to the draws' (θ, γ)."""
+
+    name: str = "sequential"
+    tier_kind: type[TierRule] = TierTest
+
+    def looks(self, settings: DrawSettings, cap: int) -> tuple[int, ...]:
+        return doubling_looks(first_draws(settings, cap), cap)
+
+    def records(self, settings: DrawSettings, acts_on_warnings: bool) -> bool:
+        return not acts_on_warnings and settings.unacted == "record"
+
+    def tier_accuracy(self, settings: DrawSettings, theta: float, gamma: float) -> tuple[float, float, str]:
+        return settings.theta, settings.gamma, "draws.theta, draws.gamma and draws.look"
+
+    def decide(self, decider: FrameDecider, features: torch.Tensor, episodes: list) -> list[FrameDecision]:
+        return decider.decide_sequential(features, episodes)
+
+
+DRAW_SCHEMES: dict[str, DrawScheme] = {s.name: s for s in (FixedDraws(), SequentialDraws())}
 
 
 @dataclass(frozen=True)

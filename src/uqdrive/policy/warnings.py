@@ -167,12 +167,10 @@ class WarningRule:
 
     def _tier_rule(self) -> TierRule:
         c, d = self.config, self.draws
-        sequential = d.scheme == "sequential"
-        theta, gamma = (d.theta, d.gamma) if sequential else (c.theta, c.gamma)
+        theta, gamma, keys = d.method.tier_accuracy(d, c.theta, c.gamma)
         try:
-            return tier_rule(d.scheme, c.delta1, c.delta2, gamma, theta, first_draws(d, c.samples), c.samples)
+            return tier_rule(d.method.tier_kind, c.delta1, c.delta2, gamma, theta, first_draws(d, c.samples), c.samples)
         except ValueError as err:
-            keys = "draws.theta, draws.gamma and draws.look" if sequential else "warning.theta, warning.gamma"
             raise ConfigError(
                 f"warning.delta1={c.delta1!r}, warning.delta2={c.delta2!r}: {err} (set by {keys}; its cap by "
                 "warning.theta, warning.gamma)"

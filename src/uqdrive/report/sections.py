@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from uqdrive import paper
+from uqdrive.analysis import paper
 from uqdrive.analysis.method_answers import UNKNOWN, AvoidSummary, MethodAnswer, SafetySummary, pooled_answer
 from uqdrive.avoid.results import AvoidResult, Mode
 from uqdrive.models.trained_record import TrainMetrics

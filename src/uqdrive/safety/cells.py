@@ -18,14 +18,10 @@ from uqdrive.safety.executors import Executor
 from uqdrive.safety.rollout import RolloutResult
 from uqdrive.safety.rollout_log import RolloutLog
 from uqdrive.schema import ConfigError, Count, OpenUnit, Seed, schema
-from uqdrive.uq import Estimate, chernoff, chernoff_n, clopper_pearson, clopper_pearson_n, sequential_scheme
-from uqdrive.uq.estimators import sequential
+from uqdrive.uq import Estimate
+from uqdrive.uq.schemes import CellEstimator, cell_estimator
 
-Scheme = Literal["chernoff", "clopper_pearson", "sequential"]
-_PLANNED: dict[str, tuple[Callable[[float, float], int], Callable[[int, int, float, float], Estimate]]] = {
-    "chernoff": (chernoff_n, chernoff),
-    "clopper_pearson": (clopper_pearson_n, clopper_pearson),
-}
+Scheme = Literal["chernoff", "clopper_pearson", "sequential"]  # the names of `uqdrive.uq.schemes.CELL_ESTIMATORS`
 
 
 @schema(frozen=True)
@@ -47,25 +43,23 @@ class EstimatorSettings:
         """These settings alone (a stage's config section that extends them holds more)."""
         return EstimatorSettings(self.scheme, self.theta, self.gamma, self.base_seed, self.look_size)
 
+    @property
+    def method(self) -> CellEstimator:
+        """The estimator ``scheme`` names, built once (`uqdrive.uq.schemes`)."""
+        return cell_estimator(self.scheme)
+
     def planned_rollouts(self) -> int:
         """Rollouts the scheme runs (the most it may run, for `sequential`)."""
-        if self.scheme == "sequential":
-            return sequential_scheme(self.theta, self.gamma, self.look_size).max_n
-        return _PLANNED[self.scheme][0](self.theta, self.gamma)
+        return self.method.most(self.theta, self.gamma, self.look_size)
 
     def fixed_rollouts(self) -> int:
         """Rollouts every cell runs whatever its outcomes (a sequential scheme's earliest stop): a sample whose
         size was fixed in advance, as exact tests on the recorded runs (threshold calibration) need."""
-        if self.scheme == "sequential":
-            return int(sequential_scheme(self.theta, self.gamma, self.look_size).stop_points[0].min())
-        return self.planned_rollouts()
+        return self.method.least(self.theta, self.gamma, self.look_size)
 
     def estimate(self, draw: Callable[[int], np.ndarray]) -> Estimate:
         """η̂ from outcomes ``draw(count)`` pulls in index order, as many as the scheme asks for."""
-        if self.scheme == "sequential":
-            return sequential(draw, self.theta, self.gamma, self.look_size)
-        n = self.planned_rollouts()
-        return _PLANNED[self.scheme][1](int(draw(n).sum()), n, self.theta, self.gamma)
+        return self.method.estimate(draw, self.theta, self.gamma, self.look_size)
 
 
 class OutcomeStream:

@@ -80,6 +80,11 @@ class TierRule(abc.ABC):
     gamma: float
     looks: tuple[int, ...]
 
+    @classmethod
+    @abc.abstractmethod
+    def of(cls, delta1: float, delta2: float, gamma: float, theta: float, look: int, cap: int) -> TierRule:
+        """The rule of a setting: thresholds, (θ, γ), first look and cap (`tier_rule` keeps each)."""
+
     @abc.abstractmethod
     def decide(self, k: int, n: int) -> int | None:
         """The tier after n draws (a look) with k successes; None: draw on."""
@@ -183,6 +188,10 @@ class TierTest(TierRule):
         )
         self._settle()
 
+    @classmethod
+    def of(cls, delta1: float, delta2: float, gamma: float, theta: float, look: int, cap: int) -> TierTest:
+        return cls(delta1, delta2, gamma, theta, look, cap)
+
     def decide(self, k: int, n: int) -> int | None:
         upper = self.upper.decide(k, n)
         if upper == "above":
@@ -202,6 +211,10 @@ class FixedTier(TierRule):
         self.delta1, self.delta2, self.gamma, self.theta = _check(delta1, delta2, gamma, theta)
         self.looks = (int(cap),)
         self._settle()
+
+    @classmethod
+    def of(cls, delta1: float, delta2: float, gamma: float, theta: float, look: int, cap: int) -> FixedTier:
+        return cls(delta1, delta2, gamma, theta, cap)  # one look: at the cap
 
     def decide(self, k: int, n: int) -> int | None:
         estimate = k / n
@@ -228,12 +241,12 @@ def error_grid(delta1: float, delta2: float, theta: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=1024)
-def tier_rule(scheme: str, delta1: float, delta2: float, gamma: float, theta: float, look: int, cap: int) -> TierRule:
-    """The tier rule of a setting (``sequential``: `TierTest`; ``fixed``: `FixedTier`, ``look`` unused), built and
-    its exact error computed once per process: a controller and a calibration's candidates share it (read-only)."""
-    if scheme == "sequential":
-        return TierTest(delta1, delta2, gamma, theta, look, cap)
-    return FixedTier(delta1, delta2, gamma, theta, cap)
+def tier_rule(
+    kind: type[TierRule], delta1: float, delta2: float, gamma: float, theta: float, look: int, cap: int
+) -> TierRule:
+    """The tier rule of a setting (``kind``: `TierTest` or `FixedTier`, whose ``look`` is unused), built and its
+    exact error computed once per process: a controller and a calibration's candidates share it (read-only)."""
+    return kind.of(delta1, delta2, gamma, theta, look, cap)
 
 
 def _exact_error(rule: TierRule) -> float:

@@ -1,0 +1,19 @@
+"""The preprocess stage's schema (`PreprocessStage`, its `PreprocessSection`). The stage function is
+`uqdrive.pipeline.preprocess_stage`'s."""
+
+from __future__ import annotations
+
+from uqdrive.schema import OpenUnit, Seed, schema
+from uqdrive.stage_schemas import Experiment, Stage
+
+
+@schema
+class PreprocessSection:
+    val_fraction: OpenUnit
+    split_seed: Seed
+
+
+@schema(root=True)
+class PreprocessStage(Stage):
+    experiment: Experiment
+    preprocess: PreprocessSection
