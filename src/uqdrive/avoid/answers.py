@@ -4,6 +4,7 @@ certified with its replay and fresh-seed checks, and the variants no threshold c
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 
 import numpy as np
@@ -36,9 +37,8 @@ def avoid_result(run: AvoidRun) -> AvoidResult:
         for mode in Mode
     }
     known, check = table[names[0]][Mode.CALIBRATED], run.fresh_check
-    fresh = FreshSeedRecord(
-        check, check.autonomous / check.runs, known.eta1, mixture[Mode.CALIBRATED].eta1, settings.validation_seed
-    )
+    autonomy, unknown = check.autonomous / check.runs, mixture[Mode.CALIBRATED].eta1
+    fresh = FreshSeedRecord(check, autonomy, known.estimate.value, unknown, settings.validation_seed)
     uncaught = uncaught_variants(run.calibration, cells, names[1:])
     return AvoidResult(
         method=settings.method,
@@ -73,10 +73,6 @@ def cell_metrics(
     full = sum(int(np.sum(r.command_speed >= cruise - 1e-9)) for r in results)
     where = handover_distances(cell, course)
     metrics = {
-        "eta1": est.value,
-        "eta1_low": est.low,
-        "eta1_high": est.high,
-        "n": est.n,
         "handover_rate": float(np.mean(handed)),
         "autonomy": 1 - float(np.mean(handed)),
         "full_speed_fraction": full / max(steps, 1),
@@ -101,10 +97,7 @@ def cell_metrics(
     return AvoidCell(
         **metrics,
         terminations=dict(sorted(Counter(r.termination for r in results).items())),
-        guaranteed=est.guaranteed,
-        scheme=est.scheme,
-        theta=est.theta,
-        gamma=est.gamma,
+        estimate=dataclasses.replace(est, condition=""),
         family_size=family_size,
         fixed_rollouts=fixed_rollouts,
         thresholds={"delta1": cell.rule.config.delta1, "delta2": cell.rule.config.delta2, "tau": cell.rule.config.tau},

@@ -268,9 +268,10 @@ def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
             write_record(f"{out}.json", cell)
         expert = ctx.expert.get(where.label) or expert_estimate(ctx, plan, where)
         ctx.expert[where.label] = expert
+        est = cell.estimate
         rows.append(
             AcquisitionCheck(
-                stage.model["name"], stage.seed, k, where.label, cell.eta1, cell.eta1_low, cell.eta1_high, cell.n,
+                stage.model["name"], stage.seed, k, where.label, est.value, est.low, est.high, est.n,
                 expert.value, expert.low, expert.high, cell.outcomes,
             )
         )  # fmt: skip

@@ -134,7 +134,7 @@ def guarantee_note(family_size: int, gamma: float, what: str) -> str:
 
 
 def safety_section(report: Report, run: Run, methods: list[str], conditions: list[tuple[str, str, float]]) -> None:
-    cell = run.cells[0]
+    cell = run.cells[0].estimate
     report.add(f"""
 ## Offline safety: η1 over weather × sensor noise × location
 
@@ -176,7 +176,7 @@ replicate's η̂1. With few replicates that interval is wide: it is how much the
 
 def avoid_section(report: Report, run: Run, methods: list[str]) -> None:
     first = run.avoided[0]
-    known = first.cells[first.conditions[0]][Mode.OFF]
+    known = first.cells[first.conditions[0]][Mode.OFF].estimate
     report.add(f"""
 ## Real-time collision avoidance
 
