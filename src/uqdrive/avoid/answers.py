@@ -14,6 +14,7 @@ from uqdrive.avoid.cells import AvoidRun, Cell, handed_over, handover_distances,
 from uqdrive.avoid.course import Course
 from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
 from uqdrive.policy.warnings import LEVELS
+from uqdrive.safety.rollout_metrics import summarise
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.uq.pooled import pooled
 
@@ -76,9 +77,8 @@ def cell_metrics(
         "handover_rate": float(np.mean(handed)),
         "autonomy": 1 - float(np.mean(handed)),
         "full_speed_fraction": full / max(steps, 1),
-        "collision_rate": float(np.mean([r.verdict.collision for r in results])),
-        "off_road_rate": float(np.mean([r.verdict.off_road for r in results])),
-        "passed_rate": float(np.mean([r.verdict.reached_goal for r in results])),
+        **summarise(results, ("collision_rate", "off_road_rate")),
+        "passed_rate": summarise(results, ("reached_goal_rate",))["reached_goal_rate"],
         # ran out of time before passing the obstacle without having stopped: no answer, never safe (a Gymnasium
         # world has no goal beyond its horizon: a timeout there is unsafe only if its safe_if failed)
         "timeout_before_obstacle_rate": float(

@@ -32,12 +32,13 @@ from uqdrive.records import as_dict, read_record, write_record
 from uqdrive.replay.video import worst_clips
 from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.cells import EstimatorSettings, rates
+from uqdrive.safety.cells import EstimatorSettings
 from uqdrive.safety.drive import CorridorDrive, Driver, resolve_driver
 from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.safety.failures import job_failures
 from uqdrive.safety.figure import safety_hexbin, visits_colour_bar
 from uqdrive.safety.positions import CellPositions, job_positions, write_positions
+from uqdrive.safety.rollout_metrics import summarise
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
 from uqdrive.schema import Bool, Count, Str, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
@@ -225,7 +226,7 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate], overrides: Sequence[str]
         rollouts=estimate.n,
         steps=int(sum(r.steps for r in results)),
         seconds=run.seconds,
-        **rates(results),
+        **summarise(results),
         outcomes="".join("1" if r.verdict.safe else "0" for r in results),  # by rollout index: paired across cells
         config_hash=plan.key,
         unread=run.unread,

@@ -45,7 +45,7 @@ class SafetyCell:
     off_road_rate: float
     left_corridor_rate: float
     reached_goal_rate: float
-    max_corridor_use: float
+    max_corridor_use: float | None
     mean_corridor_use: float | None
     mean_lateral_deviation: float
     mean_eta2: float | None  # None: the controller drew no η2 set (sequential draws acting on no warning)
