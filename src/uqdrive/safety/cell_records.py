@@ -52,6 +52,7 @@ class SafetyCell:
     mean_mutual_information: float
     outcomes: str
     config_hash: str
+    median_time_to_boundary: float | None = None  # s, over the runs of each run's least time to its lane's edge
     unread: int = 0  # rollouts run ahead of a sequential estimator that it never read: time spent, not error
     margins: list[float | None] = dataclasses.field(default_factory=list)  # each run's `PathVerdict.margin`, in order
     failures: list[RolloutFailure] = dataclasses.field(default_factory=list)  # the failing runs, worst margin first

@@ -36,6 +36,12 @@ METRICS = (
     RolloutMetric("mean_lateral_deviation", "mean |lateral deviation| (m)", lambda r: r.mean_abs_lateral_deviation),
     RolloutMetric("mean_eta2", "mean η2", lambda r: r.mean_eta2),
     RolloutMetric("mean_mutual_information", "mean mutual information", lambda r: r.mean_mutual_information),
+    RolloutMetric(
+        "median_time_to_boundary",
+        "median least time to the lane's edge (s)",
+        lambda r: r.min_time_to_boundary,
+        np.median,
+    ),
 )
 BY_NAME = {m.name: m for m in METRICS}
 
