@@ -34,12 +34,13 @@ from uqdrive.models.heldout_eval import HeldoutCell, HeldoutTable
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.pipeline.report_stage import run_report
 from uqdrive.policy.draws import DrawSettings
-from uqdrive.records import write_record
+from uqdrive.records import read_record, write_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import claims_markdown, findings_markdown
 from uqdrive.report.headline import read_summary
 from uqdrive.safety.acquisition import AcquiredAt, Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.safety.rollout_metrics import METRICS
 from uqdrive.uq.estimators import Estimate
 from uqdrive.uq.verdict import Verdict
 
@@ -294,6 +295,16 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         )
         assert row["per replicate"] == " / ".join(fmt(e, 2) for e in answer.estimates)
     assert "**Guarantee: per cell.**" in text
+    per_run = markdown_rows(text, "method | location | weather | noise | collisions")  # the registry's table
+    assert len(per_run) == len(rows) and set(per_run[0]) >= {m.label for m in METRICS}
+    written = [read_record(SafetyCell, p, "safety") for p in sorted((tmp_path / "metrics/safety").glob("*.json"))]
+    for row in per_run:
+        where = (row["location"], row["weather"], float(row["noise"]))
+        members = sorted(
+            (c for c in written if (c.method, c.condition) == (row["method"], where)), key=lambda c: c.replicate
+        )
+        assert row["collisions"] == " / ".join(fmt(c.collision_rate, 2) for c in members)
+        assert row["median time to lane edge (s)"] == " / ".join("–" for _ in members)  # the synthetic cells: none
     fidelity = {r["claim"]: r for r in markdown_rows(text, "claim")}
     assert fidelity["offline, vi, all weathers"]["paper"] == "0.91 ± 0.05"
     vi_dry = [safety.answer("vi", "roundabout", w, 0.0) for w in WEATHERS]

@@ -18,7 +18,8 @@ from uqdrive.safety.rollout import RolloutResult
 @dataclass(frozen=True)
 class RolloutMetric:
     """One per-rollout quantity (``of_run``: a rollout's value, NaN where it measured none) summarised over a cell's
-    rollouts by ``summary`` into the cell's key ``name``; ``label``: its words in the report."""
+    rollouts by ``summary`` into the cell's key ``name``; ``label``: its words in the report (a table header: no
+    ``|``)."""
 
     name: str
     label: str
@@ -33,14 +34,11 @@ METRICS = (
     RolloutMetric("reached_goal_rate", "reached goal", lambda r: r.verdict.reached_goal),
     RolloutMetric("max_corridor_use", "worst corridor use", lambda r: r.verdict.corridor_use, np.max),
     RolloutMetric("mean_corridor_use", "mean corridor use", lambda r: r.verdict.corridor_use),
-    RolloutMetric("mean_lateral_deviation", "mean |lateral deviation| (m)", lambda r: r.mean_abs_lateral_deviation),
+    RolloutMetric("mean_lateral_deviation", "mean lateral deviation (m)", lambda r: r.mean_abs_lateral_deviation),
     RolloutMetric("mean_eta2", "mean η2", lambda r: r.mean_eta2),
     RolloutMetric("mean_mutual_information", "mean mutual information", lambda r: r.mean_mutual_information),
     RolloutMetric(
-        "median_time_to_boundary",
-        "median least time to the lane's edge (s)",
-        lambda r: r.min_time_to_boundary,
-        np.median,
+        "median_time_to_boundary", "median time to lane edge (s)", lambda r: r.min_time_to_boundary, np.median
     ),
 )
 BY_NAME = {m.name: m for m in METRICS}
