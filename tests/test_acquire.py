@@ -14,6 +14,8 @@ import torch
 from hydra import compose, initialize_config_dir
 from test_train import write_processed
 
+from uqdrive.acquire.acquisition import AcquisitionCheck, before_after, flagged_cells
+from uqdrive.acquire.plan import AcquireStage, Where, placed
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.tables import RAW_SCHEMA
 from uqdrive.models.checkpoint import read_checkpoint
@@ -21,13 +23,12 @@ from uqdrive.pipeline.acquire_stage import aggregate, as_swept, retrain, rounds_
 from uqdrive.pipeline.safety_stage import run_safety
 from uqdrive.pipeline.train_stage import run_train
 from uqdrive.records import read_record, write_record
-from uqdrive.safety.acquire_plan import AcquireStage, Where, placed
-from uqdrive.safety.acquisition import AcquisitionCheck, before_after, flagged_cells
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.plan import SafetyStage
 from uqdrive.schema import ConfigError, validate
 from uqdrive.sim import Autopilot, AutopilotConfig, build_geometry
 from uqdrive.uq.bounds import chernoff_n, clopper_pearson_n
+from uqdrive.uq.estimators import Estimate
 from uqdrive.uq.paired import non_inferior, paired_table
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -56,11 +57,11 @@ def sweep_cell(location: str, weather: str, noise: float, high: float, method: s
     """A swept cell whose interval ends at ``high`` (the rest: what the sampler never reads)."""
     return SafetyCell(
         method=method, replicate=0, experiment="offline", location=location, weather=weather, noise=noise,
-        theta=0.3, gamma=0.05, scheme="clopper_pearson", n=4, base_seed=100000, family_size=1, fixed_rollouts=4,
-        eta1=high / 2, eta1_low=0.0, eta1_high=high, rollouts=4, steps=100, seconds=1.0, collision_rate=0.0,
+        estimate=Estimate(high / 2, 0.0, high, 4, 0.3, 0.05, "clopper_pearson", True),
+        base_seed=100000, family_size=1, fixed_rollouts=4, rollouts=4, steps=100, seconds=1.0, collision_rate=0.0,
         off_road_rate=0.0, left_corridor_rate=0.0, reached_goal_rate=1.0, max_corridor_use=0.5,
         mean_corridor_use=0.5, mean_lateral_deviation=0.1, mean_eta2=None, mean_mutual_information=0.1,
-        guaranteed=True, outcomes="1111", config_hash="x",
+        outcomes="1111", config_hash="x",
     )  # fmt: skip
 
 
@@ -97,7 +98,7 @@ def test_the_sampler_acquires_at_the_flagged_conditions_and_the_training_one_onl
         target = float(rng.random())
         cells = [sweep_cell(f"l{i}", "rain", 0.1 * (i % 2), float(h)) for i, h in enumerate(highs)]
         chosen = [w.label for w in targeted_conditions(TRAINING, flagged_cells(cells, target))]
-        expected = [TRAINING.label] + [c.name.removeprefix("mcd-seed0-") for c in cells if c.eta1_high < target]
+        expected = [TRAINING.label] + [c.name.removeprefix("mcd-seed0-") for c in cells if c.estimate.high < target]
         assert chosen == expected
 
 
@@ -184,7 +185,7 @@ def test_compared_rounds_are_checked_on_fresh_seeds_and_a_lone_round_zero_reads_
         alone = run_acquire(compose("acquire", overrides=overrides), overrides)
     row = next(c for c in alone.checks if c.cell == TRAINING.label)
     assert (row.eta1, row.low, row.high, row.n, row.outcomes) == (
-        swept.eta1, swept.eta1_low, swept.eta1_high, swept.n, swept.outcomes
+        swept.estimate.value, swept.estimate.low, swept.estimate.high, swept.estimate.n, swept.outcomes
     )  # fmt: skip
     # and the further check cells (the town) are not driven: nothing would be compared with them
     assert sorted(p.name for p in (tmp_path / "round0/check").glob("*.json")) == ["roundabout_large-rain-noise0.1.json"]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from test_uq_claims import LEVELS, beta, bimodal, constant, differences, fails, upper
 
+from uqdrive.acquire.acquisition import Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.analysis.acquisition_summary import summarise_acquisition
-from uqdrive.safety.acquisition import Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.schema import ConfigError
 from uqdrive.uq.betting import mean_interval
 from uqdrive.uq.verdict import Verdict

@@ -117,7 +117,7 @@ def test_stage_writes_every_cell_logs_one_run_per_cell_reuses_cells_and_summaris
 
     again = run_avoid(avoid_config("model=mcd"))  # every cell is reused, with the same numbers
     assert all(again.cells[c][m].reused for c in again.conditions for m in Mode)
-    assert {c: {m: again.cells[c][m].eta1 for m in Mode} for c in again.conditions} == {
+    assert {c: {m: again.cells[c][m].estimate.value for m in Mode} for c in again.conditions} == {
         c: {m: saved["cells"][c][m]["eta1"] for m in Mode} for c in saved["conditions"]
     }
 
@@ -267,7 +267,7 @@ def test_a_users_bayesian_policy_runs_the_stage_with_warnings_off_on_and_calibra
     for condition in result.conditions:
         for mode in Mode:
             cell = result.cell(condition, mode)
-            assert cell.n == 4 and 0 <= cell.eta1_low <= cell.eta1 <= cell.eta1_high <= 1
+            assert cell.estimate.n == 4 and 0 <= cell.estimate.low <= cell.estimate.value <= cell.estimate.high <= 1
         assert result.cell(condition, Mode.OFF).handover_rate == 0
     assert sum(result.cell(c, Mode.OFF).warning2_runs for c in result.conditions) > 0  # counted on its draws
     certificate = result.calibration.certificate

@@ -33,7 +33,7 @@ def test_dvc_repro_acquires_in_a_gym_world_and_reruns_the_warnings_with_the_acqu
     assert (folder / "controller.pt").read_bytes() == (folder / "round1/models/mcd/seed0.pt").read_bytes()
     (acquired,) = read_avoid_results(project / f"metrics/{WORLD}/avoid_acquired", ["mcd"], [0])
     assert set(acquired.cells) == {"known", "aggressive"}
-    assert all(cell.n > 0 for modes in acquired.cells.values() for cell in modes.values())
+    assert all(cell.estimate.n > 0 for modes in acquired.cells.values() for cell in modes.values())
     driven = (project / f"cache/rollouts/{WORLD}/avoid_acquired/mcd-seed0").rglob("*.jsonl")
     assert next(driven, None) is not None  # its own rollouts, not the behaviour-cloned controller's read back
     assert "Data and pipelines are up to date" in dvc(project, "status", *targets)

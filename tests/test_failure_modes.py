@@ -8,6 +8,7 @@ import dataclasses
 from uqdrive.analysis.failure_modes import by_group, failure_modes, mode_sentence, modes_table
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.failures import RolloutFailure
+from uqdrive.uq.estimators import Estimate
 
 FAILURE = RolloutFailure(
     index=0, seed=100, condition="", termination="off_road", cause="off road", step=5, steps=9, x=0.0, y=0.0,
@@ -23,15 +24,13 @@ def cell(method: str, weather: str, failures: list[tuple[str, str, bool, float]]
         dataclasses.replace(FAILURE, index=i, seed=100 + i, cause=c, segment=s, warned=w, margin=m)
         for i, (c, s, w, m) in enumerate(failures)
     ]
-    numbers = dict.fromkeys(
-        ("noise", "theta", "gamma", "eta1", "eta1_low", "eta1_high", "seconds", "collision_rate", "off_road_rate"), 0.0
-    )
+    numbers = dict.fromkeys(("noise", "seconds", "collision_rate", "off_road_rate"), 0.0)
     numbers |= dict.fromkeys(("left_corridor_rate", "reached_goal_rate", "max_corridor_use", "mean_corridor_use"), 0.0)
     numbers |= dict.fromkeys(("mean_lateral_deviation", "mean_eta2", "mean_mutual_information"), 0.0)
     return SafetyCell(
         method=method, replicate=replicate, experiment="offline", location="roundabout", weather=weather,
-        scheme="chernoff",
-        n=rollouts, base_seed=100, family_size=1, fixed_rollouts=rollouts, rollouts=rollouts, steps=0, guaranteed=True,
+        estimate=Estimate(0.0, 0.0, 0.0, rollouts, 0.0, 0.0, "chernoff", True),
+        base_seed=100, family_size=1, fixed_rollouts=rollouts, rollouts=rollouts, steps=0,
         outcomes="0" * len(failures) + "1" * (rollouts - len(failures)), config_hash="x", failures=records, **numbers,
     )  # fmt: skip
 

@@ -13,7 +13,8 @@ TRAINING = ("roundabout", "clear_noon", 0.0)
 
 
 def with_outcomes(cell, safe: str):
-    return dataclasses.replace(cell, outcomes=safe, eta1=safe.count("1") / N)
+    estimate = dataclasses.replace(cell.estimate, value=safe.count("1") / N)
+    return dataclasses.replace(cell, outcomes=safe, estimate=estimate)
 
 
 def cells_where(rain: dict[int, tuple[str, str]]) -> list:

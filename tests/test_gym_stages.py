@@ -52,11 +52,20 @@ def gym_safety(stage_config, random_models):
 def test_a_gym_cell_through_the_stage_is_each_seeds_coin_and_its_exact_interval_covers_the_rate(gym_safety, tmp_path):
     cfg = gym_safety(*COIN, "safety.scheme=clopper_pearson", "safety.theta=0.15", "executor.workers=1")
     cell = run_safety(cfg).cell
-    seeds = range(cell.base_seed, cell.base_seed + cell.n)
+    seeds = range(cell.base_seed, cell.base_seed + cell.estimate.n)
     assert cell.outcomes == "".join("0" if coin_crash_step(s, CRASH_RATE) else "1" for s in seeds)  # each run's own
-    assert (cell.location, cell.weather, cell.scheme, cell.guaranteed) == ("coin", "env", "clopper_pearson", True)
-    assert (cell.eta1_low, cell.eta1_high) == clopper_pearson_interval(cell.outcomes.count("1"), cell.n, 0.05)
-    assert cell.eta1_low <= 1 - CRASH_RATE <= cell.eta1_high and cell.collision_rate == pytest.approx(1 - cell.eta1)
+    assert (cell.location, cell.weather, cell.estimate.scheme, cell.estimate.guaranteed) == (
+        "coin",
+        "env",
+        "clopper_pearson",
+        True,
+    )
+    assert (cell.estimate.low, cell.estimate.high) == clopper_pearson_interval(
+        cell.outcomes.count("1"), cell.estimate.n, 0.05
+    )
+    assert cell.estimate.low <= 1 - CRASH_RATE <= cell.estimate.high and cell.collision_rate == pytest.approx(
+        1 - cell.estimate.value
+    )
     assert (tmp_path / "metrics/safety/mcd-seed0-coin-env-noise0.0.json").exists()
     assert (tmp_path / "plots/safety/cells/mcd-seed0-coin-env-noise0.0.png").stat().st_size > 5000
     assert run_safety(cfg).reused
@@ -170,9 +179,9 @@ def test_highway_roundabout_runs_a_tiny_safety_cell_end_to_end_through_the_stage
     cfg = highway("gym_world=highway_roundabout", "gym_world.horizon_steps=15", "noise=0.05")
     result = run_safety(cfg)
     cell = result.cell
-    assert not result.reused and cell.n == 4 and len(cell.outcomes) == 4  # chernoff_n(0.7, 0.05)
+    assert not result.reused and cell.estimate.n == 4 and len(cell.outcomes) == 4  # chernoff_n(0.7, 0.05)
     assert (cell.location, cell.weather, cell.noise) == ("highway_roundabout", "env", 0.05)
-    assert cell.steps <= 4 * 15 and cell.max_corridor_use != cell.max_corridor_use  # NaN: no corridor
+    assert cell.steps <= 4 * 15 and cell.max_corridor_use is None  # no corridor: no run measured it
     saved = json.loads((tmp_path / "metrics/safety/mcd-seed0-highway_roundabout-env-noise0.05.json").read_text())
     assert saved["outcomes"] == cell.outcomes
     client = MlflowClient(store_uris(tmp_path)[0])

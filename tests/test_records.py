@@ -61,3 +61,27 @@ def test_a_flattened_results_keys_are_checked_as_the_records_own(tmp_path):
 def test_a_flattened_result_may_not_repeat_the_records_keys(tmp_path):
     with pytest.raises(ValueError, match=r"Clashing.decided repeats the record's keys \['estimate'\]"):
         write_record(tmp_path / "c.json", Clashing(1.0, Decided(2.0, ())))
+
+
+@dataclasses.dataclass(frozen=True)
+class Interval:
+    value: float
+    low: float
+    label: str = ""
+
+
+@record
+class Cell:
+    name: str
+    interval: Interval = flattened({"value": "eta1", "low": "eta1_low"}, left=("label",))
+
+
+def test_a_flattened_result_keeps_the_files_names_and_leaves_out_what_the_file_does_not_hold(tmp_path):
+    path = write_record(tmp_path / "c.json", Cell("a", Interval(0.75, 0.5)))
+    assert json.loads(path.read_text()) == {"name": "a", "eta1": 0.75, "eta1_low": 0.5}
+    assert read_record(Cell, path, "stage") == Cell("a", Interval(0.75, 0.5))
+    path.write_text(json.dumps({"name": "a", "eta1": 0.75, "eta1_low": 0.5, "value": 1.0}))
+    with pytest.raises(ConfigError, match="value: unknown key"):  # the field's own name is not its key
+        read_record(Cell, path, "stage")
+    with pytest.raises(ValueError, match=r"Cell.interval.label is not kept in its file: 'x'"):
+        write_record(tmp_path / "d.json", Cell("a", Interval(0.75, 0.5, "x")))

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from uqdrive.acquire.acquisition import AcquiredAt, Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.analysis.acquisition_summary import summarise_acquisition
 from uqdrive.analysis.comparisons import avoid_comparisons, decide, safety_comparisons
 from uqdrive.analysis.method_answers import summarise_avoid, summarise_methods
@@ -34,12 +35,13 @@ from uqdrive.models.heldout_eval import HeldoutCell, HeldoutTable
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.pipeline.report_stage import run_report
 from uqdrive.policy.draws import DrawSettings
-from uqdrive.records import write_record
+from uqdrive.records import read_record, write_record
 from uqdrive.report.document import fmt
 from uqdrive.report.findings_text import claims_markdown, findings_markdown
 from uqdrive.report.headline import read_summary
-from uqdrive.safety.acquisition import AcquiredAt, Acquisition, AcquisitionCheck, RoundSummary, before_after
 from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.safety.rollout_metrics import METRICS
+from uqdrive.uq.estimators import Estimate
 from uqdrive.uq.verdict import Verdict
 
 METHODS, WEATHERS, NOISES, SEEDS = ("mcd", "vi"), ("clear_noon", "rain"), (0.0, 0.05), (0, 1)
@@ -77,10 +79,10 @@ def safety_cell(rng, method, seed, location, weather, noise) -> SafetyCell:
     corridor = dict(max_corridor_use=float(rng.random() * 2), mean_corridor_use=0.3, mean_lateral_deviation=0.2)
     return SafetyCell(
         **dict(method=method, replicate=seed, experiment="offline", location=location, weather=weather, noise=noise),
-        **dict(theta=0.25, gamma=0.05, scheme="clopper_pearson", n=N, base_seed=100000, family_size=1),
-        **dict(fixed_rollouts=N, eta1=eta1, eta1_low=max(0, eta1 - 0.25), eta1_high=min(1, eta1 + 0.25)),
+        estimate=Estimate(eta1, max(0, eta1 - 0.25), min(1, eta1 + 0.25), N, 0.25, 0.05, "clopper_pearson", True),
+        **dict(base_seed=100000, family_size=1, fixed_rollouts=N),
         **dict(rollouts=N, steps=100, seconds=1.0, **rates, **corridor, mean_eta2=0.9, mean_mutual_information=0.1),
-        **dict(guaranteed=True, outcomes=safe, config_hash="x"),
+        **dict(outcomes=safe, config_hash="x"),
     )
 
 
@@ -90,18 +92,21 @@ def avoid_cell(rng, mode) -> AvoidCell:
     seed = 300000 if mode in ("fresh_off", "calibrated") else 200000
     counts = {f"warning{lv}_{k}": 1 for lv in range(3) for k in ("frames", "runs")}
     return AvoidCell(
-        **dict(eta1=eta1, eta1_low=0.0, eta1_high=1.0, n=N, handover_rate=0.1, autonomy=float(rng.random())),
+        estimate=Estimate(eta1, 0.0, 1.0, N, 0.25, 0.05, "clopper_pearson", True),
+        **dict(handover_rate=0.1, autonomy=float(rng.random())),
         **dict(full_speed_fraction=0.9, collision_rate=1 - eta1, off_road_rate=0.0, passed_rate=eta1),
         **dict(timeout_before_obstacle_rate=0.0, handover_distance_min=10.0, handover_distance_median=12.5),
         **dict(handover_distances=[12.5], mean_steps=100.0, seconds=1.0, reused=False, **counts),
-        **dict(terminations={"collision": 1}, guaranteed=True, scheme="clopper_pearson", theta=0.25, gamma=0.05),
+        **dict(terminations={"collision": 1}),
         **dict(family_size=1, fixed_rollouts=N, thresholds={"delta1": 0.7}, base_seed=seed, outcomes=safe),
     )
 
 
 def avoid_result(rng, method, seed) -> AvoidResult:
     cells = {c: {m: avoid_cell(rng, m) for m in Mode} for c in CONDITIONS}
-    unknown = {m: MixtureEstimate(cells["fog"][m].eta1, 0.0, 1.0, 0.3, 0.05, N, 0.5, "hoeffding") for m in Mode}
+    unknown = {
+        m: MixtureEstimate(cells["fog"][m].estimate.value, 0.0, 1.0, 0.3, 0.05, N, 0.5, "hoeffding") for m in Mode
+    }
     certificate = Certificate(
         **dict(delta1=0.9, delta2=0.8, tau=0.45, feasible=True, certified=12, guarantee=f"{method} certified"),
         **dict(autonomy_target=0.8, max_certifiable_target=0.85, gamma=0.05, missed_limit=None, order="firing"),
@@ -290,6 +295,16 @@ def test_report_tables_hold_the_metrics_files_numbers(stage_config, tmp_path):
         )
         assert row["per replicate"] == " / ".join(fmt(e, 2) for e in answer.estimates)
     assert "**Guarantee: per cell.**" in text
+    per_run = markdown_rows(text, "method | location | weather | noise | collisions")  # the registry's table
+    assert len(per_run) == len(rows) and set(per_run[0]) >= {m.label for m in METRICS}
+    written = [read_record(SafetyCell, p, "safety") for p in sorted((tmp_path / "metrics/safety").glob("*.json"))]
+    for row in per_run:
+        where = (row["location"], row["weather"], float(row["noise"]))
+        members = sorted(
+            (c for c in written if (c.method, c.condition) == (row["method"], where)), key=lambda c: c.replicate
+        )
+        assert row["collisions"] == " / ".join(fmt(c.collision_rate, 2) for c in members)
+        assert row["median time to lane edge (s)"] == " / ".join("–" for _ in members)  # the synthetic cells: none
     fidelity = {r["claim"]: r for r in markdown_rows(text, "claim")}
     assert fidelity["offline, vi, all weathers"]["paper"] == "0.91 ± 0.05"
     vi_dry = [safety.answer("vi", "roundabout", w, 0.0) for w in WEATHERS]

@@ -35,9 +35,9 @@ def runs(root):
 def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_path):
     cfg = safety_config("model=hmc", "weather=afternoon", "noise=0.05")
     result = run_safety(cfg)
-    assert not result.reused and result.cell.n == 4 == result.cell.rollouts  # chernoff_n(0.7, 0.05)
-    assert result.cell.scheme == "chernoff" and result.cell.guaranteed
-    assert result.cell.eta1_low <= result.cell.eta1 <= result.cell.eta1_high
+    assert not result.reused and result.cell.estimate.n == 4 == result.cell.rollouts  # chernoff_n(0.7, 0.05)
+    assert result.cell.estimate.scheme == "chernoff" and result.cell.estimate.guaranteed
+    assert result.cell.estimate.low <= result.cell.estimate.value <= result.cell.estimate.high
     out = tmp_path / "metrics/safety/hmc-seed0-roundabout-afternoon-noise0.05.json"
     saved = json.loads(out.read_text())
     assert saved == as_dict(result.cell)
@@ -61,22 +61,22 @@ def test_cell_writes_its_result_logs_one_run_and_is_reused(safety_config, tmp_pa
     }
     assert not {"safety.theta", "safety.gamma", "safety.scheme", "theta", "gamma"} & set(params)  # each key once
     assert params["frame_draws.scheme"] == "sequential" and not any(k.startswith("safety.draws") for k in params)
-    c = result.cell
-    eta1 = f"η1={c.eta1:.2f} [{c.eta1_low:.2f}, {c.eta1_high:.2f}]"
+    c = result.cell.estimate
+    eta1 = f"η1={c.value:.2f} [{c.low:.2f}, {c.high:.2f}]"
     assert run.info.run_name == f"adhoc · afternoon σ0.05 roundabout · hmc seed0 · {eta1}"
     assert params["safety.base_seed"] == "100000"
     for key in ("eta1", "eta1_low", "eta1_high", "collision_rate", "off_road_rate", "mean_lateral_deviation"):
-        assert run.data.metrics[key] == pytest.approx(getattr(result.cell, key))
+        assert run.data.metrics[key] == pytest.approx(as_dict(result.cell)[key])
     assert {a.path for a in client.list_artifacts(run.info.run_id)} == {"paths.png", "rollouts.csv"}  # every cell's
     assert run.data.tags["cell"] == "hmc-seed0-roundabout-afternoon-noise0.05"
 
     # same config, other worker count: reused, nothing rerun; a run tagged reused lists the cell
     stamp = out.stat().st_mtime_ns
     again = run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "executor.workers=2"))
-    assert again.reused and again.cell.eta1 == result.cell.eta1 and out.stat().st_mtime_ns == stamp
+    assert again.reused and again.cell.estimate.value == result.cell.estimate.value and out.stat().st_mtime_ns == stamp
     first, reused = sorted(runs(tmp_path)[1], key=lambda r: r.info.start_time)
     assert (first.data.tags["reused"], reused.data.tags["reused"]) == ("false", "true")
-    assert reused.data.metrics["eta1"] == result.cell.eta1 and reused.data.params["n"] == "4"
+    assert reused.data.metrics["eta1"] == result.cell.estimate.value and reused.data.params["n"] == "4"
     # another seed is another cell config: recomputed
     assert not run_safety(safety_config("model=hmc", "weather=afternoon", "noise=0.05", "safety.base_seed=7")).reused
 
@@ -144,16 +144,16 @@ def test_a_cell_interrupted_mid_way_keeps_its_finished_rollouts(safety_config, t
         run_safety(cfg)
     monkeypatch.setattr(runner, "make_executor", lambda *a, **k: Interrupting(real(*a, **k), None))
     result = run_safety(cfg)
-    assert ran == [100000, 100001, 100002, 100003] and result.cell.n == 4  # the first two were not rerun
+    assert ran == [100000, 100001, 100002, 100003] and result.cell.estimate.n == 4  # the first two were not rerun
     rows = (tmp_path / "plots/safety/cells/vi-seed0-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
     assert [int(r.split(",")[0]) for r in rows[1:]] == [100000, 100001, 100002, 100003]
 
 
 def test_sequential_scheme_uses_consecutive_seeds(safety_config, tmp_path):
     result = run_safety(safety_config("model=vi", "safety.scheme=sequential", "safety.theta=0.45"))
-    assert result.cell.scheme == "sequential" and result.cell.guaranteed
+    assert result.cell.estimate.scheme == "sequential" and result.cell.estimate.guaranteed
     rows = (tmp_path / "plots/safety/cells/vi-seed0-roundabout-clear_noon-noise0.0.csv").read_text().splitlines()
-    assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(100000, 100000 + result.cell.n))
+    assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(100000, 100000 + result.cell.estimate.n))
 
 
 @pytest.mark.parametrize(

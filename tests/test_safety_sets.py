@@ -127,3 +127,24 @@ def test_default_corridor_is_the_lane_and_ends_at_the_first_exit():
     left, right = safe.boundaries()
     assert left.shape == right.shape == (len(geometry.route.s), 2)
     assert safe_set_for(build_geometry(scenario("straight")), 1.8, 4.5).boundaries() is None
+
+
+def test_time_to_the_lane_edge_is_the_bodys_room_over_its_speed_and_zero_once_out():
+    geometry = build_geometry(scenario("roundabout_large"))
+    safe = safe_set_for(geometry, 1.8, 4.5)
+    route, (cx, cy, _) = geometry.route, geometry.island
+    on_ring = np.flatnonzero(np.abs(np.hypot(route.x - cx, route.y - cy) - geometry.config.ring_radius) < 0.05)
+    k = int(on_ring[len(on_ring) // 2])  # the middle of the ring part of the route
+    heading = np.arctan2(np.gradient(route.y)[k], np.gradient(route.x)[k])
+    x, y, yaw = np.array([route.x[k]]), np.array([route.y[k]]), np.array([heading])
+    radius = float(np.hypot(route.x[k] - cx, route.y[k] - cy))  # the outer front corner sticks out furthest:
+    out = float(np.hypot(radius + 0.9, 4.5 / 2)) - radius  # half the width, plus the ring's sagitta over the length
+    room = float(np.interp(route.project(np.array([[x[0], y[0]]]))[0][0], route.s, safe.half_width)) - out
+    assert safe.time_to_boundary(geometry, x, y, yaw, np.array([5.0])) == pytest.approx(room / 5.0, abs=0.02)
+    assert safe.time_to_boundary(geometry, x, y, yaw, np.array([10.0])) == pytest.approx(room / 10.0, abs=0.01)
+    assert np.isnan(safe.time_to_boundary(geometry, x, y, yaw, np.array([0.0])))  # never moved
+    normal = np.array([-np.sin(heading), np.cos(heading)])
+    ox, oy = np.array([x[0], y[0]]) - 1.3 * normal  # outwards, pointing out of the ring: a corner beyond the lane
+    assert safe.time_to_boundary(geometry, np.array([ox]), np.array([oy]), yaw - 1.0, np.array([5.0])) == 0.0
+    straight = build_geometry(scenario("straight"))
+    assert np.isnan(safe_set_for(straight, 1.8, 4.5).time_to_boundary(straight, x, y, yaw, np.array([5.0])))

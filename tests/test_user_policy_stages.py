@@ -27,13 +27,13 @@ def bayes(tmp_path, monkeypatch):
 def test_a_safety_cell_drives_a_users_policy_as_it_drives_on_its_own(stage_config, bayes, tmp_path):
     cfg = stage_config("safety", f"safety.policy={bayes}", "safety.horizon_s=3", "executor.workers=1")
     cell = run_safety(cfg).cell
-    assert cell.method == "bayes" and cell.eta1 == cell.outcomes.count("1") / cell.n
+    assert cell.method == "bayes" and cell.estimate.value == cell.outcomes.count("1") / cell.estimate.n
     assert cell.mean_eta2 is not None and cell.mean_mutual_information > 0  # the policy's own draws
     assert (tmp_path / f"metrics/safety/bayes-seed0-roundabout-clear_noon-noise{0.0!r}.json").exists()
 
     job = plan_cell(cfg).job
     spec = load_policy(bayes, speed=cfg.safety.speed, eps=cfg.safety.eps)
-    seeds = [job.base_seed + i for i in range(cell.n)]
+    seeds = [job.base_seed + i for i in range(cell.estimate.n)]
     with DrivingEnv(job.camera, job.vehicle, job.control_hz, job.horizon_s) as env:
         alone = run_rollouts([env], spec.build(job.control_hz), seeds, [job.where] * len(seeds))
     assert "".join("1" if r.verdict.safe else "0" for r in alone) == cell.outcomes

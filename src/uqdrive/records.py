@@ -29,23 +29,32 @@ from uqdrive.schema import ConfigError, describe
 RecordType = TypeVar("RecordType")
 _RECORD = ConfigDict(extra="forbid")  # NaN is a value (a mean over no frames; null in a file)
 _OPEN_RECORD = ConfigDict(extra="allow")  # method-specific keys beside the declared ones
-_FLATTEN = "flatten"
+_FLATTEN = "flatten"  # metadata: the embedded result's file keys, by field name (its own name where not renamed)
+_LEFT = "left"  # metadata: the embedded result's fields its file does not hold (each at its default)
 
 
 def record(cls: type[RecordType] | None = None, *, open_keys: bool = False):
     """A result file's record: frozen, every key declared (``open_keys``: others allowed and kept)."""
 
     def wrap(c: type[RecordType]) -> type[RecordType]:
-        if any(isinstance(v, dataclasses.Field) and v.metadata.get(_FLATTEN) for v in vars(c).values()):
+        if any(isinstance(v, dataclasses.Field) and _FLATTEN in v.metadata for v in vars(c).values()):
             c._gather_flattened = model_validator(mode="before")(classmethod(_gather_flattened))  # type: ignore[attr-defined]
         return _pydantic_dataclass(c, config=_OPEN_RECORD if open_keys else _RECORD, frozen=True)
 
     return wrap if cls is None else wrap(cls)
 
 
-def flattened() -> Any:
-    """A record field holding an embedded result (a dataclass) whose keys the file holds beside the record's own."""
-    return dataclasses.field(metadata={_FLATTEN: True})
+def flattened(keys: dict[str, str] | None = None, left: tuple[str, ...] = ()) -> Any:
+    """A record field holding an embedded result (a dataclass) whose keys the file holds beside the record's own;
+    ``keys``: a field's key in the file where it is not the field's name (a cell's `Estimate.value` as ``eta1``),
+    ``left``: fields the file does not hold, each at its default (written only while it holds that default)."""
+    return dataclasses.field(metadata={_FLATTEN: dict(keys or {}), _LEFT: tuple(left)})
+
+
+def _file_keys(embedded: type, meta: Any) -> dict[str, str]:
+    """An embedded result's fields → their keys in the file, those ``left`` out left out."""
+    renamed, left = meta[_FLATTEN], meta[_LEFT]
+    return {g.name: renamed.get(g.name, g.name) for g in dataclasses.fields(embedded) if g.name not in left}
 
 
 def _gather_flattened(cls: type, data: Any) -> Any:
@@ -53,9 +62,10 @@ def _gather_flattened(cls: type, data: Any) -> Any:
     names the key where `read_record`'s NaN repair finds it."""
     if isinstance(data, dict):
         for f in dataclasses.fields(cls):
-            if f.metadata.get(_FLATTEN) and f.name not in data:
+            if _FLATTEN in f.metadata and f.name not in data:
                 embedded = cls.__pydantic_fields__[f.name].annotation  # type: ignore[attr-defined]
-                data[f.name] = {g.name: data.pop(g.name) for g in dataclasses.fields(embedded) if g.name in data}
+                keys = _file_keys(embedded, f.metadata).items()
+                data[f.name] = {name: data.pop(key) for name, key in keys if key in data}
     return data
 
 
@@ -76,19 +86,29 @@ def _plain(value: Any) -> Any:
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         out: dict = {}
         for f in dataclasses.fields(value):
-            inner = _plain(getattr(value, f.name))
-            if not f.metadata.get(_FLATTEN):
-                out[f.name] = inner
-            elif clash := set(inner) & {g.name for g in dataclasses.fields(value)}:
-                raise ValueError(f"{type(value).__name__}.{f.name} repeats the record's keys {sorted(clash)}")
+            if _FLATTEN not in f.metadata:
+                out[f.name] = _plain(getattr(value, f.name))
             else:
-                out.update(inner)
+                out.update(_spread(value, f))
         return out
     if isinstance(value, (list, tuple)):
         return type(value)(_plain(v) for v in value)
     if isinstance(value, dict):
         return {_plain(k): _plain(v) for k, v in value.items()}
     return copy.deepcopy(value)
+
+
+def _spread(value: Any, f: dataclasses.Field) -> dict:
+    """A `flattened` field's keys as its record's file holds them (renamed, those left out at their default)."""
+    inner = getattr(value, f.name)
+    for g in dataclasses.fields(inner):
+        if g.name in f.metadata[_LEFT] and getattr(inner, g.name) != g.default:
+            kept = getattr(inner, g.name)
+            raise ValueError(f"{type(value).__name__}.{f.name}.{g.name} is not kept in its file: {kept!r}")
+    spread = {key: _plain(getattr(inner, name)) for name, key in _file_keys(type(inner), f.metadata).items()}
+    if clash := set(spread) & {g.name for g in dataclasses.fields(value)}:
+        raise ValueError(f"{type(value).__name__}.{f.name} repeats the record's keys {sorted(clash)}")
+    return spread
 
 
 def extra_keys(value: Any) -> dict:

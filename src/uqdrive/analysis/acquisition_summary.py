@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from uqdrive.acquire.acquisition import Acquisition, AcquisitionCheck
 from uqdrive.records import read_record, record
-from uqdrive.safety.acquisition import Acquisition, AcquisitionCheck
 from uqdrive.schema import ConfigError
 from uqdrive.uq.claims import ClaimResult, MethodClaim, decide_claims
 from uqdrive.uq.paired import paired_table

@@ -72,7 +72,7 @@ class SafetySummary:
 def summarise_methods(cells: Iterable[SafetyCell], methods: Sequence[str]) -> SafetySummary:
     """Each method's answer per condition over its replicates, at the cells' family level γ."""
     cells = list(cells)
-    gamma = max(c.gamma * c.family_size for c in cells)
+    gamma = max(c.estimate.gamma * c.family_size for c in cells)
     conditions = list(dict.fromkeys(c.condition for c in cells))
 
     def replicates(method: str, condition: tuple) -> list[tuple[int, np.ndarray]]:
@@ -84,7 +84,7 @@ def summarise_methods(cells: Iterable[SafetyCell], methods: Sequence[str]) -> Sa
         for method in methods
         for condition in conditions
     ]
-    return SafetySummary(answers, max(c.family_size for c in cells), min(c.gamma for c in cells))
+    return SafetySummary(answers, max(c.family_size for c in cells), min(c.estimate.gamma for c in cells))
 
 
 def pooled_answer(method: str, condition: str, answers: Sequence[MethodAnswer]) -> MethodAnswer:
@@ -156,7 +156,8 @@ def summarise_avoid(results: list[AvoidResult], methods: list[str]) -> AvoidSumm
     """Each method's answer over its replicates, per condition × mode and for the unknown mixture (the unknown
     cells' first k runs each, one uniform mixture)."""
     first = results[0]
-    gamma = first.cells[first.conditions[0]][Mode.OFF].gamma * first.cells[first.conditions[0]][Mode.OFF].family_size
+    off = first.cells[first.conditions[0]][Mode.OFF]
+    gamma = off.estimate.gamma * off.family_size
     answers = []
     for method in methods:
         mine = [r for r in results if r.method == method]

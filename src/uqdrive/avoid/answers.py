@@ -4,6 +4,7 @@ certified with its replay and fresh-seed checks, and the variants no threshold c
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 
 import numpy as np
@@ -13,6 +14,7 @@ from uqdrive.avoid.cells import AvoidRun, Cell, handed_over, handover_distances,
 from uqdrive.avoid.course import Course
 from uqdrive.avoid.results import AvoidCell, AvoidResult, CalibrationSummary, FreshSeedRecord, MixtureEstimate, Mode
 from uqdrive.policy.warnings import LEVELS
+from uqdrive.safety.rollout_metrics import summarise
 from uqdrive.sim.condition import Condition, Mixture
 from uqdrive.uq.pooled import pooled
 
@@ -36,9 +38,8 @@ def avoid_result(run: AvoidRun) -> AvoidResult:
         for mode in Mode
     }
     known, check = table[names[0]][Mode.CALIBRATED], run.fresh_check
-    fresh = FreshSeedRecord(
-        check, check.autonomous / check.runs, known.eta1, mixture[Mode.CALIBRATED].eta1, settings.validation_seed
-    )
+    autonomy, unknown = check.autonomous / check.runs, mixture[Mode.CALIBRATED].eta1
+    fresh = FreshSeedRecord(check, autonomy, known.estimate.value, unknown, settings.validation_seed)
     uncaught = uncaught_variants(run.calibration, cells, names[1:])
     return AvoidResult(
         method=settings.method,
@@ -73,16 +74,11 @@ def cell_metrics(
     full = sum(int(np.sum(r.command_speed >= cruise - 1e-9)) for r in results)
     where = handover_distances(cell, course)
     metrics = {
-        "eta1": est.value,
-        "eta1_low": est.low,
-        "eta1_high": est.high,
-        "n": est.n,
         "handover_rate": float(np.mean(handed)),
         "autonomy": 1 - float(np.mean(handed)),
         "full_speed_fraction": full / max(steps, 1),
-        "collision_rate": float(np.mean([r.verdict.collision for r in results])),
-        "off_road_rate": float(np.mean([r.verdict.off_road for r in results])),
-        "passed_rate": float(np.mean([r.verdict.reached_goal for r in results])),
+        **summarise(results, ("collision_rate", "off_road_rate")),
+        "passed_rate": summarise(results, ("reached_goal_rate",))["reached_goal_rate"],
         # ran out of time before passing the obstacle without having stopped: no answer, never safe (a Gymnasium
         # world has no goal beyond its horizon: a timeout there is unsafe only if its safe_if failed)
         "timeout_before_obstacle_rate": float(
@@ -101,10 +97,7 @@ def cell_metrics(
     return AvoidCell(
         **metrics,
         terminations=dict(sorted(Counter(r.termination for r in results).items())),
-        guaranteed=est.guaranteed,
-        scheme=est.scheme,
-        theta=est.theta,
-        gamma=est.gamma,
+        estimate=dataclasses.replace(est, condition=""),
         family_size=family_size,
         fixed_rollouts=fixed_rollouts,
         thresholds={"delta1": cell.rule.config.delta1, "delta2": cell.rule.config.delta2, "tau": cell.rule.config.tau},

@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from uqdrive.policy.draws import DrawSettings
-from uqdrive.records import read_record, record
+from uqdrive.records import flattened, read_record, record
+from uqdrive.safety.cell_records import ESTIMATE_KEYS
 from uqdrive.safety.failures import RolloutFailure
+from uqdrive.uq.estimators import Estimate
 
 
 class Mode(StrEnum):
@@ -92,10 +94,7 @@ class UncaughtVariant:
 class AvoidCell:
     """One collision-avoidance cell (condition × warnings mode) of one controller."""
 
-    eta1: float
-    eta1_low: float
-    eta1_high: float
-    n: int
+    estimate: Estimate = flattened(ESTIMATE_KEYS, left=("condition",))  # η̂1, its interval, θ, γ, scheme, n
     handover_rate: float
     autonomy: float
     full_speed_fraction: float
@@ -117,10 +116,6 @@ class AvoidCell:
     warning2_frames: int
     warning2_runs: int
     terminations: dict[str, int]
-    guaranteed: bool
-    scheme: str
-    theta: float
-    gamma: float
     family_size: int
     fixed_rollouts: int
     thresholds: dict[str, float]

@@ -28,7 +28,7 @@ class RareResult:
     estimate: FailureEstimate
     certified: str
     certify_rollouts: int
-    failure_records: list[dict]
+    failure_records: list[dict[str, float]]  # each failure: its seed, its value on each axis, its weight
     seconds: float
 
 

@@ -2,7 +2,7 @@
 found it unsafe. A round drives the current controller (with probability β per step the expert instead, β decaying)
 at the training condition and at every condition the sweep flagged (the upper end of η1's interval below
 ``acquire.target``), labels every visited frame with the expert's command in that state
-(`uqdrive.safety.acquisition`), adds the frames to all earlier ones and retrains with the train stage's own
+(`uqdrive.acquire.acquisition`), adds the frames to all earlier ones and retrains with the train stage's own
 functions; then η̂1 of the new controller at the check cells, beside the expert's own η̂1 on the same seeds.
 
 Round 0 is the behaviour-cloned controller the train stage made (`safety.model_path`); ``acquire.rounds=0`` only
@@ -26,6 +26,18 @@ import mlflow
 import pyarrow as pa
 from omegaconf import DictConfig, OmegaConf
 
+from uqdrive.acquire.acquisition import (
+    AcquiredAt,
+    Acquisition,
+    AcquisitionCheck,
+    RoundRecord,
+    RoundSummary,
+    acquire_episodes,
+    before_after,
+    expert_job,
+    flagged_cells,
+)
+from uqdrive.acquire.plan import AcquireStage, Rounds, Where
 from uqdrive.data.binning import SteeringBins
 from uqdrive.data.frames import encode_png
 from uqdrive.data.preprocess import Split, preprocess_raw
@@ -37,18 +49,6 @@ from uqdrive.pipeline.train_stage import TrainStage, fit
 from uqdrive.policy.references import ExpertPolicy
 from uqdrive.records import read_record, write_record
 from uqdrive.resolvers import world_location
-from uqdrive.safety.acquire_plan import AcquireStage, Rounds, Where
-from uqdrive.safety.acquisition import (
-    AcquiredAt,
-    Acquisition,
-    AcquisitionCheck,
-    RoundRecord,
-    RoundSummary,
-    acquire_episodes,
-    before_after,
-    expert_job,
-    flagged_cells,
-)
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.executors import WorkerEnvs
 from uqdrive.safety.plan import SafetyStage
@@ -178,9 +178,10 @@ def check(ctx: Rounds, k: int, model: Path) -> list[AcquisitionCheck]:
             write_record(f"{out}.json", cell)
         expert = ctx.expert.get(where.label) or expert_estimate(ctx, plan, where)
         ctx.expert[where.label] = expert
+        est = cell.estimate
         rows.append(
             AcquisitionCheck(
-                stage.model["name"], stage.seed, k, where.label, cell.eta1, cell.eta1_low, cell.eta1_high, cell.n,
+                stage.model["name"], stage.seed, k, where.label, est.value, est.low, est.high, est.n,
                 expert.value, expert.low, expert.high, cell.outcomes,
             )
         )  # fmt: skip

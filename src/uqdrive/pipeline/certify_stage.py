@@ -98,8 +98,8 @@ def _decide(stage: CertifyStage, spec: UserPolicySpec, job: RolloutJob, attempt,
     """The rollouts until the test decides (replayed from the cell's log, extended where it needs more), the
     record written."""
     from uqdrive.records import write_record
-    from uqdrive.safety.cells import rates
     from uqdrive.safety.certify_config import CertifyRecord
+    from uqdrive.safety.rollout_metrics import summarise
     from uqdrive.safety.runner import CellRunner, cell_key
     from uqdrive.uq.gate import stop_interval
 
@@ -119,7 +119,7 @@ def _decide(stage: CertifyStage, spec: UserPolicySpec, job: RolloutJob, attempt,
         decision.n, decision.k, decision.k / decision.n, interval.low, interval.high, attempt.gamma,
         section.budget, job.base_seed, key, run.reused, run.seconds,
         "".join("1" if r.verdict.safe else "0" for r in read),
-        **{k: v for k, v in rates(read).items() if k in SUMMARIES}, warning_share=_warning_share(spec, read),
+        **summarise(read, SUMMARIES), warning_share=_warning_share(spec, read),
     )  # fmt: skip
     write_record(section.out, record)  # before logging: a tracking failure never loses the verdict
     return record

@@ -12,6 +12,7 @@ first rollout. A cell whose result file already holds its config hash is not run
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Iterator, Sequence
@@ -29,7 +30,6 @@ from uqdrive.files import write_csv
 from uqdrive.records import as_dict, read_record, write_record
 from uqdrive.replay.video import worst_clips
 from uqdrive.safety.cell_records import SafetyCell
-from uqdrive.safety.cells import rates
 from uqdrive.safety.drive import Driver, resolve_driver
 from uqdrive.safety.executors import RolloutJob, job_world
 from uqdrive.safety.failures import job_failures
@@ -43,6 +43,7 @@ from uqdrive.safety.plan import (
     SweepCells,
 )
 from uqdrive.safety.positions import CellPositions, job_positions, write_positions
+from uqdrive.safety.rollout_metrics import summarise
 from uqdrive.safety.runner import CellRun, CellRunner, estimate_key
 from uqdrive.schema import validate
 from uqdrive.stage import cell_overrides, run_cells
@@ -98,21 +99,14 @@ def safety_cell(plan: CellPlan, run: CellRun[Estimate], overrides: Sequence[str]
         location=where.location,
         weather=where.weather_name,
         noise=where.noise,
-        theta=estimate.theta,
-        gamma=estimate.gamma,
-        scheme=estimate.scheme,
-        n=estimate.n,
+        estimate=dataclasses.replace(estimate, condition=""),
         base_seed=stage.estimator.base_seed,
         family_size=stage.safety.family_size,
         fixed_rollouts=stage.estimator.fixed_rollouts(),
-        eta1=estimate.value,
-        eta1_low=estimate.low,
-        eta1_high=estimate.high,
         rollouts=estimate.n,
         steps=int(sum(r.steps for r in results)),
         seconds=run.seconds,
-        **rates(results),
-        guaranteed=estimate.guaranteed,
+        **summarise(results),
         outcomes="".join("1" if r.verdict.safe else "0" for r in results),  # by rollout index: paired across cells
         config_hash=plan.key,
         unread=run.unread,
@@ -200,10 +194,10 @@ def run_safety_sweep(cfg: DictConfig, overrides: Sequence[str]) -> Iterator[tupl
 
 def describe(name: str, run: SafetyRun) -> str:
     """The line a stage prints for a finished cell."""
-    c = run.cell
+    e = run.cell.estimate
     return (
-        f"safety {name}: eta1 = {c.eta1:.3f} in [{c.eta1_low:.3f}, {c.eta1_high:.3f}] "
-        f"from {c.n} rollouts ({c.scheme}, theta={c.theta:g}, gamma={c.gamma:g})"
+        f"safety {name}: eta1 = {e.value:.3f} in [{e.low:.3f}, {e.high:.3f}] "
+        f"from {e.n} rollouts ({e.scheme}, theta={e.theta:g}, gamma={e.gamma:g})"
         f"{' (reused: config unchanged)' if run.reused else ''}"
     )
 
@@ -258,7 +252,8 @@ def log_cell(
     name = f"{cell.weather} σ{cell.noise:g} {cell.location} · {cell.method} seed{cell.replicate}"  # siblings differ
     tags = {"reused": str(reused).lower(), "config_hash": cell.config_hash, "cell": stage.safety.cell}
     with stage_run(stage.paths.root, "safety", cfg, run_name=name, tags=tags):
-        mlflow.log_params({"n": cell.n, "cell_gamma": cell.gamma})  # the rest: the cell's config (`stage_run`)
+        # the rest: the cell's config (`stage_run`)
+        mlflow.log_params({"n": cell.estimate.n, "cell_gamma": cell.estimate.gamma})
         mlflow.log_metrics(metrics)
         for path in artifacts:
             if path.suffix in CELL_ARTEFACTS:

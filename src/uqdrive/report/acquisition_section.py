@@ -5,9 +5,9 @@ on the same seeds as the reference line. Reads only metrics/acquisition.json."""
 
 from __future__ import annotations
 
+from uqdrive.acquire.acquisition import Acquisition
 from uqdrive.analysis.acquisition_summary import AcquisitionSummary
 from uqdrive.report.document import Report, fmt, table
-from uqdrive.safety.acquisition import Acquisition
 
 
 def _interval(value: float, low: float, high: float) -> str:

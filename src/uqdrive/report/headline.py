@@ -152,9 +152,8 @@ def headline_metrics(scope, run, findings: Findings) -> Headline:
     """``scope``, ``run``: the report's `Scope` and `Run`; the training condition is the findings' (the first
     location, the training weather, noise 0)."""
     seeds, methods, location = scope.grid.replicates, scope.grid.methods, scope.grid.locations[0]
-    guarantees = [(c.theta, c.gamma) for c in run.cells] + [
-        (cell.theta, cell.gamma) for result in run.avoided for modes in result.cells.values() for cell in modes.values()
-    ]
+    avoided = [cell for result in run.avoided for modes in result.cells.values() for cell in modes.values()]
+    guarantees = [(c.estimate.theta, c.estimate.gamma) for c in [*run.cells, *avoided]]
 
     def pooled(method: str, where: str, answers: list[MethodAnswer]) -> Eta1:
         return _eta1(pooled_answer(method, where, answers), answers)

@@ -71,7 +71,7 @@ number and sentence below is generated from this run's metrics files.""")
 
 
 def run_section(report: Report, scope: Scope, cells: list[SafetyCell]) -> None:
-    schemes = sorted({(c.scheme, c.theta, c.gamma, c.n) for c in cells})
+    schemes = sorted({(c.estimate.scheme, c.estimate.theta, c.estimate.gamma, c.estimate.n) for c in cells})
     estimation = "; ".join(f"{s} θ = {t:g}, γ = {g:g} → n = {n} rollouts per cell" for s, t, g, n in schemes)
     built = f"{datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}, commit {_git_commit(report.root)}"
     noises = ", ".join(f"{x:g}" for x in scope.grid.noises)
@@ -98,7 +98,7 @@ scenario(s) collected in `{scope.train_weather}` |
 
 def sample_counts_section(report: Report, cells: list[SafetyCell], look_size: int = 4) -> None:
     """What each scheme needs for this run's (θ, γ) and the paper's: why `sequential` exists."""
-    settings = sorted({(c.theta, c.gamma) for c in cells} | {(0.05, 0.05)})
+    settings = sorted({(c.estimate.theta, c.estimate.gamma) for c in cells} | {(0.05, 0.05)})
     rows = []
     for theta, gamma in settings:
         scheme = sequential_scheme(theta, gamma, look_size)

@@ -14,6 +14,7 @@ from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.records import read_record
 from uqdrive.report.document import Report, fmt, table
 from uqdrive.safety.cell_records import SafetyCell
+from uqdrive.safety.rollout_metrics import METRICS
 from uqdrive.stage_schemas import training_stage
 
 STOPPING_NOTE = "a car at 8 m/s needs 5.3 m to stop at 6 m/s²"
@@ -134,7 +135,7 @@ def guarantee_note(family_size: int, gamma: float, what: str) -> str:
 
 
 def safety_section(report: Report, run: Run, methods: list[str], conditions: list[tuple[str, str, float]]) -> None:
-    cell = run.cells[0]
+    cell = run.cells[0].estimate
     report.add(f"""
 ## Offline safety: η1 over weather × sensor noise × location
 
@@ -160,11 +161,12 @@ replicate's η̂1. With few replicates that interval is wide: it is how much the
                     f"[{fmt(answer.low, 2)}, {fmt(answer.high, 2)}]",
                     _per_replicate(answer.estimates, 2),
                     _per_replicate([c.left_corridor_rate for c in members], 2),
-                    fmt(max(c.max_corridor_use for c in members), 2),
+                    fmt(max((c.max_corridor_use for c in members if c.max_corridor_use is not None), default=None), 2),
                 ]
             )
     headers = ["method", "location", "weather", "noise", "η̂1", "method interval", "per replicate", "left lane"]
     report.add(table([*headers, "corridor use"], rows))
+    rollout_metrics_table(report, run.cells, methods, conditions)
     for location in dict.fromkeys(c[0] for c in conditions):
         for noise in dict.fromkeys(c[2] for c in conditions):
             report.figure(
@@ -174,9 +176,30 @@ replicate's η̂1. With few replicates that interval is wide: it is how much the
             )
 
 
+def rollout_metrics_table(
+    report: Report, cells: list[SafetyCell], methods: list[str], conditions: list[tuple[str, str, float]]
+) -> None:
+    """Every per-rollout metric of the registry (`uqdrive.safety.rollout_metrics.METRICS`) as each cell summarised
+    it, one value per replicate ('–': no rollout of the cell measured it)."""
+    rows = [
+        [
+            method,
+            location,
+            weather,
+            f"{noise:g}",
+            *(_per_replicate([getattr(c, m.name) for c in members], 2) for m in METRICS),
+        ]
+        for method in methods
+        for location, weather, noise in conditions
+        for members in [[c for c in cells if c.method == method and c.condition == (location, weather, noise)]]
+    ]
+    report.add("How each cell's rollouts went, per replicate (the cell's summary of what every rollout recorded):")
+    report.add(table(["method", "location", "weather", "noise", *(m.label for m in METRICS)], rows))
+
+
 def avoid_section(report: Report, run: Run, methods: list[str]) -> None:
     first = run.avoided[0]
-    known = first.cells[first.conditions[0]][Mode.OFF]
+    known = first.cells[first.conditions[0]][Mode.OFF].estimate
     report.add(f"""
 ## Real-time collision avoidance
 

@@ -10,9 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from uqdrive.records import read_record, record
+from uqdrive.records import flattened, read_record, record
 from uqdrive.resolvers import condition_label
 from uqdrive.safety.failures import RolloutFailure
+from uqdrive.uq.estimators import Estimate
+
+ESTIMATE_KEYS = {"value": "eta1", "low": "eta1_low", "high": "eta1_high"}  # a cell's `Estimate` as its file names it
 
 
 def safety_cell_name(method: str, replicate: int, location: str, weather: str, noise: float) -> str:
@@ -31,16 +34,10 @@ class SafetyCell:
     location: str
     weather: str
     noise: float
-    theta: float
-    gamma: float
-    scheme: str
-    n: int
+    estimate: Estimate = flattened(ESTIMATE_KEYS, left=("condition",))  # η̂1, its interval, θ, γ, scheme, n
     base_seed: int
     family_size: int  # cells γ was spread over (1: the guarantee holds per cell)
     fixed_rollouts: int  # rollouts the scheme runs whatever the outcomes: the prefix exact tests may use
-    eta1: float
-    eta1_low: float
-    eta1_high: float
     rollouts: int
     steps: int
     seconds: float
@@ -48,14 +45,14 @@ class SafetyCell:
     off_road_rate: float
     left_corridor_rate: float
     reached_goal_rate: float
-    max_corridor_use: float
+    max_corridor_use: float | None
     mean_corridor_use: float | None
     mean_lateral_deviation: float
     mean_eta2: float | None  # None: the controller drew no η2 set (sequential draws acting on no warning)
     mean_mutual_information: float
-    guaranteed: bool
     outcomes: str
     config_hash: str
+    median_time_to_boundary: float | None = None  # s, over the runs of each run's least time to its lane's edge
     unread: int = 0  # rollouts run ahead of a sequential estimator that it never read: time spent, not error
     margins: list[float | None] = dataclasses.field(default_factory=list)  # each run's `PathVerdict.margin`, in order
     failures: list[RolloutFailure] = dataclasses.field(default_factory=list)  # the failing runs, worst margin first

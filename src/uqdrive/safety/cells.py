@@ -1,11 +1,10 @@
 """What a cell estimates and from which rollouts: the estimator's settings, the outcomes it pulls in index order
-(replayed from the cell's log, reused, or simulated), the model it drives, and the rates reported beside η̂1.
+(replayed from the cell's log, reused, or simulated), the model it drives.
 The cell's identity, log and executor are the runner's (`uqdrive.safety.runner`)."""
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Literal
 
@@ -133,26 +132,3 @@ def cell_posterior(key: str, path: Path, method: str, bins: SteeringBins, traine
         raise ConfigError(f"{key}={path} does not exist; train it first: dvc repro {trained_by}") from None
     except ValueError as err:
         raise ConfigError(f"{key}={path}: {str(err).removeprefix(f'{path} ')}; dvc repro {trained_by}") from None
-
-
-def rates(results: Sequence[RolloutResult]) -> dict[str, float | None]:
-    """Per-cell summaries beside η̂1: how paths failed and how well they tracked the route."""
-
-    def mean(values: list[float]) -> float | None:
-        """None where no rollout measured it (e.g. η2 when the controller drew no η2 set): JSON has no NaN."""
-        finite = [v for v in values if not math.isnan(v)]
-        return float(np.mean(finite)) if finite else None
-
-    return {
-        "collision_rate": mean([r.verdict.collision for r in results]),
-        "off_road_rate": mean([r.verdict.off_road for r in results]),
-        "left_corridor_rate": mean([r.verdict.left_corridor for r in results]),
-        "reached_goal_rate": mean([r.verdict.reached_goal for r in results]),
-        "max_corridor_use": max(
-            [r.verdict.corridor_use for r in results if not math.isnan(r.verdict.corridor_use)], default=math.nan
-        ),
-        "mean_corridor_use": mean([r.verdict.corridor_use for r in results]),
-        "mean_lateral_deviation": mean([r.mean_abs_lateral_deviation for r in results]),
-        "mean_eta2": mean([r.mean_eta2 for r in results]),
-        "mean_mutual_information": mean([r.mean_mutual_information for r in results]),
-    }

@@ -45,6 +45,11 @@ class InfoSafeSet:
         reached = safe and termination in ("timeout", "terminated")
         return PathVerdict(safe, collision, off_road, not held, reached, math.nan)
 
+    def time_to_boundary(self, lane: DrivenPath, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, speed) -> float:
+        """NaN: a Gymnasium world's safe set is a predicate on its info (HighwayEnv's holds a crash flag and the
+        speed, no distance to an edge or another car), so no time to a boundary is measured."""
+        return math.nan
+
     def boundaries(self) -> None:
         """No corridor to draw."""
         return None

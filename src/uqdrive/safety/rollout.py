@@ -54,6 +54,7 @@ class RolloutResult:
     mutual_information_se: np.ndarray = field(default_factory=_empty)
     eta2_counts: np.ndarray = field(default_factory=_empty)
     mi_stages: np.ndarray = field(default_factory=_empty)
+    min_time_to_boundary: float = float("nan")  # s: the safe set's `time_to_boundary` of the path (NaN: not measured)
 
     def summary(self) -> dict:
         """The scalar fields, the verdict's among them (one row of the per-rollout table: seed, outcome and
@@ -182,6 +183,7 @@ def _result(episode: _Episode, safe_set: AnySafeSet | None, half_width: float | 
         mutual_information_se=np.array([c.mutual_information_se for c in commands], dtype=float),
         eta2_counts=_padded([c.eta2_counts for c in commands], -1, np.int32),
         mi_stages=_padded([c.mi_stages for c in commands], np.nan, float),
+        min_time_to_boundary=safe_set.time_to_boundary(env.lane, log["x"], log["y"], log["yaw"], log["speed"]),
     )
 
 

@@ -88,6 +88,21 @@ class SafeSet:
         poses = np.flatnonzero(outside.any(axis=0))
         return int(poses[0]) if len(poses) else None
 
+    def time_to_boundary(
+        self, geometry: ScenarioGeometry, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, speed: np.ndarray
+    ) -> float:
+        """The least time over a path's poses in which the car could reach its lane's edge at its speed there: min
+        over the poses it moved at of (metres from its body's nearest corner to the edge) / speed, 0 once the body
+        is out. A lower bound on the time to the edge (the car's speed towards it is at most its speed), so small
+        means close to leaving; NaN where no lane rule applies (a road-only safe set) or the car never moved."""
+        moving = np.asarray(speed, float) > 1e-6
+        if self.half_width is None or not moving.any():
+            return math.nan
+        corners = body_corners(np.asarray(x), np.asarray(y), np.asarray(yaw), *self.car_size)
+        corner_s, lateral = geometry.route.project(corners)
+        room = (np.interp(corner_s, geometry.route.s, self.half_width) - np.abs(lateral)).reshape(4, -1).min(axis=0)
+        return float(np.min(np.maximum(room[moving], 0.0) / np.asarray(speed, float)[moving]))
+
     def _margin(self, geometry: ScenarioGeometry, progress: np.ndarray, use: float, safe: bool) -> float:
         """min(1 − corridor_use, metres past the goal in lane half-widths), clipped to ≤ 0 for an unsafe path."""
         goal = math.inf

@@ -89,7 +89,7 @@ def acquire_episodes(
 def flagged_cells(cells: Sequence[SafetyCell], target: float) -> list[SafetyCell]:
     """The cells a sweep found unsafe: the upper end of η1's interval below ``target`` (the paper's "problematic
     scenarios in which further data acquisition should occur"), in the order given."""
-    return [cell for cell in cells if cell.eta1_high < target]
+    return [cell for cell in cells if cell.estimate.high < target]
 
 
 def expert_job(job: RolloutJob, autopilot: AutopilotConfig) -> RolloutJob:
