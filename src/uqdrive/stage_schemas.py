@@ -1,5 +1,6 @@
 """What the stages' configs share (`uqdrive.schema`): the top level every stage has, the experiment, the executor,
-a grid stage's sweep, a posterior's settings.
+a grid stage's sweep (an experiment's class set is data's: `data/experiment.py`; a stage that fits or drives a
+posterior is models': `models/model_stage.py`).
 
 Each stage's own schema lives in its wing (`CollectStage` in `sim/collect_plan.py`, `SafetyStage` in `safety/plan.py`,
 …) and names the sections it reads; the values of a stage's own sections are written once, in its
@@ -14,7 +15,6 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from uqdrive.data.binning import SteeringBins
 from uqdrive.schema import Bool, Count, MethodName, NonNegative, Seed, Str, schema
 
 Names = tuple[Str, ...]
@@ -24,15 +24,6 @@ NonEmptyNames = Annotated[Names, Field(min_length=1)]
 NonEmptyMethodNames = Annotated[MethodNames, Field(min_length=1)]
 NonEmptyNoises = Annotated[Noises, Field(min_length=1)]
 NonEmptySeeds = Annotated[tuple[Seed, ...], Field(min_length=1)]  # training seeds: the replicates
-
-
-@schema
-class Experiment:
-    """conf/experiment/<name>.yaml: the collected scenarios an experiment trains on, and its class set."""
-
-    name: Str
-    scenarios: NonEmptyNames
-    bins: SteeringBins
 
 
 def training_stage(experiment: str, method: str, gym: bool = False) -> str:
@@ -96,19 +87,6 @@ class Stage:
     def rollout_seeds(self, base: int) -> int:
         """The first rollout seed of this replicate's block for a stage whose replicate 0 starts at ``base``."""
         return base + self.seed * SEED_BLOCK
-
-
-@schema(root=True)
-class ModelStage(Stage):
-    """A stage that fits or drives a posterior: `model` (conf/model/<method>.yaml) is that class's settings."""
-
-    experiment: Experiment
-    model: dict[str, Any]
-
-    def __post_init__(self) -> None:
-        from uqdrive.models.posterior import posterior_settings  # here: a collect worker imports no torch
-
-        posterior_settings(self.model)
 
 
 @schema

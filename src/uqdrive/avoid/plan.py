@@ -24,6 +24,7 @@ from pydantic import Field
 from uqdrive.avoid.calibration import fresh_check_runs, min_calibration_runs
 from uqdrive.avoid.course import Course, CourseOf
 from uqdrive.avoid.results import Mode
+from uqdrive.models.model_stage import ModelStage
 from uqdrive.policy.recipes import PolicyRecipe
 from uqdrive.policy.warnings import WarningConfig, WarningRule
 from uqdrive.resolvers import world_location
@@ -48,7 +49,7 @@ from uqdrive.sim import CameraConfig, VehicleConfig, build_geometry
 from uqdrive.sim.condition import Condition, Mixture, WorldChoice
 from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WeatherConfig
 from uqdrive.sim.location import ByWorld
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage
+from uqdrive.stage_schemas import ExecutorSettings
 from uqdrive.uq.multiplicity import split_gamma
 
 KNOWN = "known"

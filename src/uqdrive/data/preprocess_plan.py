@@ -3,8 +3,9 @@
 
 from __future__ import annotations
 
+from uqdrive.data.experiment import Experiment
 from uqdrive.schema import OpenUnit, Seed, schema
-from uqdrive.stage_schemas import Experiment, Stage
+from uqdrive.stage_schemas import Stage
 
 
 @schema

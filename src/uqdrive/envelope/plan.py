@@ -15,6 +15,7 @@ from uqdrive.envelope.partition import PartitionSettings
 from uqdrive.envelope.search import SearchSettings
 from uqdrive.envelope.sources import Listed, UniformIn
 from uqdrive.envelope.space import BLEND, Axis, AxisSettings, BlendSettings, ConditionSpace
+from uqdrive.models.model_stage import ModelStage
 from uqdrive.policy.recipes import PolicyRecipe
 from uqdrive.safety.drive import CorridorDrive, resolve_driver
 from uqdrive.safety.executors import RolloutJob, job_world
@@ -22,7 +23,7 @@ from uqdrive.schema import ConfigError, Seed, invalid, schema, validate
 from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import ScenarioConfig, SimConfig, WeatherConfig
 from uqdrive.sim.location import ByWorld, nothing
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage
+from uqdrive.stage_schemas import ExecutorSettings
 from uqdrive.uq.multiplicity import split_gamma
 
 Axes = Annotated[tuple[AxisSettings, ...], Field(min_length=2, max_length=3)]

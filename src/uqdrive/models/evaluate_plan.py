@@ -7,9 +7,10 @@ import dataclasses
 
 import torch
 
+from uqdrive.data.experiment import Experiment
 from uqdrive.models.heldout_eval import HeldoutTable
 from uqdrive.schema import Count, Positive, Str, schema
-from uqdrive.stage_schemas import Experiment, Named, NonEmptyMethodNames, NonEmptyNames, NonEmptyNoises, Stage
+from uqdrive.stage_schemas import Named, NonEmptyMethodNames, NonEmptyNames, NonEmptyNoises, Stage
 
 
 @schema

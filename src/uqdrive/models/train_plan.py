@@ -14,12 +14,13 @@ from omegaconf import OmegaConf
 
 from uqdrive.data.datasets import load_frames
 from uqdrive.models.metrics import majority_accuracy
+from uqdrive.models.model_stage import ModelStage
 from uqdrive.models.pilotnet import Architecture
 from uqdrive.models.posterior import Fitted, posterior_settings
 from uqdrive.models.trained_record import TrainMetrics
 from uqdrive.models.training import TrainingData, compute_features, evaluate, validation_generator
 from uqdrive.schema import Count, Str, schema, validate
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, NonEmptySeeds
+from uqdrive.stage_schemas import ExecutorSettings, NonEmptySeeds
 
 
 @schema

@@ -16,6 +16,7 @@ import abc
 import dataclasses
 from pathlib import Path
 
+from uqdrive.models.model_stage import ModelStage
 from uqdrive.models.posterior import posterior_from_config
 from uqdrive.policy.draws import DrawSettings
 from uqdrive.policy.policy_files import UserPolicySpec, load_policy
@@ -26,7 +27,7 @@ from uqdrive.safety.cells import cell_posterior
 from uqdrive.safety.executors import RolloutJob, probe_policy
 from uqdrive.schema import Count, Positive, Str, schema
 from uqdrive.sim.config import names_gym_world
-from uqdrive.stage_schemas import ModelStage, training_stage
+from uqdrive.stage_schemas import training_stage
 
 
 @schema(frozen=True, kw_only=True)

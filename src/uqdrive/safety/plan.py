@@ -9,6 +9,7 @@ from typing import Annotated, Any
 
 from pydantic import Field
 
+from uqdrive.models.model_stage import ModelStage
 from uqdrive.resolvers import world_location
 from uqdrive.safety.cell_records import SafetyCell
 from uqdrive.safety.cells import EstimatorSettings
@@ -19,7 +20,7 @@ from uqdrive.sim.condition import WorldChoice
 from uqdrive.sim.config import GymWorldConfig, ScenarioConfig, SimConfig, WorldAxis
 from uqdrive.sim.location import ByWorld, nothing
 from uqdrive.stage import grid
-from uqdrive.stage_schemas import ExecutorSettings, ModelStage, Names, Sweep
+from uqdrive.stage_schemas import ExecutorSettings, Names, Sweep
 from uqdrive.uq.multiplicity import split_gamma
 
 
