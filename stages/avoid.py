@@ -19,9 +19,10 @@ def main(cfg: DictConfig) -> None:
     for condition in r.conditions:
         for mode in Mode:
             c = r.cell(condition, mode)
+            e = c.estimate
             print(
-                f"avoid {cfg.avoid.name} {condition:>12} warnings {mode:>10}: eta1 = {c.eta1:.2f} "
-                f"[{c.eta1_low:.2f}, {c.eta1_high:.2f}] n={c.n}, autonomy {c.autonomy:.2f}, "
+                f"avoid {cfg.avoid.name} {condition:>12} warnings {mode:>10}: eta1 = {e.value:.2f} "
+                f"[{e.low:.2f}, {e.high:.2f}] n={e.n}, autonomy {c.autonomy:.2f}, "
                 f"passed {c.passed_rate:.2f}, "
                 f"warnings 0/1/2 in {c.warning0_runs}/{c.warning1_runs}/{c.warning2_runs} runs"
             )
