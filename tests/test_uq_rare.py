@@ -20,6 +20,7 @@ from uqdrive.sim.config import ScenarioConfig, WeatherConfig
 from uqdrive.uq.rare import (
     RareSettings,
     certification_test,
+    failure_estimate,
     failure_lower_bound,
     floor_rollouts,
     refutation_floor,
@@ -230,3 +231,14 @@ def test_the_mixture_step_puts_a_component_on_each_separate_failure_mode() -> No
     assert fitted.weights[0, order] == pytest.approx([0.7, 0.3])
     kept = mixture_step(start, points, np.ones((1, 200)), np.ones((1, 200)), elite=0.1)  # ±1 tie, no failure
     assert np.array_equal(kept.a, start.a) and np.array_equal(kept.weights, start.weights)
+
+
+def test_a_weight_where_the_proposal_density_underflows_is_exactly_one_over_lambda():
+    """A nominal draw far outside a concentrated proposal: g underflows to 0, so q = λ·f and the weight is 1/λ — in
+    floating point exp(−log 0.1) is 10.000000000000002, which the betting interval on [0, 1/λ] refused (a stage run
+    crashed after refuting)."""
+    nominal = ProductBeta.of([1.0, 1.0], [1.0, 2.8], [0.0, 0.0], [1.0, 1.0])  # the real world's blend law
+    proposal = ProductBeta.of([5000.0, 5000.0], [1.0, 1.0], [0.0, 0.0], [1.0, 1.0])  # all its mass at the corner
+    _, weights = mixture_sample(nominal, proposal, 0.1, np.random.default_rng(0), 1, 2_000)
+    assert weights.max() <= 10.0 and (weights > 9.99).sum() > 100  # 11 of them were 10 + 2e-15
+    failure_estimate(weights[0], 0.1, 0.05)  # every value in [0, 1/λ]

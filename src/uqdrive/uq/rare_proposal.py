@@ -155,7 +155,7 @@ def mixture_sample(
     log_f, log_g = nominal.log_pdf(points), proposal.log_pdf(points)
     with np.errstate(divide="ignore"):
         log_q = np.logaddexp(np.log(defensive) + log_f, np.log1p(-defensive) + log_g if defensive < 1 else -np.inf)
-    return points, np.exp(log_f - log_q)
+    return points, np.minimum(np.exp(log_f - log_q), 1.0 / defensive)  # where g underflows: 1/λ, not 1/λ + ulp
 
 
 def _elite(margins: np.ndarray, weights: np.ndarray, elite: float) -> tuple[np.ndarray, np.ndarray]:
