@@ -58,7 +58,8 @@ def test_the_committed_summary_holds_what_the_cells_give():
 
 def test_the_headline_comes_first_in_dvc_exp_show_in_short_names():
     summary = json.loads((ROOT / "metrics/summary.json").read_text())
-    first = [f"eta1.train.{m}{end}" for m in PARAMS["methods"] for end in ("", ".low", ".high")]
+    ends = ("", ".low", ".high", ".ctl_low", ".ctl_high")  # the method's interval, then these controllers'
+    first = [f"eta1.train.{m}{end}" for m in PARAMS["methods"] for end in ends]
     assert list(summary)[: len(first) + 1] == [*first, "findings"]
     assert max(len(k) for k in summary) <= 24  # `dvc exp show` gives each a column
     headline = read_summary(ROOT / "metrics/summary.json")  # and reads back as the record the report wrote
