@@ -26,7 +26,7 @@ def test_the_readme_is_short_defines_eta1_first_and_links_only_files_that_exist(
     assert len(lines) <= 300
     first = next(i for i, line in enumerate(lines) if "η1" in line)
     assert "**η1** is the probability" in " ".join(lines[first : first + 3])
-    assert readme.index("## Try it in two minutes") < readme.index("## Results of the committed run")
+    assert readme.index("## Try it in three minutes") < readme.index("## Results of the committed run")
     for target in re.findall(r"\]\((docs/[^)#]+)", readme):
         assert (ROOT / target).exists(), target
 
