@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 export PATH := $(BIN):$(PATH)
 
-.PHONY: install repro test lint ui frames chromium clean-venv
+.PHONY: install repro test lint ui frames chromium docs-report clean-venv
 
 # uv installs in about 25 s what pip took 2 min for. It does not read pip's config, so it is told where a machine keeps
 # its CPU build of torch (TORCH_WHEELS, where that folder exists): without it, torch==2.13.0 from PyPI is the CUDA
@@ -58,6 +58,10 @@ ui: $(STAMP)
 frames: $(STAMP)
 	uqdrive frames --out docs/frames
 	uqdrive frames --compare-render 160x120 --out docs/frames
+
+# the committed run's report for docs/ (after `make repro`): its figures on 256-colour palettes, under 2 MB
+docs-report: $(STAMP)
+	$(BIN)/python -m uqdrive.tools.docs_report reports/report.html docs/report.html
 
 clean-venv:
 	rm -rf $(VENV)
