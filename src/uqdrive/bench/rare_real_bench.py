@@ -22,7 +22,6 @@ from pathlib import Path
 
 import numpy as np
 from hydra import compose, initialize_config_dir
-from scipy import stats
 
 from uqdrive.bench.rare_bench import EPS, exact_looks
 from uqdrive.envelope.domain import Domain
@@ -32,6 +31,7 @@ from uqdrive.pipeline.rare_stage import describe, rare_cell, run_rare
 from uqdrive.policy.warnings import register_schema as register_warning
 from uqdrive.safety.runner import CellRunner
 from uqdrive.sim.config import register_schemas as register_world
+from uqdrive.uq.bounds import clopper_pearson_interval
 from uqdrive.uq.threshold import ThresholdTest
 
 
@@ -93,13 +93,6 @@ def monte_carlo(cfg, args: argparse.Namespace) -> tuple[np.ndarray, int, bool]:
     return np.concatenate(outcomes), decision.n, decision.decision == "below"
 
 
-def cp_interval(failures: int, n: int) -> tuple[float, float]:
-    """The exact two-sided 95 % Clopper–Pearson interval of a failure probability."""
-    low = stats.beta.ppf(0.025, failures, n - failures + 1) if failures else 0.0
-    high = stats.beta.ppf(0.975, failures + 1, n - failures) if failures < n else 1.0
-    return float(low), float(high)
-
-
 def main(argv: list[str]) -> int:
     args = parse(argv)
     for register in (register_world, register_warning, register_models):  # the config groups' schemas, as a stage
@@ -109,7 +102,7 @@ def main(argv: list[str]) -> int:
     start = time.perf_counter()
     outcomes, mc_rollouts, mc_refuted = monte_carlo(cfg, args)
     failures = int((outcomes[: args.pilot] == 0).sum())
-    low, high = cp_interval(failures, args.pilot)
+    low, high = map(float, clopper_pearson_interval(failures, args.pilot, 0.05))  # 95 % on p
     p = failures / args.pilot
     print(f"pilot: {failures} failures in {args.pilot} rollouts: p = {p:.2g}, 95 % [{low:.2g}, {high:.2g}]")
     verdict = "refuted" if mc_refuted else "not refuted"
